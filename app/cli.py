@@ -1,0 +1,212 @@
+"""The `calib` command (specs/cli.md): solve, predict, simulate.
+
+Bad input ends with exit status 2 and a message naming file, line and column; an internal failure
+(a bug) with exit status 1 and one line (set CALIB_DEBUG=1 for the traceback); never a traceback
+for the user's mistakes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import os
+import sys
+import time
+import traceback
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from calib_core import (
+    Calibration,
+    InputError,
+    Problem,
+    SimulatedRobot,
+    calibrate,
+    load_profile,
+    read_dataset,
+    to_csv,
+    write_atomic,
+)
+from calib_core.profile import Profile
+from calib_core.units import length_factor
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but usage errors name the subcommand and exit 2 without a traceback."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="calib", description="Kinematic self-calibration of robots that see themselves.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    s = sub.add_parser("solve", help="calibrate from a dataset (CSV) and write a calibration (JSON)")
+    s.add_argument("--robot", required=True, help="built-in profile (robonaut-a, nao) or a profile YAML file")
+    s.add_argument(
+        "--mode",
+        required=True,
+        help="robonaut-a: daily, full; nao: full (profiles may define more)",
+    )
+    s.add_argument("--data", required=True, help="the dataset CSV")
+    s.add_argument("--base", help="calibration JSON to start from; keeps its non-estimated parameters")
+    s.add_argument("--out", required=True, help="where to write the calibration JSON")
+    s.add_argument("--holdout", type=float, default=0.0, help="share of configurations held out (0..0.9)")
+    s.add_argument("--folds", type=int, default=0, help="k-fold cross-validation on the training part")
+    s.add_argument("--method", default="lm", choices=["lm", "nelder-mead"], help="solver (default lm)")
+    s.add_argument("--no-robust", action="store_true", help="plain least squares (no outlier rejection)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+
+    pr = sub.add_parser("predict", help="add the model's predictions to each row of a dataset")
+    pr.add_argument("--robot", required=True)
+    pr.add_argument("--calibration", help="calibration JSON (default: the nominal model)")
+    pr.add_argument("--data", required=True)
+    pr.add_argument("--out", required=True, help="CSV: the input rows plus prediction columns")
+
+    sim = sub.add_parser("simulate", help="write a dataset measured on the simulated robot")
+    sim.add_argument("--robot", required=True)
+    sim.add_argument("--configurations", type=int, help="how many (default: the profile's plan)")
+    sim.add_argument("--day", type=int, default=1, help="2, 3, ...: a later day with drifted offsets")
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--outliers", type=float, default=0.0, help="share of failed detections")
+    sim.add_argument("--out", required=True, help="the dataset CSV")
+    sim.add_argument("--truth", help="also write the hidden true parameters (JSON)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        return {"solve": _solve, "predict": _predict, "simulate": _simulate}[args.command](args)
+    except InputError as exc:
+        print(f"calib {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"calib {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug: one line, the traceback only on request
+        if os.environ.get("CALIB_DEBUG"):
+            traceback.print_exc()
+        print(
+            f"calib {args.command}: internal error ({exc.__class__.__name__}: {exc}); please report it",
+            file=sys.stderr,
+        )
+        return 1
+
+
+def _solve(args: argparse.Namespace) -> int:
+    if not 0.0 <= args.holdout <= 0.9:
+        raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
+    if args.folds < 0 or args.folds == 1:
+        raise InputError(f"--folds {args.folds} must be 0 (none) or at least 2")
+    profile = load_profile(args.robot)
+    profile.mode(args.mode)
+    base = Calibration.load(args.base) if args.base else None
+    if base is not None and base.robot != profile.name:
+        raise InputError(f"calibration is for robot '{base.robot}', not '{profile.name}'", file=args.base)
+    data = read_dataset(profile, args.data)
+    _check_writable(args.out)
+    cal = calibrate(
+        profile,
+        data,
+        args.mode,
+        base,
+        holdout=args.holdout,
+        folds=args.folds,
+        method=args.method,
+        robust=not args.no_robust,
+        seed=args.seed,
+    )
+    _save(args.out, lambda: cal.save(args.out))
+    print(cal.summary())
+    print(f"  written: {args.out}")
+    return 0
+
+
+def _predict(args: argparse.Namespace) -> int:
+    profile = load_profile(args.robot)
+    cal = Calibration.load(args.calibration) if args.calibration else None
+    if cal is not None and cal.robot != profile.name:
+        raise InputError(f"calibration is for robot '{cal.robot}', not '{profile.name}'", file=args.calibration)
+    p = cal.params(profile) if cal else profile.nominal()
+    data = read_dataset(profile, args.data)
+    _check_writable(args.out)
+    pred = Problem(profile, data, [], p, noise_model=False).predict(p)
+    fmt = profile.data
+    if fmt.measurement_unit != "px":
+        pred = pred * length_factor(profile.length_unit, fmt.measurement_unit)
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow([*data.header, *fmt.prediction_columns])
+    for row, values in zip(data.rows, pred, strict=True):
+        w.writerow([*row, *(f"{v:.6f}" for v in values)])
+    _save(args.out, lambda: write_atomic(Path(args.out), out.getvalue()))
+    print(
+        f"{len(data.rows)} rows predicted with "
+        f"{'calibration ' + args.calibration if cal else 'the nominal model'}: {args.out}"
+    )
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    profile = load_profile(args.robot)
+    if args.configurations is not None and args.configurations < 1:
+        raise InputError("--configurations must be at least 1")
+    if not 0.0 <= args.outliers < 0.5:
+        raise InputError("--outliers must be in [0, 0.5)")
+    _check_writable(args.out)
+    robot = SimulatedRobot.from_profile(profile, seed=args.seed)
+    for day in range(2, args.day + 1):
+        robot = robot.drifted(seed=1000 * args.seed + day)
+    start = time.perf_counter()
+    sim = robot.simulate(args.configurations, outlier_rate=args.outliers, outlier_size=_gross_error(profile))
+    _save(args.out, lambda: write_atomic(Path(args.out), to_csv(profile, sim.data)))
+    if args.truth:
+        truth = {
+            "robot": profile.name,
+            "day": args.day,
+            "seed": args.seed,
+            "parameters": profile.params_to_display(sim.true_params),
+        }
+        _save(args.truth, lambda: write_atomic(Path(args.truth), json.dumps(truth, indent=2) + "\n"))
+    print(
+        f"{sim.data.n_configurations} configurations, {sim.data.n_observations} observations "
+        f"({int(np.sum(sim.outliers))} gross errors) in {time.perf_counter() - start:.1f} s: {args.out}"
+    )
+    return 0
+
+
+def _gross_error(profile: Profile) -> float:
+    """A failed detection's size: 20 cm for a 3-D point, 40 px for a pixel."""
+    if profile.sensors[profile.data.sensor].model == "pinhole":
+        return 40.0
+    return 0.2 * length_factor("m", profile.length_unit)
+
+
+def _check_writable(path: str) -> None:
+    """Fail before the work, not after it, when the output cannot be written."""
+    target = Path(path)
+    if target.is_dir():
+        raise InputError("is a directory; give a file name", file=path)
+    parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError("its folder does not exist", file=path)
+    if not os.access(parent, os.W_OK):
+        raise InputError("its folder is not writable", file=path)
+
+
+def _save(path: str, write) -> None:
+    try:
+        write()
+    except OSError as exc:
+        raise InputError(f"cannot be written ({exc.strerror})", file=path) from None
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,408 @@
+"""Daily and full calibration: from a dataset and a mode to a Calibration.
+
+The procedure, for the Levenberg-Marquardt method:
+1. At the start values, find the parameter directions the data cannot determine and hold one
+   parameter of each at its base value (named in the report), so nothing wanders.
+2. Least squares from the base calibration (or the nominal model) to the basin of the solution.
+3. With the robust loss (default): re-solve with a Cauchy loss scaled to the residuals' robust
+   spread, then flag observations beyond the 99.99% quantile of that spread as outliers and solve
+   once more on the rest (plain least squares, so the covariance is the textbook one).
+4. At the solution: standard deviations and correlations, singular values, condition and O1.
+The held-out share and the k-fold cross-validation repeat steps 1-3 on the training part only.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+
+import numpy as np
+from scipy.stats import chi2
+
+from .calibration import Calibration, Outlier, ParameterEstimate
+from .dataset import Dataset
+from .errors import InputError
+from .identifiability import Dependency, find_dependencies, report, strong_correlations
+from .problem import Problem
+from .profile import Mode, Profile
+from .solver import Robust, SolveResult, block_norms_sq, levenberg_marquardt, nelder_mead
+from .validation import Figures, figures, holdout_split, kfold_splits
+
+METHODS = ("lm", "nelder-mead")
+OUTLIER_QUANTILE = 0.9999
+
+
+@dataclass
+class Fit:
+    problem: Problem
+    p: np.ndarray
+    dependencies: list[Dependency]
+    iterations: int
+    evaluations: int
+    seconds: float
+    status: str
+    cost_history: list[float]
+    sigma: float  # scale of the whitened residuals at the solution
+
+
+def calibrate(
+    profile: Profile,
+    data: Dataset,
+    mode: str,
+    base: Calibration | None = None,
+    *,
+    holdout: float = 0.0,
+    folds: int = 0,
+    method: str = "lm",
+    robust: bool = True,
+    seed: int = 0,
+    progress: Callable[[int, float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> Calibration:
+    """Estimate the parameters of `mode` from `data`, starting from `base` (or the nominal model)."""
+    m = profile.mode(mode)
+    if method not in METHODS:
+        raise InputError(f"unknown method '{method}' ({', '.join(METHODS)})")
+    if not 0.0 <= holdout < 1.0:
+        raise InputError(f"held-out share {holdout} must be in [0, 1)")
+    p_base = base.params(profile) if base is not None else profile.nominal()
+    if holdout > 0:
+        train_idx, test_idx = holdout_split(data, holdout, seed)
+    else:
+        train_idx, test_idx = np.arange(data.n_configurations), np.array([], int)
+    train = data.select(train_idx)
+    if train.n_observations * _dim(profile) < len(m.free):
+        raise InputError(
+            f"{train.n_observations} observations cannot determine the {len(m.free)} parameters of mode '{mode}'"
+        )
+    fit = fit_parameters(
+        profile,
+        train,
+        m,
+        p_base,
+        method=method,
+        robust=robust,
+        progress=progress,
+        should_stop=should_stop,
+    )
+
+    unit = _measure_unit(profile)
+    keep = fit.problem.included
+    figs: dict[str, Figures] = {
+        "before": figures(fit.problem.predict(p_base), train.measured, unit, keep),
+        "after": figures(fit.problem.predict(fit.p), train.measured, unit, keep),
+    }
+    if len(test_idx):
+        test = data.select(test_idx)
+        tp = Problem(profile, test, [], p_base)
+        keep = inliers(profile, test, fit.p, fit.sigma) if robust else None
+        figs["holdout_before"] = figures(tp.predict(p_base), test.measured, unit, keep)
+        figs["holdout_after"] = figures(tp.predict(fit.p), test.measured, unit, keep)
+    solver = {
+        "method": method,
+        "robust": robust,
+        "iterations": fit.iterations,
+        "evaluations": fit.evaluations,
+        "solve_seconds": fit.seconds,
+        "status": fit.status,
+        "cost_history": fit.cost_history,
+        "sigma": fit.sigma,
+    }
+    if folds >= 2:
+        figs["cv_after"], cv_seconds = cross_validate(
+            profile, train, m, p_base, folds, method, robust, seed, should_stop
+        )
+        solver["folds"] = folds
+        solver["cv_seconds"] = cv_seconds
+    return _result(profile, data, train, mode, method, fit, p_base, figs, solver, test_idx)
+
+
+def fit_parameters(
+    profile: Profile,
+    data: Dataset,
+    mode: Mode,
+    p_base: np.ndarray,
+    *,
+    method: str = "lm",
+    robust: bool = True,
+    progress: Callable[[int, float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> Fit:
+    start = time.perf_counter()
+    problem = Problem(profile, data, list(mode.free), p_base, mode.ties, mode.priors)
+    initial = problem.residuals_jacobian(problem.x0)
+    deps = find_dependencies(profile, initial[1][: problem.n_data_rows], problem.free)
+    if deps:
+        fixed = {d.fixed for d in deps}
+        free = [i for i in mode.free if i not in fixed]
+        problem = Problem(profile, data, free, p_base, mode.ties, mode.priors, noise_model=problem.W)
+        initial = None
+    dim = problem.dim
+    n_rows = problem.n_data_rows
+    iterations = 0
+    evaluations = 0
+    history: list[float] = []
+
+    def tick(it: int, cost: float) -> None:
+        if progress is not None:
+            progress(iterations + it, cost)
+
+    def run(x0: np.ndarray, loss: Robust | None, start: tuple | None = None) -> SolveResult:
+        nonlocal iterations, evaluations
+        # The robust pass only has to sort inliers from outliers (IRLS converges linearly), so it
+        # stops early; the least-squares passes converge quadratically to full precision.
+        res = levenberg_marquardt(
+            problem.residuals_jacobian,
+            x0,
+            initial=start,
+            robust=loss,
+            ftol=1e-6 if loss else 1e-10,
+            progress=tick,
+            should_stop=should_stop,
+        )
+        iterations += res.iterations
+        evaluations += res.evaluations
+        history.extend(res.cost_history)
+        return res
+
+    if method == "nelder-mead":
+        res = nelder_mead(problem.raw_residuals, problem.x0, dim, n_rows, should_stop=should_stop)
+        iterations, evaluations, history, status = (
+            res.iterations,
+            res.evaluations,
+            res.cost_history,
+            res.status,
+        )
+        x = res.x
+    else:
+        res = run(problem.x0, None, initial)
+        x = res.x
+        # Outliers show in the least-squares residuals; only then is the robust pass worth its time.
+        if robust and len(problem.free) and _outliers(problem.residuals(x)[:n_rows], dim).any():
+            sigma = _robust_sigma(problem.residuals(x)[:n_rows], dim)
+            problem.prior_scale = sigma
+            res = run(x, Robust(dim, n_rows, sigma * np.sqrt(chi2.ppf(0.95, dim))))
+            x = res.x
+            r = problem.residuals(x)[:n_rows]
+            problem.included = ~_outliers(r, dim)
+            problem.prior_scale = _robust_sigma(r, dim)
+            res = run(x, None)
+            x = res.x
+        status = res.status
+    r = problem.residuals(x)
+    n_in = int(problem.included.sum()) * dim
+    sigma = float(np.sqrt(np.sum(r[:n_rows] ** 2) / max(n_in - len(problem.free), 1)))
+    return Fit(
+        problem,
+        problem.params(x),
+        deps,
+        iterations,
+        evaluations,
+        time.perf_counter() - start,
+        status,
+        history,
+        sigma,
+    )
+
+
+def cross_validate(
+    profile: Profile,
+    data: Dataset,
+    mode: Mode,
+    p_base: np.ndarray,
+    folds: int,
+    method: str,
+    robust: bool,
+    seed: int,
+    should_stop: Callable[[], bool] | None = None,
+) -> tuple[Figures, float]:
+    """Pooled held-out figures: every configuration predicted by a calibration that did not see it."""
+    start = time.perf_counter()
+    preds, meas, keeps = [], [], []
+    for train_idx, test_idx in kfold_splits(data, folds, seed):
+        if len(test_idx) == 0 or len(train_idx) == 0:
+            continue
+        fit = fit_parameters(
+            profile,
+            data.select(train_idx),
+            mode,
+            p_base,
+            method=method,
+            robust=robust,
+            should_stop=should_stop,
+        )
+        test = data.select(test_idx)
+        tp = Problem(profile, test, [], p_base)
+        preds.append(tp.predict(fit.p))
+        meas.append(test.measured)
+        keeps.append(inliers(profile, test, fit.p, fit.sigma) if robust else np.ones(test.n_observations, bool))
+    keep = np.concatenate(keeps)
+    return figures(
+        np.concatenate(preds), np.concatenate(meas), _measure_unit(profile), keep
+    ), time.perf_counter() - start
+
+
+def error_clusters(profile: Profile, data: Dataset) -> np.ndarray | None:
+    """Configurations whose observations share joint-reading errors, as one label per configuration.
+
+    Observations of one configuration share its joint readings' errors (encoder quantisation,
+    backlash), and so do configurations that repeat the target chain's readings (a NAO stance seen
+    in three head postures). None when every observation stands alone (one per configuration, no
+    repeated target-side readings): then the errors are independent.
+    """
+    sensor_frame = profile.sensors[profile.data.sensor].frame
+    sensor_joints = {profile.frames[f].joint for f in profile.chain(sensor_frame)}
+    target_joints = set()
+    for t in np.unique(data.target):
+        target_joints |= {profile.frames[f].joint for f in profile.chain(profile.targets[t].frame)}
+    cols = sorted(j for j in target_joints - sensor_joints if j >= 0)
+    key = np.column_stack([np.round(np.nan_to_num(data.joints[:, cols]), 9), np.zeros(data.n_configurations)])
+    first_target = np.zeros(data.n_configurations, int)
+    first_target[data.cfg[::-1]] = data.target[::-1]
+    key[:, -1] = first_target
+    _, label = np.unique(key, axis=0, return_inverse=True)
+    label = label.ravel()
+    if len(np.unique(label)) == data.n_observations:
+        return None
+    return label
+
+
+def inliers(profile: Profile, data: Dataset, p: np.ndarray, sigma: float) -> np.ndarray:
+    """Observations that calibration p, with residual scale `sigma`, explains (not failed detections)."""
+    problem = Problem(profile, data, [], p)
+    r = problem.residuals(np.zeros(0))[: problem.n_data_rows]
+    norms = np.sqrt(block_norms_sq(r, problem.dim))
+    return norms <= sigma * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, problem.dim))
+
+
+def _outliers(r: np.ndarray, dim: int) -> np.ndarray:
+    """Observations beyond the 99.99% quantile of the residuals' robust spread."""
+    norms = np.sqrt(block_norms_sq(r, dim))
+    return norms > _robust_sigma(r, dim) * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dim))
+
+
+def _robust_sigma(r: np.ndarray, dim: int) -> float:
+    """Scale of whitened residual blocks from their median norm (|r|^2 ~ sigma^2 chi2(dim))."""
+    norms = np.sqrt(block_norms_sq(r, dim))
+    norms = norms[norms > 0]
+    if len(norms) == 0:
+        return 1.0
+    return float(np.median(norms) / np.sqrt(chi2.ppf(0.5, dim)))
+
+
+def _dim(profile: Profile) -> int:
+    return 3 if profile.sensors[profile.data.sensor].model == "point3d" else 2
+
+
+def _measure_unit(profile: Profile) -> str:
+    return "px" if profile.sensors[profile.data.sensor].model == "pinhole" else profile.length_unit
+
+
+def _result(
+    profile: Profile,
+    data: Dataset,
+    train: Dataset,
+    mode: str,
+    method: str,
+    fit: Fit,
+    p_base: np.ndarray,
+    figs: dict[str, Figures],
+    solver: dict,
+    test_idx: np.ndarray,
+) -> Calibration:
+    problem = fit.problem
+    r, J = problem.residuals_jacobian(fit.p[problem.free])
+    clusters = error_clusters(profile, train)
+    rep = report(J, r, fit.sigma, None if clusters is None else np.repeat(clusters[train.cfg], problem.dim))
+    std_of = {}
+    for k, i in enumerate(problem.free):
+        std_of[i] = float(rep.std[k]) if rep.std is not None else None
+    ties = {t.follower: t for t in profile.mode(mode).ties}
+    dep_note = {d.fixed: d.describe(profile) for d in fit.dependencies}
+    nominal = profile.nominal()
+    params = []
+    for i, prm in enumerate(profile.parameters):
+        estimated = i in std_of
+        std = std_of.get(i)
+        note = None
+        tie = ties.get(i)
+        if tie is not None and tie.leader in std_of:
+            estimated = True
+            std = std_of[tie.leader]
+            note = f"tied: {'-' if tie.sign < 0 else ''}{profile.label(tie.leader)}"
+        if i in dep_note:
+            note = dep_note[i]
+        params.append(
+            ParameterEstimate(
+                name=prm.name,
+                label=profile.label(i),
+                unit=profile.unit(i),
+                value=profile.to_display(i, fit.p[i]),
+                base=profile.to_display(i, p_base[i]),
+                nominal=profile.to_display(i, nominal[i]),
+                estimated=estimated,
+                std=None if std is None else abs(profile.to_display(i, std)),
+                note=note,
+            )
+        )
+    corr = strong_correlations(profile, rep.correlation, problem.free) if rep.correlation is not None else []
+    unit = figs["after"].unit
+    norms = np.linalg.norm(problem.predict(fit.p) - train.measured, axis=1)
+    outliers = [
+        Outlier(
+            int(train.frame_ids[train.cfg[k]]),
+            None if train.lines is None else int(train.lines[k]),
+            float(norms[k]),
+            unit,
+        )
+        for k in np.flatnonzero(~problem.included)
+    ]
+    warnings = [d.describe(profile) for d in fit.dependencies]
+    warnings += [
+        f"{a} and {b} are strongly correlated ({rho:+.3f}): the data barely separate them" for a, b, rho in corr
+    ]
+    if outliers:
+        frames = sorted({o.frame for o in outliers})
+        shown = ", ".join(str(f) for f in frames[:10]) + (" ..." if len(frames) > 10 else "")
+        warnings.append(f"{len(outliers)} observations rejected as outliers (frames {shown})")
+    if method == "lm" and solver["status"] == "maximum iterations reached":
+        warnings.append("the solver stopped at its iteration limit: the result may not be converged")
+    if "holdout_after" in figs and figs["holdout_after"].rms > 1.5 * figs["after"].rms:
+        warnings.append(
+            f"held-out RMS {figs['holdout_after'].rms:.3g} {unit} is much worse than training RMS "
+            f"{figs['after'].rms:.3g} {unit}: the calibration may not generalise "
+            "(too few or too similar configurations)"
+        )
+    if figs["after"].rms > figs["before"].rms:
+        warnings.append("the calibration fits the data worse than its starting point")
+    ident = {
+        "singular_values": rep.singular_values,
+        "rank": rep.rank,
+        "free": [profile.parameters[i].name for i in problem.free],
+        "condition": rep.condition,
+        "o1": rep.o1,
+        "held_fixed": [
+            {"parameter": profile.parameters[d.fixed].name, "message": d.describe(profile)} for d in fit.dependencies
+        ],
+        "correlations": [{"a": a, "b": b, "rho": rho} for a, b, rho in corr],
+        "note": "computed on the Jacobian of the noise-weighted residuals with unit-length columns",
+    }
+    return Calibration(
+        robot=profile.name,
+        mode=mode,
+        method=method,
+        created=datetime.now(UTC).isoformat(timespec="seconds"),
+        source=data.source,
+        parameters=params,
+        figures=figs,
+        solver=solver,
+        identifiability=ident,
+        outliers=outliers,
+        warnings=warnings,
+        frames={
+            "train": [int(f) for f in train.frame_ids],
+            "holdout": [int(data.frame_ids[i]) for i in test_idx],
+        },
+    )

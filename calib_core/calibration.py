@@ -1,0 +1,185 @@
+"""The calibration result: one object that the CLI, the API and the page all show, and its JSON file.
+
+It holds every parameter's value with its unit (estimated ones with their standard deviation), the
+error figures before and after (training, held-out, cross-validated), how the solver stopped, the
+identifiability report, the outliers and every warning. Values are in display units (deg, the
+profile's length unit, px), the units a person reads and a file stores.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+from .profile import Profile
+from .validation import Figures
+
+FORMAT = "calib-calibration/1"
+
+
+@dataclass
+class ParameterEstimate:
+    name: str
+    label: str
+    unit: str
+    value: float
+    base: float
+    nominal: float
+    estimated: bool
+    std: float | None = None
+    note: str | None = None
+
+
+@dataclass
+class Outlier:
+    frame: int
+    line: int | None
+    error: float
+    unit: str
+
+
+@dataclass
+class Calibration:
+    robot: str
+    mode: str
+    method: str
+    created: str
+    source: str
+    parameters: list[ParameterEstimate]
+    figures: dict[str, Figures]
+    solver: dict[str, Any]
+    identifiability: dict[str, Any]
+    outliers: list[Outlier] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    frames: dict[str, list[int]] = field(default_factory=dict)
+    format: str = FORMAT
+
+    # --- values -----------------------------------------------------------------------------------
+    def values(self) -> dict[str, float]:
+        """Every parameter's value, display units."""
+        return {p.name: p.value for p in self.parameters}
+
+    def params(self, profile: Profile) -> np.ndarray:
+        """The full parameter vector in internal units for `profile`."""
+        if profile.name != self.robot:
+            raise InputError(f"calibration is for robot '{self.robot}', not '{profile.name}'")
+        return profile.params_from_display(self.values())
+
+    # --- files ------------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["figures"] = {k: v.to_dict() for k, v in self.figures.items()}
+        d["solve_seconds"] = self.solver.get("solve_seconds")
+        d["iterations"] = self.solver.get("iterations")
+        return _finite(d)
+
+    def save(self, path: str | Path) -> None:
+        """Write atomically: a reader sees the old file or the new one, never half of one."""
+        write_atomic(Path(path), json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "<calibration>") -> Calibration:
+        try:
+            if d.get("format") != FORMAT:
+                raise InputError(
+                    f"not a calibration file (format is {d.get('format')!r}, expected {FORMAT!r})",
+                    file=source,
+                )
+            params = []
+            for i, p in enumerate(d["parameters"]):
+                for key in ("value", "base", "nominal"):
+                    if not isinstance(p[key], int | float) or not math.isfinite(p[key]):
+                        raise InputError(f"parameters[{i}].{key}: expected a finite number", file=source)
+                params.append(ParameterEstimate(**p))
+            return cls(
+                robot=str(d["robot"]),
+                mode=str(d["mode"]),
+                method=str(d.get("method", "lm")),
+                created=str(d.get("created", "")),
+                source=str(d.get("source", "")),
+                parameters=params,
+                figures={k: Figures(**v) for k, v in d.get("figures", {}).items()},
+                solver=dict(d.get("solver", {})),
+                identifiability=dict(d.get("identifiability", {})),
+                outliers=[Outlier(**o) for o in d.get("outliers", [])],
+                warnings=list(d.get("warnings", [])),
+                frames=dict(d.get("frames", {})),
+            )
+        except InputError:
+            raise
+        except KeyError as exc:
+            raise InputError(f"calibration file lacks the field {exc}", file=source) from None
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"calibration file is malformed ({exc})", file=source) from None
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        name = str(path)
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise InputError("calibration file does not exist", file=name) from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"calibration file cannot be read ({exc.__class__.__name__})", file=name) from None
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InputError(f"not valid JSON ({exc.msg})", file=name, line=exc.lineno) from None
+        if not isinstance(d, dict):
+            raise InputError("a calibration file must hold a JSON object", file=name)
+        return cls.from_dict(d, name)
+
+    # --- people -----------------------------------------------------------------------------------
+    def summary(self) -> str:
+        """A few lines for a terminal: figures, solver, warnings."""
+        f = self.figures
+        lines = [f"{self.robot} {self.mode} calibration ({self.method}) on {f['after'].n} observations"]
+        lines.append(f"  before: {f['before']}")
+        lines.append(f"  after:  {f['after']}")
+        if "holdout_after" in f:
+            lines.append(f"  held out before: {f['holdout_before']}")
+            lines.append(f"  held out after:  {f['holdout_after']}")
+        if "cv_after" in f:
+            lines.append(f"  {self.solver.get('folds')}-fold cross-validated: {f['cv_after']}")
+        s = self.solver
+        lines.append(
+            f"  solver: {s['iterations']} iterations, {s['evaluations']} evaluations, "
+            f"{s['solve_seconds'] * 1e3:.1f} ms ({s['status']})"
+        )
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _finite(obj: Any) -> Any:
+    """JSON has no NaN or infinity: write them as null."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return _finite(obj.item())
+    return obj

@@ -1,0 +1,156 @@
+"""Identifiability and uncertainty: which parameter directions the data determine, and how well.
+
+All of it works on the Jacobian of the whitened residuals with its columns scaled to unit length, so
+that metres, degrees and pixels compare. Taking the columns in the mode's order, the kept ones are a
+set of parameters that the data determine; every other column is a combination of those (to
+round-off), and is named with that combination so that a user reads which parameters move together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .profile import Profile
+
+# A unit column whose part outside the span of the kept columns is shorter than this is a
+# combination of them (exact structural dependence shows up near 1e-12, weak but real dependence
+# far above it).
+DEPENDENCE_TOLERANCE = 1e-7
+CORRELATION_WARNING = 0.98
+
+
+@dataclass
+class Dependency:
+    """Parameter `fixed` moves with others: changing it by 1 (display unit) and each of `partners`
+    by its coefficient (display units) leaves every prediction unchanged."""
+
+    fixed: int
+    partners: dict[int, float]
+
+    def describe(self, profile: Profile) -> str:
+        terms = sorted(self.partners.items(), key=lambda kv: -abs(kv[1]))[:4]
+        name = profile.label(self.fixed)
+        if not terms:
+            return f"{name} has no effect on any measurement: held at its base value"
+        others = " and ".join(profile.label(i) for i, _ in terms)
+        change = ", ".join(f"{c:+.3g} {profile.unit(i)} on {profile.label(i)}".replace("  ", " ") for i, c in terms)
+        return (
+            f"{name} and {others} cannot be told apart by these data "
+            f"(+1 {profile.unit(self.fixed)} on {name} with {change} changes no prediction): "
+            f"{name} held at its base value"
+        )
+
+
+@dataclass
+class Report:
+    singular_values: list[float]  # of the column-scaled Jacobian, largest first
+    rank: int
+    condition: float
+    o1: float  # observability index O1 = (prod s_i)^(1/n) / sqrt(m) (Borm & Menq)
+    dependencies: list[Dependency] = field(default_factory=list)
+    std: np.ndarray | None = None  # per free parameter, internal units
+    correlation: np.ndarray | None = None
+
+
+def column_scales(J: np.ndarray) -> np.ndarray:
+    norms = np.linalg.norm(J, axis=0)
+    return np.where(norms > 0, norms, 1.0)
+
+
+def find_dependencies(profile: Profile, J: np.ndarray, free: list[int]) -> list[Dependency]:
+    """Free parameters whose Jacobian column earlier columns reproduce, with the combination.
+
+    Columns are taken in the mode's order and kept when they add a direction the kept ones lack
+    (Gram-Schmidt on unit columns), so which parameter of a dependent set is held is the profile
+    author's choice (the later one), the same on every dataset.
+    """
+    if J.shape[1] == 0:
+        return []
+    scale = column_scales(J)
+    Js = J / scale
+    zero = np.linalg.norm(J, axis=0) == 0
+    basis = np.zeros((J.shape[0], 0))
+    keep: list[int] = []
+    out = []
+    for k in range(J.shape[1]):
+        c = Js[:, k]
+        rest = c - basis @ (basis.T @ c)
+        rest -= basis @ (basis.T @ rest)  # twice is enough (Kahan)
+        if not zero[k] and np.linalg.norm(rest) > DEPENDENCE_TOLERANCE:
+            basis = np.column_stack([basis, rest / np.linalg.norm(rest)])
+            keep.append(k)
+            continue
+        partners: dict[int, float] = {}
+        if not zero[k] and keep:
+            coef, *_ = np.linalg.lstsq(Js[:, keep], c, rcond=None)
+            for a, j in zip(coef, keep, strict=True):
+                if abs(a) > 1e-3:
+                    # J_k / s_k = sum a J_j / s_j, so +1 on p_k and -a s_k / s_j on p_j cancel.
+                    delta = -a * scale[k] / scale[j]
+                    partners[free[j]] = (
+                        delta * _display_per_internal(profile, free[j]) / _display_per_internal(profile, free[k])
+                    )
+        out.append(Dependency(free[k], partners))
+    return out
+
+
+def _display_per_internal(profile: Profile, index: int) -> float:
+    return profile.to_display(index, 1.0)
+
+
+def report(J: np.ndarray, r: np.ndarray, sigma: float, clusters: np.ndarray | None = None) -> Report:
+    """Singular values, rank, condition, O1 and the covariance of the estimate at the solution.
+
+    J, r: Jacobian and residuals of the whitened problem (data rows first, then priors) in the
+    free parameters; sigma: the residuals' estimated scale. The covariance is sigma^2 (J^T J)^-1
+    when each configuration gives one observation. When a configuration gives several (the 24
+    vertices of a board), their errors share that configuration's joint-reading errors and are not
+    independent: then the cluster-robust (sandwich) covariance, clustered by shared readings, is used.
+    `clusters`: the configuration of each data row.
+    """
+    m, n = J.shape
+    if n == 0:
+        return Report([], 0, 1.0, 0.0)
+    scale = column_scales(J)
+    Js = J / scale
+    s = np.linalg.svd(Js, compute_uv=False)
+    rank = int(np.sum(s > DEPENDENCE_TOLERANCE * s[0]))
+    condition = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    o1 = float(np.exp(np.mean(np.log(np.maximum(s, 1e-300)))) / np.sqrt(m))
+    bread = np.linalg.pinv(Js.T @ Js, rcond=1e-12, hermitian=True)
+    if clusters is not None:
+        # CR2 (Bell & McCaffrey): each cluster's residuals are scaled by (I - H_gg)^(-1/2) to undo
+        # the cluster's own pull on the fit, H_gg = J_g B J_g^T the cluster's block of the hat
+        # matrix. Plain clustered sandwiches underestimate with a few dozen clusters.
+        rows = len(clusters)
+        w, V = np.linalg.eigh(bread)
+        root = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T  # B^(1/2)
+        meat = np.zeros((n, n))
+        labels = np.unique(clusters)
+        for label in labels:
+            sel = clusters == label
+            Jg, rg = Js[:rows][sel], r[:rows][sel]
+            U, S, _ = np.linalg.svd(Jg @ root, full_matrices=False)
+            shrink = 1.0 / np.sqrt(np.maximum(1.0 - S**2, 1e-6)) - 1.0
+            adjusted = rg + U @ (shrink * (U.T @ rg))
+            score = Jg.T @ adjusted
+            meat += np.outer(score, score)
+        cov_scaled = bread @ meat @ bread
+    else:
+        cov_scaled = sigma**2 * bread
+    cov = cov_scaled / np.outer(scale, scale)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(std, std)
+    return Report(s.tolist(), rank, condition, o1, [], std, np.nan_to_num(corr))
+
+
+def strong_correlations(profile: Profile, corr: np.ndarray, free: list[int]) -> list[tuple[str, str, float]]:
+    out = []
+    for a in range(len(free)):
+        for b in range(a + 1, len(free)):
+            if abs(corr[a, b]) >= CORRELATION_WARNING:
+                out.append((profile.label(free[a]), profile.label(free[b]), float(corr[a, b])))
+    return sorted(out, key=lambda t: -abs(t[2]))

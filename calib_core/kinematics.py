@@ -1,0 +1,162 @@
+"""Forward kinematics of a profile's frame tree, batched over configurations, with exact derivatives.
+
+Poses are kept as R (N, 3, 3) and t (N, 3): `T_base_frame` for every frame and configuration. For the
+Jacobian, every op records its axis `w` and pivot `o` in the base frame. Moving an op's value by dv
+moves everything after it by a rotation about (w, o) or a translation along w, so a point P fixed
+beyond the op moves by dP = w x (P - o) dv (rotation) or w dv (translation). Seen from a sensor that
+hangs off the same tree, a shared op moves both and cancels; an op only on the sensor's side moves
+the point the other way. That is the whole chain rule; no finite differences.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .profile import Op, Profile
+
+
+@dataclass
+class Poses:
+    """Base-frame poses of every frame for N configurations, plus per-op axes and pivots."""
+
+    R: list[np.ndarray]  # per frame (N, 3, 3): T_base_frame rotation
+    t: list[np.ndarray]  # per frame (N, 3)
+    w: dict[int, np.ndarray]  # op id -> (N, 3) axis in the base frame
+    o: dict[int, np.ndarray]  # op id -> (N, 3) pivot in the base frame
+
+
+def op_ids(profile: Profile) -> list[tuple[int, int]]:
+    """(frame, position) of every op, in a fixed order; an op's id is its index in this list."""
+    return [(f, k) for f, frame in enumerate(profile.frames) for k in range(len(frame.ops))]
+
+
+_EYE = np.eye(3)
+_ZERO = np.zeros(3)
+
+
+def axis_angle(axis: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
+    """Rodrigues: the rotation by `angle` about unit `axis`; (N, 3, 3) for an array of angles."""
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    a = np.asarray(angle, dtype=float)
+    s = np.sin(a)[..., None, None]
+    c = np.cos(a)[..., None, None]
+    return _EYE + s * K + (1 - c) * (K @ K)
+
+
+def _principal(axis: int, angle: np.ndarray) -> np.ndarray:
+    """Rotations (N, 3, 3) about a principal axis, faster than Rodrigues."""
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = {0: (1, 2), 1: (2, 0), 2: (0, 1)}[axis]
+    out = np.zeros((len(angle), 3, 3))
+    out[:, axis, axis] = 1.0
+    out[:, i, i] = c
+    out[:, j, j] = c
+    out[:, i, j] = -s
+    out[:, j, i] = s
+    return out
+
+
+def _rotation(op: Op, angle: float) -> np.ndarray:
+    if op.axis is None:
+        return axis_angle(op.vector, angle)
+    c, s = math.cos(angle), math.sin(angle)
+    if op.axis == 0:
+        return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+    if op.axis == 1:
+        return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def forward(
+    profile: Profile,
+    p: np.ndarray,
+    q: np.ndarray,
+    *,
+    frames: list[int] | None = None,
+    record: set[int] | None = None,
+    skip: set[int] | None = None,
+) -> Poses:
+    """Poses of `frames` (default all) and their ancestors for joint readings q (N, n_joints), rad.
+
+    `record`: op ids whose axis and pivot to keep (for the Jacobian). `skip`: op ids known to be
+    identities (a zero value that is not estimated), left out for speed. Runs of ops that no joint
+    drives are the same for every configuration: they are composed as one 3 x 3 rotation and offset
+    (C_R, C_t) and applied to the batch once.
+    """
+    n = q.shape[0]
+    wanted = set(range(len(profile.frames))) if frames is None else {a for f in frames for a in profile.chain(f)}
+    record = record or set()
+    skip = skip or set()
+    R: list[np.ndarray] = [None] * len(profile.frames)  # type: ignore[list-item]
+    t: list[np.ndarray] = [None] * len(profile.frames)  # type: ignore[list-item]
+    w: dict[int, np.ndarray] = {}
+    o: dict[int, np.ndarray] = {}
+    op_id = 0
+    for f, frame in enumerate(profile.frames):
+        if f not in wanted:
+            op_id += len(frame.ops)
+            continue
+        if frame.parent < 0:
+            Rf, tf = np.broadcast_to(_EYE, (n, 3, 3)), np.zeros((n, 3))
+        else:
+            Rf, tf = R[frame.parent], t[frame.parent]
+        C_R, C_t = _EYE, _ZERO  # pending constant transform after (Rf, tf)
+        for op in frame.ops:
+            i = op_id
+            op_id += 1
+            if i in skip:
+                continue
+            if op.joint < 0:
+                if i in record:
+                    w[i] = Rf @ (C_R @ op.vector)
+                    o[i] = tf + Rf @ C_t
+                value = float(p[op.param])
+                if op.kind == "t":
+                    C_t = C_t + value * (C_R @ op.vector)
+                else:
+                    C_R = C_R @ _rotation(op, value)
+                continue
+            if C_t is not _ZERO:
+                tf = tf + Rf @ C_t
+            if C_R is not _EYE:
+                Rf = Rf @ C_R
+            C_R, C_t = _EYE, _ZERO
+            value = p[op.param] + q[:, op.joint]
+            axis = Rf[:, :, op.axis] if op.axis is not None else Rf @ op.vector
+            if i in record:
+                w[i], o[i] = axis, tf
+            if op.kind == "t":
+                tf = tf + value[:, None] * axis
+            elif op.axis is not None:
+                Rf = Rf @ _principal(op.axis, value)
+            else:
+                Rf = Rf @ axis_angle(op.vector, value)
+        R[f] = Rf if C_R is _EYE else Rf @ C_R
+        t[f] = tf if C_t is _ZERO else tf + Rf @ C_t
+    return Poses(R, t, w, o)
+
+
+def transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) homogeneous matrices from R (N, 3, 3) and t (N, 3)."""
+    T = np.zeros((R.shape[0], 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = t
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def ancestors_ops(profile: Profile, frame: int) -> set[int]:
+    """Op ids on the path from the base to `frame`."""
+    ids = op_ids(profile)
+    chain = set(profile.chain(frame))
+    return {i for i, (f, _) in enumerate(ids) if f in chain}
+
+
+def op_signs(profile: Profile, target_frame: int, sensor_frame: int) -> dict[int, float]:
+    """+1 for ops only on the target's side, -1 for ops only on the sensor's side (shared ops cancel)."""
+    t_ops = ancestors_ops(profile, target_frame)
+    s_ops = ancestors_ops(profile, sensor_frame)
+    return {i: 1.0 for i in t_ops - s_ops} | {i: -1.0 for i in s_ops - t_ops}

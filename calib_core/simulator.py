@@ -1,0 +1,285 @@
+"""A simulated robot: hidden true parameters, realistic noise, datasets in the pinned CSV formats.
+
+The truth comes from the profile's `simulation` section (the Robonaut paper's Table II, the means of
+the NAO paper's Table 2). Joint readings are what the robot reports: the physical joint angle is
+offset + reading, and the reading is rounded to the joint's encoder resolution (0.1 deg) before it is
+written, so calibrations see the same rounding a real robot gives. Measurements carry sensor noise:
+a stereo head triangulates from noisy pixels and a noisy disparity (depth noise grows with z^2);
+a camera adds Gaussian pixel noise. Only configurations within joint limits whose targets the sensor
+sees (inside the image, in range, the board's face towards the camera) are generated.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .dataset import Dataset
+from .kinematics import forward
+from .measurement import optical_rotation, predict, project_to_image
+from .profile import Profile
+
+
+@dataclass
+class Simulation:
+    """A generated dataset and the truth behind it."""
+
+    data: Dataset
+    true_params: np.ndarray
+    true_joints: np.ndarray  # (N, n_joints) the unquantised readings (physical angle - offset)
+    exact: np.ndarray  # (M, dim) the noise-free measurement
+    outliers: np.ndarray  # (M,) bool: observations replaced by gross errors
+
+
+@dataclass
+class SimulatedRobot:
+    profile: Profile
+    true_params: np.ndarray
+    pixel_noise: float = 0.0  # px
+    disparity_noise: float = 0.0  # px (stereo sensors)
+    quantise: bool = True  # round readings to each joint's encoder resolution (profile)
+    margin: float = 10.0  # px kept clear of the image border
+    seed: int = 0
+    rng: np.random.Generator = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.rng = np.random.default_rng(self.seed)
+
+    @classmethod
+    def from_profile(cls, profile: Profile, seed: int = 0, truth: np.ndarray | None = None) -> SimulatedRobot:
+        sim = profile.simulation
+        noise = sim.get("noise", {})
+        return cls(
+            profile,
+            profile.true_params() if truth is None else truth,
+            pixel_noise=float(noise.get("pixel", 0.0)),
+            disparity_noise=float(noise.get("disparity", 0.0)),
+            seed=seed,
+        )
+
+    def drifted(self, seed: int) -> SimulatedRobot:
+        """The same robot on a later day: joint offsets drifted (profile `simulation.offset_drift`)."""
+        rng = np.random.default_rng(seed)
+        drift = self.profile.simulation.get("offset_drift", {})
+        offsets = sorted({op.param for f in self.profile.frames for op in f.ops if op.joint >= 0})
+        names = self.profile.parameter_names
+        offsets = [i for i in offsets if fnmatch.fnmatchcase(names[i], drift.get("pattern", "*"))]
+        p = self.true_params.copy()
+        p[offsets] += np.radians(rng.normal(0.0, float(drift.get("sigma", 2.0)), len(offsets)))
+        return SimulatedRobot(
+            self.profile,
+            p,
+            self.pixel_noise,
+            self.disparity_noise,
+            self.quantise,
+            self.margin,
+            seed,
+        )
+
+    # --- configurations ---------------------------------------------------------------------------
+    def configurations(self, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Joint readings (N, n_joints) and, per configuration, the target it shows (N,)."""
+        sampling = self.profile.simulation.get("sampling", {"kind": "uniform"})
+        if sampling.get("kind") == "stances":
+            return self._stances(sampling, n)
+        return self._uniform(n or 100)
+
+    def _uniform(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.profile.joint_limits()
+        target = self.profile.data.target if self.profile.data.target is not None else 0
+        found: list[np.ndarray] = []
+        for _ in range(200):
+            q = self.rng.uniform(lo, hi, (max(4 * n, 64), len(lo)))
+            ok = self.visible(q, np.full(len(q), target))
+            found += list(q[ok])
+            if len(found) >= n:
+                break
+        if len(found) < n:
+            raise RuntimeError(f"found only {len(found)} visible configurations of {n}")
+        return np.array(found[:n]), np.full(n, target)
+
+    def _stances(self, sampling: dict, n: int | None) -> tuple[np.ndarray, np.ndarray]:
+        prof = self.profile
+        lo, hi = prof.joint_limits()
+        postures = int(sampling.get("postures", 3))
+        per_target = int(sampling.get("stances_per_target", 24))
+        if n is not None:
+            per_target = max(1, math.ceil(n / (postures * len(sampling["stance"]))))
+        look = prof.joint(sampling["look_at"])
+        post = prof.joint(sampling["posture_joint"])
+        p_lo, p_hi = (math.radians(v) for v in sampling["posture_range"])
+        qs, targets = [], []
+        for tname, ranges in sampling["stance"].items():
+            ti = prof.target(tname)
+            got = 0
+            for _ in range(per_target * 200):
+                if got == per_target:
+                    break
+                q = np.zeros(len(lo))
+                for jname, (a, b) in ranges.items():
+                    j = prof.joint(jname)
+                    q[j] = self.rng.uniform(max(math.radians(a), lo[j]), min(math.radians(b), hi[j]))
+                pitches = np.linspace(p_lo, p_hi, postures) + self.rng.uniform(-0.02, 0.02, postures)
+                stance = np.repeat(q[None], postures, axis=0)
+                stance[:, post] = np.clip(pitches, lo[post], hi[post])
+                stance[:, look] = [self._aim(row, look, ti) for row in stance]
+                stance[:, look] += self.rng.uniform(-0.05, 0.05, postures)
+                stance[:, look] = np.clip(stance[:, look], lo[look], hi[look])
+                if self.visible(stance, np.full(postures, ti)).all():
+                    qs += list(stance)
+                    targets += [ti] * postures
+                    got += 1
+            if got < per_target:
+                raise RuntimeError(f"found only {got} visible stances for {tname}")
+        return np.array(qs), np.array(targets)
+
+    def _aim(self, q: np.ndarray, joint: int, target: int) -> float:
+        """The angle of `joint` that puts the target's centre in the image centre column."""
+        lo, hi = self.profile.joint_limits()
+        candidates = np.linspace(max(lo[joint], -1.2), min(hi[joint], 1.2), 121)
+        qs = np.repeat(q[None], len(candidates), axis=0)
+        qs[:, joint] = candidates
+        x = self._sensor_points(qs, np.full(len(qs), target), self.true_params, center_only=True)
+        sensor = self.profile.sensors[self.profile.data.sensor]
+        uv = project_to_image(sensor, self.true_params, x)
+        ahead = (x @ optical_rotation(sensor))[:, 2] > 0
+        cost = np.where(ahead, np.abs(uv[:, 0] - sensor.image[0] / 2), np.inf) if sensor.image else np.zeros(len(x))
+        return float(candidates[int(np.argmin(cost))])
+
+    # --- what the sensor sees ---------------------------------------------------------------------
+    def _points(self, target: int) -> np.ndarray:
+        t = self.profile.targets[target]
+        if t.grid is not None:
+            return t.grid
+        assert t.point_params is not None
+        return self.true_params[list(t.point_params)][None]
+
+    def _sensor_points(
+        self, q: np.ndarray, targets: np.ndarray, p: np.ndarray, center_only: bool = False
+    ) -> np.ndarray:
+        """Target points in the sensor frame: (N, 3) with center_only, else (N, K, 3)."""
+        prof = self.profile
+        sensor = prof.sensors[prof.data.sensor]
+        frames = sorted({prof.targets[t].frame for t in set(targets.tolist())} | {sensor.frame})
+        poses = forward(prof, p, q, frames=frames)
+        K = max(len(self._points(t)) for t in set(targets.tolist()))
+        out = np.zeros((len(q), 1 if center_only else K, 3))
+        for t in set(targets.tolist()):
+            rows = np.flatnonzero(targets == t)
+            pts = self._points(t)
+            pts = pts.mean(axis=0, keepdims=True) if center_only else pts
+            tf = prof.targets[t].frame
+            P = np.einsum("nij,kj->nki", poses.R[tf][rows], pts) + poses.t[tf][rows][:, None]
+            Rs, ts = poses.R[sensor.frame][rows], poses.t[sensor.frame][rows]
+            out[rows, : len(pts)] = np.einsum("nji,nkj->nki", Rs, P - ts[:, None])
+        return out[:, 0] if center_only else out
+
+    def visible(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """Whether every point of each configuration's target is seen by the sensor (N,) bool."""
+        prof = self.profile
+        sensor = prof.sensors[prof.data.sensor]
+        x = self._sensor_points(q, targets, self.true_params)
+        N, K, _ = x.shape
+        flat = x.reshape(-1, 3)
+        X = flat @ optical_rotation(sensor)
+        ok = X[:, 2] > 1e-6
+        if sensor.range is not None:
+            ok &= (X[:, 2] >= sensor.range[0]) & (X[:, 2] <= sensor.range[1])
+        if sensor.image is not None and (sensor.model == "pinhole" or sensor.intrinsics is not None):
+            uv = project_to_image(
+                sensor,
+                self.true_params,
+                np.where(ok[:, None], flat, [0.0, 0.0, 1.0] @ optical_rotation(sensor).T),
+            )
+            w, h = sensor.image
+            m = self.margin
+            ok &= (uv[:, 0] >= m) & (uv[:, 0] <= w - 1 - m) & (uv[:, 1] >= m) & (uv[:, 1] <= h - 1 - m)
+        ok = ok.reshape(N, K)
+        for t in set(targets.tolist()):
+            grid = prof.targets[t].grid
+            rows = np.flatnonzero(targets == t)
+            if grid is None:
+                ok[rows, 1:] = True
+            else:
+                ok[rows, len(grid) :] = True
+                # The board's face (its -z side, under the sole) must look at the camera.
+                c = x[rows, : len(grid)].mean(axis=1)
+                normal = x[rows, 1] - x[rows, 0]
+                across = x[rows, prof.targets[t].grid_shape[1]] - x[rows, 0]
+                # +x cross -y: the board's -z axis, the normal of its face; it must point back to
+                # the camera, which sits at the origin of these coordinates.
+                face = np.cross(normal, across)
+                ok[rows] &= (np.einsum("ni,ni->n", face, c) < 0)[:, None]
+        return ok.all(axis=1)
+
+    # --- measuring --------------------------------------------------------------------------------
+    def measure(
+        self,
+        q: np.ndarray,
+        targets: np.ndarray,
+        *,
+        outlier_rate: float = 0.0,
+        outlier_size: float = 0.0,
+    ) -> Simulation:
+        """Observe configurations q (the robot's unquantised readings) as the sensor would."""
+        prof = self.profile
+        sensor = prof.sensors[prof.data.sensor]
+        x = self._sensor_points(q, targets, self.true_params)
+        cfg, tgt, point, vertex, exact, noisy = [], [], [], [], [], []
+        for n in range(len(q)):
+            t = int(targets[n])
+            grid = prof.targets[t].grid
+            K = 1 if grid is None else len(grid)
+            xs = x[n, :K]
+            h = predict(sensor, self.true_params, xs)[0]
+            exact.append(h)
+            noisy.append(self._noisy(sensor, xs, h))
+            cfg += [n] * K
+            tgt += [t] * K
+            point.append(np.full((K, 3), np.nan) if grid is None else grid)
+            vertex += [-1] * K if grid is None else list(range(K))
+        exact_a = np.concatenate(exact)
+        noisy_a = np.concatenate(noisy)
+        outliers = self.rng.random(len(noisy_a)) < outlier_rate
+        if outliers.any():
+            d = self.rng.normal(size=(outliers.sum(), noisy_a.shape[1]))
+            noisy_a[outliers] += outlier_size * d / np.linalg.norm(d, axis=1, keepdims=True)
+        readings = q.copy()
+        step = np.array([j.resolution for j in prof.joints])
+        if self.quantise:
+            readings = np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
+        data = Dataset(
+            robot=prof.name,
+            frame_ids=np.arange(1, len(q) + 1),
+            joints=readings,
+            cfg=np.array(cfg),
+            target=np.array(tgt),
+            point=np.concatenate(point),
+            vertex=np.array(vertex),
+            measured=noisy_a,
+            source="simulator",
+        )
+        return Simulation(data, self.true_params.copy(), q.copy(), exact_a, outliers)
+
+    def _noisy(self, sensor, xs: np.ndarray, h: np.ndarray) -> np.ndarray:
+        if sensor.model == "pinhole":
+            return h + self.rng.normal(0.0, self.pixel_noise, h.shape)
+        if sensor.intrinsics is None or sensor.baseline is None:
+            return h + self.rng.normal(0.0, self.pixel_noise, h.shape)
+        # Triangulate from the left pixel and the disparity, each with its own noise.
+        fx, fy, cx, cy = (self.true_params[i] for i in sensor.intrinsics)
+        X = xs @ sensor.R_frame_optical
+        u = fx * X[:, 0] / X[:, 2] + cx + self.rng.normal(0.0, self.pixel_noise, len(X))
+        v = fy * X[:, 1] / X[:, 2] + cy + self.rng.normal(0.0, self.pixel_noise, len(X))
+        disparity = fx * sensor.baseline / X[:, 2] + self.rng.normal(0.0, self.disparity_noise, len(X))
+        z = fx * sensor.baseline / disparity
+        X_noisy = np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=1)
+        return X_noisy @ sensor.R_frame_optical.T
+
+    def simulate(self, n: int | None = None, **kwargs) -> Simulation:
+        """Random visible configurations, observed."""
+        q, targets = self.configurations(n)
+        return self.measure(q, targets, **kwargs)

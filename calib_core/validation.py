@@ -1,0 +1,85 @@
+"""Error figures and data splits: before/after, held-out and k-fold cross-validation.
+
+Errors are Euclidean distances between prediction and measurement per observation (cm for a 3-D
+point, px for a pixel), the figure the papers report. Splits keep whole configurations together, and
+repeated configurations (the same joint readings) on one side, so a held-out figure never tests a
+configuration that was also trained on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .dataset import Dataset
+
+
+@dataclass
+class Figures:
+    n: int  # observations
+    mean: float
+    rms: float
+    max: float
+    median: float
+    unit: str
+    rms_axes: list[float]  # per measurement coordinate (x, y, z or u, v)
+    excluded: int = 0  # observations left out as outliers (failed detections)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def __str__(self) -> str:
+        out = f"mean {self.mean:.3f} {self.unit}, RMS {self.rms:.3f}, max {self.max:.3f} (n={self.n}"
+        return out + (f", {self.excluded} outliers left out)" if self.excluded else ")")
+
+
+def figures(pred: np.ndarray, measured: np.ndarray, unit: str, keep: np.ndarray | None = None) -> Figures:
+    """Distances of the observations in `keep` (default all); the others count as excluded."""
+    excluded = 0
+    if keep is not None:
+        excluded = int(np.sum(~keep))
+        pred, measured = pred[keep], measured[keep]
+    e = pred - measured
+    d = np.linalg.norm(e, axis=1)
+    if len(d) == 0:
+        return Figures(0, float("nan"), float("nan"), float("nan"), float("nan"), unit, [], excluded)
+    return Figures(
+        len(d),
+        float(d.mean()),
+        float(np.sqrt(np.mean(d**2))),
+        float(d.max()),
+        float(np.median(d)),
+        unit,
+        np.sqrt(np.mean(e**2, axis=0)).tolist(),
+        excluded,
+    )
+
+
+def configuration_groups(data: Dataset, decimals: int = 4) -> np.ndarray:
+    """A group id per configuration; configurations with equal readings (to 1e-4 rad) share one."""
+    key = np.round(np.nan_to_num(data.joints), decimals)
+    _, groups = np.unique(key, axis=0, return_inverse=True)
+    return groups.ravel()
+
+
+def holdout_split(data: Dataset, share: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Configuration indices (train, test) with about `share` of the configurations held out."""
+    groups = configuration_groups(data)
+    ids = np.unique(groups)
+    rng = np.random.default_rng(seed)
+    rng.shuffle(ids)
+    n_test = round(share * len(ids))
+    test_ids = set(ids[:n_test].tolist())
+    test = np.array([g in test_ids for g in groups])
+    return np.flatnonzero(~test), np.flatnonzero(test)
+
+
+def kfold_splits(data: Dataset, k: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+    groups = configuration_groups(data)
+    ids = np.unique(groups)
+    rng = np.random.default_rng(seed)
+    rng.shuffle(ids)
+    fold_of = {int(g): i % k for i, g in enumerate(ids)}
+    fold = np.array([fold_of[int(g)] for g in groups])
+    return [(np.flatnonzero(fold != i), np.flatnonzero(fold == i)) for i in range(k)]
