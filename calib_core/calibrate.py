@@ -24,7 +24,7 @@ from scipy.stats import chi2
 from .calibration import Calibration, Outlier, ParameterEstimate
 from .dataset import Dataset
 from .errors import InputError
-from .identifiability import Dependency, find_dependencies, report, strong_correlations
+from .identifiability import Dependency, find_dependencies, report, strong_correlations, weak_parameters
 from .problem import Problem
 from .profile import Mode, Profile
 from .solver import Robust, SolveResult, block_norms_sq, levenberg_marquardt, nelder_mead
@@ -360,9 +360,7 @@ def _result(
         for k in np.flatnonzero(~problem.included)
     ]
     warnings = [d.describe(profile) for d in fit.dependencies]
-    warnings += [
-        f"{a} and {b} are strongly correlated ({rho:+.3f}): the data barely separate them" for a, b, rho in corr
-    ]
+    warnings += weak_parameters(profile, rep, problem.free)
     if outliers:
         frames = sorted({o.frame for o in outliers})
         shown = ", ".join(str(f) for f in frames[:10]) + (" ..." if len(frames) > 10 else "")
@@ -387,6 +385,9 @@ def _result(
             {"parameter": profile.parameters[d.fixed].name, "message": d.describe(profile)} for d in fit.dependencies
         ],
         "correlations": [{"a": a, "b": b, "rho": rho} for a, b, rho in corr],
+        "inflation": {profile.parameters[i].name: float(v) for i, v in zip(problem.free, rep.inflation, strict=True)}
+        if rep.inflation is not None
+        else {},
         "note": "computed on the Jacobian of the noise-weighted residuals with unit-length columns",
     }
     return Calibration(

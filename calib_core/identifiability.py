@@ -18,7 +18,8 @@ from .profile import Profile
 # combination of them (exact structural dependence shows up near 1e-12, weak but real dependence
 # far above it).
 DEPENDENCE_TOLERANCE = 1e-7
-CORRELATION_WARNING = 0.98
+CORRELATION_LISTED = 0.9  # pairs listed in the report
+INFLATION_WARNING = 20.0  # sd inflated this much by the others (VIF 400): warned about
 
 
 @dataclass
@@ -51,6 +52,7 @@ class Report:
     o1: float  # observability index O1 = (prod s_i)^(1/n) / sqrt(m) (Borm & Menq)
     dependencies: list[Dependency] = field(default_factory=list)
     std: np.ndarray | None = None  # per free parameter, internal units
+    inflation: np.ndarray | None = None  # sd / sd if the other parameters were known (sqrt of VIF)
     correlation: np.ndarray | None = None
 
 
@@ -144,13 +146,53 @@ def report(J: np.ndarray, r: np.ndarray, sigma: float, clusters: np.ndarray | No
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
-    return Report(s.tolist(), rank, condition, o1, [], std, np.nan_to_num(corr))
+    # With unit columns, (J^T J)^-1_ii is the variance inflation factor of parameter i.
+    inflation = np.sqrt(np.maximum(np.diag(bread), 1.0))
+    return Report(s.tolist(), rank, condition, o1, std=std, correlation=np.nan_to_num(corr), inflation=inflation)
 
 
 def strong_correlations(profile: Profile, corr: np.ndarray, free: list[int]) -> list[tuple[str, str, float]]:
     out = []
     for a in range(len(free)):
         for b in range(a + 1, len(free)):
-            if abs(corr[a, b]) >= CORRELATION_WARNING:
+            if abs(corr[a, b]) >= CORRELATION_LISTED:
                 out.append((profile.label(free[a]), profile.label(free[b]), float(corr[a, b])))
     return sorted(out, key=lambda t: -abs(t[2]))
+
+
+def weak_parameters(profile: Profile, rep: Report, free: list[int]) -> list[str]:
+    """One warning per group of parameters the data determine only in combination.
+
+    A parameter is weak when the others mimic more than 99.75% of its effect (its standard
+    deviation is at least INFLATION_WARNING times what it would be alone); weak parameters that
+    trade off against each other (|correlation| >= 0.8) form one group.
+    """
+    if rep.inflation is None or rep.correlation is None:
+        return []
+    weak = [k for k in np.argsort(-rep.inflation) if rep.inflation[k] >= INFLATION_WARNING]
+    group = {k: k for k in weak}
+
+    def root(k: int) -> int:
+        while group[k] != k:
+            k = group[k]
+        return k
+
+    for a in weak:
+        for b in weak:
+            if a < b and abs(rep.correlation[a, b]) >= 0.8:
+                group[root(b)] = root(a)
+    out = []
+    for head in dict.fromkeys(root(k) for k in weak):
+        members = [k for k in weak if root(k) == head]
+        names = ", ".join(profile.label(free[k]) for k in members)
+        lo, hi = min(rep.inflation[members]), max(rep.inflation[members])
+        spread = f"{hi:.0f}x" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f}x"
+        a = members[0]
+        b = max((j for j in range(len(free)) if j != a), key=lambda j: abs(rep.correlation[a, j]))
+        out.append(
+            f"{names}: weakly determined by these data (standard deviation {spread} what it would be if the "
+            f"other parameters were known); {profile.label(free[a])} trades off against {profile.label(free[b])} "
+            f"(correlation {rep.correlation[a, b]:+.2f}): the data fix a combination of them, not each one; "
+            "more varied configurations separate them"
+        )
+    return out

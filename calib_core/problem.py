@@ -148,10 +148,7 @@ class Problem:
         assert J is not None
         r = self._with_priors(self._whiten(pred - self.data.measured).ravel(), p)
         J3 = J.reshape(-1, self.dim, len(self.free)) * self.included[:, None, None]
-        if isinstance(self.W, np.ndarray):
-            J = np.einsum("mde,mef->mdf", self.W, J3).reshape(J.shape)
-        else:
-            J = J3.reshape(J.shape) * self.W
+        J = (self.W @ J3 if isinstance(self.W, np.ndarray) else J3 * self.W).reshape(J.shape)
         if self.priors:
             Jp = np.zeros((len(self.priors), len(self.free)))
             for k, (i, s) in enumerate(self.priors.items()):
@@ -166,7 +163,7 @@ class Problem:
 
     def _whiten(self, e: np.ndarray) -> np.ndarray:
         e = e * self.included[:, None]
-        return np.einsum("mde,me->md", self.W, e) if isinstance(self.W, np.ndarray) else e * self.W
+        return (self.W @ e[:, :, None])[:, :, 0] if isinstance(self.W, np.ndarray) else e * self.W
 
     def _with_priors(self, r: np.ndarray, p: np.ndarray) -> np.ndarray:
         if not self.priors:
@@ -196,9 +193,9 @@ class Problem:
         if target.point_params is not None:
             local = np.broadcast_to(p[list(target.point_params)], local.shape)
         Rt = poses.R[target.frame][cfg]
-        P = np.einsum("mij,mj->mi", Rt, local) + poses.t[target.frame][cfg]
+        P = (Rt @ local[:, :, None])[:, :, 0] + poses.t[target.frame][cfg]
         Rs = poses.R[self.sensor.frame][cfg]
-        x = np.einsum("mji,mj->mi", Rs, P - poses.t[self.sensor.frame][cfg])
+        x = ((P - poses.t[self.sensor.frame][cfg])[:, None, :] @ Rs)[:, 0, :]
         return P, x, Rs, Rt
 
     def _twists(self, poses, g: _Group) -> np.ndarray:
@@ -227,7 +224,7 @@ class Problem:
             if not jacobian:
                 continue
             assert J is not None and dh_dx is not None and dh_dint is not None
-            G = np.einsum("mdi,mji->mdj", dh_dx, Rs)  # d(pred)/d(P in the base frame)
+            G = dh_dx @ Rs.transpose(0, 2, 1)  # d(pred)/d(P in the base frame)
             Jg = np.zeros((len(g.obs), self.dim, len(self.free)))
             if g.ops:
                 # Each op moves the point by a twist: dP = w x P + v with v = o x w (rotation) or
@@ -244,7 +241,7 @@ class Problem:
                     dpred = H @ xi[self.data.cfg[g.obs]]
                 Jg += dpred @ g.B_ops
             if g.B_point is not None:
-                Jg += np.einsum("mdj,mjl->mdl", G, Rt) @ g.B_point
+                Jg += (G @ Rt) @ g.B_point
             if self.intrinsics:
                 Jg += dh_dint @ self.B_intr
             J[g.obs] = Jg
