@@ -251,7 +251,13 @@ def load_profile(name_or_path: str | Path) -> Profile:
         raise InputError(f"not valid YAML ({getattr(exc, 'problem', exc)})", file=source, line=line) from None
     if not isinstance(doc, dict):
         raise InputError("a robot profile must be a YAML mapping", file=source)
-    return _Compiler(doc, source).compile()
+    try:
+        return _Compiler(doc, source).compile()
+    except InputError:
+        raise
+    except (TypeError, AttributeError, KeyError, ValueError, IndexError) as exc:
+        # A shape the field checks did not anticipate (a list where a mapping belongs, ...).
+        raise InputError(f"malformed robot profile ({exc.__class__.__name__}: {exc})", file=source) from None
 
 
 def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
@@ -308,6 +314,17 @@ class _Compiler:
         self.index[name] = len(self.params)
         self.params.append(Parameter(name, kind, nominal))
         return self.index[name]
+
+    def add_params(
+        self, prefix: str, kind: str, mapping: Any, keys: tuple[str, ...], where: str, default: Any = ...
+    ) -> tuple[int, ...]:
+        """Parameters `<prefix>.<key>` from the numbers of a mapping (a point, intrinsics, ...)."""
+        return tuple(
+            self.add_param(
+                f"{prefix}.{k}", kind, self.number(self.get(mapping, k, where, default), f"{where}.{k}"), where
+            )
+            for k in keys
+        )
 
     def compile(self) -> Profile:
         doc = self.doc
@@ -474,16 +491,7 @@ class _Compiler:
         grid = None
         shape = None
         if "point" in spec:
-            pt = spec["point"]
-            point_params = tuple(
-                self.add_param(
-                    f"{tname}.{k}",
-                    "length",
-                    self.number(self.get(pt, k, f"{where}.point"), f"{where}.point.{k}"),
-                    where,
-                )
-                for k in "xyz"
-            )
+            point_params = self.add_params(tname, "length", spec["point"], ("x", "y", "z"), f"{where}.point")
         if "grid" in spec:
             g = spec["grid"]
             cols = int(self.number(self.get(g, "cols", f"{where}.grid"), f"{where}.grid.cols"))
@@ -523,30 +531,13 @@ class _Compiler:
             raise self.fail(f"{where}.convention", "must be x-forward or z-forward")
         intr = None
         if "intrinsics" in spec:
-            k = spec["intrinsics"]
-            intr = tuple(
-                self.add_param(
-                    f"{sname}.{n}",
-                    "px",
-                    self.number(self.get(k, n, f"{where}.intrinsics"), f"{where}.intrinsics.{n}"),
-                    where,
-                )
-                for n in ("fx", "fy", "cx", "cy")
-            )
+            intr = self.add_params(sname, "px", spec["intrinsics"], ("fx", "fy", "cx", "cy"), f"{where}.intrinsics")
         elif model == "pinhole":
             raise self.fail(where, "a pinhole sensor needs intrinsics")
         dist = None
         if "distortion" in spec:
-            d = spec["distortion"]
-            dist = tuple(
-                self.add_param(
-                    f"{sname}.{n}",
-                    "scalar",
-                    self.number(d.get(n, 0.0), f"{where}.distortion.{n}"),
-                    where,
-                )
-                for n in ("k1", "k2", "p1", "p2", "k3")
-            )
+            keys = ("k1", "k2", "p1", "p2", "k3")
+            dist = self.add_params(sname, "scalar", spec["distortion"], keys, f"{where}.distortion", default=0.0)
         # The optical frame's axes in the sensor frame; x-forward: x_cv = -y, y_cv = -z, z_cv = x.
         R_opt = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]) if convention == "x-forward" else np.eye(3)
         if "optical" in spec:
@@ -597,9 +588,11 @@ class _Compiler:
         target = spec.get("target")
         if target is not None and target not in self.target_index:
             raise self.fail(f"{where}.target", f"unknown target '{target}'")
-        tvalues = {
-            str(k): self.target_index[v] for k, v in (spec.get("targets") or {}).items() if v in self.target_index
-        }
+        tvalues = {}
+        for k, v in (spec.get("targets") or {}).items():
+            if v not in self.target_index:
+                raise self.fail(f"{where}.targets.{k}", f"unknown target '{v}'")
+            tvalues[str(k)] = self.target_index[v]
         if target is None and not spec.get("target_column"):
             raise self.fail(where, "needs a target or a target_column")
         meas = self.get(spec, "measurement", where)
