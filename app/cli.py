@@ -107,9 +107,7 @@ def _solve(args: argparse.Namespace) -> int:
         raise InputError(f"--folds {args.folds} must be 0 (none) or at least 2")
     profile = load_profile(args.robot)
     profile.mode(args.mode)
-    base = Calibration.load(args.base) if args.base else None
-    if base is not None and base.robot != profile.name:
-        raise InputError(f"calibration is for robot '{base.robot}', not '{profile.name}'", file=args.base)
+    base = _load_calibration(args.base, profile) if args.base else None
     data = read_dataset(profile, args.data)
     _check_writable(args.out)
     cal = calibrate(
@@ -131,9 +129,7 @@ def _solve(args: argparse.Namespace) -> int:
 
 def _predict(args: argparse.Namespace) -> int:
     profile = load_profile(args.robot)
-    cal = Calibration.load(args.calibration) if args.calibration else None
-    if cal is not None and cal.robot != profile.name:
-        raise InputError(f"calibration is for robot '{cal.robot}', not '{profile.name}'", file=args.calibration)
+    cal = _load_calibration(args.calibration, profile) if args.calibration else None
     p = cal.params(profile) if cal else profile.nominal()
     data = read_dataset(profile, args.data)
     _check_writable(args.out)
@@ -187,6 +183,16 @@ def _gross_error(profile: Profile) -> float:
     if profile.sensors[profile.data.sensor].model == "pinhole":
         return 40.0
     return 0.2 * length_factor("m", profile.length_unit)
+
+
+def _load_calibration(path: str, profile: Profile) -> Calibration:
+    """A calibration file that fits the profile: its robot and every parameter name."""
+    cal = Calibration.load(path)
+    try:
+        cal.params(profile)
+    except InputError as exc:
+        raise InputError(exc.message, file=path) from None
+    return cal
 
 
 def _check_writable(path: str) -> None:

@@ -75,7 +75,8 @@ def calibrate(
     train = data.select(train_idx)
     if train.n_observations * _dim(profile) < len(m.free):
         raise InputError(
-            f"{train.n_observations} observations cannot determine the {len(m.free)} parameters of mode '{mode}'"
+            f"{train.n_observations} observations cannot determine the {len(m.free)} parameters of mode '{mode}'",
+            file=data.source,
         )
     fit = fit_parameters(
         profile,

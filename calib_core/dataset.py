@@ -20,6 +20,10 @@ from .measurement import dimension
 from .profile import Profile
 from .units import ANGLE_IN_RAD, length_factor
 
+# No joint angle, length or pixel in a calibration dataset comes near this; beyond it, arithmetic
+# on squares overflows, so such a value is reported as bad input rather than computed with.
+MAX_MAGNITUDE = 1e9
+
 
 @dataclass
 class Dataset:
@@ -134,6 +138,8 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
                 raise InputError(what, file=name, line=ln, column=c) from None
             if not math.isfinite(v):
                 raise InputError(f"'{s}' is not a finite number", file=name, line=ln, column=c)
+            if abs(v) > MAX_MAGNITUDE:
+                raise InputError(f"'{s}' is implausibly large (beyond {MAX_MAGNITUDE:g})", file=name, line=ln, column=c)
             return v
 
         f = number(fmt.frame_column)

@@ -1,0 +1,208 @@
+"""Identifiability: parameters the data cannot tell apart are detected, named and held; the reported
+standard deviations are the real spread of the estimates (Monte Carlo over simulated datasets)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from calib_core import Problem, SimulatedRobot, calibrate, load_profile
+
+
+@pytest.fixture(scope="module")
+def rn():
+    return load_profile("robonaut-a")
+
+
+@pytest.fixture(scope="module")
+def rn_case(rn):
+    sim = SimulatedRobot.from_profile(rn, seed=7).simulate(67)
+    return sim, calibrate(rn, sim.data, "full")
+
+
+def test_robonaut_full_holds_d_neck_yaw(rn, rn_case) -> None:
+    _, cal = rn_case
+    held = {h["parameter"]: h["message"] for h in cal.identifiability["held_fixed"]}
+    assert "neck_yaw.d" in held, held
+    assert "d(neck_yaw)" in held["neck_yaw.d"] and "d(shoulder_roll)" in held["neck_yaw.d"]
+    assert "neck_yaw.d" not in cal.identifiability["free"]
+    assert "shoulder_roll.d" in cal.identifiability["free"]
+    est = {e.name: e for e in cal.parameters}
+    ny = est["neck_yaw.d"]
+    assert not ny.estimated and ny.std is None
+    assert ny.value == ny.base == 28.575  # held at its base value (the nominal model)
+    assert "d(shoulder_roll)" in ny.note
+    assert any("d(neck_yaw)" in w and "d(shoulder_roll)" in w for w in cal.warnings)
+
+
+def test_the_stated_dependency_is_real(rn, rn_case) -> None:
+    """+1 cm on d(neck_yaw) with -1 cm on d(shoulder_roll) changes no prediction (as reported)."""
+    sim, cal = rn_case
+    p = cal.params(rn)
+    q = p.copy()
+    q[rn.param("neck_yaw.d")] += 1.0
+    q[rn.param("shoulder_roll.d")] -= 1.0
+    a = Problem(rn, sim.data, [], p, noise_model=False).predict(p)
+    b = Problem(rn, sim.data, [], q, noise_model=False).predict(q)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    # ... while either one alone moves the predictions by the full centimetre.
+    q[rn.param("shoulder_roll.d")] += 1.0
+    c = Problem(rn, sim.data, [], q, noise_model=False).predict(q)
+    assert np.linalg.norm(c - a, axis=1).min() > 0.99
+
+
+def test_holding_did_not_hurt_the_fit(rn, rn_case) -> None:
+    """With every parameter of the mode free (the held ones too), no solver finds a lower cost."""
+    sim, cal = rn_case
+    mode = rn.mode("full")
+    problem = Problem(rn, sim.data, list(mode.free), rn.nominal(), mode.ties, mode.priors)
+    x_cal = cal.params(rn)[list(mode.free)]
+    cost_cal = 0.5 * float(np.sum(problem.residuals(x_cal) ** 2))
+
+    def jac(x):
+        return problem.residuals_jacobian(x)[1]
+
+    best = min(
+        least_squares(problem.residuals, x0, jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15).cost
+        for x0 in (x_cal, problem.x0)
+    )
+    assert cost_cal <= best * (1 + 1e-6), (cost_cal, best)
+    # And the fit is as good as the truth's on these data (a least-squares fit is at or below it).
+    x_true = sim.true_params[list(mode.free)]
+    assert cost_cal <= 0.5 * float(np.sum(problem.residuals(x_true) ** 2))
+
+
+# --- NAO: head offsets against camera rotations ----------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def nao():
+    return load_profile("nao")
+
+
+@pytest.fixture(scope="module")
+def nao_bases(nao):
+    """Stance sets (joint readings and targets) of several simulated robots: the slow part of a NAO
+    simulation, generated once and varied below."""
+    out = []
+    for seed in range(8):
+        robot = SimulatedRobot.from_profile(nao, seed=300 + seed)
+        q, targets = robot.configurations()
+        out.append((robot, q, targets))
+    return out
+
+
+@pytest.fixture(scope="module")
+def nao_head_case(nao, nao_bases):
+    robot, q, targets = nao_bases[0]
+    sim = robot.measure(q, targets)
+    return sim, calibrate(nao, sim.data, "full+head")
+
+
+def _correlation(problem: Problem) -> np.ndarray:
+    _, J = problem.residuals_jacobian(problem.x0)
+    cov = np.linalg.inv(J.T @ J)
+    s = np.sqrt(np.diag(cov))
+    return cov / np.outer(s, s)
+
+
+def test_head_pitch_and_cam_pitch_are_strongly_correlated(nao, nao_head_case) -> None:
+    """The physics the report should show: on the paper's protocol HeadPitch and CamPitch move the
+    image almost alike (computed here from the Jacobian at the truth, independent of the report)."""
+    sim, _ = nao_head_case
+    mode = nao.mode("full+head")
+    names = [nao.parameters[i].name for i in mode.free]
+    C = _correlation(Problem(nao, sim.data, list(mode.free), sim.true_params))
+    assert abs(C[names.index("HeadPitch"), names.index("CamPitch")]) > 0.9
+
+
+def test_nao_full_head_reports_head_offsets_against_camera_rotations(nao_head_case) -> None:
+    _, cal = nao_head_case
+    head, cam = {"HeadYaw", "HeadPitch"}, {"CamYaw", "CamPitch", "CamRoll"}
+    held = {h["parameter"] for h in cal.identifiability["held_fixed"]}
+    correlated = any(
+        ({c["a"], c["b"]} & head) and ({c["a"], c["b"]} & cam) for c in cal.identifiability["correlations"]
+    )
+    warned = any(any(h in w for h in head) and any(c in w for c in cam) for w in cal.warnings)
+    assert held & head or correlated or warned, (held, cal.identifiability["correlations"], cal.warnings)
+
+
+# --- Monte Carlo: reported standard deviations against the spread of the estimates ------------------------
+
+
+def _estimates(cal) -> dict[str, tuple[float, float]]:
+    """Value and reported std of every estimated parameter that is not held fixed."""
+    return {
+        e.name: (e.value, e.std)
+        for e in cal.parameters
+        if e.estimated and (e.note is None or e.note.startswith("tied"))
+    }
+
+
+def _std_ratios(runs: list[dict[str, tuple[float, float]]]) -> dict[str, float]:
+    names = sorted(runs[0])
+    assert all(sorted(r) == names for r in runs)  # the same parameters estimated in every run
+    values = np.array([[r[n][0] for n in names] for r in runs])
+    stds = np.array([[r[n][1] for n in names] for r in runs])
+    spread = values.std(axis=0, ddof=1)
+    return dict(zip(names, stds.mean(axis=0) / spread, strict=True))
+
+
+def test_robonaut_reported_std_matches_monte_carlo(rn) -> None:
+    # 400 runs (about 10 s): with 120 the spread of the estimates is itself only known to about 6.5%,
+    # and the largest of 19 such errors reaches 25% in some blocks of 120 seeds although the reported
+    # standard deviations are right (0.91-1.12 of the spread over 400 or 600 runs).
+    runs, held = [], set()
+    for seed in range(400):
+        sim = SimulatedRobot.from_profile(rn, seed=10_000 + seed).simulate(67)  # new configurations and noise
+        cal = calibrate(rn, sim.data, "full")
+        held.add(tuple(sorted(h["parameter"] for h in cal.identifiability["held_fixed"])))
+        runs.append(_estimates(cal))
+    assert len(held) == 1  # the same directions are held in every run
+    ratios = _std_ratios(runs)
+    assert len(ratios) >= 18
+    bad = {n: round(r, 3) for n, r in ratios.items() if not 0.75 <= r <= 1.25}
+    assert not bad, bad
+
+
+def _varied_stances(robot: SimulatedRobot, q: np.ndarray, targets: np.ndarray, rng: np.random.Generator):
+    """New configurations near a stance set: each stance's legs move by up to 1.5 deg (the same for its
+    head postures, which share the leg readings as in the paper's protocol), each head posture by up to
+    1 deg; a stance that would leave the view is tried again. The unquantised readings change by many
+    encoder steps, so rounding errors, like the noise, are new in every run."""
+    prof = robot.profile
+    head = [prof.joint("HeadYaw"), prof.joint("HeadPitch")]
+    legs = [j for j in range(len(prof.joints)) if j not in head]
+    lo, hi = prof.joint_limits()
+    key = np.column_stack([targets, np.round(q[:, legs], 12)])
+    _, stance = np.unique(key, axis=0, return_inverse=True)
+    stance = stance.ravel()
+    out = q.copy()
+    for s in np.unique(stance):
+        rows = np.flatnonzero(stance == s)
+        for _ in range(20):
+            trial = q[rows].copy()
+            trial[:, legs] += np.radians(rng.uniform(-1.5, 1.5, len(legs)))
+            trial[:, head] += np.radians(rng.uniform(-1.0, 1.0, (len(rows), 2)))
+            trial = np.clip(trial, lo, hi)
+            if robot.visible(trial, targets[rows]).all():
+                out[rows] = trial
+                break
+    return out
+
+
+def test_nao_reported_std_matches_monte_carlo(nao, nao_bases) -> None:
+    runs = []
+    for b, (robot, q, targets) in enumerate(nao_bases):
+        for k in range(5):
+            rng = np.random.default_rng(1000 * b + k)
+            sim = robot.measure(_varied_stances(robot, q, targets, rng), targets)
+            assert sim.data.n_configurations == 144
+            cal = calibrate(nao, sim.data, "full")
+            assert cal.identifiability["held_fixed"] == []
+            runs.append(_estimates(cal))
+    ratios = _std_ratios(runs)
+    assert len(ratios) == 21
+    median = float(np.median(list(ratios.values())))
+    assert 0.75 <= median <= 1.25, (median, {n: round(r, 3) for n, r in ratios.items()})

@@ -1,0 +1,242 @@
+"""The simulator: configurations within limits and in view, readings as a robot reports them, the paper's
+NAO protocol, day-to-day drift, and noise with the right statistics."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calib_core import Problem, SimulatedRobot, load_profile
+
+# specs/nao.md joint limits (deg).
+NAO_LIMITS = {
+    "LHipYawPitch": (-65.62, 42.44),
+    "RHipYawPitch": (-65.62, 42.44),
+    "LHipRoll": (-21.74, 45.29),
+    "RHipRoll": (-45.29, 21.74),
+    "LHipPitch": (-88, 27.73),
+    "RHipPitch": (-88, 27.73),
+    "LKneePitch": (-5.29, 121.04),
+    "RKneePitch": (-5.90, 121.47),
+    "LAnklePitch": (-68.15, 52.86),
+    "RAnklePitch": (-67.97, 53.40),
+    "LAnkleRoll": (-22.79, 44.06),
+    "RAnkleRoll": (-44.06, 22.80),
+    "HeadYaw": (-119.5, 119.5),
+    "HeadPitch": (-38.5, 29.5),
+}
+LEG = ["HipYawPitch", "HipRoll", "HipPitch", "KneePitch", "AnklePitch", "AnkleRoll"]
+
+
+@pytest.fixture(scope="module")
+def rn():
+    return load_profile("robonaut-a")
+
+
+@pytest.fixture(scope="module")
+def rn_robot(rn):
+    return SimulatedRobot.from_profile(rn, seed=17)
+
+
+@pytest.fixture(scope="module")
+def rn_sim(rn_robot):
+    return rn_robot.simulate(600)
+
+
+@pytest.fixture(scope="module")
+def nao():
+    return load_profile("nao")
+
+
+@pytest.fixture(scope="module")
+def nao_sim(nao):
+    return SimulatedRobot.from_profile(nao, seed=19).simulate()
+
+
+def _with_true_joints(sim):
+    """The dataset with the unquantised readings: what the robot really did."""
+    return replace(sim.data, joints=sim.true_joints)
+
+
+# --- configurations -----------------------------------------------------------------------------------
+
+
+def test_nao_profile_limits_are_the_spec_limits(nao) -> None:
+    lo, hi = nao.joint_limits()
+    for name, (a, b) in NAO_LIMITS.items():
+        j = nao.joint(name)
+        assert math.degrees(lo[j]) == pytest.approx(a) and math.degrees(hi[j]) == pytest.approx(b), name
+
+
+@pytest.mark.parametrize("which", ["rn", "nao"])
+def test_configurations_within_joint_limits(request, which: str) -> None:
+    profile = request.getfixturevalue(which)
+    sim = request.getfixturevalue(f"{which}_sim")
+    lo, hi = profile.joint_limits()
+    assert np.all(sim.true_joints >= lo - 1e-12) and np.all(sim.true_joints <= hi + 1e-12)
+    # Readings are rounded to 0.1 deg, which may cross a limit by at most half a step.
+    half = math.radians(0.05) + 1e-12
+    assert np.all(sim.data.joints >= lo - half) and np.all(sim.data.joints <= hi + half)
+    # The configurations vary (not one pose repeated).
+    assert np.ptp(sim.true_joints, axis=0).max() > math.radians(10)
+
+
+def test_robonaut_neck_roll_reads_zero(rn, rn_sim) -> None:
+    assert np.all(rn_sim.data.joints[:, rn.joint("neck_roll")] == 0.0)
+
+
+@pytest.mark.parametrize("which", ["rn", "nao"])
+def test_readings_are_quantised_to_a_tenth_degree(request, which: str) -> None:
+    sim = request.getfixturevalue(f"{which}_sim")
+    tenths = np.degrees(sim.data.joints) * 10
+    np.testing.assert_allclose(tenths, np.round(tenths), rtol=0, atol=1e-6)
+    err = np.degrees(sim.data.joints - sim.true_joints)
+    assert np.abs(err).max() <= 0.05 + 1e-9
+    moving = np.ptp(sim.true_joints, axis=0) > 0
+    assert np.abs(err[:, moving]).max() > 0.04  # really rounded, not exact
+
+
+def test_quantise_off_reports_the_true_readings(rn) -> None:
+    robot = SimulatedRobot.from_profile(rn, seed=23)
+    robot.quantise = False
+    sim = robot.simulate(20)
+    np.testing.assert_array_equal(sim.data.joints, sim.true_joints)
+
+
+def test_robonaut_exact_measurement_is_the_true_model(rn, rn_sim) -> None:
+    """`exact` is the true robot's fixture centre in the eye frame, at the true (unquantised) readings."""
+    truth = rn_sim.true_params
+    pred = Problem(rn, _with_true_joints(rn_sim), [], truth, noise_model=False).predict(truth)
+    np.testing.assert_allclose(rn_sim.exact, pred, rtol=0, atol=1e-9)
+
+
+def test_robonaut_fixture_in_front_of_the_eye_and_in_the_image(rn, rn_sim) -> None:
+    sensor = rn.sensors[rn.data.sensor]
+    X = rn_sim.exact @ sensor.R_frame_optical  # optical frame: x right, y down, z forward
+    fx, fy, cx, cy = (rn_sim.true_params[i] for i in sensor.intrinsics)
+    assert np.all(X[:, 2] > 0)
+    lo, hi = sensor.range
+    assert np.all((X[:, 2] >= lo) & (X[:, 2] <= hi))
+    u = fx * X[:, 0] / X[:, 2] + cx
+    v = fy * X[:, 1] / X[:, 2] + cy
+    w, h = sensor.image
+    assert np.all((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1))
+
+
+def test_nao_boards_in_front_of_the_camera_and_in_the_image(nao, nao_sim) -> None:
+    truth = nao_sim.true_params
+    problem = Problem(nao, _with_true_joints(nao_sim), [], truth, noise_model=False)
+    np.testing.assert_allclose(nao_sim.exact, problem.predict(truth), rtol=0, atol=1e-9)
+    x = problem.sensor_points(truth)  # camera frame: x forward
+    assert np.all(x[:, 0] > 0)
+    u, v = nao_sim.exact[:, 0], nao_sim.exact[:, 1]
+    assert np.all((u >= 0) & (u <= 639) & (v >= 0) & (v <= 479))
+    # The board's patterned face (its -z side, under the sole) looks at the camera.
+    pts = x.reshape(144, 24, 3)
+    ex = pts[:, 1] - pts[:, 0]  # +x of the board: the next column
+    ey = pts[:, 0] - pts[:, 6]  # +y of the board: the previous row
+    normal = np.cross(ex, ey)  # +z of the board
+    centre = pts.mean(axis=1)
+    assert np.all(np.einsum("ni,ni->n", normal, centre) > 0)  # the camera (origin) is on the -z side
+
+
+def test_nao_protocol_24_stances_by_3_head_postures_per_leg(nao, nao_sim) -> None:
+    data = nao_sim.data
+    assert data.n_configurations == 144
+    assert data.n_observations == 3456
+    head = [nao.joint("HeadYaw"), nao.joint("HeadPitch")]
+    for side, target in (("L", nao.target("left_board")), ("R", nao.target("right_board"))):
+        cfgs = np.unique(data.cfg[data.target == target])
+        assert len(cfgs) == 72
+        legs = [nao.joint(side + j) for j in LEG]
+        stances, counts = np.unique(np.round(data.joints[np.ix_(cfgs, legs)], 9), axis=0, return_counts=True)
+        assert len(stances) == 24 and np.all(counts == 3), side
+        for stance in stances:
+            rows = cfgs[np.all(np.round(data.joints[np.ix_(cfgs, legs)], 9) == stance, axis=1)]
+            pitches = np.degrees(data.joints[rows, head[1]])
+            assert len(np.unique(pitches)) == 3  # three head postures
+            assert pitches.min() < 15 and pitches.max() > 24  # spread over the 10..29 deg range
+    # Every configuration shows all 24 vertices of one board, once each.
+    for c in range(data.n_configurations):
+        obs = data.cfg == c
+        assert sorted(data.vertex[obs].tolist()) == list(range(24))
+        assert len(np.unique(data.target[obs])) == 1
+
+
+# --- drift ----------------------------------------------------------------------------------------------
+
+
+def test_drifted_robot_differs_only_in_joint_offsets(rn, rn_robot) -> None:
+    later = rn_robot.drifted(seed=5)
+    changed = {rn.parameters[i].name for i in np.flatnonzero(later.true_params != rn_robot.true_params)}
+    thetas = {f"{j}.theta" for j in rn.joint_names}
+    assert changed == thetas  # every joint offset, nothing else
+    assert (later.pixel_noise, later.disparity_noise, later.quantise) == (
+        rn_robot.pixel_noise,
+        rn_robot.disparity_noise,
+        rn_robot.quantise,
+    )
+    drift = np.degrees(later.true_params - rn_robot.true_params)
+    assert np.abs(drift).max() > 0.5  # a drift that matters
+    # Another day, another drift; the day-1 robot is unchanged.
+    assert not np.array_equal(rn_robot.drifted(seed=6).true_params, later.true_params)
+    np.testing.assert_array_equal(rn_robot.true_params, rn.true_params())
+
+
+def test_nao_drift_moves_only_joint_offsets(nao) -> None:
+    robot = SimulatedRobot.from_profile(nao, seed=1)
+    later = robot.drifted(seed=2)
+    changed = {nao.parameters[i].name for i in np.flatnonzero(later.true_params != robot.true_params)}
+    assert changed and changed <= set(nao.joint_names)  # NAO's joint offsets carry the joint's name
+
+
+# --- noise ----------------------------------------------------------------------------------------------
+
+
+def test_robonaut_error_grows_with_distance(rn) -> None:
+    """Stereo depth noise grows with the square of the distance: far points are measured worse, and
+    worse by more than their distance ratio (the lateral part alone would grow only linearly)."""
+    sim = SimulatedRobot.from_profile(rn, seed=43).simulate(1500)
+    err = np.linalg.norm(sim.data.measured - sim.exact, axis=1)
+    dist = np.linalg.norm(sim.exact, axis=1)
+    order = np.argsort(dist)
+    third = len(order) // 3
+    near, far = order[:third], order[-third:]
+    e_near, e_far = np.sqrt(np.mean(err[near] ** 2)), np.sqrt(np.mean(err[far] ** 2))
+    d_near, d_far = dist[near].mean(), dist[far].mean()
+    assert np.all(err > 0)
+    assert e_far > 1.5 * e_near, (e_near, e_far)
+    assert e_far / e_near > 1.1 * d_far / d_near, (e_far / e_near, d_far / d_near)
+
+
+def test_nao_pixel_noise_is_about_0_2_px(nao_sim) -> None:
+    e = nao_sim.data.measured - nao_sim.exact
+    assert e.std() == pytest.approx(0.2, rel=0.05)
+    assert abs(e.mean()) < 0.02
+    # Independent in u and v.
+    assert abs(np.corrcoef(e[:, 0], e[:, 1])[0, 1]) < 0.1
+
+
+def test_noise_off_measures_exactly(rn, nao) -> None:
+    for profile, n in ((rn, 20), (nao, None)):
+        robot = SimulatedRobot.from_profile(profile, seed=29)
+        robot.pixel_noise = 0
+        robot.disparity_noise = 0
+        sim = robot.measure(*robot.configurations(n)) if n else robot.measure(*_few_stances(robot))
+        np.testing.assert_allclose(sim.data.measured, sim.exact, rtol=0, atol=1e-9)
+
+
+def _few_stances(robot):
+    return robot.configurations(6)  # 1 stance per leg, 3 postures each
+
+
+def test_outliers_are_where_the_simulation_says(rn) -> None:
+    robot = SimulatedRobot.from_profile(rn, seed=37)
+    sim = robot.simulate(400, outlier_rate=0.05, outlier_size=20.0)
+    err = np.linalg.norm(sim.data.measured - sim.exact, axis=1)
+    assert 5 <= sim.outliers.sum() <= 40
+    assert err[sim.outliers].min() > 15.0  # 20 cm in a random direction, plus the ordinary noise
+    assert err[~sim.outliers].max() < 5.0
