@@ -1,4 +1,4 @@
-"""The `calib` command (specs/cli.md): solve, predict, simulate.
+"""The `calib` command (specs/cli.md): solve, predict, simulate, detect-sphere, detect-board.
 
 Bad input ends with exit status 2 and a message naming file, line and column; an internal failure
 (a bug) with exit status 1 and one line (set CALIB_DEBUG=1 for the traceback); never a traceback
@@ -18,6 +18,7 @@ import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from calib_core import (
@@ -31,7 +32,10 @@ from calib_core import (
     to_csv,
     write_atomic,
 )
+from calib_core.ballfinder import find_sphere
 from calib_core.profile import Profile
+from calib_core.sandal_board import detect_board
+from calib_core.session import FrameRecord, write_session
 from calib_core.units import length_factor
 
 
@@ -75,15 +79,44 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--day", type=int, default=1, help="2, 3, ...: a later day with drifted offsets")
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--outliers", type=float, default=0.0, help="share of failed detections")
-    sim.add_argument("--out", required=True, help="the dataset CSV")
+    sim.add_argument("--out", help="the dataset CSV (points measured with the sensor's noise model)")
     sim.add_argument("--truth", help="also write the hidden true parameters (JSON)")
+    sim.add_argument(
+        "--session",
+        help="instead: render camera images, run the detectors and write a session folder "
+        "(session.json, data.csv from the detections, truth.json, images/)",
+    )
+    sim.add_argument("--name", help="the session's name (with --session)")
+    sim.add_argument("--keep-images", type=int, help="with --session: keep the images of the first N frames")
+    sim.add_argument("--calibration", help="with --session: the calibration the robot runs with (seeds the detectors)")
+
+    ds = sub.add_parser("detect-sphere", help="find the calibration sphere's centre in a depth map (BallFinder)")
+    ds.add_argument("--depth", required=True, help="float32 depth in metres (.npy), 0 or NaN for no data")
+    for name in ("fx", "fy", "cx", "cy"):
+        ds.add_argument(f"--{name}", required=True, type=float, help=f"intrinsic {name}, px")
+    ds.add_argument("--radius", required=True, type=float, help="sphere radius, m")
+    ds.add_argument("--seed", help="predicted centre X,Y,Z in m, camera frame (write --seed=-0.1,0.2,0.8)")
+    ds.add_argument("--json", action="store_true", help="one line of JSON (default: indented JSON)")
+
+    db = sub.add_parser("detect-board", help="find a checkerboard's inner corners in an image")
+    db.add_argument("--image", required=True, help="the camera image (PNG, JPEG, ...)")
+    db.add_argument("--cols", required=True, type=int, help="inner corners per row (6 for the NAO sandals)")
+    db.add_argument("--rows", required=True, type=int, help="inner corners per column (4 for the NAO sandals)")
+    db.add_argument("--json", action="store_true", help="one line of JSON (default: indented JSON)")
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        return {"solve": _solve, "predict": _predict, "simulate": _simulate}[args.command](args)
+        commands = {
+            "solve": _solve,
+            "predict": _predict,
+            "simulate": _simulate,
+            "detect-sphere": _detect_sphere,
+            "detect-board": _detect_board,
+        }
+        return commands[args.command](args)
     except InputError as exc:
         print(f"calib {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -152,15 +185,22 @@ def _predict(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     profile = load_profile(args.robot)
+    if (args.out is None) == (args.session is None):
+        raise InputError("give either --out (a dataset CSV) or --session (a session folder with images)")
     if args.configurations is not None and args.configurations < 1:
         raise InputError("--configurations must be at least 1")
     if not 0.0 <= args.outliers < 0.5:
         raise InputError("--outliers must be in [0, 0.5)")
-    _check_writable(args.out)
+    if args.session and args.outliers:
+        raise InputError("--outliers applies to --out; with --session the detectors make their own failures")
+    believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None
+    _check_writable(args.out or args.session, session=args.session is not None)
     robot = SimulatedRobot.from_profile(profile, seed=args.seed)
     for day in range(2, args.day + 1):
         robot = robot.drifted(seed=1000 * args.seed + day)
     start = time.perf_counter()
+    if args.session:
+        return _simulate_session(args, profile, robot, believed, start)
     sim = robot.simulate(args.configurations, outlier_rate=args.outliers, outlier_size=_gross_error(profile))
     _save(args.out, lambda: write_atomic(Path(args.out), to_csv(profile, sim.data)))
     if args.truth:
@@ -176,6 +216,99 @@ def _simulate(args: argparse.Namespace) -> int:
         f"({int(np.sum(sim.outliers))} gross errors) in {time.perf_counter() - start:.1f} s: {args.out}"
     )
     return 0
+
+
+def _simulate_session(
+    args: argparse.Namespace, profile: Profile, robot: SimulatedRobot, believed: np.ndarray | None, start: float
+) -> int:
+    sim = robot.simulate_images(args.configurations, believed)
+    keep = len(sim.captures) if args.keep_images is None else args.keep_images
+    frames = [
+        FrameRecord(
+            c.frame,
+            {j.name: round(float(np.degrees(v)), 6) for j, v in zip(profile.joints, c.readings, strict=True)},
+            c.sighting.status,
+            c.sighting.reason,
+            {},
+            c.sighting.detail,
+        )
+        for c in sim.captures
+    ]
+    images = {c.frame: c.images for c in sim.captures[:keep]}
+    day = f"day {args.day}" if args.day > 1 else "first day"
+    description = (
+        f"Simulated {profile.title}, {day} (seed {args.seed}): {len(frames)} configurations rendered and seen "
+        f"through the detectors; {sim.data.n_configurations} measured."
+    )
+    made_by = " ".join(["calib", *sys.argv[1:]]) if sys.argv[0].endswith("calib") else "calib simulate --session"
+    _save(
+        args.session,
+        lambda: write_session(
+            args.session,
+            profile,
+            name=args.name or Path(args.session).name,
+            description=description,
+            made_by=made_by,
+            data=sim.data,
+            frames=frames,
+            images=images,
+            truth=sim.true_params,
+        ),
+    )
+    missed = len(frames) - sim.data.n_configurations
+    print(
+        f"{len(frames)} configurations rendered, {sim.data.n_configurations} measured, {missed} not found, "
+        f"in {time.perf_counter() - start:.1f} s: {args.session}"
+    )
+    return 0
+
+
+def _detect_sphere(args: argparse.Namespace) -> int:
+    depth = _load_depth(args.depth)
+    for name in ("fx", "fy", "radius"):
+        if not getattr(args, name) > 0:
+            raise InputError(f"--{name} must be positive, got {getattr(args, name)}")
+    seed = None
+    if args.seed is not None:
+        try:
+            seed = np.array([float(v) for v in args.seed.split(",")])
+        except ValueError:
+            raise InputError(f"--seed '{args.seed}' is not three numbers X,Y,Z") from None
+        if seed.shape != (3,) or not np.all(np.isfinite(seed)):
+            raise InputError(f"--seed '{args.seed}' is not three finite numbers X,Y,Z")
+    if seed is not None and seed[2] <= 0:
+        raise InputError(f"--seed '{args.seed}' lies behind the camera (Z must be positive)")
+    found = find_sphere(depth, args.fx, args.fy, args.cx, args.cy, args.radius, seed)
+    _print_json(found.to_json(), args.json)
+    return 0
+
+
+def _detect_board(args: argparse.Namespace) -> int:
+    if args.cols < 3 or args.rows < 3:
+        raise InputError("--cols and --rows must be at least 3 (inner corners)")
+    if not Path(args.image).is_file():
+        raise InputError("image file does not exist", file=args.image)
+    image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError("is not an image OpenCV can read", file=args.image)
+    _print_json(detect_board(image, args.cols, args.rows).to_json(), args.json)
+    return 0
+
+
+def _load_depth(path: str) -> np.ndarray:
+    try:
+        depth = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise InputError("depth file does not exist", file=path) from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"is not a NumPy .npy array ({exc})", file=path) from None
+    if not isinstance(depth, np.ndarray) or depth.ndim != 2 or not np.issubdtype(depth.dtype, np.floating):
+        raise InputError("must hold a 2-D float array of depths in metres", file=path)
+    return depth.astype(np.float32, copy=False)
+
+
+def _print_json(obj: dict, one_line: bool) -> None:
+    print(json.dumps(obj) if one_line else json.dumps(obj, indent=2))
 
 
 def _gross_error(profile: Profile) -> float:
@@ -195,10 +328,13 @@ def _load_calibration(path: str, profile: Profile) -> Calibration:
     return cal
 
 
-def _check_writable(path: str) -> None:
-    """Fail before the work, not after it, when the output cannot be written."""
+def _check_writable(path: str, session: bool = False) -> None:
+    """Fail before the work, not after it, when the output cannot be written. A session folder may
+    replace an earlier session folder, never any other folder."""
     target = Path(path)
-    if target.is_dir():
+    if session and target.is_dir() and not (target / "session.json").is_file():
+        raise InputError("exists and is not a session folder; give a new folder name", file=path)
+    if not session and target.is_dir():
         raise InputError("is a directory; give a file name", file=path)
     parent = target.parent if str(target.parent) else Path(".")
     if not parent.is_dir():

@@ -160,3 +160,33 @@ def op_signs(profile: Profile, target_frame: int, sensor_frame: int) -> dict[int
     t_ops = ancestors_ops(profile, target_frame)
     s_ops = ancestors_ops(profile, sensor_frame)
     return {i: 1.0 for i in t_ops - s_ops} | {i: -1.0 for i in s_ops - t_ops}
+
+
+def target_points(profile: Profile, p: np.ndarray, target: int) -> np.ndarray:
+    """The points (K, 3) of a target in its frame: a board's grid, or the calibrated point."""
+    t = profile.targets[target]
+    if t.grid is not None:
+        return t.grid
+    assert t.point_params is not None
+    return p[list(t.point_params)][None]
+
+
+def sensor_points(
+    profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray, *, center_only: bool = False
+) -> np.ndarray:
+    """Each configuration's target points in the data sensor's frame: (N, K, 3), or (N, 3) of
+    their centre with `center_only`. Rows whose target has fewer points than K are zero-padded."""
+    sensor = profile.sensors[profile.data.sensor]
+    used = sorted(set(np.asarray(targets).tolist()))
+    poses = forward(profile, p, q, frames=sorted({profile.targets[t].frame for t in used} | {sensor.frame}))
+    K = 1 if center_only else max(len(target_points(profile, p, t)) for t in used)
+    out = np.zeros((len(q), K, 3))
+    for t in used:
+        rows = np.flatnonzero(targets == t)
+        pts = target_points(profile, p, t)
+        pts = pts.mean(axis=0, keepdims=True) if center_only else pts
+        tf = profile.targets[t].frame
+        P = poses.R[tf][rows] @ pts.T + poses.t[tf][rows][:, :, None]  # (n, 3, k)
+        Rs, ts = poses.R[sensor.frame][rows], poses.t[sensor.frame][rows]
+        out[rows, : len(pts)] = (Rs.transpose(0, 2, 1) @ (P - ts[:, :, None])).transpose(0, 2, 1)
+    return out[:, 0] if center_only else out

@@ -18,9 +18,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .dataset import Dataset
-from .kinematics import forward
+from .kinematics import sensor_points
 from .measurement import optical_rotation, predict, project_to_image
 from .profile import Profile
+from .sandal_board import render_board_image
+from .stereo import StereoHead, depth_from_pair, render_pair
+from .vision import Sighting, sight_board, sight_fixture
 
 
 @dataclass
@@ -32,6 +35,27 @@ class Simulation:
     true_joints: np.ndarray  # (N, n_joints) the unquantised readings (physical angle - offset)
     exact: np.ndarray  # (M, dim) the noise-free measurement
     outliers: np.ndarray  # (M,) bool: observations replaced by gross errors
+
+
+@dataclass
+class Capture:
+    """One configuration looked at through the simulated cameras."""
+
+    frame: int
+    readings: np.ndarray  # (n_joints,) rad: what the robot reports (quantised)
+    sighting: Sighting
+    images: dict[str, np.ndarray]  # "left", "right" (stereo) or "image" (a camera)
+
+
+@dataclass
+class ImageSimulation:
+    """A session measured from rendered images: the dataset of what the detectors found."""
+
+    data: Dataset  # the measured frames only
+    captures: list[Capture]  # every frame, found or not
+    true_params: np.ndarray
+    true_joints: np.ndarray  # (N, n_joints) unquantised readings of every frame
+    targets: np.ndarray  # (N,) the target each frame shows
 
 
 @dataclass
@@ -150,32 +174,11 @@ class SimulatedRobot:
         return float(candidates[int(np.argmin(cost))])
 
     # --- what the sensor sees ---------------------------------------------------------------------
-    def _points(self, target: int) -> np.ndarray:
-        t = self.profile.targets[target]
-        if t.grid is not None:
-            return t.grid
-        assert t.point_params is not None
-        return self.true_params[list(t.point_params)][None]
-
     def _sensor_points(
         self, q: np.ndarray, targets: np.ndarray, p: np.ndarray, center_only: bool = False
     ) -> np.ndarray:
         """Target points in the sensor frame: (N, 3) with center_only, else (N, K, 3)."""
-        prof = self.profile
-        sensor = prof.sensors[prof.data.sensor]
-        frames = sorted({prof.targets[t].frame for t in set(targets.tolist())} | {sensor.frame})
-        poses = forward(prof, p, q, frames=frames)
-        K = max(len(self._points(t)) for t in set(targets.tolist()))
-        out = np.zeros((len(q), 1 if center_only else K, 3))
-        for t in set(targets.tolist()):
-            rows = np.flatnonzero(targets == t)
-            pts = self._points(t)
-            pts = pts.mean(axis=0, keepdims=True) if center_only else pts
-            tf = prof.targets[t].frame
-            P = np.einsum("nij,kj->nki", poses.R[tf][rows], pts) + poses.t[tf][rows][:, None]
-            Rs, ts = poses.R[sensor.frame][rows], poses.t[sensor.frame][rows]
-            out[rows, : len(pts)] = np.einsum("nji,nkj->nki", Rs, P - ts[:, None])
-        return out[:, 0] if center_only else out
+        return sensor_points(self.profile, p, q, targets, center_only=center_only)
 
     def visible(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """Whether every point of each configuration's target is seen by the sensor (N,) bool."""
@@ -247,10 +250,7 @@ class SimulatedRobot:
         if outliers.any():
             d = self.rng.normal(size=(outliers.sum(), noisy_a.shape[1]))
             noisy_a[outliers] += outlier_size * d / np.linalg.norm(d, axis=1, keepdims=True)
-        readings = q.copy()
-        step = np.array([j.resolution for j in prof.joints])
-        if self.quantise:
-            readings = np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
+        readings = self.readings(q)
         data = Dataset(
             robot=prof.name,
             frame_ids=np.arange(1, len(q) + 1),
@@ -279,7 +279,61 @@ class SimulatedRobot:
         X_noisy = np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=1)
         return X_noisy @ sensor.R_frame_optical.T
 
+    # --- seeing: rendered images and the detectors ------------------------------------------------
+    def readings(self, q: np.ndarray) -> np.ndarray:
+        """What the encoders report for true readings q: rounded to each joint's resolution."""
+        step = np.array([j.resolution for j in self.profile.joints])
+        if not self.quantise:
+            return q.copy()
+        return np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
+
+    def capture(self, frame: int, q: np.ndarray, target: int, believed: np.ndarray) -> Capture:
+        """Render what the sensor sees in configuration q (one row, rad) and run its detector,
+        seeded by the calibration the robot believes in (`believed`, internal units)."""
+        prof = self.profile
+        sensor = prof.sensors[prof.data.sensor]
+        readings = self.readings(q)
+        if sensor.model == "point3d" and sensor.baseline is not None:
+            head = StereoHead.from_profile(prof, self.true_params, sensor.name)
+            pair = render_pair(prof, self.true_params, q, head, self.rng)
+            depth = depth_from_pair(pair.left, pair.right, head)
+            sighting = sight_fixture(prof, believed, readings, depth, head)
+            return Capture(frame, readings, sighting, {"left": pair.left, "right": pair.right})
+        if sensor.model == "pinhole":
+            board = render_board_image(prof, self.true_params, q, target, self.rng)
+            sighting = sight_board(prof, believed, readings, target, board.image)
+            return Capture(frame, readings, sighting, {"image": board.image})
+        raise ValueError(f"no renderer for a '{sensor.model}' sensor without a stereo baseline")
+
+    def simulate_images(self, n: int | None = None, believed: np.ndarray | None = None) -> ImageSimulation:
+        """Random visible configurations, seen through rendered images and the detectors.
+        `believed`: the calibration that seeds the detectors (default: the nominal model)."""
+        prof = self.profile
+        believed = prof.nominal() if believed is None else believed
+        q, targets = self.configurations(n)
+        captures = [self.capture(k + 1, q[k], int(targets[k]), believed) for k in range(len(q))]
+        return ImageSimulation(dataset_from_captures(prof, captures), captures, self.true_params.copy(), q, targets)
+
     def simulate(self, n: int | None = None, **kwargs) -> Simulation:
         """Random visible configurations, observed."""
         q, targets = self.configurations(n)
         return self.measure(q, targets, **kwargs)
+
+
+def dataset_from_captures(profile: Profile, captures: list[Capture]) -> Dataset:
+    """The dataset of the measured captures (frames whose detector found nothing are left out)."""
+    got = [c for c in captures if c.sighting.measured is not None]
+    if not got:
+        raise ValueError("no capture was measured")
+    counts = [len(c.sighting.measured) for c in got]  # type: ignore[arg-type]
+    return Dataset(
+        robot=profile.name,
+        frame_ids=np.array([c.frame for c in got]),
+        joints=np.array([c.readings for c in got]),
+        cfg=np.repeat(np.arange(len(got)), counts),
+        target=np.repeat([c.sighting.target for c in got], counts),
+        point=np.concatenate([c.sighting.points for c in got]),
+        vertex=np.concatenate([c.sighting.vertices for c in got]),
+        measured=np.concatenate([c.sighting.measured for c in got]),  # type: ignore[misc]
+        source="simulator (images)",
+    )

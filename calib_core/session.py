@@ -1,0 +1,143 @@
+"""Session folders: a capture session on disk, the form the sample sessions ship in.
+
+    <folder>/session.json   robot, name, description, how it was made, one record per frame
+                            (joint readings in deg, status "measured" / "not found" and why, images)
+    <folder>/data.csv       the measured observations in the robot's pinned CSV format
+    <folder>/truth.json     (simulated sessions) the hidden true parameters, display units
+    <folder>/images/        camera images (PNG for boards, JPEG for stereo pairs), where kept
+
+The CSV is the contract other tools read; session.json adds what the CSV cannot hold: frames whose
+detector found nothing, and where each frame's images are.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .calibration import write_atomic
+from .dataset import Dataset, read_dataset, to_csv
+from .errors import InputError
+from .profile import Profile, load_profile
+
+FORMAT = "calib-session/1"
+
+
+@dataclass
+class FrameRecord:
+    frame: int
+    joints_deg: dict[str, float]
+    status: str  # "measured" or "not found"
+    reason: str
+    images: dict[str, str]  # role ("left", "right", "image") -> path relative to the session folder
+    detail: dict[str, Any]
+
+
+@dataclass
+class SessionFolder:
+    folder: Path
+    robot: str
+    name: str
+    description: str
+    made_by: str
+    frames: list[FrameRecord]
+    data: Dataset
+    truth: dict[str, float] | None
+
+
+def write_session(
+    folder: str | Path,
+    profile: Profile,
+    *,
+    name: str,
+    description: str,
+    made_by: str,
+    data: Dataset,
+    frames: list[FrameRecord],
+    images: dict[int, dict[str, np.ndarray]] | None = None,
+    truth: np.ndarray | None = None,
+) -> None:
+    """Write a session folder whole: it is built beside the target and moved into place, so a
+    crash leaves the old folder or the new one, never half of one."""
+    target = Path(folder)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}."))
+    try:
+        (work / "images").mkdir()
+        records = []
+        for fr in frames:
+            paths = {}
+            for role, img in (images or {}).get(fr.frame, {}).items():
+                rel = f"images/{fr.frame:04d}_{role}" + (".png" if role == "image" else ".jpg")
+                params = [cv2.IMWRITE_PNG_COMPRESSION, 9] if role == "image" else [cv2.IMWRITE_JPEG_QUALITY, 90]
+                if not cv2.imwrite(str(work / rel), img, params):
+                    raise OSError(f"cannot write {rel}")
+                paths[role] = rel
+            records.append({**fr.__dict__, "images": paths or fr.images})
+        meta = {
+            "format": FORMAT,
+            "robot": profile.name,
+            "name": name,
+            "description": description,
+            "made_by": made_by,
+            "data": "data.csv",
+            "truth": "truth.json" if truth is not None else None,
+            "frames": records,
+        }
+        write_atomic(work / "session.json", json.dumps(meta, indent=1) + "\n")
+        write_atomic(work / "data.csv", to_csv(profile, data))
+        if truth is not None:
+            write_atomic(work / "truth.json", json.dumps(profile.params_to_display(truth), indent=1) + "\n")
+        if target.exists():
+            old = target.with_name(f".{target.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            target.rename(old)
+            work.rename(target)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            work.rename(target)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+
+
+def read_session(folder: str | Path) -> SessionFolder:
+    """A session folder; InputError names the file and the field of any problem."""
+    folder = Path(folder)
+    meta_path = folder / "session.json"
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("session.json is missing: not a session folder", file=str(folder)) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot be read ({exc})", file=str(meta_path)) from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise InputError(f"not a session file (format is not {FORMAT!r})", file=str(meta_path))
+    try:
+        profile = load_profile(meta["robot"])
+        frames = [FrameRecord(**fr) for fr in meta["frames"]]
+        data = read_dataset(profile, folder / meta.get("data", "data.csv"))
+        truth = None
+        if meta.get("truth"):
+            truth = json.loads((folder / meta["truth"]).read_text(encoding="utf-8"))
+        return SessionFolder(
+            folder,
+            profile.name,
+            str(meta["name"]),
+            str(meta.get("description", "")),
+            str(meta.get("made_by", "")),
+            frames,
+            data,
+            truth,
+        )
+    except KeyError as exc:
+        raise InputError(f"lacks the field {exc}", file=str(meta_path)) from None
+    except (TypeError, json.JSONDecodeError, OSError) as exc:
+        raise InputError(f"is malformed ({exc})", file=str(meta_path)) from None

@@ -1,0 +1,75 @@
+"""From camera images to measurements, the way a real head does it: the detectors are seeded by the
+kinematic prediction of the robot's current (believed) calibration, and their results become rows
+of the pinned data formats. The same functions serve the simulated robot and a real one.
+
+- Robonaut: stereo depth -> BallFinder -> the sphere's centre in the eye frame (one 3-D point).
+- NAO: the lower camera's image -> sandal board detector -> the 24 vertices in px, each with its
+  identity (the 180-degree symmetry of the grid resolved by the prediction).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .ballfinder import find_sphere
+from .kinematics import sensor_points, target_points
+from .measurement import predict
+from .profile import Profile
+from .sandal_board import detect_board
+from .stereo import StereoHead
+from .units import length_factor
+
+
+@dataclass
+class Sighting:
+    """What one look at a target gave: measured rows, or why there are none."""
+
+    target: int
+    status: str  # "measured" or "not found"
+    reason: str
+    measured: np.ndarray | None  # (K, dim): a sensor-frame point (profile length unit) or pixels
+    points: np.ndarray  # (K, 3) the observed points in the target frame (NaN: the calibrated point)
+    vertices: np.ndarray  # (K,) vertex ids, -1 for a single point
+    detail: dict = field(default_factory=dict)  # the detector's own figures (votes, inliers, ...)
+
+
+def predicted_points(profile: Profile, p: np.ndarray, q: np.ndarray, target: int) -> np.ndarray:
+    """The target's points (K, 3) in the data sensor's frame, for one configuration q (rad)."""
+    k = len(target_points(profile, p, target))
+    return sensor_points(profile, p, q[None], np.array([target]))[0, :k]
+
+
+def sight_fixture(
+    profile: Profile, p_believed: np.ndarray, q: np.ndarray, depth_m: np.ndarray, head: StereoHead
+) -> Sighting:
+    """The BallFinder on a depth map, seeded by where the believed kinematics put the fixture."""
+    target = profile.data.target if profile.data.target is not None else 0
+    radius = profile.targets[target].radius
+    if radius is None:
+        raise ValueError(f"target '{profile.targets[target].name}' has no radius: not a sphere")
+    to_m = length_factor(profile.length_unit, "m")
+    seed_m = (predicted_points(profile, p_believed, q, target)[0] @ head.R_frame_optical) * to_m
+    found = find_sphere(depth_m, head.fx_px, head.fy_px, head.cx_px, head.cy_px, radius * to_m, seed_m)
+    detail = found.to_json()
+    points = np.full((1, 3), np.nan)
+    if not found.found or found.center_m is None:
+        return Sighting(target, "not found", found.reason, None, points, np.array([-1]), detail)
+    measured = (head.R_frame_optical @ found.center_m) / to_m
+    return Sighting(target, "measured", "ok", measured[None], points, np.array([-1]), detail)
+
+
+def sight_board(profile: Profile, p_believed: np.ndarray, q: np.ndarray, target: int, image: np.ndarray) -> Sighting:
+    """The sandal board detector, its vertex identities taken from the believed kinematics."""
+    sensor = profile.sensors[profile.data.sensor]
+    board = profile.targets[target]
+    assert board.grid is not None and board.grid_shape is not None
+    rows, cols = board.grid_shape
+    expected = predict(sensor, p_believed, predicted_points(profile, p_believed, q, target))[0]
+    found = detect_board(image, cols, rows, predicted=expected)
+    vertices = np.arange(rows * cols)
+    detail = {"found": found.found, "reason": found.reason, "residual_px": found.residual_px}
+    if not found.found or found.corners is None:
+        return Sighting(target, "not found", found.reason, None, board.grid, vertices, detail)
+    return Sighting(target, "measured", "ok", np.asarray(found.corners, float), board.grid, vertices, detail)
