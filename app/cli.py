@@ -12,6 +12,7 @@ import csv
 import io
 import json
 import os
+import shlex
 import sys
 import time
 import traceback
@@ -240,7 +241,7 @@ def _simulate_session(
         f"Simulated {profile.title}, {day} (seed {args.seed}): {len(frames)} configurations rendered and seen "
         f"through the detectors; {sim.data.n_configurations} measured."
     )
-    made_by = " ".join(["calib", *sys.argv[1:]]) if sys.argv[0].endswith("calib") else "calib simulate --session"
+    made_by = shlex.join(["calib", *sys.argv[1:]]) if sys.argv[0].endswith("calib") else "calib simulate --session"
     _save(
         args.session,
         lambda: write_session(

@@ -4,7 +4,7 @@
                             (joint readings in deg, status "measured" / "not found" and why, images)
     <folder>/data.csv       the measured observations in the robot's pinned CSV format
     <folder>/truth.json     (simulated sessions) the hidden true parameters, display units
-    <folder>/images/        camera images (PNG for boards, JPEG for stereo pairs), where kept
+    <folder>/images/        camera images (JPEG; the detections were made before compression), where kept
 
 The CSV is the contract other tools read; session.json adds what the CSV cannot hold: frames whose
 detector found nothing, and where each frame's images are.
@@ -75,9 +75,9 @@ def write_session(
         for fr in frames:
             paths = {}
             for role, img in (images or {}).get(fr.frame, {}).items():
-                rel = f"images/{fr.frame:04d}_{role}" + (".png" if role == "image" else ".jpg")
-                params = [cv2.IMWRITE_PNG_COMPRESSION, 9] if role == "image" else [cv2.IMWRITE_JPEG_QUALITY, 90]
-                if not cv2.imwrite(str(work / rel), img, params):
+                # JPEG keeps sessions small; the detections were made on the uncompressed images.
+                rel = f"images/{fr.frame:04d}_{role}.jpg"
+                if not cv2.imwrite(str(work / rel), img, [cv2.IMWRITE_JPEG_QUALITY, 90]):
                     raise OSError(f"cannot write {rel}")
                 paths[role] = rel
             records.append({**fr.__dict__, "images": paths or fr.images})
