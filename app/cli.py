@@ -279,7 +279,10 @@ def _detect_sphere(args: argparse.Namespace) -> int:
             raise InputError(f"--seed '{args.seed}' is not three finite numbers X,Y,Z")
     if seed is not None and seed[2] <= 0:
         raise InputError(f"--seed '{args.seed}' lies behind the camera (Z must be positive)")
-    found = find_sphere(depth, args.fx, args.fy, args.cx, args.cy, args.radius, seed)
+    try:
+        found = find_sphere(depth, args.fx, args.fy, args.cx, args.cy, args.radius, seed)
+    except ValueError as exc:  # the finder's own checks of its arguments
+        raise InputError(str(exc), file=args.depth) from None
     _print_json(found.to_json(), args.json)
     return 0
 
