@@ -104,6 +104,12 @@ def _parser() -> argparse.ArgumentParser:
     db.add_argument("--cols", required=True, type=int, help="inner corners per row (6 for the NAO sandals)")
     db.add_argument("--rows", required=True, type=int, help="inner corners per column (4 for the NAO sandals)")
     db.add_argument("--json", action="store_true", help="one line of JSON (default: indented JSON)")
+
+    sv = sub.add_parser("serve", help="start the dashboard (simulated robots, sample sessions) in a browser")
+    sv.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    sv.add_argument("--port", type=int, default=8000, help="the page and the API (default 8000)")
+    sv.add_argument("--viser-port", type=int, default=None, help="the 3-D scene's port (default: --port + 1)")
+    sv.add_argument("--data-dir", default="data", help="where sessions, calibrations and history live (default data/)")
     return p
 
 
@@ -116,6 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "simulate": _simulate,
             "detect-sphere": _detect_sphere,
             "detect-board": _detect_board,
+            "serve": _serve,
         }
         return commands[args.command](args)
     except InputError as exc:
@@ -356,3 +363,13 @@ def _save(path: str, write) -> None:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from .server import serve  # the web stack loads only for this subcommand
+
+    if not 0 < args.port < 65536:
+        raise InputError(f"--port {args.port} is not a TCP port")
+    viser_port = args.port + 1 if args.viser_port is None else args.viser_port
+    serve(args.host, args.port, Path(args.data_dir), viser_port=viser_port)
+    return 0

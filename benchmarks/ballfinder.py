@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/ballfinder.py              # 40 scenes per distance bin and noise level
     .venv/bin/python benchmarks/ballfinder.py --scenes 10  # quicker
 
-The scenes are the tests' (tests/test_ballfinder.py): a 4 cm sphere on a forearm, a table under it
+The scenes are calib_core.depth_scenes' (also the tests'): a 4 cm sphere on a forearm, a table under it
 (touching it in half the scenes) and a wall behind, seen by a 640 x 480, f = 525 px camera, with
 depth noise growing with z^2 ("nominal": 5.3 mm at 1 m, a 9 cm baseline and 0.25 px of disparity
 noise; the finder is always configured for nominal), the sphere's outline fattened by 1-2 px with its
@@ -16,16 +16,12 @@ no normals), without a seed, and how often something is found where it must not 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from calib_core.ballfinder import FinderOptions
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the tests' scene renderer
-from test_ballfinder import RADIUS_M, case, detect, random_centre, render, seed_near
+from calib_core.depth_scenes import RADIUS_M, case, detect, random_centre, render, seed_near
 
 BINS_M = ((0.4, 0.6), (0.6, 0.8), (0.8, 1.0), (1.0, 1.2))
 NOISE = {"none": 0.0, "nominal": 1.0, "2x": 2.0}

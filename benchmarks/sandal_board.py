@@ -22,7 +22,7 @@ import numpy as np
 from calib_core import SimulatedRobot, load_profile
 from calib_core.sandal_board import board_corners, detect_board, render_board_image
 
-OBLIQUITY_BINS_DEG = (76.0, 82.0, 85.0, 88.0, 90.0)
+OBLIQUITY_BINS_DEG = (70.0, 80.0, 83.0, 85.0, 86.0, 90.0)
 
 
 def main() -> None:
@@ -89,11 +89,16 @@ def main() -> None:
             f"  time per image: median {statistics.median(detect_ms):.1f} ms (target <= 20), "
             f"mean {statistics.fmean(detect_ms):.1f}, 90% {np.percentile(detect_ms, 90):.1f}, max {max(detect_ms):.0f}"
         )
-        rates = []
+        rates, accuracy = [], []
+        frame_rms = np.full(len(q), np.nan)
+        frame_rms[found] = [np.sqrt((err**2).mean()) for err in errors]
         for lo, hi in itertools.pairwise(OBLIQUITY_BINS_DEG):
             inside = (obliquity >= lo) & (obliquity < hi)
             rates.append(f"{lo:.0f}-{hi:.0f} deg {found[inside].sum()}/{inside.sum()}")
+            if (inside & found).any():
+                accuracy.append(f"{lo:.0f}-{hi:.0f} deg {np.sqrt(np.mean(frame_rms[inside & found] ** 2)):.3f} px")
         print("  detected by obliquity: " + ", ".join(rates))
+        print("  corner RMS by obliquity: " + ", ".join(accuracy))
 
     no_prediction_ms, reasons = [], Counter()
     for image in images["realistic"]:

@@ -50,6 +50,13 @@ REFINE_BLUR_PX = 0.5  # smooths sharp edges before the rectifying warp interpola
 # false grid or too foreshortened to be measured well.
 GRID_RESIDUAL_PX = 0.3
 
+# What the detector measures reliably (benchmarks/sandal_board.py): a board seen at most
+# MAX_OBLIQUITY_DEG from its normal, its neighbouring vertices at least MIN_VERTEX_SPACING_PX apart in
+# the image. Beyond, tiles a pixel or two tall merge under the blur and most views are lost as
+# "partial", "inconsistent" or "not found"; the simulator picks no such view.
+MAX_OBLIQUITY_DEG = 86.0
+MIN_VERTEX_SPACING_PX = 2.5
+
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
 
 

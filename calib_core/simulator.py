@@ -6,7 +6,9 @@ offset + reading, and the reading is rounded to the joint's encoder resolution (
 written, so calibrations see the same rounding a real robot gives. Measurements carry sensor noise:
 a stereo head triangulates from noisy pixels and a noisy disparity (depth noise grows with z^2);
 a camera adds Gaussian pixel noise. Only configurations within joint limits whose targets the sensor
-sees (inside the image, in range, the board's face towards the camera) are generated.
+sees well enough for its detector are generated (`SimulatedRobot.visible`: inside the image and in
+range; a board's face towards the camera, not too oblique; a sphere not hidden by the arm and clear of
+the stereo matcher's band without depth).
 """
 
 from __future__ import annotations
@@ -21,9 +23,15 @@ from .dataset import Dataset
 from .kinematics import sensor_points
 from .measurement import optical_rotation, predict, project_to_image
 from .profile import Profile
-from .sandal_board import render_board_image
-from .stereo import StereoHead, depth_from_pair, render_pair
+from .sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, render_board_image
+from .stereo import StereoHead, depth_from_pair, no_depth_band_px, render_pair, sphere_views
 from .vision import Sighting, sight_board, sight_fixture
+
+# The share of the sphere's outline the arm and hand must leave free in each camera of a stereo head.
+# On 240 rendered first-day frames the BallFinder found the sphere in 8 of 31 views with less than
+# 70% free, 23 of 26 with 70-85% and 185 of 196 above (those missed: seeds over 20 cm off, or the
+# sphere beyond 1 m).
+MIN_SPHERE_SHARE = 0.85
 
 
 @dataclass
@@ -135,43 +143,46 @@ class SimulatedRobot:
         look = prof.joint(sampling["look_at"])
         post = prof.joint(sampling["posture_joint"])
         p_lo, p_hi = (math.radians(v) for v in sampling["posture_range"])
+        batch = 32  # stances drawn and checked at once
         qs, targets = [], []
         for tname, ranges in sampling["stance"].items():
             ti = prof.target(tname)
             got = 0
-            for _ in range(per_target * 200):
+            for _ in range(per_target * 200 // batch + 1):
                 if got == per_target:
                     break
-                q = np.zeros(len(lo))
+                q = np.zeros((batch, len(lo)))
                 for jname, (a, b) in ranges.items():
                     j = prof.joint(jname)
-                    q[j] = self.rng.uniform(max(math.radians(a), lo[j]), min(math.radians(b), hi[j]))
-                pitches = np.linspace(p_lo, p_hi, postures) + self.rng.uniform(-0.02, 0.02, postures)
-                stance = np.repeat(q[None], postures, axis=0)
-                stance[:, post] = np.clip(pitches, lo[post], hi[post])
-                stance[:, look] = [self._aim(row, look, ti) for row in stance]
-                stance[:, look] += self.rng.uniform(-0.05, 0.05, postures)
-                stance[:, look] = np.clip(stance[:, look], lo[look], hi[look])
-                if self.visible(stance, np.full(postures, ti)).all():
-                    qs += list(stance)
+                    q[:, j] = self.rng.uniform(max(math.radians(a), lo[j]), min(math.radians(b), hi[j]), batch)
+                pitches = np.linspace(p_lo, p_hi, postures) + self.rng.uniform(-0.02, 0.02, (batch, postures))
+                stances = np.repeat(q, postures, axis=0)  # stance b's postures are rows b * postures ...
+                stances[:, post] = np.clip(pitches.ravel(), lo[post], hi[post])
+                stances[:, look] = self._aim(stances, look, ti)
+                stances[:, look] += self.rng.uniform(-0.05, 0.05, len(stances))
+                stances[:, look] = np.clip(stances[:, look], lo[look], hi[look])
+                seen = self.visible(stances, np.full(len(stances), ti)).reshape(batch, postures).all(axis=1)
+                for b in np.flatnonzero(seen)[: per_target - got]:
+                    qs += list(stances[b * postures : (b + 1) * postures])
                     targets += [ti] * postures
                     got += 1
             if got < per_target:
                 raise RuntimeError(f"found only {got} visible stances for {tname}")
         return np.array(qs), np.array(targets)
 
-    def _aim(self, q: np.ndarray, joint: int, target: int) -> float:
-        """The angle of `joint` that puts the target's centre in the image centre column."""
+    def _aim(self, q: np.ndarray, joint: int, target: int) -> np.ndarray:
+        """For each configuration (row of q), the angle of `joint` that puts the target's centre in the
+        image's centre column."""
         lo, hi = self.profile.joint_limits()
         candidates = np.linspace(max(lo[joint], -1.2), min(hi[joint], 1.2), 121)
-        qs = np.repeat(q[None], len(candidates), axis=0)
-        qs[:, joint] = candidates
+        qs = np.repeat(q, len(candidates), axis=0)
+        qs[:, joint] = np.tile(candidates, len(q))
         x = self._sensor_points(qs, np.full(len(qs), target), self.true_params, center_only=True)
         sensor = self.profile.sensors[self.profile.data.sensor]
         uv = project_to_image(sensor, self.true_params, x)
         ahead = (x @ optical_rotation(sensor))[:, 2] > 0
         cost = np.where(ahead, np.abs(uv[:, 0] - sensor.image[0] / 2), np.inf) if sensor.image else np.zeros(len(x))
-        return float(candidates[int(np.argmin(cost))])
+        return candidates[np.argmin(cost.reshape(len(q), len(candidates)), axis=1)]
 
     # --- what the sensor sees ---------------------------------------------------------------------
     def _sensor_points(
@@ -181,7 +192,13 @@ class SimulatedRobot:
         return sensor_points(self.profile, p, q, targets, center_only=center_only)
 
     def visible(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """Whether every point of each configuration's target is seen by the sensor (N,) bool."""
+        """Whether the sensor sees each configuration's target well enough for its detector (N,) bool.
+
+        Every point in front of the sensor, in its range and inside its image (margin px clear of the
+        border). A board shows its face, seen at most MAX_OBLIQUITY_DEG from its normal with neighbouring
+        vertices at least MIN_VERTEX_SPACING_PX apart. A stereo head's sphere lies whole inside both
+        images, right of the matcher's band without depth, and the arm and hand leave at least
+        MIN_SPHERE_SHARE of its outline free in each camera (`_sees_sphere`)."""
         prof = self.profile
         sensor = prof.sensors[prof.data.sensor]
         x = self._sensor_points(q, targets, self.true_params)
@@ -215,8 +232,40 @@ class SimulatedRobot:
                 # +x cross -y: the board's -z axis, the normal of its face; it must point back to
                 # the camera, which sits at the origin of these coordinates.
                 face = np.cross(normal, across)
-                ok[rows] &= (np.einsum("ni,ni->n", face, c) < 0)[:, None]
-        return ok.all(axis=1)
+                towards = -np.einsum("ni,ni->n", face, c)
+                ok[rows] &= (towards > 0)[:, None]
+                # Not too oblique: the angle between the face's normal and the ray to the board's centre.
+                cos = towards / np.maximum(np.linalg.norm(face, axis=1) * np.linalg.norm(c, axis=1), 1e-300)
+                ok[rows] &= (cos >= math.cos(math.radians(MAX_OBLIQUITY_DEG)))[:, None]
+                if sensor.image is not None and sensor.model == "pinhole":
+                    n_rows, n_cols = prof.targets[t].grid_shape
+                    g = uv.reshape(N, K, 2)[rows, : len(grid)].reshape(len(rows), n_rows, n_cols, 2)
+                    spacing = np.minimum(
+                        np.linalg.norm(np.diff(g, axis=1), axis=3).min(axis=(1, 2)),
+                        np.linalg.norm(np.diff(g, axis=2), axis=3).min(axis=(1, 2)),
+                    )
+                    ok[rows] &= (spacing >= MIN_VERTEX_SPACING_PX)[:, None]
+        seen = ok.all(axis=1)
+        if sensor.model == "point3d" and sensor.baseline is not None and sensor.intrinsics is not None:
+            rows = np.flatnonzero(seen)
+            seen[rows] = self._sees_sphere(q[rows])
+        return seen
+
+    def _sees_sphere(self, q: np.ndarray) -> np.ndarray:
+        """Whether the rendered stereo pair shows the sphere well enough to the BallFinder (N,) bool."""
+        sensor = self.profile.sensors[self.profile.data.sensor]
+        head = StereoHead.from_profile(self.profile, self.true_params, sensor.name)
+        view = sphere_views(self.profile, self.true_params, q, head)
+        u_min, u_max, v_min, v_max = view.box_px.T
+        m = self.margin
+        with np.errstate(invalid="ignore"):  # NaN boxes: the sphere reaches behind the camera
+            inside = (
+                (u_min >= no_depth_band_px(head) + m)
+                & (u_max <= head.width_px - 1 - m)
+                & (v_min >= m)
+                & (v_max <= head.height_px - 1 - m)
+            )
+        return inside & (view.visible.min(axis=1) >= MIN_SPHERE_SHARE)
 
     # --- measuring --------------------------------------------------------------------------------
     def measure(

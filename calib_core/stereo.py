@@ -302,40 +302,64 @@ class _Scene:
     light: np.ndarray  # (3,) unit vector towards the light, left optical frame
 
 
-def _scene(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> _Scene:
-    """The primitives for one configuration, in the left camera's optical frame (m)."""
+@dataclass(frozen=True)
+class _Body:
+    """The sphere and the arm's links in N configurations, in the left camera's optical frame (m)."""
+
+    R_cam: np.ndarray  # (N, 3, 3) chest <- optical
+    t_cam: np.ndarray  # (N, 3) the left camera in the chest frame
+    centre: np.ndarray  # (N, 3) the sphere's centre
+    radius: float
+    R_hand: np.ndarray  # (N, 3, 3) optical <- hand
+    links: list[tuple[np.ndarray, np.ndarray, float, np.ndarray, int]]  # a, b (N, 3), radius, R_local, object id
+
+
+def _body(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> _Body:
+    """The sphere and the capsules of the arm (_ARM_FRAMES) and hand for joint readings q (N, n_joints)."""
     k = length_factor(profile.length_unit, "m")
-    poses = forward(profile, p, np.asarray(q, dtype=float)[None])
-    R_cam = poses.R[head.frame][0] @ head.R_frame_optical  # chest <- optical
-    t_cam = poses.t[head.frame][0] * k
+    poses = forward(profile, p, np.asarray(q, dtype=float))
+    R_cam = poses.R[head.frame] @ head.R_frame_optical  # chest <- optical
+    t_cam = poses.t[head.frame] * k
 
     def point(x_chest_m: np.ndarray) -> np.ndarray:
-        return R_cam.T @ (x_chest_m - t_cam)
+        return np.einsum("nji,nj->ni", R_cam, x_chest_m - t_cam)
+
+    def axes(R_chest: np.ndarray) -> np.ndarray:
+        return np.einsum("nji,njk->nik", R_cam, R_chest)
 
     target = next(t for t in profile.targets if t.name == "fixture")
     assert target.point_params is not None and target.radius is not None
-    R_hand, t_hand = poses.R[target.frame][0], poses.t[target.frame][0] * k
+    R_hand, t_hand = poses.R[target.frame], poses.t[target.frame] * k
     centre_hand_m = p[list(target.point_params)] * k
-    prims: list[_Primitive] = [_Sphere(point(R_hand @ centre_hand_m + t_hand), target.radius * k, R_cam.T @ R_hand)]
-
+    links = []
     frames = [profile.frame(n) for n in _ARM_FRAMES]
     for i, (f0, f1) in enumerate(itertools.pairwise(frames)):
-        a, b = poses.t[f0][0] * k, poses.t[f1][0] * k
-        if np.linalg.norm(b - a) > 1e-6:  # coincident origins (wrist roll and pitch) need no capsule
+        a, b = poses.t[f0] * k, poses.t[f1] * k
+        if np.linalg.norm(b - a, axis=1).max() > 1e-6:  # coincident origins (wrist roll and pitch) need no capsule
             radius = _UPPER_ARM_RADIUS_M if i < 3 else _FOREARM_RADIUS_M if i < 5 else _HAND_RADIUS_M
-            prims.append(_Capsule(point(a), point(b), radius, R_cam.T @ poses.R[f0][0], ARM))
+            links.append((point(a), point(b), radius, axes(poses.R[f0]), ARM))
     # The hand: from the wrist towards the sphere, ending where the sphere's surface begins.
     towards = centre_hand_m / np.linalg.norm(centre_hand_m)
     reach_m = max(float(np.linalg.norm(centre_hand_m)) - target.radius * k - _HAND_RADIUS_M, 0.0)
     tip = R_hand @ (reach_m * towards) + t_hand
-    prims.append(_Capsule(point(t_hand), point(tip), _HAND_RADIUS_M, R_cam.T @ R_hand, HAND))
+    links.append((point(t_hand), point(tip), _HAND_RADIUS_M, axes(R_hand), HAND))
+    centre = point(R_hand @ centre_hand_m + t_hand)
+    return _Body(R_cam, t_cam, centre, target.radius * k, axes(R_hand), links)
 
-    origin = point(np.zeros(3))
-    ex, ey, ez = (R_cam.T @ e for e in np.eye(3))
+
+def _scene(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> _Scene:
+    """The primitives for one configuration q (n_joints,), in the left camera's optical frame (m)."""
+    body = _body(profile, p, np.asarray(q, dtype=float)[None], head)
+    R_cam, t_cam = body.R_cam[0], body.t_cam[0]
+    prims: list[_Primitive] = [_Sphere(body.centre[0], body.radius, body.R_hand[0])]
+    prims += [_Capsule(a[0], b[0], radius, R[0], object_id) for a, b, radius, R, object_id in body.links]
+    origin = R_cam.T @ -t_cam  # the chest's origin
+    ex, ey, ez = (R_cam.T @ e for e in np.eye(3))  # the chest's axes
+    # A chest plane y = Y is ey . x = Y - t_cam[1] in the optical frame (x_chest = R_cam x + t_cam).
     prims += [
-        _Plane(ey, _TABLE_Y_M - ey @ t_cam, np.stack([ex, ez], 1), origin, (*_TABLE_X_M, *_TABLE_Z_M), TABLE),
-        _Plane(ey, _FLOOR_Y_M - ey @ t_cam, np.stack([ex, ez], 1), origin, None, FLOOR),
-        _Plane(ex, _WALL_X_M - ex @ t_cam, np.stack([ez, ey], 1), origin, None, WALL),
+        _Plane(ey, _TABLE_Y_M - t_cam[1], np.stack([ex, ez], 1), origin, (*_TABLE_X_M, *_TABLE_Z_M), TABLE),
+        _Plane(ey, _FLOOR_Y_M - t_cam[1], np.stack([ex, ez], 1), origin, None, FLOOR),
+        _Plane(ex, _WALL_X_M - t_cam[0], np.stack([ez, ey], 1), origin, None, WALL),
     ]
     return _Scene(prims, R_cam.T @ _LIGHT_CHEST)
 
@@ -425,7 +449,132 @@ def render_pair(
     return StereoImages(left, right, depth_true, ids_left, ids_right)
 
 
+# --- what the cameras can see of the sphere, without rendering ---------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SphereViews:
+    """How the pair sees the calibration sphere in N configurations: from the scene, not from images."""
+
+    centre_px: np.ndarray  # (N, 2) the centre's image in the left camera
+    box_px: np.ndarray  # (N, 4) the outline's extent in the left image: u_min, u_max, v_min, v_max
+    visible: np.ndarray  # (N, 2) share of the outline's area where the sphere is the nearest surface (left, right)
+
+
+_VIEW_RAYS = 128  # rays through the outline per camera: a visible share to within a few per cent
+_CHUNK = 256  # configurations at a time (memory: chunk x rays x links)
+
+
+@cache
+def _unit_disc(n: int) -> np.ndarray:
+    """n points (n, 2) spread evenly over the unit disc (a sunflower)."""
+    k = np.arange(n) + 0.5
+    r, phi = np.sqrt(k / n), k * math.pi * (3 - math.sqrt(5))
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+
+
+def _segment_distance(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray) -> np.ndarray:
+    """Shortest distance between the segments p0 + s d0 and p1 + t d1 (s, t in [0, 1]); broadcast (..., 3)."""
+    r = p0 - p1
+    a, e = np.einsum("...i,...i", d0, d0), np.einsum("...i,...i", d1, d1)
+    b, c, f = np.einsum("...i,...i", d0, d1), np.einsum("...i,...i", d0, r), np.einsum("...i,...i", d1, r)
+    e = np.maximum(e, 1e-18)  # a link of no length is its end ball
+    denom = a * e - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(denom > 1e-12 * a * e, np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
+        t = (b * s + f) / e
+        s = np.where(t < 0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1, np.clip((b - c) / a, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    gap = r + s[..., None] * d0 - t[..., None] * d1
+    return np.sqrt(np.einsum("...i,...i", gap, gap))
+
+
+def sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> SphereViews:
+    """Where the sphere appears in the left image and how much of it each camera sees past the arm and
+    the hand (the capsules `render_pair` draws), for joint readings q (N, n_joints) rad and parameters p.
+
+    A ray through the sphere's outline is hidden when the segment from the camera to where it meets the
+    sphere passes within a link's radius of the link's axis. The background planes lie behind the
+    sphere whenever the sphere is above the table and before the wall (the camera is); where it is not,
+    the sphere counts as hidden. A sphere reaching behind a camera is hidden."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    out = [_sphere_views(profile, p, q[i : i + _CHUNK], head) for i in range(0, len(q), _CHUNK)]
+    if not out:
+        return SphereViews(np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 2)))
+    return SphereViews(
+        np.concatenate([v.centre_px for v in out]),
+        np.concatenate([v.box_px for v in out]),
+        np.concatenate([v.visible for v in out]),
+    )
+
+
+def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> SphereViews:
+    body = _body(profile, p, q, head)
+    n, radius = len(q), body.radius
+    centre_chest = np.einsum("nij,nj->ni", body.R_cam, body.centre) + body.t_cam
+    background_behind = (centre_chest[:, 1] + radius < _TABLE_Y_M) & (centre_chest[:, 0] + radius < _WALL_X_M)
+    disc = 0.97 * _unit_disc(_VIEW_RAYS)  # just inside the outline, where one ray decides a pixel
+    angles = np.linspace(0.0, 2 * math.pi, 72, endpoint=False)
+    ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    visible = np.zeros((n, 2))
+    box = np.full((n, 4), np.nan)
+    for cam, origin in enumerate((np.zeros(3), np.array([head.baseline_m, 0.0, 0.0]))):
+        c = body.centre - origin
+        dist = np.linalg.norm(c, axis=1)
+        axis = c / dist[:, None]
+        e1 = np.cross(axis, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(axis, e1)
+        tan_half = radius / np.sqrt(np.maximum(dist * dist - radius * radius, 1e-12))
+        # The tangent cone's rays, unnormalised: axis + tan_half (x e1 + y e2) over the disc and the ring.
+        frame = np.stack([e1, e2], axis=1) * tan_half[:, None, None]  # (N, 2, 3)
+        rays = axis[:, None] + disc @ frame  # (N, K, 3)
+        edge = axis[:, None] + ring @ frame
+        ahead = (dist > radius) & (edge[..., 2].min(axis=1) > 0.01)
+        if cam == 0:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = head.fx_px * edge[..., 0] / edge[..., 2] + head.cx_px
+                v = head.fy_px * edge[..., 1] / edge[..., 2] + head.cy_px
+            box = np.where(ahead[:, None], np.stack([u.min(1), u.max(1), v.min(1), v.max(1)], axis=1), np.nan)
+        # Where each ray meets the sphere (rays from inside the cone do): the segment camera -> surface.
+        rr = np.einsum("nki,nki->nk", rays, rays)
+        b = np.einsum("nki,ni->nk", rays, c)
+        disc_ = np.maximum(b * b - rr * (dist * dist - radius * radius)[:, None], 0.0)
+        hit = rays * ((b - np.sqrt(disc_)) / rr)[..., None]  # relative to the camera
+        clear = np.ones(rays.shape[:2], bool)
+        for a, b_end, r_link, _, _ in body.links:
+            gap = _segment_distance(np.zeros(3), hit, (a - origin)[:, None], (b_end - a)[:, None])
+            clear &= gap >= r_link
+        visible[:, cam] = np.where(ahead & background_behind, clear.mean(axis=1), 0.0)
+    centre = body.centre
+    with np.errstate(divide="ignore", invalid="ignore"):
+        centre_px = np.stack(
+            [
+                head.fx_px * centre[:, 0] / centre[:, 2] + head.cx_px,
+                head.fy_px * centre[:, 1] / centre[:, 2] + head.cy_px,
+            ],
+            axis=1,
+        )
+    return SphereViews(centre_px, box, visible)
+
+
 # --- depth from the pair --------------------------------------------------------------------------------------
+
+_BLOCK_PX = 5  # SGBM's block size
+
+
+def _disparity_search(head: StereoHead) -> tuple[int, int]:
+    """SGBM's minDisparity and numDisparities for the _NEAR_M to _FAR_M search (a multiple of 16)."""
+    fb = head.fx_px * head.baseline_m
+    min_disp = math.floor(fb / _FAR_M)
+    return min_disp, 16 * math.ceil((fb / _NEAR_M - min_disp) / 16)
+
+
+def no_depth_band_px(head: StereoHead) -> int:
+    """The columns at the left edge of the left image where `depth_from_pair` gives no depth: the
+    largest disparity searched: a left pixel there has no candidate match inside the right image."""
+    min_disp, num_disp = _disparity_search(head)
+    return min_disp + num_disp
 
 
 def depth_from_pair(left: np.ndarray, right: np.ndarray, head: StereoHead) -> np.ndarray:
@@ -443,10 +592,9 @@ def depth_from_pair(left: np.ndarray, right: np.ndarray, head: StereoHead) -> np
     if left.ndim == 3:
         left = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+    min_disp, num_disp = _disparity_search(head)
     fb = head.fx_px * head.baseline_m
-    min_disp = math.floor(fb / _FAR_M)
-    num_disp = 16 * math.ceil((fb / _NEAR_M - min_disp) / 16)
-    block = 5
+    block = _BLOCK_PX
     sgbm = cv2.StereoSGBM_create(
         minDisparity=min_disp,
         numDisparities=num_disp,

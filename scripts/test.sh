@@ -1,7 +1,13 @@
 #!/usr/bin/env bash
-# Installs the test dependencies into .venv (made if missing) and runs the whole test suite.
+# Installs the test dependencies into .venv (made if missing), Debian's chromium for the browser
+# tests (apt-get, when it is missing), and runs ruff and the whole test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+if ! command -v chromium >/dev/null 2>&1; then
+    SUDO=$([ "$(id -u)" = 0 ] && echo "" || echo "sudo")
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
+fi
 python3 -m venv .venv
 .venv/bin/pip install -q --upgrade pip
 .venv/bin/pip install -q -e '.[test]'

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from calib_core import Problem, SimulatedRobot, load_profile
+from calib_core.kinematics import forward
+from calib_core.stereo import SPHERE, StereoHead, no_depth_band_px, render_pair, sphere_views
 
 # specs/nao.md joint limits (deg).
 NAO_LIMITS = {
@@ -164,6 +166,61 @@ def test_nao_protocol_24_stances_by_3_head_postures_per_leg(nao, nao_sim) -> Non
         obs = data.cfg == c
         assert sorted(data.vertex[obs].tolist()) == list(range(24))
         assert len(np.unique(data.target[obs])) == 1
+
+
+def test_robonaut_configurations_show_the_sphere_to_both_cameras(rn, rn_robot) -> None:
+    """Rendered, the sphere of every configuration the simulator picks is mostly in view of both cameras
+    (the arm hides at most a small part) and clear of the left band where the matcher gives no depth."""
+    q, _ = rn_robot.configurations(8)
+    p = rn_robot.true_params
+    head = StereoHead.from_profile(rn, p)
+    band = no_depth_band_px(head)
+    x = rn_robot.measure(q, np.zeros(len(q), int)).exact @ rn.sensors[rn.data.sensor].R_frame_optical * 0.01
+    for n in range(len(q)):
+        f = render_pair(rn, p, q[n], head, np.random.default_rng(n))
+        for ids, centre_m in ((f.object_id, x[n]), (f.object_id_right, x[n] - [head.baseline_m, 0.0, 0.0])):
+            r_px = head.fx_px * 0.04 / np.sqrt(centre_m @ centre_m - 0.04**2)  # the outline's radius, about
+            shown = (ids == SPHERE).sum() / (np.pi * r_px**2)
+            assert shown > 0.8, (n, shown)
+        columns = np.flatnonzero((f.object_id == SPHERE).any(axis=0))
+        assert columns.min() > band
+
+
+def test_robonaut_sphere_hidden_by_the_arm_is_not_picked(rn) -> None:
+    """Among random poses within the limits with the fixture's centre in the image, the arm hides the
+    sphere in many; the simulator's own picks are the ones the check lets through."""
+    robot = SimulatedRobot.from_profile(rn, seed=3)
+    lo, hi = rn.joint_limits()
+    q = robot.rng.uniform(lo, hi, (4000, len(lo)))
+    head = StereoHead.from_profile(rn, robot.true_params)
+    views = sphere_views(rn, robot.true_params, q, head)
+    u, v = views.centre_px.T
+    in_image = (u > 150) & (u < 600) & (v > 30) & (v < 450)
+    hidden = in_image & (views.visible.min(axis=1) < 0.5)
+    assert hidden.sum() > 0.1 * in_image.sum()  # the check matters
+    assert not robot.visible(q[hidden], np.zeros(hidden.sum(), int)).any()
+
+
+def test_nao_boards_are_seen_well_enough_to_be_measured(nao, nao_sim) -> None:
+    """Every picked frame's board is seen at most 86 deg from its normal, its closest vertices at
+    least 2.5 px apart in the image: computed here from the board's and the camera's poses."""
+    truth = nao_sim.true_params
+    camera = nao.sensors[nao.data.sensor].frame
+    for n in range(nao_sim.data.n_configurations):
+        rows = nao_sim.data.cfg == n
+        target = int(nao_sim.data.target[rows][0])
+        board = nao.targets[target].frame
+        poses = forward(nao, truth, nao_sim.true_joints[n][None], frames=[board, camera])
+        normal = poses.R[board][0][:, 2]
+        centre = poses.R[board][0] @ nao.targets[target].grid.mean(axis=0) + poses.t[board][0]
+        ray = centre - poses.t[camera][0]
+        obliquity = np.degrees(np.arccos(abs(normal @ ray) / np.linalg.norm(ray)))
+        assert obliquity <= 86.0 + 1e-9
+        g = nao_sim.exact[rows].reshape(4, 6, 2)
+        spacing = min(
+            np.linalg.norm(np.diff(g, axis=0), axis=2).min(), np.linalg.norm(np.diff(g, axis=1), axis=2).min()
+        )
+        assert spacing >= 2.5
 
 
 # --- drift ----------------------------------------------------------------------------------------------

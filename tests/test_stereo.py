@@ -12,7 +12,17 @@ import pytest
 from calib_core import SimulatedRobot, load_profile
 from calib_core.measurement import project_to_image
 from calib_core.profile import Profile, Sensor
-from calib_core.stereo import NONE, OBJECT_NAMES, SPHERE, StereoHead, StereoImages, depth_from_pair, render_pair
+from calib_core.stereo import (
+    NONE,
+    OBJECT_NAMES,
+    SPHERE,
+    StereoHead,
+    StereoImages,
+    depth_from_pair,
+    no_depth_band_px,
+    render_pair,
+    sphere_views,
+)
 
 N_FRAMES = 16
 RADIUS_M = 0.04
@@ -175,8 +185,42 @@ def test_no_data_is_nan_never_zero_or_negative(scene):
         assert depth_m.dtype == np.float32 and depth_m.shape == (480, 640)
         valid = np.isfinite(depth_m)
         assert (depth_m[valid] > 0.3).all()
-        assert not valid[:, :100].any()  # no right-camera match is searched for the leftmost columns
+        band = no_depth_band_px(scene.head)  # no right-camera match is searched for the leftmost columns
+        assert band == 128
+        assert not valid[:, :band].any() and valid[:, band : band + 4].any()
         assert valid.mean() > 0.5
     # An untextured pair gives no depth at all.
     flat = np.full((480, 640), 128, np.uint8)
     assert np.isnan(depth_from_pair(flat, flat, scene.head)).all()
+
+
+def test_sphere_views_say_how_much_of_the_sphere_each_rendered_image_shows(scene):
+    """The visible share `sphere_views` computes without rendering against the rendered images' sphere
+    pixels, over configurations where the arm hides none, some or all of it (not the simulator's)."""
+    rng = np.random.default_rng(5)
+    lo, hi = scene.profile.joint_limits()
+    q = rng.uniform(lo, hi, (3000, len(lo)))
+    views = sphere_views(scene.profile, scene.p, q, scene.head)
+    u0, u1, v0, v1 = views.box_px.T
+    with np.errstate(invalid="ignore"):
+        whole = (u0 > 1) & (u1 < 638) & (v0 > 1) & (v1 < 478)  # the outline inside the left image
+    share = views.visible.min(axis=1)
+    picks = [np.flatnonzero(whole & (share == 0))[:2], np.flatnonzero(whole & (share > 0.1) & (share < 0.9))[:5]]
+    picks.append(np.flatnonzero(whole & (share == 1))[:2])
+    assert all(len(p) for p in picks)
+    baseline_m = np.array([scene.head.baseline_m, 0.0, 0.0])
+    for n in np.concatenate(picks):
+        f = render_pair(scene.profile, scene.p, q[n], scene.head, np.random.default_rng(0))
+        centre_m = _sphere_centre_m(scene, q[n])
+        for camera, ids, offset in ((0, f.object_id, np.zeros(3)), (1, f.object_id_right, baseline_m)):
+            inside, _ = _silhouette(scene.head, centre_m - offset)
+            if inside[[0, -1], :].any() or inside[:, [0, -1]].any():
+                continue  # the right image may cut it
+            rendered = (ids == SPHERE).sum() / inside.sum()
+            assert views.visible[n, camera] == pytest.approx(rendered, abs=0.04), (n, camera)
+
+
+def _sphere_centre_m(scene, q: np.ndarray) -> np.ndarray:
+    robot = SimulatedRobot.from_profile(scene.profile)
+    exact = robot.measure(q[None], np.zeros(1, int)).exact[0]  # the simulator's path, eye frame, cm
+    return exact @ scene.sensor.R_frame_optical * 0.01

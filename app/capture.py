@@ -1,0 +1,227 @@
+"""Capturing frames: one look now (Observe), automatic capture when the robot has settled (Observe with
+autocapture), and Replay, which drives the robot through a list of configurations after a dry run.
+
+The dry run checks every configuration before anything moves (the peers' users found broken set-ups only
+after the robot had moved through every pose): against the joint limits with the driver's safety margin,
+and whether the believed calibration predicts the target inside the image. A configuration beyond a joint
+limit itself means the list is wrong and refuses the whole replay; one inside the safety margin or with the
+target predicted out of view is skipped with its reason.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from calib_core.errors import InputError
+from calib_core.simulator import SimulatedRobot
+from calib_core.solver import Cancelled
+
+from .drivers import LimitError, Look, RobotDriver
+
+if TYPE_CHECKING:
+    from .jobs import JobContext
+    from .store import FrameInfo, Store
+
+DEFAULT_MIN_GAP_DEG = 2.0
+DEFAULT_SETTLE_S = 0.3
+DEFAULT_VIEW_MARGIN_PX = 10.0
+_SETTLE_POLL_S = 0.01
+
+
+def save_look(store: Store, session_id: str, look: Look, index: int | None = None) -> FrameInfo:
+    """Store what one look gave as a frame (replacing the frame `index` if it exists)."""
+    s = look.sighting
+    index = store.add_frame(
+        session_id,
+        index=index,
+        joints_rad=look.readings_rad,
+        target=look.target,
+        status=s.status,
+        reason=s.reason,
+        measured=s.measured,
+        points=s.points,
+        vertices=s.vertices,
+        images=look.images,
+        detail=s.detail,
+    )
+    return store.frame(session_id, index)
+
+
+def capture_frame(store: Store, driver: RobotDriver, session_id: str, index: int | None = None) -> FrameInfo:
+    """Look now and store the frame (measured, or not found with the detector's reason). Refused while the
+    robot moves: a frame must show the pose its joint readings say."""
+    _check_robot(store, driver, session_id)
+    if driver.status().moving:
+        raise InputError("the robot is moving: capture a frame once it stands still")
+    return save_look(store, session_id, driver.look(), index)
+
+
+def dry_run(
+    driver: RobotDriver,
+    configurations_rad: np.ndarray,
+    targets: np.ndarray,
+    believed: np.ndarray,
+    *,
+    indices: list[int] | None = None,
+    margin_px: float = DEFAULT_VIEW_MARGIN_PX,
+) -> list[dict]:
+    """Check every configuration, moving nothing. Per configuration: {"index", "target", "ok", "problem",
+    "action"}, action "capture", "skip" (inside the safety margin or not predicted in view) or "refuse"
+    (beyond a joint limit). `index` is the frame index, or the 1-based position without `indices`."""
+    q = np.asarray(configurations_rad, dtype=float)
+    t = np.asarray(targets, dtype=int)
+    if q.ndim != 2 or len(q) != len(t) or (indices is not None and len(indices) != len(q)):
+        raise ValueError("configurations, targets and indices must have one entry per configuration")
+    profile = driver.profile
+    n_targets = len(profile.targets)
+    if np.any((t < 0) | (t >= n_targets)):
+        raise InputError(f"targets must be in 0..{n_targets - 1} for {profile.name}")
+    predictor = SimulatedRobot(profile, np.asarray(believed, dtype=float), margin=margin_px)
+    in_view = predictor.visible(q, t) if len(q) else np.zeros(0, bool)
+    rows = []
+    for k in range(len(q)):
+        problem, action = "", "capture"
+        try:
+            driver.check(q[k])
+        except LimitError as exc:
+            problem, action = str(exc), "refuse" if exc.beyond else "skip"
+        else:
+            if not in_view[k]:
+                problem, action = f"{profile.targets[t[k]].name} not predicted in view", "skip"
+        index = indices[k] if indices is not None else k + 1
+        rows.append({"index": index, "target": int(t[k]), "ok": not problem, "problem": problem, "action": action})
+    return rows
+
+
+def replay(
+    ctx: JobContext,
+    store: Store,
+    driver: RobotDriver,
+    session_id: str,
+    configurations_rad: np.ndarray,
+    targets: np.ndarray,
+    indices: list[int] | None = None,
+    *,
+    believed: np.ndarray | None = None,
+    settle_s: float = DEFAULT_SETTLE_S,
+    settle_timeout_s: float = 30.0,
+) -> str | None:
+    """Drive through the configurations and capture a frame at each (a thread job; returns the session id).
+
+    `indices`: the frame index each configuration is stored under (re-measure: a session's own indices, so
+    its frames are replaced); None appends. The dry run comes first, with the robot's believed calibration
+    unless `believed` is given. A skipped configuration is recorded as a "skipped" frame unless the session
+    already holds a frame with its index (re-measure keeps the old one). On cancel, a stop or any failure the
+    robot is stopped; frames captured so far stay.
+    """
+    _check_robot(store, driver, session_id)
+    q = np.asarray(configurations_rad, dtype=float)
+    t = np.asarray(targets, dtype=int)
+    p = driver.believed_params() if believed is None else np.asarray(believed, dtype=float)
+    plan = dry_run(driver, q, t, p, indices=indices)
+    refused = [r for r in plan if r["action"] == "refuse"]
+    if refused:
+        more = f" (and {len(refused) - 1} more)" if len(refused) > 1 else ""
+        raise InputError(
+            f"replay refused before moving: configuration {refused[0]['index']}: {refused[0]['problem']}{more}"
+        )
+    existing = {f.index for f in store.frames(session_id)} if indices is not None else set()
+    counts = {"measured": 0, "not found": 0, "skipped": 0}
+    try:
+        for k, row in enumerate(plan):
+            ctx.checkpoint()
+            index = indices[k] if indices is not None else None
+            if row["action"] == "skip":
+                status, reason = "skipped", row["problem"]
+                if index is None or index not in existing:
+                    index = store.add_frame(
+                        session_id, index=index, joints_rad=q[k], target=int(t[k]), status=status, reason=reason
+                    )
+            else:
+                driver.set_target(int(t[k]))
+                if not driver.move_to(q[k], should_stop=lambda: ctx.cancelled):
+                    raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
+                _wait_settled(driver, ctx, settle_s, settle_timeout_s)
+                frame = capture_frame(store, driver, session_id, index)
+                index, status, reason = frame.index, frame.status, frame.reason
+            counts[status] += 1
+            ctx.progress(
+                (k + 1) / len(plan),
+                frame=index,
+                status=status,
+                reason=reason,
+                done=k + 1,
+                total=len(plan),
+                measured=counts["measured"],
+                not_found=counts["not found"],
+                skipped=counts["skipped"],
+            )
+    except BaseException:
+        driver.stop()
+        raise
+    return session_id
+
+
+class AutoCapture:
+    """Observe with autocapture: poll() stores a frame when the robot has settled for settle_s, its
+    configuration differs from the last captured by at least min_gap_rad (largest joint difference), and the
+    detector measured the target. A configuration whose look failed is not looked at again."""
+
+    def __init__(
+        self,
+        store: Store,
+        driver: RobotDriver,
+        session_id: str,
+        *,
+        min_gap_rad: float = math.radians(DEFAULT_MIN_GAP_DEG),
+        settle_s: float = DEFAULT_SETTLE_S,
+    ) -> None:
+        _check_robot(store, driver, session_id)
+        self.store = store
+        self.driver = driver
+        self.session_id = session_id
+        self.min_gap_rad = min_gap_rad
+        self.settle_s = settle_s
+        frames = store.frames(session_id)
+        self._last: np.ndarray | None = max(frames, key=lambda f: f.index).joints_rad if frames else None
+        self._looked: np.ndarray | None = None
+        self.last_look: Look | None = None  # the latest look poll() made (for a live view)
+
+    def poll(self) -> FrameInfo | None:
+        if not self.driver.settled(self.settle_s):
+            return None
+        q = self.driver.read_joints()
+        if self._last is not None and np.max(np.abs(q - self._last)) < self.min_gap_rad:
+            return None
+        if self._looked is not None and np.array_equal(q, self._looked):
+            return None
+        look = self.driver.look()
+        self.last_look = look
+        if not np.array_equal(look.readings_rad, q) or self.driver.status().moving:
+            return None  # it moved while we looked
+        self._looked = q
+        if look.sighting.status != "measured":
+            return None
+        frame = save_look(self.store, self.session_id, look)
+        self._last = q
+        return frame
+
+
+def _check_robot(store: Store, driver: RobotDriver, session_id: str) -> None:
+    robot = store.session(session_id).robot
+    if robot != driver.profile.name:
+        raise InputError(f"session '{session_id}' is of robot {robot}, not {driver.profile.name}")
+
+
+def _wait_settled(driver: RobotDriver, ctx: JobContext, settle_s: float, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not driver.settled(settle_s):
+        if ctx.cancelled:
+            raise Cancelled("cancelled")
+        if time.monotonic() > deadline:
+            raise InputError(f"the robot did not settle within {timeout_s:g} s")
+        time.sleep(_SETTLE_POLL_S)

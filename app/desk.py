@@ -1,0 +1,308 @@
+"""The calibration desk: the store, the jobs, the robots and the 3-D scene, composed.
+
+The HTTP API (app/api.py) is a thin layer over this class; a script or a test can drive the desk
+directly. One desk per process: it owns the viser server and the robot drivers.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import viser
+
+from calib_core import InputError, Profile, SimulatedRobot, load_profile
+from calib_core.profile import BUILTIN_PROFILES
+
+from .capture import AutoCapture, capture_frame, dry_run, replay
+from .drivers import LimitError, RobotDriver, SimulatedDriver
+from .jobs import JobContext, JobManager
+from .review import Review
+from .scene import ReviewScene
+from .store import FrameInfo, Store
+
+PACKAGE_DIR = Path(__file__).resolve().parent.parent
+SAMPLE_DIR = PACKAGE_DIR / "sample_sessions"
+PROFILE_DIR = PACKAGE_DIR / "calib_core" / "profiles"
+OBSERVE_PERIOD_S = 0.5
+# The simulated robots' "today": Robonaut is the later-day robot of its day-2 sample session (its
+# offsets drifted since day 1), so a calibration made on day 1 and applied shows the drift live.
+SIMULATED_DAY = {"robonaut-a": 2}
+
+
+class Desk:
+    def __init__(
+        self,
+        data_dir: Path,
+        *,
+        sample_dir: Path | None = SAMPLE_DIR,
+        viser_host: str = "127.0.0.1",
+        viser_port: int = 0,
+        time_scale: float = 1.0,
+        workers: int = 1,
+    ) -> None:
+        self.data_dir = Path(data_dir)
+        self.sample_dir = sample_dir
+        self.viser_host = viser_host
+        self.viser_port = viser_port
+        self.time_scale = time_scale
+        self.workers = workers
+        self.profiles: dict[str, Profile] = {}
+        self.drivers: dict[str, RobotDriver] = {}
+        self.connected = BUILTIN_PROFILES[0]
+        self._review: Review | None = None
+        self._review_key: dict[str, Any] = {}
+        self._review_lock = threading.Lock()
+        self._observe: _Observer | None = None
+
+    # --- life ---------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.store = Store(self.data_dir)
+        self.store.fail_interrupted_jobs()
+        if self.sample_dir is not None and self.sample_dir.is_dir():
+            self.store.ensure_samples(self.sample_dir)
+        self.jobs = JobManager(self.store, workers=self.workers)
+        for name in BUILTIN_PROFILES:
+            profile = self.profile(name)
+            day = SIMULATED_DAY.get(name, 1)
+            driver = SimulatedDriver(profile, seed=1, day=day, time_scale=self.time_scale)
+            self.drivers[name] = driver
+            self._push_active(name)
+        self.viser = viser.ViserServer(host=self.viser_host, port=self.viser_port, verbose=False)
+        self.viser.gui.configure_theme(show_share_button=False, dark_mode=False)
+        self.scene = ReviewScene(self.viser, PROFILE_DIR / f"{self.connected}.urdf")
+
+    def stop(self) -> None:
+        self.observe(None)
+        for driver in self.drivers.values():
+            driver.stop()
+            close = getattr(driver, "close", None)
+            if close is not None:
+                close()
+        self.jobs.shutdown()
+        self.viser.stop()
+
+    @property
+    def viser_port_number(self) -> int:
+        return int(self.viser.get_port())
+
+    # --- robots -------------------------------------------------------------------------------
+    def profile(self, robot: str) -> Profile:
+        if robot not in self.profiles:
+            if robot not in BUILTIN_PROFILES:
+                raise InputError(f"unknown robot '{robot}' (known: {', '.join(BUILTIN_PROFILES)})")
+            self.profiles[robot] = load_profile(robot)
+        return self.profiles[robot]
+
+    def driver(self, robot: str | None = None) -> RobotDriver:
+        robot = robot or self.connected
+        if robot not in self.drivers:
+            raise InputError(f"no robot '{robot}' is connected (known: {', '.join(self.drivers)})")
+        return self.drivers[robot]
+
+    def connect(self, robot: str) -> None:
+        self.driver(robot)
+        if robot != self.connected:
+            self.observe(None)
+            self.connected = robot
+
+    def active_params(self, robot: str) -> tuple[str | None, np.ndarray]:
+        """The robot's active calibration id and its parameters (the nominal model when none)."""
+        profile = self.profile(robot)
+        cal_id = self.store.active(robot)
+        if cal_id is None:
+            return None, profile.nominal()
+        return cal_id, self.store.calibration(cal_id).params(profile)
+
+    def _push_active(self, robot: str) -> None:
+        cal_id, p = self.active_params(robot)
+        self.drivers[robot].apply_calibration(cal_id, None if cal_id is None else p)
+
+    def apply(self, cal_id: str, note: str = "") -> dict[str, Any]:
+        """Make a calibration its robot's active one: recorded first, then pushed to the driver."""
+        info = self.store.calibration_info(cal_id)
+        active, previous = self.store.apply(info.robot, cal_id, note)
+        if info.robot in self.drivers:
+            self._push_active(info.robot)
+        return {"active": active, "previous": previous, "robot": info.robot}
+
+    # --- capture ------------------------------------------------------------------------------
+    def capture(self, session_id: str) -> FrameInfo:
+        session = self.store.session(session_id)
+        return capture_frame(self.store, self.driver(session.robot), session_id)
+
+    def replay_plan(
+        self, session_id: str, *, from_session: str | None, count: int | None, remeasure: bool, seed: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
+        """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
+        session = self.store.session(session_id)
+        profile = self.profile(session.robot)
+        if remeasure or from_session:
+            source = self.store.session(session_id if remeasure else str(from_session))
+            if source.robot != session.robot:
+                raise InputError(f"session '{source.id}' is of robot {source.robot}, not {session.robot}")
+            frames = self.store.frames(source.id)
+            if not frames:
+                raise InputError(f"session '{source.id}' has no frames to replay")
+            q = np.array([f.joints_rad for f in frames])
+            targets = np.array([f.target for f in frames])
+            return q, targets, [f.index for f in frames] if remeasure else None
+        if not count or count < 1 or count > 2000:
+            raise InputError("give from_session, remeasure, or a count of configurations between 1 and 2000")
+        # Configurations the robot believes it sees the fixture in: planned with its active model.
+        _, believed = self.active_params(session.robot)
+        planner = SimulatedRobot.from_profile(profile, seed=seed, truth=believed)
+        q, targets = planner.configurations(2 * count + 10)
+        driver = self.driver(session.robot)
+        keep = [k for k in range(len(q)) if _within_limits(driver, q[k])][:count]
+        return q[keep], targets[keep], None
+
+    def dry_run(self, session_id: str, **plan: Any) -> dict[str, Any]:
+        robot = self.store.session(session_id).robot
+        q, targets, _ = self.replay_plan(session_id, **plan)
+        _, believed = self.active_params(robot)
+        rows = dry_run(self.driver(robot), q, targets, believed)
+        return {"ok": all(r["ok"] for r in rows), "configurations": rows}
+
+    def start_replay(self, session_id: str, **plan: Any) -> str:
+        robot = self.store.session(session_id).robot
+        q, targets, indices = self.replay_plan(session_id, **plan)
+        driver = self.driver(robot)
+
+        def run(ctx: JobContext) -> str | None:
+            return replay(ctx, self.store, driver, session_id, q, targets, indices)
+
+        return self.jobs.submit_thread("replay", run, session_id=session_id)
+
+    def observe(self, session_id: str | None, *, autocapture: bool = False) -> None:
+        """Observe (the paper's GenVisCalData): look at the robot while someone else drives it, show
+        the live detection against the prediction, and optionally capture settled good frames."""
+        if self._observe is not None:
+            self._observe.stop()
+            self._observe = None
+        if session_id is None:
+            return
+        robot = self.store.session(session_id).robot
+        self.connect(robot)
+        self._observe = _Observer(self, session_id, autocapture)
+        self._observe.start()
+
+    def observing(self) -> dict[str, Any] | None:
+        return None if self._observe is None else self._observe.snapshot()
+
+    # --- review -------------------------------------------------------------------------------
+    def _params(self, robot: str, ref: str | None) -> tuple[str | None, np.ndarray]:
+        profile = self.profile(robot)
+        if ref == "active":
+            return self.active_params(robot)
+        if ref is None:
+            return None, profile.nominal()
+        cal = self.store.calibration(ref)
+        if cal.robot != robot:
+            raise InputError(f"calibration '{ref}' is for robot {cal.robot}, not {robot}")
+        return ref, cal.params(profile)
+
+    def review(self, session_id: str, old: str | None, new: str | None) -> dict[str, Any]:
+        """Load a session into the review scene with an old and a new calibration."""
+        session = self.store.session(session_id)
+        profile = self.profile(session.robot)
+        old_id, old_p = self._params(session.robot, old)
+        new_id, new_p = (None, None) if new is None else self._params(session.robot, new)
+        heldout: set[int] = set()
+        if new_id is not None:
+            heldout = set(self.store.calibration(new_id).frames.get("holdout", []))
+        frames = self.store.frames(session_id)
+        data = self.store.dataset(session_id, profile) if session.measured else None
+        review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout)
+        with self._review_lock:
+            if self.scene.robot != session.robot:
+                self.scene.set_robot(PROFILE_DIR / f"{session.robot}.urdf", session.robot)
+            self.scene.load(review)
+            self._review = review
+            self._review_key = {"session": session_id, "old": old_id, "new": new_id}
+        return {**self._review_key, "robot": session.robot, "table": review.table(), "summary": review.summary()}
+
+    def _current_review(self) -> Review:
+        if self._review is None:
+            raise InputError("no session is loaded for review (POST /api/review first)")
+        return self._review
+
+    def select(self, index: int, *, show_all: bool = False, overlay: bool = False) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        with self._review_lock:
+            self._current_review()
+            self.scene.set_overlay(overlay)
+            self.scene.show_all(show_all)
+            self.scene.select(index)
+        return {"index": index, "all": show_all, "overlay": overlay, "server_ms": (time.perf_counter() - t0) * 1e3}
+
+    def marks(self, index: int) -> dict[str, Any]:
+        review = self._current_review()
+        marks = review.marks(index)
+        frame = self.store.frame(self._review_key["session"], index)
+        path = frame.images.get(marks["role"]) if marks.get("role") else None
+        return {**marks, "image": None if path is None else f"/api/files/{path}"}
+
+
+def _within_limits(driver: RobotDriver, q_rad: np.ndarray) -> bool:
+    try:
+        driver.check(q_rad)
+    except LimitError:
+        return False
+    return True
+
+
+class _Observer:
+    """The live loop of Observe: at a few Hz, look through the cameras when the robot stands still
+    and show the detection beside the prediction; with autocapture, keep the good settled frames."""
+
+    def __init__(self, desk: Desk, session_id: str, autocapture: bool) -> None:
+        self.desk = desk
+        self.session_id = session_id
+        robot = desk.store.session(session_id).robot
+        self.driver = desk.driver(robot)
+        self.auto = AutoCapture(desk.store, self.driver, session_id) if autocapture else None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="observe", daemon=True)
+        self._last: dict[str, Any] = {"session": session_id, "autocapture": autocapture, "captured": 0}
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.desk.scene.hide_live()
+
+    def snapshot(self) -> dict[str, Any]:
+        return dict(self._last)
+
+    def _run(self) -> None:
+        while not self._stop.wait(OBSERVE_PERIOD_S):
+            try:
+                self._tick()
+            except Exception as exc:  # a failed look must not end observing; it is shown instead
+                self._last["message"] = f"{type(exc).__name__}: {exc}"
+
+    def _tick(self) -> None:
+        look = None
+        if self.auto is not None:
+            before = self.auto.last_look
+            frame = self.auto.poll()
+            if frame is not None:
+                self._last["captured"] += 1
+                self._last["last_frame"] = frame.index
+            if self.auto.last_look is not before:
+                look = self.auto.last_look  # one render per tick: reuse the look autocapture made
+        if look is None:
+            if not self.driver.settled(0.2):
+                self._last["detection"] = "moving"
+                return
+            look = self.driver.look()
+        self._last["detection"] = look.sighting.status
+        self._last["reason"] = look.sighting.reason
+        robot = self.driver.profile.name
+        self.desk.scene.show_live(self.desk.profile(robot), look, self.desk.active_params(robot)[1])

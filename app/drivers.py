@@ -1,0 +1,427 @@
+"""Robot drivers: the one interface the dashboard drives a robot through, and the simulated robot behind it.
+
+Joint values are rad in the profile's joint order. Limits are checked with a safety margin before anything
+moves (a configuration closer to a limit than the margin is refused, naming the joint and the limit in deg),
+and every move runs each joint at most at its velocity limit, all joints arriving together. A real robot
+plugs in behind `RobotDriver`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from calib_core.profile import Profile
+from calib_core.simulator import SimulatedRobot
+from calib_core.vision import Sighting
+
+DEFAULT_MARGIN_DEG = 1.0
+_WAIT_POLL_S = 0.01  # how often a waiting move_to asks its caller whether to stop
+_WANDER_POOL = 24  # visible configurations the wander picks from
+_WANDER_PAUSE_S = (0.5, 2.0)  # robot time between wander moves
+
+
+class LimitError(ValueError):
+    """A configuration beyond a joint limit (less the safety margin). `beyond`: past the limit itself, not
+    only inside the margin."""
+
+    def __init__(self, joint: str, value_deg: float, limit_deg: float, side: str, margin_deg: float) -> None:
+        self.joint = joint
+        self.value_deg = value_deg
+        self.limit_deg = limit_deg
+        self.side = side  # "lower" or "upper"
+        self.margin_deg = margin_deg
+        self.beyond = not (value_deg >= limit_deg if side == "lower" else value_deg <= limit_deg)
+        if math.isnan(value_deg):
+            message = f"{joint} is not a number"
+        elif self.beyond:
+            message = (
+                f"{joint} {value_deg:.1f} deg is beyond its {side} limit {limit_deg:.1f} deg "
+                f"(margin {margin_deg:.1f} deg)"
+            )
+        else:
+            message = (
+                f"{joint} {value_deg:.1f} deg is within the {margin_deg:.1f} deg safety margin of its {side} "
+                f"limit {limit_deg:.1f} deg"
+            )
+        super().__init__(message)
+
+
+def check_limits(profile: Profile, q_rad: np.ndarray, margin_rad: float) -> None:
+    """Raise LimitError for the first joint of q (rad) beyond its limits less the margin. A joint whose range
+    is narrower than twice the margin (a joint fixed at one angle) must sit inside its range."""
+    q = np.asarray(q_rad, dtype=float)
+    if q.shape != (len(profile.joints),):
+        raise ValueError(f"expected {len(profile.joints)} joint values for {profile.name}, got shape {q.shape}")
+    margin_deg = math.degrees(margin_rad)
+    for joint, value in zip(profile.joints, q, strict=True):
+        m = min(margin_rad, (joint.upper - joint.lower) / 2)
+        if math.isnan(value) or value < joint.lower + m - 1e-12:
+            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.lower), "lower", margin_deg)
+        if value > joint.upper - m + 1e-12:
+            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.upper), "upper", margin_deg)
+
+
+@dataclass
+class RobotStatus:
+    robot: str
+    connected: bool
+    moving: bool
+    joints_rad: np.ndarray  # the encoder readings (quantised)
+    target: int
+    calibration_id: str | None
+    message: str
+    stamp: float = 0.0  # time.monotonic() of the joint state
+    wandering: bool = False
+
+
+@dataclass
+class Look:
+    readings_rad: np.ndarray
+    target: int
+    sighting: Sighting
+    images: dict[str, np.ndarray]
+
+
+class RobotDriver(Protocol):
+    profile: Profile
+
+    def status(self) -> RobotStatus: ...
+
+    def read_joints(self) -> np.ndarray:
+        """Rad: what the encoders report (quantised)."""
+        ...
+
+    def look(self, believed: np.ndarray | None = None) -> Look:
+        """The images now and the detector's Sighting, seeded by the active calibration (or `believed`)."""
+        ...
+
+    def check(self, q_rad: np.ndarray) -> None:
+        """Raise LimitError if q is beyond the joint limits less the safety margin."""
+        ...
+
+    def move_to(self, q_rad: np.ndarray, *, wait: bool = True, should_stop: Callable[[], bool] | None = None) -> bool:
+        """Check, then move (velocity limits, linear interpolation, all joints arriving together). True on
+        arrival, False if stopped; without `wait` True once the move has started."""
+        ...
+
+    def stop(self) -> None:
+        """Halt motion at once (from any thread)."""
+        ...
+
+    def settled(self, for_s: float = 0.3) -> bool:
+        """Not moving for at least for_s."""
+        ...
+
+    def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None: ...
+
+    def believed_params(self) -> np.ndarray:
+        """The parameters the robot works with: the active calibration's, or the nominal model."""
+        ...
+
+    def set_target(self, target: int) -> None:
+        """Which fixture or board is in view (NAO: the left or the right foot's board)."""
+        ...
+
+
+@dataclass
+class _Move:
+    start: np.ndarray
+    goal: np.ndarray
+    t0: float  # time.monotonic()
+    duration_s: float  # real seconds (robot time / time_scale)
+    owner: str  # "operator" or "wander"
+    done: threading.Event = field(default_factory=threading.Event)
+    arrived: bool = False
+
+    def position(self, now: float) -> tuple[np.ndarray, bool]:
+        s = 1.0 if self.duration_s <= 0 else min(1.0, (now - self.t0) / self.duration_s)
+        return self.start + (self.goal - self.start) * s, s >= 1.0
+
+
+class SimulatedDriver:
+    """A simulated robot over calib_core's SimulatedRobot.
+
+    Its true parameters are hidden (the profile's simulation truth; `day` > 1 drifts the joint offsets as
+    `calib simulate --day` does, so seed 1 day 2 is the robot of the sample session robonaut-a-day2). A motion
+    thread moves the true joint angles at rate_hz; `time_scale` speeds the robot's clock (moves, pauses and
+    settling) for tests and demos. `look()` renders what the sensor sees at the true pose and runs the
+    detector seeded by the calibration the robot was given, so a better calibration finds the fixture better.
+    """
+
+    def __init__(
+        self,
+        profile: Profile,
+        *,
+        seed: int = 0,
+        day: int = 1,
+        time_scale: float = 1.0,
+        rate_hz: float = 50.0,
+        margin_deg: float = DEFAULT_MARGIN_DEG,
+        start_rad: np.ndarray | None = None,
+    ) -> None:
+        if time_scale <= 0 or rate_hz <= 0 or margin_deg < 0:
+            raise ValueError("time_scale and rate_hz must be positive and margin_deg not negative")
+        self.profile = profile
+        self.time_scale = float(time_scale)
+        self.rate_hz = float(rate_hz)
+        self.margin_rad = math.radians(margin_deg)
+        robot = SimulatedRobot.from_profile(profile, seed=seed)
+        for d in range(2, day + 1):
+            robot = robot.drifted(seed=1000 * seed + d)
+        self._sim = robot  # renders and detects (its rng is guarded by _render_lock)
+        self._planner = SimulatedRobot.from_profile(profile, seed=seed + 1, truth=robot.true_params)
+        self._seed = seed
+        self._velocity = np.array([j.velocity for j in profile.joints])
+        self._lock = threading.Lock()
+        self._render_lock = threading.Lock()
+        self._planner_lock = threading.Lock()
+        q0, t0 = (np.asarray(start_rad, float), 0) if start_rad is not None else self._home()
+        self.check(q0)
+        self._q = q0.copy()  # true joint angles (unquantised readings)
+        self._stamp = time.monotonic()
+        self._still_since = self._stamp
+        self._target = t0
+        self._move: _Move | None = None
+        self._cal_id: str | None = None
+        self._believed = profile.nominal()
+        self._stopped = False
+        self._wander_stop: threading.Event | None = None
+        self._wander_thread: threading.Thread | None = None
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"motion-{profile.name}", daemon=True)
+        self._thread.start()
+
+    # --- lifecycle ----------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Stop motion and the threads; the driver then reports itself disconnected."""
+        self.stop()
+        self._closed.set()
+        self._thread.join()
+        wander = self._wander_thread
+        if wander is not None:
+            wander.join()
+
+    def __enter__(self) -> SimulatedDriver:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- state --------------------------------------------------------------------------------------
+    def status(self) -> RobotStatus:
+        with self._lock:
+            q, stamp, moving = self._q.copy(), self._stamp, self._move is not None
+            wandering = self._wander_stop is not None and not self._wander_stop.is_set()
+            closed = self._closed.is_set()
+            if closed:
+                message = "disconnected"
+            elif wandering:
+                message = "wandering: someone else drives the robot"
+            elif moving:
+                message = "moving"
+            elif self._stopped:
+                message = "stopped"
+            else:
+                message = "idle"
+            return RobotStatus(
+                robot=self.profile.name,
+                connected=not closed,
+                moving=moving,
+                joints_rad=self._sim.readings(q),
+                target=self._target,
+                calibration_id=self._cal_id,
+                message=message,
+                stamp=stamp,
+                wandering=wandering,
+            )
+
+    def read_joints(self) -> np.ndarray:
+        with self._lock:
+            return self._sim.readings(self._q)
+
+    def settled(self, for_s: float = 0.3) -> bool:
+        """Not moving for at least for_s of robot time (real time for_s / time_scale)."""
+        with self._lock:
+            still = self._move is None
+            return still and (time.monotonic() - self._still_since) * self.time_scale >= for_s
+
+    def true_joints_rad(self) -> np.ndarray:
+        """The hidden true joint angles (simulation only: for tests and a ground-truth view)."""
+        with self._lock:
+            return self._q.copy()
+
+    def true_params(self) -> np.ndarray:
+        """The hidden true parameters (simulation only: for tests and a ground-truth view)."""
+        return self._sim.true_params.copy()
+
+    # --- seeing -------------------------------------------------------------------------------------
+    def look(self, believed: np.ndarray | None = None) -> Look:
+        with self._lock:
+            q, target = self._q.copy(), self._target
+            p = (self._believed if believed is None else np.asarray(believed, float)).copy()
+        with self._render_lock:
+            cap = self._sim.capture(0, q, target, p)
+        return Look(cap.readings, target, cap.sighting, cap.images)
+
+    def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None:
+        p = self.profile.nominal() if params is None else np.asarray(params, float).copy()
+        if p.shape != (len(self.profile.parameters),):
+            raise ValueError(f"expected {len(self.profile.parameters)} parameters for {self.profile.name}")
+        with self._lock:
+            self._cal_id = cal_id
+            self._believed = p
+
+    def believed_params(self) -> np.ndarray:
+        with self._lock:
+            return self._believed.copy()
+
+    def set_target(self, target: int) -> None:
+        if not 0 <= target < len(self.profile.targets):
+            raise ValueError(f"{self.profile.name} has targets 0..{len(self.profile.targets) - 1}, not {target}")
+        with self._lock:
+            self._target = int(target)
+
+    # --- moving -------------------------------------------------------------------------------------
+    def check(self, q_rad: np.ndarray) -> None:
+        check_limits(self.profile, q_rad, self.margin_rad)
+
+    def move_to(self, q_rad: np.ndarray, *, wait: bool = True, should_stop: Callable[[], bool] | None = None) -> bool:
+        """The operator's (or a replay's) move: it ends a wander."""
+        q = np.asarray(q_rad, dtype=float)
+        self.check(q)
+        self.wander(False)
+        move = self._begin(q, "operator")
+        if not wait:
+            return True
+        while not move.done.wait(_WAIT_POLL_S):
+            if should_stop is not None and should_stop():
+                self.stop()
+        return move.arrived
+
+    def jog(self, joint_name: str, value_deg: float) -> None:
+        """Move one joint to value_deg, the others held where they are headed; does not wait."""
+        with self._lock:
+            q = (self._move.goal if self._move is not None else self._q).copy()
+        q[self.profile.joint(joint_name)] = math.radians(value_deg)
+        self.move_to(q, wait=False)
+
+    def stop(self) -> None:
+        with self._lock:
+            if self._wander_stop is not None:
+                self._wander_stop.set()
+            self._halt(time.monotonic())
+            self._stopped = True
+
+    def wander(self, on: bool) -> None:
+        """Start or stop a scripted wander through random visible configurations, with pauses: the robot
+        driven by someone else. Stopping it halts the wander's current move."""
+        with self._lock:
+            running = self._wander_stop is not None and not self._wander_stop.is_set()
+            if on == running or self._closed.is_set():
+                return
+            if not on:
+                assert self._wander_stop is not None
+                self._wander_stop.set()
+                if self._move is not None and self._move.owner == "wander":
+                    self._halt(time.monotonic())
+                return
+            stop = threading.Event()
+            self._wander_stop = stop
+            self._stopped = False
+            self._wander_thread = threading.Thread(
+                target=self._wander, args=(stop,), name=f"wander-{self.profile.name}", daemon=True
+            )
+            self._wander_thread.start()
+
+    # --- internals ----------------------------------------------------------------------------------
+    def _home(self) -> tuple[np.ndarray, int]:
+        """A starting pose with the target in view."""
+        qs, targets = self._visible_configurations(8)
+        if len(qs):
+            return qs[0], int(targets[0])
+        lo, hi = self.profile.joint_limits()
+        return (lo + hi) / 2, 0
+
+    def _visible_configurations(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Configurations whose target the true robot sees, within the limits less the margin."""
+        with self._planner_lock:
+            qs, targets = self._planner.configurations(n)
+        ok = []
+        for q in qs:
+            try:
+                self.check(q)
+            except LimitError:
+                ok.append(False)
+            else:
+                ok.append(True)
+        return qs[ok], targets[ok]
+
+    def _begin(self, goal: np.ndarray, owner: str) -> _Move:
+        with self._lock:
+            return self._begin_locked(goal, owner)
+
+    def _begin_locked(self, goal: np.ndarray, owner: str) -> _Move:
+        if self._closed.is_set():
+            raise RuntimeError(f"the {self.profile.name} driver is closed")
+        now = time.monotonic()
+        self._halt(now)
+        delta = np.abs(goal - self._q)
+        if np.any((delta > 0) & (self._velocity <= 0)):
+            raise ValueError("a joint to move has no velocity limit above 0")
+        robot_s = float(np.max(np.where(delta > 0, delta / np.where(self._velocity > 0, self._velocity, 1), 0)))
+        move = _Move(self._q.copy(), goal.copy(), now, robot_s / self.time_scale, owner)
+        self._move = move
+        self._stopped = False
+        return move
+
+    def _halt(self, now: float) -> None:
+        """End the current move where it is now (lock held)."""
+        move = self._move
+        if move is None:
+            return
+        self._q, _ = move.position(now)
+        self._stamp = now
+        self._still_since = now
+        self._move = None
+        move.done.set()
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        while not self._closed.wait(period):
+            with self._lock:
+                move = self._move
+                if move is None:
+                    continue
+                now = time.monotonic()
+                self._q, arrived = move.position(now)
+                self._stamp = now
+                if arrived:
+                    self._q = move.goal.copy()
+                    self._move = None
+                    self._still_since = now
+                    move.arrived = True
+                    move.done.set()
+
+    def _wander(self, stop: threading.Event) -> None:
+        rng = np.random.default_rng(self._seed + 2)
+        qs, targets = self._visible_configurations(_WANDER_POOL)
+        while len(qs) and not stop.is_set():
+            k = int(rng.integers(len(qs)))
+            with self._lock:
+                # Checked under the lock that wander(False) takes: no wander move starts after it.
+                if stop.is_set() or self._closed.is_set():
+                    break
+                self._target = int(targets[k])
+                move = self._begin_locked(qs[k], "wander")
+            while not move.done.wait(_WAIT_POLL_S) and not stop.is_set():
+                pass
+            if not move.arrived:
+                break
+            stop.wait(rng.uniform(*_WANDER_PAUSE_S) / self.time_scale)

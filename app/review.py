@@ -1,0 +1,410 @@
+"""Review: a session's frames seen through an old and a new calibration, precomputed for the page and the scene.
+
+Everything is computed once per (session, old, new) with batched kinematics; a frame's figures,
+marks and 3-D geometry are then array slices. Each side is a whole model: its URDF (the profile's
+frame tree at that side's parameters, `calib_core.urdf.to_urdf`) puts the joint offsets and link
+lengths into the joint origins, so both URDF copies are driven by the same joint readings and
+still show where each calibration believes every link is.
+
+Errors are the papers' figure: the distance between prediction and measurement per observation
+(cm in the eye frame for Robonaut, px for NAO); a frame's error is the mean over its observations.
+The summary and the histogram count observations, like `Calibration.figures`, so the numbers agree
+with the calibration's own on the same data.
+
+Where the points are in 3-D (base frame, metres): a 3-D sensor's measurement is placed through that
+side's sensor pose; a camera measures only directions, so a measured pixel is back-projected onto
+the plane of the board as that side's calibration predicts it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from calib_core import Dataset, Profile
+from calib_core.kinematics import forward
+from calib_core.measurement import predict, project_to_image
+from calib_core.profile import Sensor
+from calib_core.units import length_factor
+from calib_core.urdf import to_urdf
+
+HISTOGRAM_BINS = 20
+UNDISTORT_ITERATIONS = 20
+
+
+class FrameLike(Protocol):
+    """What a review needs of a stored frame (app.store.FrameInfo)."""
+
+    index: int
+    joints_rad: np.ndarray
+    target: int
+    status: str
+
+
+@dataclass(frozen=True)
+class FrameGeometry:
+    """One frame as the scene shows it. Points are in the robot's base frame, metres, row-aligned:
+    `measured_m[side][k]` is the measurement of the point predicted at `predicted_m[side][k]`
+    (NaN rows: nothing measured, e.g. a frame whose detector found nothing)."""
+
+    index: int
+    status: str
+    joints_rad: np.ndarray  # (n_joints,) the readings, profile joint order: both URDF copies show these
+    predicted_m: dict[str, np.ndarray]  # side ("old", "new") -> (K, 3)
+    measured_m: dict[str, np.ndarray]  # side -> (K, 3)
+
+
+@dataclass
+class _Side:
+    """One calibration's view of every observation (rows of the review's observation list)."""
+
+    p: np.ndarray
+    predicted: np.ndarray  # (M, dim) sensor units (cm or px)
+    predicted_m: np.ndarray  # (M, 3) base frame, m
+    measured_m: np.ndarray  # (M, 3) base frame, m (NaN where nothing was measured)
+    image_px: np.ndarray  # (M, 2) the prediction in the image (NaN: no image or behind the camera)
+    error: np.ndarray  # (M,) |prediction - measurement| (NaN where nothing was measured)
+    frame_error: np.ndarray  # (N,) mean over the frame's observations (NaN: not measured)
+
+
+class Review:
+    def __init__(
+        self,
+        profile: Profile,
+        indices: np.ndarray,
+        statuses: list[str],
+        targets: np.ndarray,
+        joints_rad: np.ndarray,
+        start: np.ndarray,
+        measured: np.ndarray,
+        measured_px: np.ndarray,
+        sides: dict[str, _Side],
+        heldout: np.ndarray,
+        bounds_m: np.ndarray,
+    ) -> None:
+        self.profile = profile
+        self.indices = indices
+        self.statuses = statuses
+        self.targets = targets
+        self.joints_rad = joints_rad
+        self.start = start
+        self.measured = measured
+        self.measured_px = measured_px
+        self.sides = sides
+        self.heldout = heldout
+        self.bounds_m = bounds_m
+        self._row = {int(i): r for r, i in enumerate(indices)}
+        self.sensor = profile.sensors[profile.data.sensor]
+        self.unit = "px" if self.sensor.model == "pinhole" else profile.length_unit
+        self.urdf = {side: to_urdf(profile, s.p) for side, s in sides.items()}
+
+    @classmethod
+    def build(
+        cls,
+        profile: Profile,
+        frames: list[FrameLike],
+        data: Dataset | None,
+        old_p: np.ndarray,
+        new_p: np.ndarray | None,
+        *,
+        heldout_frames: Iterable[int] = frozenset(),
+    ) -> Review:
+        """Precompute every frame for both calibrations. `data`: the session's measured frames
+        (frame_ids = frame indices), None when nothing was measured; frames not in it get no error."""
+        frames = sorted(frames, key=lambda f: f.index)
+        n = len(frames)
+        indices = np.array([f.index for f in frames], dtype=int)
+        targets = np.array([f.target for f in frames], dtype=int)
+        joints = np.array([np.asarray(f.joints_rad, float) for f in frames]).reshape(n, len(profile.joints))
+        rows, target, point, measured = _observations(profile, indices, targets, joints, data)
+        joints = np.nan_to_num(joints)  # joints the frame's chains do not use do not matter
+        order = np.argsort(rows, kind="stable")
+        rows, target, point, measured = rows[order], target[order], point[order], measured[order]
+        start = np.searchsorted(rows, np.arange(n + 1))
+        sensor = profile.sensors[profile.data.sensor]
+        measured_px = _image_of_measurements(sensor, new_p if new_p is not None else old_p, measured)
+        params = {"old": old_p} | ({} if new_p is None else {"new": new_p})
+        sides = {side: _side(profile, p, joints, rows, target, point, measured, n) for side, p in params.items()}
+        heldout = np.isin(indices, np.fromiter(heldout_frames, dtype=int))
+        bounds = frame_bounds_m(profile, old_p, joints, [s.predicted_m for s in sides.values()])
+        return cls(
+            profile,
+            indices,
+            [f.status for f in frames],
+            targets,
+            joints,
+            start,
+            measured,
+            measured_px,
+            sides,
+            heldout,
+            bounds,
+        )
+
+    # --- per frame ------------------------------------------------------------------------------
+    def row(self, index: int) -> int:
+        """The position of frame `index` (its 1-based frame number) in the review."""
+        try:
+            return self._row[int(index)]
+        except KeyError:
+            known = f"frames {self.indices[0]}..{self.indices[-1]}" if len(self.indices) else "no frames"
+            raise IndexError(f"frame {index} is not in this review ({known})") from None
+
+    def table(self) -> list[dict[str, Any]]:
+        """Per frame: {index, status, target, err_old, err_new, heldout}; errors None when not measured."""
+        old = self.sides["old"].frame_error
+        new = self.sides["new"].frame_error if "new" in self.sides else None
+        return [
+            {
+                "index": int(i),
+                "status": self.statuses[r],
+                "target": int(self.targets[r]),
+                "err_old": _num(old[r]),
+                "err_new": None if new is None else _num(new[r]),
+                "heldout": bool(self.heldout[r]),
+            }
+            for r, i in enumerate(self.indices)
+        ]
+
+    def marks(self, index: int) -> dict[str, Any]:
+        """The 2-D split view: {index, role, width, height, measured, old, new}, [u, v] px per point,
+        row-aligned (None where nothing was measured or a point is behind the camera); new is None
+        without a new calibration. role: the image the marks belong to ("left" of a stereo head,
+        "image" of a camera)."""
+        r = self.row(index)
+        s = slice(self.start[r], self.start[r + 1])
+        width, height = self.sensor.image or (None, None)
+        return {
+            "index": int(index),
+            "role": "image" if self.sensor.model == "pinhole" else "left",
+            "width": width,
+            "height": height,
+            "measured": _pixels(self.measured_px[s]),
+            "old": _pixels(self.sides["old"].image_px[s]),
+            "new": _pixels(self.sides["new"].image_px[s]) if "new" in self.sides else None,
+        }
+
+    def frame_geometry(self, index: int) -> FrameGeometry:
+        r = self.row(index)
+        s = slice(self.start[r], self.start[r + 1])
+        return FrameGeometry(
+            int(index),
+            self.statuses[r],
+            self.joints_rad[r],
+            {side: v.predicted_m[s] for side, v in self.sides.items()},
+            {side: v.measured_m[s] for side, v in self.sides.items()},
+        )
+
+    def all_points(self, side: str) -> tuple[np.ndarray, np.ndarray]:
+        """(measured, predicted) base-frame points (M, 3) m of every measured observation of the session."""
+        got = np.isfinite(self.sides[side].measured_m[:, 0])
+        return self.sides[side].measured_m[got], self.sides[side].predicted_m[got]
+
+    # --- the session ----------------------------------------------------------------------------
+    def summary(self) -> dict[str, Any]:
+        """{unit, frames, measured, heldout_frames, old, new, heldout_old, heldout_new, histogram}.
+        Figures are {mean, rms, max, n} over observations (n = 0 and None figures when there are
+        none); new and heldout_* are None when there is no new calibration or no held-out frame."""
+        obs_heldout = np.repeat(self.heldout, np.diff(self.start))
+        has_heldout = bool(np.any(self.heldout & self._measured_frames()))
+        out: dict[str, Any] = {
+            "unit": self.unit,
+            "frames": len(self.indices),
+            "measured": int(self._measured_frames().sum()),
+            "heldout_frames": int(self.heldout.sum()),
+        }
+        for side in ("old", "new"):
+            s = self.sides.get(side)
+            out[side] = None if s is None else _figures(s.error)
+            out[f"heldout_{side}"] = _figures(s.error[obs_heldout]) if s is not None and has_heldout else None
+        out["histogram"] = self._histogram()
+        return out
+
+    def _measured_frames(self) -> np.ndarray:
+        return np.isfinite(self.sides["old"].frame_error)
+
+    def _histogram(self) -> dict[str, Any]:
+        errors = {side: s.error[np.isfinite(s.error)] for side, s in self.sides.items()}
+        top = max((float(e.max()) for e in errors.values() if len(e)), default=0.0)
+        if top <= 0.0:
+            return {"edges": [], "old": [], "new": None if "new" not in errors else []}
+        edges = np.linspace(0.0, top, HISTOGRAM_BINS + 1)
+        counts = {side: np.histogram(e, bins=edges)[0].tolist() for side, e in errors.items()}
+        return {"edges": edges.tolist(), "old": counts["old"], "new": counts.get("new")}
+
+
+def live_geometry(
+    profile: Profile, p: np.ndarray, q_rad: np.ndarray, target: int, points: np.ndarray, measured: np.ndarray | None
+) -> FrameGeometry:
+    """One live look (Observe) through calibration p, as side "old": the sighting's points in the
+    target frame (NaN: the target's calibrated point) and what was measured of them (None: nothing)."""
+    q = np.nan_to_num(np.asarray(q_rad, float))[None]
+    k = len(points)
+    dim = 2 if profile.sensors[profile.data.sensor].model == "pinhole" else 3
+    meas = np.full((k, dim), np.nan) if measured is None else np.asarray(measured, float)
+    s = _side(profile, p, q, np.zeros(k, int), np.full(k, target), np.asarray(points, float), meas, 1)
+    return FrameGeometry(0, "live", q[0], {"old": s.predicted_m}, {"old": s.measured_m})
+
+
+# --- computation --------------------------------------------------------------------------------
+
+
+def _observations(
+    profile: Profile, indices: np.ndarray, targets: np.ndarray, joints: np.ndarray, data: Dataset | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every frame's observed points: the dataset's for measured frames (their joint readings fill
+    the frame's), the whole target, unmeasured (NaN), for the others, so a frame whose detector
+    found nothing still shows where its target was predicted. Returns (row, target, point, measured)."""
+    dim = 2 if profile.sensors[profile.data.sensor].model == "pinhole" else 3
+    row_of = {int(i): r for r, i in enumerate(indices)}
+    rows, target, point, measured = [], [], [], []
+    seen = np.zeros(len(indices), bool)
+    if data is not None and data.n_observations:
+        cfg_row = np.array([row_of.get(int(f), -1) for f in data.frame_ids])
+        keep = cfg_row[data.cfg] >= 0
+        obs_rows = cfg_row[data.cfg[keep]]
+        rows.append(obs_rows)
+        target.append(data.target[keep])
+        point.append(data.point[keep])
+        measured.append(data.measured[keep])
+        seen[obs_rows] = True
+        for c, r in enumerate(cfg_row):
+            if r >= 0:
+                joints[r] = np.where(np.isnan(data.joints[c]), joints[r], data.joints[c])
+    for r in np.flatnonzero(~seen):
+        t = profile.targets[int(targets[r])]
+        pts = np.full((1, 3), np.nan) if t.grid is None else t.grid
+        rows.append(np.full(len(pts), r))
+        target.append(np.full(len(pts), targets[r]))
+        point.append(pts)
+        measured.append(np.full((len(pts), dim), np.nan))
+    if not rows:
+        return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, dim))
+    return np.concatenate(rows), np.concatenate(target), np.concatenate(point), np.concatenate(measured)
+
+
+def _side(
+    profile: Profile,
+    p: np.ndarray,
+    joints: np.ndarray,
+    rows: np.ndarray,
+    target: np.ndarray,
+    point: np.ndarray,
+    measured: np.ndarray,
+    n_frames: int,
+) -> _Side:
+    sensor = profile.sensors[profile.data.sensor]
+    to_m = length_factor(profile.length_unit, "m")
+    used = sorted(set(target.tolist()))
+    poses = forward(profile, p, joints, frames=sorted({profile.targets[t].frame for t in used} | {sensor.frame}))
+    P = np.zeros((len(rows), 3))  # the points in the base frame, profile length unit
+    normal = np.zeros((len(rows), 3))  # the target frame's z axis (a board's normal)
+    for t in used:
+        sel = np.flatnonzero(target == t)
+        tg = profile.targets[t]
+        local = point[sel]
+        if tg.point_params is not None:
+            local = np.where(np.isnan(local), p[list(tg.point_params)], local)
+        R_base_target = poses.R[tg.frame][rows[sel]]
+        P[sel] = (R_base_target @ local[:, :, None])[:, :, 0] + poses.t[tg.frame][rows[sel]]
+        normal[sel] = R_base_target[:, :, 2]
+    R_base_sensor = poses.R[sensor.frame][rows]
+    t_base_sensor = poses.t[sensor.frame][rows]
+    x = ((P - t_base_sensor)[:, None, :] @ R_base_sensor)[:, 0, :]  # in the sensor frame
+    predicted = predict(sensor, p, x)[0] if len(x) else np.zeros((0, measured.shape[1]))
+    if sensor.model == "pinhole":
+        ray = _rays(sensor, p, measured)  # sensor frame
+        ray_base = (R_base_sensor @ ray[:, :, None])[:, :, 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            depth = np.einsum("ij,ij->i", normal, P - t_base_sensor) / np.einsum("ij,ij->i", normal, ray_base)
+        depth = np.where(depth > 0, depth, np.nan)
+        measured_base = t_base_sensor + depth[:, None] * ray_base
+    else:
+        measured_base = (R_base_sensor @ measured[:, :, None])[:, :, 0] + t_base_sensor
+    error = np.linalg.norm(predicted - measured, axis=1)
+    got = np.isfinite(error)
+    counts = np.bincount(rows[got], minlength=n_frames)
+    sums = np.bincount(rows[got], weights=error[got], minlength=n_frames)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frame_error = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    return _Side(
+        p=np.asarray(p, float).copy(),
+        predicted=predicted,
+        predicted_m=P * to_m,
+        measured_m=measured_base * to_m,
+        image_px=_image(sensor, p, x),
+        error=error,
+        frame_error=frame_error,
+    )
+
+
+def _image(sensor: Sensor, p: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Pixels (M, 2) of sensor-frame points x in the sensor's (left) image; NaN behind the camera
+    or when the sensor has no intrinsics."""
+    if sensor.intrinsics is None or len(x) == 0:
+        return np.full((len(x), 2), np.nan)
+    ahead = (x @ sensor.R_frame_optical)[:, 2] > 0
+    safe = np.where(ahead[:, None], x, sensor.R_frame_optical[:, 2])
+    return np.where(ahead[:, None], project_to_image(sensor, p, safe), np.nan)
+
+
+def _image_of_measurements(sensor: Sensor, p: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Measured pixels: a camera's directly, a 3-D sensor's projected into its left image."""
+    if sensor.model == "pinhole":
+        return measured.copy()
+    got = np.isfinite(measured[:, 0])
+    out = np.full((len(measured), 2), np.nan)
+    out[got] = _image(sensor, p, measured[got])
+    return out
+
+
+def _rays(sensor: Sensor, p: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Directions (M, 3) in the sensor frame of the view rays through pixels uv (pinhole inverse;
+    lens distortion undone by fixed-point iteration, as OpenCV's undistortPoints does)."""
+    assert sensor.intrinsics is not None
+    fx, fy, cx, cy = (p[i] for i in sensor.intrinsics)
+    ad, bd = (uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy
+    a, b = ad, bd
+    if sensor.distortion is not None:
+        k1, k2, p1, p2, k3 = (p[i] for i in sensor.distortion)
+        for _ in range(UNDISTORT_ITERATIONS):
+            r2 = a * a + b * b
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            a, b = (
+                (ad - 2 * p1 * a * b - p2 * (r2 + 2 * a * a)) / radial,
+                (bd - p1 * (r2 + 2 * b * b) - 2 * p2 * a * b) / radial,
+            )
+    optical = np.stack([a, b, np.ones_like(a)], axis=1)
+    return optical @ sensor.R_frame_optical.T
+
+
+def frame_bounds_m(
+    profile: Profile, p: np.ndarray, joints: np.ndarray, points_m: Iterable[np.ndarray] = ()
+) -> np.ndarray:
+    """(2, 3) min and max, base frame, m, of every frame origin in every configuration and every point."""
+    to_m = length_factor(profile.length_unit, "m")
+    q = joints if len(joints) else np.zeros((1, len(profile.joints)))
+    poses = forward(profile, p, q)
+    pts = [np.concatenate(poses.t) * to_m, np.zeros((1, 3))] + [x for x in points_m if len(x)]
+    allp = np.concatenate(pts)
+    allp = allp[np.isfinite(allp).all(axis=1)]
+    return np.stack([allp.min(axis=0), allp.max(axis=0)])
+
+
+def _figures(error: np.ndarray) -> dict[str, Any]:
+    e = error[np.isfinite(error)]
+    if len(e) == 0:
+        return {"mean": None, "rms": None, "max": None, "n": 0}
+    return {"mean": float(e.mean()), "rms": float(np.sqrt(np.mean(e**2))), "max": float(e.max()), "n": len(e)}
+
+
+def _num(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def _pixels(uv: np.ndarray) -> list[list[float] | None]:
+    return [[float(u), float(v)] if math.isfinite(u) and math.isfinite(v) else None for u, v in uv]

@@ -1,0 +1,418 @@
+"""The Review scene in viser: the robot twice, side by side, as the old and the new calibration see it.
+
+    /review/old                    root: placed in the world (left copy; the overlay puts both at 0)
+        label                      "old calibration"
+        base                       the robot's base frame, turned upright (display_rotation)
+            robot/...              URDF at the old calibration's parameters (ViserUrdf)
+            ghost/...              the same, translucent: shown instead of `robot` in the overlay
+            frame/measured         the selected frame: measured points, red
+            frame/predicted        its predictions, blue (green on the new side)
+            frame/lines            prediction -> measurement, one segment per point
+            all/measured|predicted|lines   every frame at once: sent at load, toggled by show_all
+    /review/new                    the same, right copy, green (no ghost)
+    /live                          Observe: one copy driven by the live joint stream, in the left place
+
+Each side's URDF is generated from that side's parameters (`Review.urdf`), so both copies take the
+same joint readings and still differ where the calibrations differ. The scene keeps its own registry
+of the nodes it made (viser has no public listing) and reports it through `state()`.
+"""
+
+from __future__ import annotations
+
+import io
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import viser
+import yourdfpy
+from viser.extras import ViserUrdf
+
+from calib_core import Profile, load_profile
+from calib_core.kinematics import forward
+from calib_core.units import length_factor
+from calib_core.urdf import to_urdf
+from calib_core.vision import Sighting
+
+from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
+
+SIDES = ("old", "new")
+PARTS = ("measured", "predicted", "lines")
+RED = (255, 0, 0)
+SIDE_COLOR = {"old": (0, 0, 255), "new": (0, 200, 0)}
+LABELS = {"old": "old calibration", "new": "new calibration", "live": "live: active calibration"}
+GHOST_RGBA = (0.45, 0.55, 1.0, 0.35)  # the old copy in the overlay: translucent, tinted like its points
+DEFAULT_POINT_M = 0.01
+LINE_PER_POINT = 0.06  # line thickness as a share of the point size
+LABEL_LIFT_M = 0.08  # the old label's lift in the overlay, where both labels would coincide
+
+
+class LookLike(Protocol):
+    """What show_live needs of a driver's look (app.drivers.Look)."""
+
+    readings_rad: np.ndarray
+    sighting: Sighting
+
+
+@dataclass
+class _Copy:
+    """One URDF copy: its document, its own yourdfpy object (update_cfg mutates it), its viser handle."""
+
+    text: str
+    profile: Profile
+    urdf: yourdfpy.URDF
+    handle: ViserUrdf
+    root: str
+    joint_order: list[int]  # the profile joint index of each URDF actuated joint
+
+
+def display_rotation(profile: Profile) -> np.ndarray:
+    """R_world_base: the robot upright in viser's z-up world, facing +x.
+
+    Profiles do not say which way is up (Robonaut's chest frame has y down, NAO's torso z up), but
+    a robot's head sits above its base: up is the base axis nearest the direction from the base to
+    the data sensor at zero joint angles; forward is the base x axis (y if x is up)."""
+    sensor = profile.sensors[profile.data.sensor]
+    poses = forward(profile, profile.nominal(), np.zeros((1, len(profile.joints))), frames=[sensor.frame])
+    v = poses.t[sensor.frame][0]
+    k = int(np.argmax(np.abs(v)))
+    up = np.zeros(3)
+    up[k] = 1.0 if v[k] >= 0 else -1.0
+    ahead = np.eye(3)[1 if k == 0 else 0]
+    return np.stack([ahead, np.cross(up, ahead), up])
+
+
+class ReviewScene:
+    def __init__(self, server: viser.ViserServer, urdf_path: Path | None = None) -> None:
+        """`urdf_path`: a built-in robot's URDF to show (at zero joint angles) before any review."""
+        self.server = server
+        self.robot: str | None = None
+        self.review: Review | None = None
+        self.index: int | None = None
+        self.overlay = False
+        self.all = False
+        self.live = False
+        self._lock = threading.RLock()
+        self._nodes: dict[str, viser.SceneNodeHandle] = {}
+        self._counts: dict[str, int] = {}  # points or segments node -> how many it really holds
+        self._copies: dict[str, _Copy] = {}
+        self._profile: Profile | None = None
+        self._separation_m = 0.0
+        self._label_z_m = 0.0
+        self._centre_m = np.zeros(3)
+        self._live_robot: str | None = None
+        server.gui.configure_theme(show_share_button=False)
+        if urdf_path is not None:
+            text = Path(urdf_path).read_text(encoding="utf-8")
+            self.set_robot(urdf_path, yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=False).robot.name)
+
+    # --- loading --------------------------------------------------------------------------------
+    def set_robot(self, urdf_path: Path, robot: str) -> None:
+        """Show built-in robot `robot` from a URDF file on both copies at zero joint angles, no frame."""
+        profile = load_profile(robot)
+        text = Path(urdf_path).read_text(encoding="utf-8")
+        zero = np.zeros(len(profile.joints))
+        with self._lock:
+            self.review = None
+            self.index = None
+            self._setup(profile, frame_bounds_m(profile, profile.nominal(), zero[None]))
+            for side in SIDES:
+                self._ensure_side(profile, side, text)
+                self._set_joints(self._copies[side], zero)
+            self.live = False
+            self._refresh()
+
+    def load(self, review: Review) -> None:
+        """Show a review: both copies, every frame's points (sent once, shown by show_all), and
+        its first frame selected."""
+        with self._lock:
+            self._setup(review.profile, review.bounds_m)
+            self.review = review
+            self.index = None
+            for side in review.sides:
+                self._ensure_side(review.profile, side, review.urdf[side])
+                measured, predicted = review.all_points(side)
+                base = f"/review/{side}/base/all"
+                self._update_points(f"{base}/measured", measured)
+                self._update_points(f"{base}/predicted", predicted)
+                self._update_lines(f"{base}/lines", predicted, measured)
+            self.live = False
+            if len(review.indices):
+                self.select(int(review.indices[0]))
+            else:
+                self._refresh()
+
+    # --- interaction ----------------------------------------------------------------------------
+    def select(self, index: int) -> None:
+        """Show frame `index` (its frame number): both URDF configurations and the frame's points."""
+        with self._lock:
+            if self.review is None:
+                raise ValueError("no review is loaded: load(review) first")
+            geometry = self.review.frame_geometry(index)  # IndexError naming the frames for a bad index
+            with self.server.atomic():
+                for side in self.review.sides:
+                    self._set_joints(self._copies[side], geometry.joints_rad)
+                    self._show_frame(f"/review/{side}/base/frame", geometry, side)
+                if self.overlay:
+                    self._set_joints(self._copies["ghost"], geometry.joints_rad)
+                self.index = int(index)
+                self.live = False
+                self._refresh()
+
+    def show_all(self, on: bool) -> None:
+        """Every frame's points at once (on), or the selected frame's only."""
+        with self._lock:
+            self.all = bool(on)
+            self._refresh()
+
+    def set_overlay(self, on: bool) -> None:
+        """Both copies in one place, the old one translucent (on), or side by side."""
+        with self._lock:
+            if on and not self.overlay and self.review is not None and self.index is not None:
+                self._set_joints(self._copies["ghost"], self.review.frame_geometry(self.index).joints_rad)
+            self.overlay = bool(on)
+            self._refresh()
+
+    def show_live(self, profile: Profile, look: LookLike, p: np.ndarray) -> None:
+        """Observe: the robot at its live readings through calibration p, the live detection (red)
+        and the prediction (blue), in place of the review copies until the next select or load."""
+        s = look.sighting
+        geometry = live_geometry(profile, p, look.readings_rad, s.target, s.points, s.measured)
+        text = to_urdf(profile, p)
+        with self._lock:
+            if self._live_robot != profile.name:
+                self._live_robot = profile.name
+                R = display_rotation(profile)
+                bounds = frame_bounds_m(profile, p, np.zeros((1, len(profile.joints))))
+                top = float((_corners(bounds) @ R.T)[:, 2].max())
+                self._frame("/live", visible=False)
+                self._frame("/live/base", wxyz=_wxyz(R))
+                self._label("/live/label", LABELS["live"], (0.0, 0.0, top + 0.1))
+                self._add_parts("/live/base/frame", SIDE_COLOR["old"], _point_size(profile))
+            copy = self._ensure_copy("live", "/live/base/robot", profile, text, None)
+            with self.server.atomic():
+                self._set_joints(copy, geometry.joints_rad)
+                self._show_frame("/live/base/frame", geometry, "old")
+                self.live = True
+                self._refresh()
+
+    def hide_live(self) -> None:
+        """Back to the review copies."""
+        with self._lock:
+            self.live = False
+            self._refresh()
+
+    # --- tests and the API ----------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        """{robot, index, overlay, all, live, nodes, urdf}. nodes: {name: {kind ("frame", "points",
+        "lines", "label"), visible, shown (it and its ancestors visible), position, wxyz (relative to
+        its parent), and color + points (N, 3) / segments (N, 2, 3) of what it really holds, or text}};
+        urdf: {copy ("old", "ghost", "new", "live"): {root, shown, joints: {name: rad}}}."""
+        with self._lock:
+            return {
+                "robot": self.robot,
+                "index": self.index,
+                "overlay": self.overlay,
+                "all": self.all,
+                "live": self.live,
+                "nodes": {name: self._node_state(name, h) for name, h in self._nodes.items()},
+                "urdf": {
+                    slot: {
+                        "root": c.root,
+                        "shown": self._shown(c.root),
+                        "joints": dict(zip(c.urdf.actuated_joint_names, map(float, c.urdf.cfg), strict=True)),
+                    }
+                    for slot, c in self._copies.items()
+                },
+            }
+
+    # --- building blocks ------------------------------------------------------------------------
+    def _setup(self, profile: Profile, bounds_m: np.ndarray) -> None:
+        """Roots, labels and empty point nodes for a robot; where the copies go; the camera."""
+        self._profile = profile
+        self.robot = profile.name
+        R = display_rotation(profile)
+        corners = _corners(bounds_m) @ R.T  # world, before the side offsets
+        low, high = corners.min(axis=0), corners.max(axis=0)
+        span = high - low
+        self._separation_m = float(span[1] + 0.25 * max(span.max(), 0.2))
+        self._label_z_m = float(high[2] + 0.1 * max(span[2], 0.2))
+        self._centre_m = (low + high) / 2
+        size = _point_size(profile)
+        for side in SIDES:
+            root = f"/review/{side}"
+            self._frame(root)
+            self._frame(f"{root}/base", wxyz=_wxyz(R))
+            self._label(f"{root}/label", LABELS[side], (float(self._centre_m[0]), 0.0, self._label_z_m))
+            for group in ("frame", "all"):
+                self._add_parts(f"{root}/base/{group}", SIDE_COLOR[side], size)
+        extent = float(max(self._separation_m + span[1], span[2], 0.5))
+        c = self._centre_m
+        self.server.initial_camera.look_at = (float(c[0]), 0.0, float(c[2]))
+        self.server.initial_camera.position = (float(c[0]) + 0.9 * extent, 0.0, float(c[2]) + 0.35 * extent)
+        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def _ensure_side(self, profile: Profile, side: str, text: str) -> None:
+        self._ensure_copy(side, f"/review/{side}/base/robot", profile, text, None)
+        if side == "old":
+            self._ensure_copy("ghost", "/review/old/base/ghost", profile, text, GHOST_RGBA)
+
+    def _ensure_copy(
+        self, slot: str, root: str, profile: Profile, text: str, rgba: tuple[float, float, float, float] | None
+    ) -> _Copy:
+        """The URDF copy in `slot`, rebuilt only when its document changed."""
+        current = self._copies.get(slot)
+        if current is not None and current.text == text:
+            return current
+        urdf = yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=True, load_meshes=True)
+        if urdf.scene is None or not urdf.scene.geometry:
+            raise ValueError(f"the URDF of the '{slot}' copy has no visual geometry to show")
+        self._frame(root, replace=True)  # a new root node takes the old copy's nodes with it
+        handle = ViserUrdf(self.server, urdf, root_node_name=root, mesh_color_override=rgba)
+        order = [profile.joint(name) for name in urdf.actuated_joint_names]
+        self._copies[slot] = _Copy(text, profile, urdf, handle, root, order)
+        return self._copies[slot]
+
+    def _set_joints(self, copy: _Copy, q_rad: np.ndarray) -> None:
+        """Drive a copy with readings in the profile's joint order."""
+        copy.handle.update_cfg(np.asarray(q_rad, float)[copy.joint_order])
+
+    def _show_frame(self, base: str, geometry: FrameGeometry, side: str) -> None:
+        predicted = geometry.predicted_m[side]
+        measured = geometry.measured_m[side]
+        got = np.isfinite(measured).all(axis=1)
+        self._update_points(f"{base}/predicted", predicted)
+        self._update_points(f"{base}/measured", measured[got])
+        self._update_lines(f"{base}/lines", predicted[got], measured[got])
+
+    def _refresh(self) -> None:
+        """Positions and visibility from the flags: roots side by side along the world y (old on
+        the left, new on the right, seen from the front) or overlaid with the old copy's ghost;
+        the selected frame's points or every frame's; the review copies or the live one."""
+        if "/review/old" not in self._nodes:
+            return
+        has_new = self.review is None or "new" in self.review.sides
+        half = 0.0 if self.overlay or not has_new else self._separation_m / 2
+        y0 = -float(self._centre_m[1])
+        self._nodes["/review/old"].position = (0.0, y0 - half, 0.0)
+        self._nodes["/review/new"].position = (0.0, y0 + half, 0.0)
+        self._nodes["/review/old"].visible = not self.live
+        self._nodes["/review/new"].visible = has_new and not self.live
+        if "/live" in self._nodes:
+            self._nodes["/live"].position = (0.0, y0 - half, 0.0)
+            self._nodes["/live"].visible = self.live
+        if "/review/old/base/ghost" in self._nodes:
+            self._nodes["/review/old/base/robot"].visible = not self.overlay
+            self._nodes["/review/old/base/ghost"].visible = self.overlay
+        lift = LABEL_LIFT_M if self.overlay else 0.0
+        self._nodes["/review/old/label"].position = (float(self._centre_m[0]), 0.0, self._label_z_m + lift)
+        framed = self.review is not None and self.index is not None
+        for side in SIDES:
+            for part in PARTS:
+                for group, on in (("frame", framed and not self.all), ("all", self.review is not None and self.all)):
+                    name = f"/review/{side}/base/{group}/{part}"
+                    self._nodes[name].visible = on and self._counts[name] > 0
+        if "/live/base/frame/measured" in self._nodes:
+            for part in PARTS:
+                name = f"/live/base/frame/{part}"
+                self._nodes[name].visible = self._counts[name] > 0
+
+    # --- nodes ----------------------------------------------------------------------------------
+    def _frame(
+        self, name: str, *, wxyz: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0), visible: bool = True, replace: bool = False
+    ) -> None:
+        if name in self._nodes and not replace:
+            self._nodes[name].wxyz = wxyz  # type: ignore[assignment]
+            return
+        if name in self._nodes:
+            visible = self._nodes[name].visible
+        self._nodes[name] = self.server.scene.add_frame(name, show_axes=False, wxyz=wxyz, visible=visible)
+
+    def _label(self, name: str, text: str, position: tuple[float, float, float]) -> None:
+        if name not in self._nodes:
+            self._nodes[name] = self.server.scene.add_label(name, text, anchor="bottom-center")
+        self._nodes[name].text = text  # type: ignore[attr-defined]
+        self._nodes[name].position = position
+
+    def _add_parts(self, base: str, color: tuple[int, int, int], size_m: float) -> None:
+        """A group's red measured and coloured predicted points (float32: float16 would hide
+        millimetre residuals) and its lines, empty and hidden; viser gets one placeholder point."""
+        self._frame(base)
+        for part, c in (("measured", RED), ("predicted", color)):
+            self._nodes[f"{base}/{part}"] = self.server.scene.add_point_cloud(
+                f"{base}/{part}",
+                np.zeros((1, 3), np.float32),
+                np.array(c, np.uint8),
+                point_size=size_m,
+                point_shape="circle",
+                precision="float32",
+                point_shading="flat",
+                visible=False,
+            )
+            self._counts[f"{base}/{part}"] = 0
+        self._nodes[f"{base}/lines"] = self.server.scene.add_line_segments(
+            f"{base}/lines",
+            np.zeros((1, 2, 3), np.float32),
+            np.array(color, np.uint8),
+            thickness=LINE_PER_POINT * size_m,
+            visible=False,
+        )
+        self._counts[f"{base}/lines"] = 0
+
+    def _update_points(self, name: str, points: np.ndarray) -> None:
+        """New points for a cloud; an empty one keeps its old points (viser needs one) and is hidden."""
+        if len(points):
+            self._nodes[name].points = np.asarray(points, np.float32)  # type: ignore[attr-defined]
+        self._counts[name] = len(points)
+
+    def _update_lines(self, name: str, start: np.ndarray, end: np.ndarray) -> None:
+        if len(start):
+            self._nodes[name].points = np.stack([start, end], axis=1).astype(np.float32)  # type: ignore[attr-defined]
+        self._counts[name] = len(start)
+
+    def _shown(self, name: str) -> bool:
+        parts = name.split("/")
+        return all(
+            self._nodes[p].visible for k in range(2, len(parts) + 1) if (p := "/".join(parts[:k])) in self._nodes
+        )
+
+    def _node_state(self, name: str, h: viser.SceneNodeHandle) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "visible": bool(h.visible),
+            "shown": self._shown(name),
+            "position": [float(v) for v in h.position],
+            "wxyz": [float(v) for v in h.wxyz],
+        }
+        if isinstance(h, viser.PointCloudHandle | viser.LineSegmentsHandle):
+            kind, key = ("points", "points") if isinstance(h, viser.PointCloudHandle) else ("lines", "segments")
+            held = h.points[: self._counts[name]].astype(float).tolist()
+            out |= {"kind": kind, "color": [int(v) for v in np.asarray(h.colors).reshape(-1, 3)[0]], key: held}
+        elif isinstance(h, viser.LabelHandle):
+            out |= {"kind": "label", "text": h.text}
+        else:
+            out |= {"kind": "frame"}
+        return out
+
+
+def _wxyz(R: np.ndarray) -> tuple[float, float, float, float]:
+    w, x, y, z = (float(v) for v in viser.transforms.SO3.from_matrix(R).wxyz)
+    return w, x, y, z
+
+
+def _corners(bounds_m: np.ndarray) -> np.ndarray:
+    """(8, 3) corners of a (2, 3) min/max box."""
+    return np.array([[bounds_m[i, 0], bounds_m[j, 1], bounds_m[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+
+
+def _point_size(profile: Profile) -> float:
+    """Markers sized to the target: a ring around a sphere fixture (the URDF draws the sphere, which
+    would hide a smaller marker at its centre), or 0.4 of a board's grid step."""
+    to_m = length_factor(profile.length_unit, "m")
+    target = profile.targets[profile.data.target if profile.data.target is not None else 0]
+    if target.radius is not None:
+        return 2.4 * target.radius * to_m
+    if target.grid is not None and len(target.grid) > 1:
+        return 0.4 * float(np.linalg.norm(target.grid[1] - target.grid[0])) * to_m
+    return DEFAULT_POINT_M

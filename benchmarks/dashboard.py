@@ -1,0 +1,128 @@
+"""Dashboard figures (issue 4): page ready time, frame-scrub latency on a 1000-frame session, and
+the server's memory with the three sample sessions open. Starts `calib serve` as a user would,
+drives it over HTTP and, for the page, through a headless Debian chromium.
+
+    .venv/bin/python benchmarks/dashboard.py [--frames 1000] [--selects 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from browser import launch, served, wait_for_scene
+
+from calib_core import SimulatedRobot, load_profile, to_csv
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def children_rss_mb(pid: int) -> float:
+    """The spawn pool's worker processes (calibrations run there, not in the server)."""
+    total = 0.0
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                total += rss_mb(int(proc.name)) + children_rss_mb(int(proc.name))
+    return total
+
+
+def wait(server, job: str) -> dict:
+    while True:
+        j = server.get(f"/api/jobs/{job}").json()
+        if j["state"] not in ("queued", "running"):
+            return j
+        time.sleep(0.2)
+
+
+def figures(ms: list[float]) -> str:
+    a = np.array(ms)
+    return f"median {np.median(a):.1f} ms, p95 {np.percentile(a, 95):.1f} ms, max {a.max():.1f} ms (n={len(a)})"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=1000)
+    ap.add_argument("--selects", type=int, default=200)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp, served(Path(tmp) / "data") as server:
+        pid = server.process.pid
+        print(f"server started: RSS {rss_mb(pid):.0f} MB")
+
+        # Page ready: from navigation to the page's data-ready flag, and to the 3-D view drawn.
+        from playwright.sync_api import sync_playwright
+
+        with sync_playwright() as pw:
+            browser = launch(pw)
+            ready, drawn = [], []
+            for _ in range(3):
+                page = browser.new_page(viewport={"width": 1500, "height": 1000})
+                t0 = time.perf_counter()
+                page.goto(server.url)
+                page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+                ready.append((time.perf_counter() - t0) * 1e3)
+                wait_for_scene(page)
+                drawn.append((time.perf_counter() - t0) * 1e3)
+                page.close()
+            browser.close()
+        print(f"page ready (controls usable): {figures(ready)}")
+        print(f"page ready with the 3-D view drawn: {figures(drawn)}")
+
+        # Memory with the three sample sessions open in review, after a calibration of each.
+        for sid, mode in (("robonaut-a-day1", "full"), ("robonaut-a-day2", "daily"), ("nao", "full")):
+            job = wait(server, server.post(f"/api/sessions/{sid}/calibrations", json={"mode": mode}).json()["job"])
+            r = server.post("/api/review", json={"session": sid, "old": None, "new": job["result"]}).json()
+            for row in r["table"][:20]:
+                server.post("/api/review/frame", json={"index": row["index"]})
+        print(f"server RSS with the three sample sessions reviewed: {rss_mb(pid):.0f} MB")
+        print(f"  (+ calibration worker processes: {children_rss_mb(pid):.0f} MB)")
+
+        # A 1000-frame session: import, calibrate, review, then scrub.
+        profile = load_profile("robonaut-a")
+        sim = SimulatedRobot.from_profile(profile, seed=5).simulate(args.frames)
+        csv = to_csv(profile, sim.data).encode()
+        t0 = time.perf_counter()
+        sid = server.post(
+            "/api/sessions/import",
+            data={"robot": "robonaut-a", "name": f"{args.frames} frames"},
+            files={"data": ("big.csv", io.BytesIO(csv), "text/csv")},
+        ).json()["id"]
+        print(f"import of {args.frames} frames: {(time.perf_counter() - t0) * 1e3:.0f} ms")
+        t0 = time.perf_counter()
+        job = wait(server, server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "full"}).json()["job"])
+        print(f"full calibration job on {args.frames} frames: {(time.perf_counter() - t0):.2f} s end to end")
+        t0 = time.perf_counter()
+        server.post("/api/review", json={"session": sid, "old": None, "new": job["result"]})
+        print(f"review load ({args.frames} frames, old and new): {(time.perf_counter() - t0) * 1e3:.0f} ms")
+        rng = np.random.default_rng(0)
+        server_ms, round_ms = [], []
+        for mode in ({"all": False, "overlay": False}, {"all": False, "overlay": True}):
+            for index in rng.integers(1, args.frames + 1, args.selects):
+                t0 = time.perf_counter()
+                r = server.post("/api/review/frame", json={"index": int(index), **mode}).json()
+                round_ms.append((time.perf_counter() - t0) * 1e3)
+                server_ms.append(r["server_ms"])
+        print(f"frame select on {args.frames} frames, in the server: {figures(server_ms)}")
+        print(f"frame select round trip over HTTP: {figures(round_ms)}")
+        print(f"server RSS at the end: {rss_mb(pid):.0f} MB")
+        print(f"machine load average (1 min) at the end: {Path('/proc/loadavg').read_text().split()[0]}")
+
+
+if __name__ == "__main__":
+    main()

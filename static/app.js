@@ -1,0 +1,586 @@
+// The calibration desk page: plain ES module, talks to the JSON API under /api and embeds the viser
+// scene in an iframe. State lives on the server; this file only shows it and sends the operator's
+// actions.
+
+const $ = (sel) => document.querySelector(sel);
+const state = {
+  robots: {},          // name -> /api/robots entry
+  robot: null,         // the connected robot
+  session: null,       // the selected session (full /api/sessions/{id} answer)
+  calibrations: [],    // of the selected session
+  review: null,        // the last /api/review answer
+  frameOrder: [],      // frame indices in slider order
+  frame: null,         // the selected frame index
+  newCal: null,        // the calibration under review (id)
+  job: null,           // {id, source} of the job whose progress is shown
+  sort: { key: "err_new", dir: -1 },
+};
+
+// --- HTTP ------------------------------------------------------------------------------------
+async function api(method, path, body) {
+  const opts = { method, headers: {} };
+  if (body instanceof FormData) opts.body = body;
+  else if (body !== undefined) {
+    opts.headers["Content-Type"] = "application/json";
+    opts.body = JSON.stringify(body);
+  }
+  const res = await fetch(`/api${path}`, opts);
+  const text = await res.text();
+  const data = text ? JSON.parse(text) : null;
+  if (!res.ok) throw new Error((data && data.detail) || `${res.status} ${res.statusText}`);
+  return data;
+}
+
+function toast(message, kind = "error") {
+  const t = $("#toast");
+  t.textContent = message;
+  t.className = kind;
+  t.hidden = false;
+  clearTimeout(toast.timer);
+  toast.timer = setTimeout(() => (t.hidden = true), 6000);
+}
+
+async function act(fn) {
+  try {
+    return await fn();
+  } catch (err) {
+    toast(err.message);
+    return null;
+  }
+}
+
+const fmt = (v, d = 3) => (v === null || v === undefined || Number.isNaN(v) ? "—" : Number(v).toFixed(d));
+const el = (tag, attrs = {}, ...children) => {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "onclick") e.addEventListener("click", v);
+    else if (k === "class") e.className = v;
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  return e;
+};
+
+// --- start-up --------------------------------------------------------------------------------
+async function init() {
+  const health = await api("GET", "/health");
+  const scene = $("#scene");
+  scene.src = `${location.protocol}//${location.hostname}:${health.viser_port}/`;
+  for (const r of await api("GET", "/robots")) state.robots[r.name] = r;
+  const sel = $("#robot-select");
+  for (const name of Object.keys(state.robots)) sel.append(el("option", { value: name }, name));
+  const status = await api("GET", "/robot");
+  state.robot = status.robot;
+  sel.value = state.robot;
+  sel.addEventListener("change", () => act(() => connect(sel.value)));
+  wire();
+  await loadSessions();
+  robotEvents();
+  buildJoints();
+  await refreshActive();
+  document.body.dataset.ready = "1";
+}
+
+async function connect(robot) {
+  await api("POST", "/robot/connect", { robot });
+  state.robot = robot;
+  buildJoints();
+  await refreshActive();
+}
+
+function wire() {
+  for (const b of document.querySelectorAll("#tabs button")) b.addEventListener("click", () => showTab(b.dataset.tab));
+  $("#stop").addEventListener("click", stopAll);
+  document.addEventListener("keydown", (e) => {
+    if (e.key === "Escape") stopAll();
+  });
+  $("#new-session").addEventListener("submit", (e) => act(() => newSession(e)));
+  $("#import-session").addEventListener("submit", (e) => act(() => importSession(e)));
+  $("#holdout").addEventListener("input", () => ($("#holdout-out").textContent = `${Math.round($("#holdout").value * 100)}%`));
+  $("#calibrate-start").addEventListener("click", () => act(startCalibration));
+  $("#calibrate-cancel").addEventListener("click", () => state.job && act(() => api("POST", `/jobs/${state.job.id}/cancel`)));
+  $("#review-load").addEventListener("click", () => act(() => loadReview($("#review-old").value, $("#review-new").value)));
+  $("#frame-slider").addEventListener("input", () => selectFrame(state.frameOrder[+$("#frame-slider").value]));
+  $("#step-back").addEventListener("click", () => step(-1));
+  $("#step-fwd").addEventListener("click", () => step(+1));
+  $("#play").addEventListener("click", togglePlay);
+  $("#overlay").addEventListener("change", () => selectFrame(state.frame));
+  $("#all-frames").addEventListener("change", () => selectFrame(state.frame));
+  $("#apply").addEventListener("click", () => act(applyNew));
+  $("#capture").addEventListener("click", () => act(captureNow));
+  $("#observe-on").addEventListener("change", () => act(setObserve));
+  $("#autocapture").addEventListener("change", () => act(setObserve));
+  $("#wander").addEventListener("change", () => act(() => api("POST", "/robot/wander", { on: $("#wander").checked })));
+  $("#dry-run").addEventListener("click", () => act(() => replay(true)));
+  $("#replay-start").addEventListener("click", () => act(() => replay(false)));
+  for (const a of ["pause", "resume", "abort"]) {
+    $(`#replay-${a}`).addEventListener("click", () =>
+      state.replayJob && act(() => api("POST", `/jobs/${state.replayJob}/${a === "abort" ? "cancel" : a}`)));
+  }
+}
+
+function showTab(name) {
+  for (const b of document.querySelectorAll("#tabs button")) b.classList.toggle("active", b.dataset.tab === name);
+  for (const s of document.querySelectorAll(".tab")) s.hidden = s.id !== `tab-${name}`;
+}
+
+async function stopAll() {
+  $("#wander").checked = false;
+  await act(() => api("POST", "/robot/stop"));
+  toast("Stopped.", "info");
+}
+
+// --- sessions --------------------------------------------------------------------------------
+async function loadSessions(selectId) {
+  const list = await api("GET", "/sessions");
+  const ul = $("#sessions");
+  ul.replaceChildren();
+  const from = $("#replay-from");
+  from.replaceChildren();
+  for (const s of list) {
+    const li = el("li", { "data-session": s.id, onclick: () => act(() => openSession(s.id)) },
+      el("b", {}, s.name), el("small", {}, ` ${s.robot} · ${s.measured}/${s.frames} frames measured`));
+    ul.append(li);
+    from.append(el("option", { value: s.id }, `${s.name} (${s.frames})`));
+  }
+  if (selectId) await openSession(selectId);
+}
+
+async function openSession(id) {
+  state.session = await api("GET", `/sessions/${id}`);
+  for (const li of document.querySelectorAll("#sessions li")) li.classList.toggle("selected", li.dataset.session === id);
+  if (state.session.robot !== state.robot) {
+    await connect(state.session.robot);
+    $("#robot-select").value = state.robot;
+  }
+  const robot = state.robots[state.session.robot];
+  const mode = $("#mode");
+  mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
+  mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
+  await loadCalibrations();
+  await loadReview("active", state.calibrations.length ? state.calibrations[0].id : "");
+}
+
+async function loadCalibrations() {
+  state.calibrations = (await api("GET", `/sessions/${state.session.id}/calibrations`)).reverse();
+  const base = $("#base");
+  base.replaceChildren(el("option", { value: "" }, "nominal model"), el("option", { value: "active" }, "robot's active calibration"));
+  const oldSel = $("#review-old");
+  const newSel = $("#review-new");
+  oldSel.replaceChildren(el("option", { value: "active" }, "robot's active"), el("option", { value: "" }, "nominal model"));
+  newSel.replaceChildren(el("option", { value: "" }, "(none)"));
+  const ul = $("#calibrations");
+  ul.replaceChildren();
+  for (const c of state.calibrations) {
+    const after = c.figures && c.figures.after ? `${fmt(c.figures.after.mean)} ${unit()}` : "";
+    const label = `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)} · ${after}`;
+    for (const s of [base, oldSel, newSel]) s.append(el("option", { value: c.id }, label));
+    ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => loadReview("active", c.id)) }, label));
+  }
+}
+
+const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
+
+async function newSession(e) {
+  e.preventDefault();
+  const name = new FormData(e.target).get("name");
+  const { id } = await api("POST", "/sessions", { robot: state.robot, name });
+  e.target.reset();
+  await loadSessions(id);
+  showTab("observe");
+}
+
+async function importSession(e) {
+  e.preventDefault();
+  const form = new FormData(e.target);
+  form.append("robot", state.robot);
+  const { id } = await api("POST", "/sessions/import", form);
+  e.target.reset();
+  await loadSessions(id);
+  toast("Imported.", "info");
+}
+
+// --- jobs: progress by server-sent events ------------------------------------------------------
+function follow(jobId, onUpdate) {
+  return new Promise((resolve) => {
+    const es = new EventSource(`/api/jobs/${jobId}/events`);
+    es.onmessage = (ev) => {
+      const job = JSON.parse(ev.data);
+      onUpdate(job);
+      if (!["queued", "running", "paused"].includes(job.state)) {
+        es.close();
+        resolve(job);
+      }
+    };
+    es.onerror = () => {
+      es.close();
+      api("GET", `/jobs/${jobId}`).then((job) => {
+        onUpdate(job);
+        resolve(job);
+      });
+    };
+  });
+}
+
+async function startCalibration() {
+  if (!state.session) throw new Error("select a session first");
+  const baseValue = $("#base").value;
+  const base = baseValue === "active" ? (await api("GET", `/robot/calibration?robot=${state.session.robot}`)).id : baseValue || null;
+  const body = { mode: $("#mode").value, base, holdout: +$("#holdout").value };
+  const { job } = await api("POST", `/sessions/${state.session.id}/calibrations`, body);
+  state.job = { id: job };
+  const done = await follow(job, (j) => {
+    $("#job-progress").value = j.progress;
+    $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}` +
+      (j.cost && j.cost.length ? ` · iteration ${j.cost.length - 1}, cost ${j.cost[j.cost.length - 1].toExponential(3)}` : "");
+    drawCurve($("#cost-curve"), j.cost || []);
+  });
+  if (done.state === "done") {
+    await loadCalibrations();
+    await loadReview("active", done.result);
+    showTab("review");
+    toast("Calibration done: review it, then apply.", "info");
+  }
+}
+
+// --- review ----------------------------------------------------------------------------------
+async function loadReview(old, neu) {
+  state.review = await api("POST", "/review", { session: state.session.id, old: old || null, new: neu || null });
+  state.newCal = state.review.new;
+  $("#review-old").value = old || "";
+  $("#review-new").value = neu || "";
+  const rows = state.review.table;
+  state.sort = { key: state.newCal ? "err_new" : "err_old", dir: -1 };
+  state.frameOrder = rows.map((r) => r.index);
+  const slider = $("#frame-slider");
+  slider.max = Math.max(0, rows.length - 1);
+  renderFrames();
+  renderSummary();
+  await renderParameters();
+  renderApply();
+  const worst = sortedRows()[0];
+  if (worst) await selectFrame(worst.index);
+}
+
+function sortedRows() {
+  const { key, dir } = state.sort;
+  const v = (r) => (r[key] === null || r[key] === undefined ? -Infinity : r[key]);
+  // dir -1: largest first (worst first for errors); frames without an error go last either way.
+  return [...state.review.table].sort((a, b) => {
+    const va = v(a);
+    const vb = v(b);
+    if (va === vb) return a.index - b.index;
+    if (typeof va === "string" || typeof vb === "string") return dir * String(vb).localeCompare(String(va));
+    if (va === -Infinity) return 1;
+    if (vb === -Infinity) return -1;
+    return dir < 0 ? vb - va : va - vb;
+  });
+}
+
+function renderFrames() {
+  const t = $("#frames");
+  const u = unit();
+  const cols = [["index", "frame"], ["status", "status"], ["err_old", `old ${u}`], ["err_new", `new ${u}`]];
+  t.replaceChildren(el("tr", {}, ...cols.map(([k, label]) => el("th", {
+    onclick: () => {
+      state.sort = { key: k, dir: state.sort.key === k ? -state.sort.dir : -1 };
+      renderFrames();
+    },
+  }, label + (state.sort.key === k ? (state.sort.dir < 0 ? " ▼" : " ▲") : "")))));
+  for (const r of sortedRows()) {
+    t.append(el("tr", {
+      "data-frame": r.index,
+      class: `${r.index === state.frame ? "selected" : ""} ${r.heldout ? "heldout" : ""}`,
+      onclick: () => selectFrame(r.index),
+    }, el("td", {}, r.index + (r.heldout ? "*" : "")), el("td", {}, r.status), el("td", {}, fmt(r.err_old)),
+    el("td", {}, fmt(r.err_new))));
+  }
+}
+
+// Latest wins: while a scene update is in flight only the newest request waits behind it.
+let selecting = false;
+let pending = null;
+async function selectFrame(index) {
+  if (index === undefined || index === null) return;
+  state.frame = index;
+  $("#frame-slider").value = state.frameOrder.indexOf(index);
+  $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
+  for (const tr of document.querySelectorAll("#frames tr[data-frame]")) tr.classList.toggle("selected", +tr.dataset.frame === index);
+  if (selecting) {
+    pending = index;
+    return;
+  }
+  selecting = true;
+  try {
+    const r = await api("POST", "/review/frame", { index, all: $("#all-frames").checked, overlay: $("#overlay").checked });
+    $("#scene-ms").textContent = `scene ${r.server_ms.toFixed(1)} ms`;
+    await drawSplit(index);
+  } catch (err) {
+    toast(err.message);
+  } finally {
+    selecting = false;
+  }
+  if (pending !== null && pending !== index) {
+    const next = pending;
+    pending = null;
+    await selectFrame(next);
+  } else pending = null;
+}
+
+function step(d) {
+  const i = Math.min(Math.max(state.frameOrder.indexOf(state.frame) + d, 0), state.frameOrder.length - 1);
+  return selectFrame(state.frameOrder[i]);
+}
+
+let playTimer = null;
+function togglePlay() {
+  if (playTimer) {
+    clearInterval(playTimer);
+    playTimer = null;
+    $("#play").textContent = "▶";
+    return;
+  }
+  $("#play").textContent = "❚❚";
+  playTimer = setInterval(() => {
+    const i = state.frameOrder.indexOf(state.frame);
+    if (i >= state.frameOrder.length - 1) togglePlay();
+    else step(1);
+  }, 400);
+}
+
+const images = new Map();
+function loadImage(url) {
+  if (!images.has(url)) {
+    images.set(url, new Promise((resolve) => {
+      const img = new Image();
+      img.onload = () => resolve(img);
+      img.onerror = () => resolve(null);
+      img.src = url;
+    }));
+  }
+  return images.get(url);
+}
+
+async function drawSplit(index) {
+  const m = await api("GET", `/review/marks/${index}`);
+  const img = m.image ? await loadImage(m.image) : null;
+  drawMarks($("#split-old"), img, m, m.old, "#0050ff");
+  drawMarks($("#split-new"), img, m, m.new, "#00b000");
+}
+
+function drawMarks(canvas, img, m, predicted, colour) {
+  const ctx = canvas.getContext("2d");
+  const w = m.width || 640;
+  const h = m.height || 480;
+  const s = Math.min(canvas.width / w, canvas.height / h);
+  ctx.fillStyle = "#222";
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  if (img) ctx.drawImage(img, 0, 0, w * s, h * s);
+  const dot = (p, c, r) => {
+    ctx.beginPath();
+    ctx.arc(p[0] * s, p[1] * s, r, 0, 2 * Math.PI);
+    ctx.fillStyle = c;
+    ctx.fill();
+  };
+  const measured = m.measured || [];
+  if (predicted) {
+    ctx.strokeStyle = colour;
+    ctx.lineWidth = 1;
+    predicted.forEach((p, i) => {
+      if (!measured[i]) return;
+      ctx.beginPath();
+      ctx.moveTo(p[0] * s, p[1] * s);
+      ctx.lineTo(measured[i][0] * s, measured[i][1] * s);
+      ctx.stroke();
+    });
+    for (const p of predicted) dot(p, colour, 3);
+  }
+  for (const p of measured) dot(p, "#ff0000", 3);
+  if (!predicted) {
+    ctx.fillStyle = "#ccc";
+    ctx.fillText("no calibration on this side", 8, 16);
+  }
+}
+
+function renderSummary() {
+  const s = state.review.summary;
+  const u = s.unit;
+  const cols = [["old", "old"], ["new", "new"], ["heldout_old", "held-out old"], ["heldout_new", "held-out new"]]
+    .filter(([k]) => s[k]);
+  const t = $("#summary");
+  t.replaceChildren(el("tr", {}, el("th", {}, `error (${u})`), ...cols.map(([, l]) => el("th", {}, l))));
+  for (const k of ["mean", "rms", "max", "n"]) {
+    t.append(el("tr", { "data-figure": k }, el("td", {}, k === "rms" ? "RMS" : k),
+      ...cols.map(([c]) => el("td", { "data-col": c }, k === "n" ? s[c][k] : fmt(s[c][k])))));
+  }
+  drawHistogram($("#histogram"), s.histogram);
+}
+
+async function renderParameters() {
+  const t = $("#parameters");
+  const w = $("#warnings");
+  t.replaceChildren();
+  w.replaceChildren();
+  if (!state.newCal) return;
+  const cal = await api("GET", `/calibrations/${state.newCal}`);
+  state.newCalibration = cal;
+  for (const msg of cal.warnings) w.append(el("p", { class: "warning" }, `⚠ ${msg}`));
+  if (cal.outliers.length) {
+    w.append(el("p", {}, `Outliers left out: ${cal.outliers.map((o) => `frame ${o.frame} (${fmt(o.error, 2)} ${o.unit})`).join(", ")}`));
+  }
+  t.append(el("tr", {}, ...["parameter", "old", "new", "change", "std", "unit"].map((h) => el("th", {}, h))));
+  for (const p of cal.parameters) {
+    if (!p.estimated && Math.abs(p.value - p.base) < 1e-12) continue;
+    t.append(el("tr", { class: p.estimated ? "" : "fixed", title: p.note || "" },
+      el("td", {}, p.label), el("td", {}, fmt(p.base, 4)), el("td", {}, fmt(p.value, 4)),
+      el("td", {}, fmt(p.value - p.base, 4)), el("td", {}, p.std === null ? "held" : fmt(p.std, 4)), el("td", {}, p.unit)));
+  }
+}
+
+function drawHistogram(canvas, hist) {
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  if (!hist || !hist.edges || hist.edges.length < 2) return;
+  const n = hist.edges.length - 1;
+  const series = [["old", "#0050ff"], ["new", "#00b000"]].filter(([k]) => hist[k]);
+  const top = Math.max(1, ...series.flatMap(([k]) => hist[k]));
+  const bw = (canvas.width - 20) / n;
+  series.forEach(([k, c], si) => {
+    ctx.fillStyle = c;
+    hist[k].forEach((v, i) => {
+      const bh = (v / top) * (canvas.height - 20);
+      ctx.fillRect(10 + i * bw + (si * bw) / series.length, canvas.height - 12 - bh, bw / series.length - 1, bh);
+    });
+  });
+  ctx.fillStyle = "#444";
+  ctx.font = "10px sans-serif";
+  ctx.fillText(`${fmt(hist.edges[0], 2)}`, 4, canvas.height - 1);
+  ctx.fillText(`${fmt(hist.edges[n], 2)} ${unit()}`, canvas.width - 60, canvas.height - 1);
+}
+
+function drawCurve(canvas, ys) {
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  if (ys.length < 1) return;
+  const ls = ys.map((y) => Math.log10(Math.max(y, 1e-300)));
+  const lo = Math.min(...ls);
+  const hi = Math.max(...ls);
+  ctx.strokeStyle = "#333";
+  ctx.beginPath();
+  ls.forEach((l, i) => {
+    const x = 10 + (i / Math.max(1, ls.length - 1)) * (canvas.width - 20);
+    const y = 10 + (hi === lo ? 0.5 : (hi - l) / (hi - lo)) * (canvas.height - 20);
+    if (i) ctx.lineTo(x, y);
+    else ctx.moveTo(x, y);
+  });
+  ctx.stroke();
+  ctx.fillStyle = "#444";
+  ctx.fillText("log cost", 12, 12);
+}
+
+// --- apply -----------------------------------------------------------------------------------
+function renderApply() {
+  const id = state.newCal;
+  $("#apply-what").textContent = id ? `${id}` : "— (run or pick a calibration)";
+  $("#apply").disabled = !id;
+  for (const f of ["json", "yaml", "urdf"]) {
+    const a = $(`#export-${f}`);
+    if (id) a.href = `/api/calibrations/${id}/export?format=${f}`;
+    else a.removeAttribute("href");
+  }
+}
+
+async function applyNew() {
+  const r = await api("POST", `/calibrations/${state.newCal}/apply`, { note: "" });
+  $("#apply-state").textContent = `Active: ${r.active} (previous: ${r.previous || "nominal model"})`;
+  await refreshActive();
+  toast("Applied to the robot.", "info");
+}
+
+async function refreshActive() {
+  const a = await api("GET", `/robot/calibration?robot=${state.robot}`);
+  $("#active-cal").textContent = a.id ? `${a.id} (${a.mode})` : "nominal model";
+  $("#active-cal").dataset.id = a.id || "";
+  const t = $("#history");
+  t.replaceChildren(el("tr", {}, ...["applied", "calibration", "mode", "session", "after", ""].map((h) => el("th", {}, h))));
+  for (const h of await api("GET", `/robot/history?robot=${state.robot}`)) {
+    t.append(el("tr", {}, el("td", {}, h.time.replace("T", " ").slice(0, 19)), el("td", {}, h.calibration),
+      el("td", {}, h.mode || ""), el("td", {}, h.session || ""),
+      el("td", {}, h.figures && h.figures.after ? fmt(h.figures.after.mean) : ""),
+      el("td", {}, el("button", { onclick: () => act(async () => {
+        await api("POST", `/calibrations/${h.calibration}/apply`, { note: "re-applied from history" });
+        await refreshActive();
+      }) }, "re-apply"))));
+  }
+}
+
+// --- observe and replay ----------------------------------------------------------------------
+function buildJoints() {
+  const t = $("#joints");
+  t.replaceChildren();
+  for (const j of state.robots[state.robot].joints) {
+    const slider = el("input", { type: "range", min: j.lower_deg, max: j.upper_deg, step: 0.1, "data-joint": j.name });
+    slider.addEventListener("change", () => act(() => api("POST", "/robot/move", { joints: { [j.name]: +slider.value } })));
+    t.append(el("tr", {}, el("td", {}, j.name), el("td", {}, slider), el("td", { "data-reading": j.name }, "—")));
+  }
+}
+
+function robotEvents() {
+  const es = new EventSource("/api/robot/events");
+  es.onmessage = (ev) => {
+    const r = JSON.parse(ev.data);
+    if (r.robot !== state.robot) return;
+    $("#robot-state").textContent = `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`;
+    $("#robot-state").className = `pill ${r.moving ? "moving" : ""}`;
+    for (const [name, deg] of Object.entries(r.joints)) {
+      const cell = document.querySelector(`[data-reading="${name}"]`);
+      if (cell) cell.textContent = deg === null ? "—" : `${deg.toFixed(1)}°`;
+      const slider = document.querySelector(`input[data-joint="${name}"]`);
+      if (slider && document.activeElement !== slider && deg !== null) slider.value = deg;
+    }
+    const o = r.observing;
+    $("#observe-state").textContent = o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "";
+  };
+  es.onerror = () => {
+    $("#robot-state").textContent = "server unreachable";
+    es.close();
+    setTimeout(robotEvents, 2000);
+  };
+}
+
+async function setObserve() {
+  if (!state.session) throw new Error("select or create a session first");
+  await api("POST", `/sessions/${state.session.id}/observe`, { on: $("#observe-on").checked || $("#autocapture").checked, autocapture: $("#autocapture").checked });
+}
+
+async function captureNow() {
+  if (!state.session) throw new Error("select or create a session first");
+  const { frame } = await api("POST", `/sessions/${state.session.id}/capture`);
+  toast(`Frame ${frame.index}: ${frame.status}${frame.reason && frame.reason !== "ok" ? ` (${frame.reason})` : ""}`, "info");
+  await loadSessions(state.session.id);
+}
+
+async function replay(dry) {
+  if (!state.session) throw new Error("select a session first");
+  const source = document.querySelector("input[name=replay-source]:checked").value;
+  const body = { dry_run: dry, remeasure: source === "remeasure" };
+  if (source === "from") body.from_session = $("#replay-from").value;
+  if (source === "count") body.count = +$("#replay-count").value;
+  const r = await api("POST", `/sessions/${state.session.id}/replay`, body);
+  if (dry) {
+    const bad = r.configurations.filter((c) => !c.ok);
+    const box = $("#dry-run-result");
+    box.replaceChildren(el("p", {}, `${r.configurations.length} configurations, ${bad.length} with a problem`));
+    for (const c of bad) box.append(el("p", { class: "warning" }, `#${c.index}: ${c.problem}`));
+    return;
+  }
+  state.replayJob = r.job;
+  await follow(r.job, (j) => {
+    $("#replay-progress").value = j.progress;
+    const d = j.detail || {};
+    $("#replay-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
+  });
+  await loadSessions(state.session.id);
+}
+
+init().catch((err) => toast(`The page could not start: ${err.message}`));

@@ -1,0 +1,109 @@
+"""Shared by the browser test and the dashboard benchmark: a `calib serve` subprocess on free ports
+and a headless Debian chromium driven by Playwright (never `playwright install`)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+PAPER_COLOURS = {"red": (255, 0, 0), "blue": (0, 0, 255), "green": (0, 200, 0)}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Server:
+    url: str
+    process: subprocess.Popen
+    data_dir: Path
+
+    def get(self, path: str, **kw) -> httpx.Response:
+        return httpx.get(f"{self.url}{path}", timeout=30, **kw)
+
+    def post(self, path: str, **kw) -> httpx.Response:
+        return httpx.post(f"{self.url}{path}", timeout=30, **kw)
+
+
+@contextmanager
+def served(data_dir: Path, timeout_s: float = 60.0) -> Iterator[Server]:
+    """`calib serve` as a user starts it, on free ports, until the block ends."""
+    port, viser_port = free_port(), free_port()
+    cmd = [str(Path(sys.executable).parent / "calib"), "serve", "--port", str(port), "--viser-port", str(viser_port)]
+    proc = subprocess.Popen(
+        [*cmd, "--data-dir", str(data_dir)],
+        cwd=Path(__file__).resolve().parent.parent,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    server = Server(f"http://127.0.0.1:{port}", proc, data_dir)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"calib serve exited: {proc.stdout.read().decode()[-2000:]}")  # type: ignore[union-attr]
+            try:
+                if server.get("/api/health").status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError("calib serve did not answer /api/health in time")
+            time.sleep(0.2)
+        yield server
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def launch(playwright):
+    return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+
+
+def colour_pixels(png: bytes, rgb: tuple[int, int, int], tol: int = 70) -> int:
+    """How many pixels of a screenshot are within `tol` of a colour (per channel)."""
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1].astype(int)
+    return int((np.abs(img - np.array(rgb)).max(axis=2) <= tol).sum())
+
+
+def wait_for_scene(page, timeout_ms: int = 60_000) -> None:
+    """Until the viser client in the page's iframe has drawn triangles."""
+    frame = page.frame_locator("#scene")
+    frame.locator("body").wait_for(timeout=timeout_ms)
+    viser_frame = next(f for f in page.frames if f != page.main_frame)
+    viser_frame.wait_for_function(
+        "() => window.__viserTestpoints && window.__viserTestpoints.rendererInfo"
+        " && window.__viserTestpoints.rendererInfo.render.triangles > 0",
+        timeout=timeout_ms,
+    )

@@ -1,0 +1,293 @@
+"""The HTTP API in-process (FastAPI's TestClient runs the app's lifespan: store, jobs, drivers, viser).
+
+Accuracy is judged against the simulator's truth shipped with the sample sessions, not against
+numbers the server wrote.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+import yourdfpy
+from fastapi.testclient import TestClient
+
+from app.server import create_app
+from calib_core import load_profile
+
+SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory: pytest.TempPathFactory) -> TestClient:
+    app = create_app(tmp_path_factory.mktemp("data"), time_scale=20.0)
+    with TestClient(app) as c:
+        yield c
+
+
+def wait_job(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        j = client.get(f"/api/jobs/{job}").json()
+        if j["state"] not in ("queued", "running", "paused"):
+            return j
+        time.sleep(0.1)
+    raise AssertionError(f"job {job} did not finish: {j}")
+
+
+@pytest.fixture(scope="module")
+def day1_full(client: TestClient) -> dict:
+    """A full calibration of the first-day sample session with a third held out."""
+    r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "full", "holdout": 0.3})
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["job"])
+    assert job["state"] == "done", job
+    return client.get(f"/api/calibrations/{job['result']}").json()
+
+
+def test_health_names_the_viser_port(client: TestClient) -> None:
+    h = client.get("/api/health").json()
+    assert h["status"] == "ok" and h["version"]
+    assert isinstance(h["viser_port"], int) and h["viser_port"] > 0
+
+
+def test_sample_sessions_are_there_on_a_fresh_start(client: TestClient) -> None:
+    listed = {s["id"]: s for s in client.get("/api/sessions").json()}
+    for folder in ("robonaut-a-day1", "robonaut-a-day2", "nao"):
+        meta = json.loads((SAMPLES / folder / "session.json").read_text())
+        assert listed[folder]["robot"] == meta["robot"]
+        assert listed[folder]["frames"] == len(meta["frames"])
+        assert set(listed[folder]) >= {"id", "robot", "name", "frames", "created"}
+
+
+def test_a_session_lists_its_frames_in_degrees(client: TestClient) -> None:
+    meta = json.loads((SAMPLES / "nao" / "session.json").read_text())
+    s = client.get("/api/sessions/nao").json()
+    assert [f["index"] for f in s["frames"]] == [f["frame"] for f in meta["frames"]]
+    for got, want in zip(s["frames"], meta["frames"], strict=True):
+        assert got["status"] == want["status"]
+        for name, deg in want["joints_deg"].items():
+            assert got["joints"][name] == pytest.approx(deg, abs=1e-6)
+    first = s["frames"][0]
+    image = client.get(first["images"]["image"])
+    assert image.status_code == 200 and image.headers["content-type"] == "image/jpeg"
+
+
+def test_importing_a_csv_makes_a_session(client: TestClient) -> None:
+    text = (SAMPLES / "robonaut-a-day1" / "data.csv").read_bytes()
+    r = client.post(
+        "/api/sessions/import",
+        data={"robot": "robonaut-a", "name": "imported day 1"},
+        files={"data": ("day1.csv", io.BytesIO(text), "text/csv")},
+    )
+    assert r.status_code == 201, r.text
+    s = client.get(f"/api/sessions/{r.json()['id']}").json()
+    assert len(s["frames"]) == len(text.decode().strip().splitlines()) - 1
+    assert all(f["status"] == "measured" for f in s["frames"])
+
+
+def test_a_bad_csv_names_line_and_column_and_creates_nothing(client: TestClient) -> None:
+    before = len(client.get("/api/sessions").json())
+    lines = (SAMPLES / "robonaut-a-day1" / "data.csv").read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[2] = "banana"
+    lines[3] = ",".join(cells)
+    r = client.post(
+        "/api/sessions/import",
+        data={"robot": "robonaut-a", "name": "broken"},
+        files={"data": ("broken.csv", io.BytesIO("\n".join(lines).encode()), "text/csv")},
+    )
+    assert r.status_code == 422
+    detail = r.json()["detail"]
+    assert "line 4" in detail and "y" in detail and "banana" in detail, detail
+    assert len(client.get("/api/sessions").json()) == before
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "body", "status"),
+    [
+        ("get", "/api/sessions/no-such-session", None, 404),
+        ("get", "/api/jobs/j-00000000", None, 404),
+        ("get", "/api/calibrations/c-00000000", None, 404),
+        ("post", "/api/calibrations/c-00000000/apply", None, 404),
+        ("post", "/api/sessions/robonaut-a-day1/calibrations", {"mode": "weekly"}, 422),
+        ("post", "/api/sessions/robonaut-a-day1/calibrations", {"mode": "full", "holdout": 0.95}, 422),
+        ("post", "/api/sessions/robonaut-a-day1/calibrations", {"mode": "full", "base": "c-00000000"}, 404),
+        ("post", "/api/sessions", {"robot": "r2d2", "name": "x"}, 422),
+        ("post", "/api/robot/move", {"joints": {"elbow_pitch": 500.0}}, 422),
+        ("post", "/api/robot/move", {"joints": {"tail": 5.0}}, 422),
+        ("post", "/api/review/frame", {"index": "seven"}, 422),
+    ],
+)
+def test_bad_requests_answer_4xx_with_a_sentence(
+    client: TestClient, method: str, path: str, body: dict | None, status: int
+) -> None:
+    r = getattr(client, method)(path, json=body) if body is not None else getattr(client, method)(path)
+    assert r.status_code == status, r.text
+    detail = r.json()["detail"]
+    assert isinstance(detail, str) and len(detail) > 5
+    assert "Traceback" not in detail
+
+
+def test_a_move_beyond_a_limit_names_the_joint(client: TestClient) -> None:
+    r = client.post("/api/robot/move", json={"robot": "robonaut-a", "joints": {"elbow_pitch": 500.0}})
+    assert r.status_code == 422
+    assert "elbow_pitch" in r.json()["detail"]
+
+
+def test_full_calibration_recovers_the_hidden_robot(client: TestClient, day1_full: dict) -> None:
+    cal = day1_full
+    f = cal["figures"]
+    assert f["after"]["mean"] < 0.2 * f["before"]["mean"]
+    assert f["holdout_after"]["mean"] < 0.2 * f["holdout_before"]["mean"]
+    truth = json.loads((SAMPLES / "robonaut-a-day1" / "truth.json").read_text())
+    checked = 0
+    for p in cal["parameters"]:
+        if p["estimated"] and p["std"] and p["name"].endswith(".theta") and p["unit"] == "deg":
+            assert abs(p["value"] - truth[p["name"]]) < 5 * p["std"] + 0.05, p
+            checked += 1
+    assert checked >= 5
+
+
+def test_calibration_progress_streams_as_server_sent_events(client: TestClient) -> None:
+    r = client.post("/api/sessions/nao/calibrations", json={"mode": "full", "holdout": 0.2})
+    job = r.json()["job"]
+    events = []
+    with client.stream("GET", f"/api/jobs/{job}/events") as stream:
+        for line in stream.iter_lines():
+            if line.startswith("data:"):
+                events.append(json.loads(line[5:]))
+    assert events[-1]["state"] == "done", events[-1]
+    assert events[-1]["result"]
+    assert len(events) >= 2
+    assert [e["progress"] for e in events] == sorted(e["progress"] for e in events)
+
+
+def test_apply_makes_it_active_and_history_allows_rollback(client: TestClient, day1_full: dict) -> None:
+    first = client.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()
+    r = client.post(f"/api/calibrations/{day1_full['id']}/apply")
+    assert r.status_code == 200
+    assert r.json()["active"] == day1_full["id"] and r.json()["previous"] == first["id"]
+    active = client.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()
+    assert active["id"] == day1_full["id"] and active["mode"] == "full"
+    assert client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == day1_full["id"]
+    # A daily calibration on top, applied, then rolled back to the full one.
+    r = client.post(
+        "/api/sessions/robonaut-a-day2/calibrations", json={"mode": "daily", "base": day1_full["id"], "holdout": 0.3}
+    )
+    daily = wait_job(client, r.json()["job"])
+    assert daily["state"] == "done", daily
+    client.post(f"/api/calibrations/{daily['result']}/apply")
+    back = client.post(f"/api/calibrations/{day1_full['id']}/apply").json()
+    assert back == {"active": day1_full["id"], "previous": daily["result"], "robot": "robonaut-a"}
+    history = client.get("/api/robot/history", params={"robot": "robonaut-a"}).json()
+    assert [h["calibration"] for h in history[:3]] == [day1_full["id"], daily["result"], day1_full["id"]]
+
+
+def test_review_compares_old_and_new_frame_by_frame(client: TestClient, day1_full: dict) -> None:
+    r = client.post("/api/review", json={"session": "robonaut-a-day1", "old": None, "new": day1_full["id"]})
+    assert r.status_code == 200, r.text
+    rv = r.json()
+    meta = json.loads((SAMPLES / "robonaut-a-day1" / "session.json").read_text())
+    assert len(rv["table"]) == len(meta["frames"])
+    s = rv["summary"]
+    assert s["unit"] == "cm"
+    assert s["new"]["mean"] < 0.2 * s["old"]["mean"]
+    held = {row["index"] for row in rv["table"] if row["heldout"]}
+    assert held == set(day1_full["frames"]["holdout"])
+    measured = [row for row in rv["table"] if row["status"] == "measured"]
+    sel = client.post("/api/review/frame", json={"index": measured[-1]["index"]}).json()
+    assert sel["index"] == measured[-1]["index"] and sel["server_ms"] < 1000
+    marks = client.get(f"/api/review/marks/{measured[-1]['index']}").json()
+    assert len(marks["measured"]) == len(marks["old"]) == len(marks["new"]) >= 1
+    assert marks["image"] and client.get(marks["image"]).status_code == 200
+    assert client.post("/api/review/frame", json={"index": 10_000}).status_code == 404
+
+
+def test_exports_are_what_drivers_read(client: TestClient, day1_full: dict, tmp_path: Path) -> None:
+    cid = day1_full["id"]
+    as_json = client.get(f"/api/calibrations/{cid}/export", params={"format": "json"})
+    assert as_json.json()["format"] == "calib-calibration/1"
+    offsets = yaml.safe_load(client.get(f"/api/calibrations/{cid}/export", params={"format": "yaml"}).text)
+    profile = load_profile("robonaut-a")
+    assert set(offsets["joints"]) <= set(profile.joint_names)
+    values = {p["name"]: p for p in day1_full["parameters"]}
+    for joint, o in offsets["joints"].items():
+        p = values[o["parameter"]]
+        assert o["offset"] == pytest.approx(p["value"] - p["nominal"], abs=1e-5), joint
+    urdf_text = client.get(f"/api/calibrations/{cid}/export", params={"format": "urdf"}).text
+    (tmp_path / "robot.urdf").write_text(urdf_text)
+    robot = yourdfpy.URDF.load(str(tmp_path / "robot.urdf"), build_scene_graph=False, load_meshes=False)
+    assert {j.name for j in robot.actuated_joints} >= set(profile.joint_names) - {"neck_roll"}
+
+
+def test_the_robot_moves_within_limits_and_stops(client: TestClient) -> None:
+    client.post("/api/robot/connect", json={"robot": "robonaut-a"})
+    start = client.get("/api/robot").json()["joints"]
+    goal = {"elbow_pitch": start["elbow_pitch"] + 20.0 if start["elbow_pitch"] < 60 else start["elbow_pitch"] - 20}
+    assert client.post("/api/robot/move", json={"joints": goal}).status_code == 202
+    time.sleep(0.05)
+    client.post("/api/robot/stop")
+    stopped = client.get("/api/robot").json()
+    assert not stopped["moving"]
+    time.sleep(0.2)
+    assert client.get("/api/robot").json()["joints"] == stopped["joints"]
+    q = np.array([v for v in stopped["joints"].values() if v is not None])
+    assert np.all(np.isfinite(q)) and not math.isnan(q.sum())
+
+
+def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None:
+    client.post("/api/robot/stop")
+    sid = client.post("/api/sessions", json={"robot": "nao", "name": "new today"}).json()["id"]
+    deadline = time.monotonic() + 20
+    while client.get("/api/robot", params={"robot": "nao"}).json()["moving"] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    r = client.post(f"/api/sessions/{sid}/capture")
+    assert r.status_code == 201, r.text
+    frame = r.json()["frame"]
+    assert frame["index"] == 1 and frame["status"] in ("measured", "not found")
+    assert frame["images"]["image"].endswith(".jpg")
+
+    # Replay: the dry run checks before anything moves; then three new configurations are driven.
+    dry = client.post(f"/api/sessions/{sid}/replay", json={"count": 3, "dry_run": True, "seed": 3}).json()
+    assert len(dry["configurations"]) == 3 and all({"index", "ok", "problem"} <= set(c) for c in dry["configurations"])
+    r = client.post(f"/api/sessions/{sid}/replay", json={"count": 3, "seed": 3})
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["job"])
+    assert job["state"] == "done", job
+    frames = client.get(f"/api/sessions/{sid}").json()["frames"]
+    assert [f["index"] for f in frames] == [1, 2, 3, 4]
+    measured = [f for f in frames[1:] if f["status"] == "measured"]
+    assert measured, frames  # planned with the believed model, the boards are in view
+
+    # Observe with autocapture, then off again.
+    on = client.post(f"/api/sessions/{sid}/observe", json={"on": True, "autocapture": True}).json()
+    assert on["observing"]["session"] == sid
+    off = client.post(f"/api/sessions/{sid}/observe", json={"on": False}).json()
+    assert off["observing"] is None
+
+
+def test_a_replay_beyond_the_limits_is_refused_before_moving(client: TestClient) -> None:
+    profile = load_profile("robonaut-a")
+    lines = (SAMPLES / "robonaut-a-day1" / "data.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[1].split(",")
+    upper = math.degrees(profile.joints[profile.joint_names.index("elbow_pitch")].upper)
+    cells[header.index("elbow_pitch")] = f"{upper + 5:.1f}"
+    r = client.post(
+        "/api/sessions/import",
+        data={"robot": "robonaut-a", "name": "one beyond"},
+        files={"data": ("beyond.csv", io.BytesIO("\n".join([lines[0], ",".join(cells), *lines[2:5]]).encode()))},
+    )
+    sid = r.json()["id"]
+    dry = client.post(f"/api/sessions/{sid}/replay", json={"remeasure": True, "dry_run": True}).json()
+    assert not dry["ok"]
+    assert "elbow_pitch" in dry["configurations"][0]["problem"]
+    job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json={"remeasure": True}).json()["job"])
+    assert job["state"] == "failed" and "elbow_pitch" in job["error"]

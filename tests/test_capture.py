@@ -1,0 +1,305 @@
+"""Capture, dry run, replay and autocapture against the simulated robots, a real Store and real thread jobs:
+frames land with their statuses, a dry run catches limits and views before anything moves, a replay refuses
+a configuration beyond a limit, skips what it cannot see, keeps its frames on cancel and stops the robot,
+pauses and resumes, and re-measures a session in place."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from app.capture import AutoCapture, capture_frame, dry_run, replay
+from app.drivers import SimulatedDriver
+from app.jobs import FINISHED, JobManager
+from app.store import Store
+from calib_core import InputError, SimulatedRobot, load_profile
+
+DEG = math.pi / 180
+
+
+@pytest.fixture(scope="module")
+def nao():
+    return load_profile("nao")
+
+
+@pytest.fixture(scope="module")
+def rn():
+    return load_profile("robonaut-a")
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Store]:
+    s = Store(tmp_path_factory.mktemp("data"))
+    yield s
+    s.close()
+
+
+@pytest.fixture(scope="module")
+def jobs(store: Store) -> Iterator[JobManager]:
+    manager = JobManager(store, workers=1)
+    yield manager
+    manager.shutdown()
+
+
+@pytest.fixture(scope="module")
+def nao_plan(nao):
+    """NAO stances the nominal model predicts in view and within the limits less the margin."""
+    q, targets = SimulatedRobot.from_profile(nao, seed=7).configurations(12)
+    with SimulatedDriver(nao, seed=3) as d:
+        rows = dry_run(d, q, targets, nao.nominal())
+    ok = [r["action"] == "capture" for r in rows]
+    assert sum(ok) >= 5
+    return q[ok], targets[ok]
+
+
+@pytest.fixture
+def nao_driver(nao) -> Iterator[SimulatedDriver]:
+    d = SimulatedDriver(nao, seed=3, time_scale=20.0)
+    yield d
+    d.close()
+
+
+def _wait(jobs: JobManager, job_id: str, until=lambda s: s["state"] in FINISHED, timeout_s: float = 30.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    snap = jobs.get(job_id)
+    while not until(snap):
+        assert time.monotonic() < deadline, f"job {snap['state']}, detail {snap['detail']}"
+        snap = jobs.wait_version(job_id, snap["version"], 0.5)
+    return snap
+
+
+def test_capture_frame_stores_what_the_robot_sees(store, nao, nao_driver) -> None:
+    sid = store.create_session("nao", "observe", source="capture")
+    frame = capture_frame(store, nao_driver, sid)
+    assert frame.index == 1 and frame.status == "measured"
+    assert np.array_equal(frame.joints_rad, nao_driver.read_joints())
+    assert frame.target == nao_driver.status().target
+    assert set(frame.images) == {"image"} and (store.data_dir / frame.images["image"]).is_file()
+    assert store.dataset(sid, nao).measured.shape == (24, 2)
+    assert capture_frame(store, nao_driver, sid).index == 2
+
+
+def test_capture_frame_refuses_a_moving_robot_and_another_robots_session(store, nao, rn, nao_driver) -> None:
+    sid = store.create_session("nao", "moving", source="capture")
+    slow = SimulatedDriver(nao, seed=3, time_scale=0.05)
+    try:
+        q = slow.true_joints_rad()
+        q[nao.joint("HeadYaw")] += 20 * DEG
+        slow.move_to(q, wait=False)
+        with pytest.raises(InputError, match="moving"):
+            capture_frame(store, slow, sid)
+    finally:
+        slow.close()
+    other = store.create_session("robonaut-a", "arm", source="capture")
+    with pytest.raises(InputError, match="robonaut-a, not nao"):
+        capture_frame(store, nao_driver, other)
+    assert store.frames(sid) == [] and store.frames(other) == []
+
+
+def test_dry_run_flags_limits_and_views_before_anything_moves(rn) -> None:
+    planner = SimulatedRobot.from_profile(rn, seed=11)
+    q_ok, _ = planner.configurations(1)
+    lo, hi = rn.joint_limits()
+    rng = np.random.default_rng(0)
+    margin = np.minimum(DEG, (hi - lo) / 2)
+    random_q = rng.uniform(lo + margin, hi - margin, (200, len(lo)))
+    hidden = random_q[~SimulatedRobot(rn, rn.nominal()).visible(random_q, np.zeros(200, int))][0]
+    beyond, in_margin = q_ok[0].copy(), q_ok[0].copy()
+    beyond[rn.joint("shoulder_pitch")] = 95 * DEG
+    in_margin[rn.joint("elbow_pitch")] = 119.5 * DEG
+    q = np.array([q_ok[0], beyond, in_margin, hidden])
+    with SimulatedDriver(rn, seed=3) as d:
+        before = d.true_joints_rad()
+        rows = dry_run(d, q, np.zeros(4, int), rn.nominal(), indices=[5, 6, 7, 8])
+        assert np.array_equal(d.true_joints_rad(), before) and not d.status().moving
+    assert [r["index"] for r in rows] == [5, 6, 7, 8]
+    assert [r["action"] for r in rows] == ["capture", "refuse", "skip", "skip"]
+    assert [r["ok"] for r in rows] == [True, False, False, False]
+    assert rows[1]["problem"] == "shoulder_pitch 95.0 deg is beyond its upper limit 90.0 deg (margin 1.0 deg)"
+    assert "elbow_pitch 119.5 deg is within the 1.0 deg safety margin" in rows[2]["problem"]
+    assert rows[3]["problem"] == "fixture not predicted in view"
+
+
+def test_dry_run_predicts_the_board_with_the_believed_calibration(nao, nao_plan, nao_driver) -> None:
+    """The same stance is in view for the board of the lifted foot, not for the other foot's board; and a
+    believed camera pitched 40 deg away predicts the board out of the image."""
+    q, targets = nao_plan
+    assert all(r["ok"] for r in dry_run(nao_driver, q[:2], targets[:2], nao.nominal()))
+    other = dry_run(nao_driver, q[:2], 1 - targets[:2], nao.nominal())
+    assert [r["problem"] for r in other] == [f"{nao.targets[1 - t].name} not predicted in view" for t in targets[:2]]
+    tilted = nao.nominal()
+    tilted[nao.param("CamPitch")] += 40 * DEG
+    assert not any(r["ok"] for r in dry_run(nao_driver, q[:2], targets[:2], tilted))
+
+
+def test_replay_captures_frames_with_their_statuses(store, jobs, nao, nao_plan, nao_driver) -> None:
+    q, targets = nao_plan
+    hidden = q[0].copy()
+    plan_q = np.array([q[0], q[1], hidden, q[2]])
+    plan_t = np.array([targets[0], targets[1], 1 - targets[0], targets[2]])
+    sid = store.create_session("nao", "replay", source="capture")
+    job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, nao_driver, sid, plan_q, plan_t), session_id=sid)
+    snap = _wait(jobs, job)
+    assert snap["state"] == "done", snap["error"]
+    assert snap["result"] == sid and snap["progress"] == 1.0
+    frames = store.frames(sid)
+    assert [f.index for f in frames] == [1, 2, 3, 4]
+    assert frames[2].status == "skipped" and frames[2].reason.endswith("not predicted in view")
+    assert frames[2].images == {}
+    captured = [frames[0], frames[1], frames[3]]
+    assert all(f.status in ("measured", "not found") for f in captured)
+    assert sum(f.status == "measured" for f in captured) >= 2
+    for f, k in zip(captured, [0, 1, 3], strict=True):
+        assert f.target == plan_t[k] and set(f.images) == {"image"}
+        assert np.all(np.abs(f.joints_rad - plan_q[k]) <= 0.05 * DEG + 1e-12)  # the readings of the pose
+    detail = snap["detail"]
+    assert (detail["done"], detail["total"], detail["skipped"]) == (4, 4, 1)
+    assert detail["measured"] == sum(f.status == "measured" for f in frames)
+    assert detail["frame"] == 4 and detail["status"] == frames[3].status
+
+
+def test_replay_refuses_a_configuration_beyond_a_limit_before_moving(store, jobs, nao, nao_plan, nao_driver) -> None:
+    q, targets = nao_plan
+    bad = q[1].copy()
+    bad[nao.joint("LKneePitch")] = 125 * DEG
+    sid = store.create_session("nao", "refused", source="capture")
+    before = nao_driver.true_joints_rad()
+    job = jobs.submit_thread(
+        "replay",
+        lambda ctx: replay(ctx, store, nao_driver, sid, np.array([q[0], bad]), targets[:2]),
+        session_id=sid,
+    )
+    snap = _wait(jobs, job)
+    assert snap["state"] == "failed"
+    assert snap["error"] == (
+        "replay refused before moving: configuration 2: LKneePitch 125.0 deg is beyond its upper limit "
+        "121.0 deg (margin 1.0 deg)"
+    )
+    assert store.frames(sid) == []
+    assert np.array_equal(nao_driver.true_joints_rad(), before)
+
+
+def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao, nao_plan) -> None:
+    q, targets = nao_plan
+    sid = store.create_session("nao", "cancelled", source="capture")
+    with SimulatedDriver(nao, seed=3, time_scale=1.0) as d:  # moves of a few tenths of a second
+        job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q, targets), session_id=sid)
+        _wait(jobs, job, until=lambda s: s["detail"].get("done", 0) >= 1)
+        deadline = time.monotonic() + 5.0
+        while not d.status().moving:  # cancel in the middle of a move
+            assert time.monotonic() < deadline
+            time.sleep(0.002)
+        jobs.cancel(job)
+        snap = _wait(jobs, job, timeout_s=5.0)
+        assert snap["state"] == "cancelled"
+        st = d.status()
+        assert not st.moving and st.message == "stopped"
+        halted = d.true_joints_rad()
+        time.sleep(0.1)
+        assert np.array_equal(d.true_joints_rad(), halted)
+    frames = store.frames(sid)
+    assert 1 <= len(frames) == snap["detail"]["done"] < len(q)
+    assert all(f.status in ("measured", "not found") for f in frames)
+
+
+def test_pause_holds_the_replay_and_resume_finishes_it(store, jobs, nao, nao_plan) -> None:
+    q, targets = nao_plan[0][:4], nao_plan[1][:4]
+    sid = store.create_session("nao", "paused", source="capture")
+    with SimulatedDriver(nao, seed=3, time_scale=2.0) as d:
+        job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q, targets), session_id=sid)
+        _wait(jobs, job, until=lambda s: s["detail"].get("done", 0) >= 1)
+        jobs.pause(job)
+        # The frame under way finishes; then nothing moves while paused.
+        deadline = time.monotonic() + 5.0
+        while (d.status().moving or not d.settled(0.3)) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)
+        held = len(store.frames(sid))
+        pose = d.true_joints_rad()
+        time.sleep(0.4)
+        assert len(store.frames(sid)) == held < len(q)
+        assert np.array_equal(d.true_joints_rad(), pose)
+        assert jobs.get(job)["state"] == "running" and jobs.get(job)["paused"]
+        jobs.resume(job)
+        snap = _wait(jobs, job)
+    assert snap["state"] == "done"
+    assert [f.index for f in store.frames(sid)] == [1, 2, 3, 4]
+
+
+def test_remeasure_replaces_frames_in_place_and_keeps_skipped_ones(store, jobs, nao, nao_plan, nao_driver) -> None:
+    q, targets = nao_plan
+    sid = store.create_session("nao", "remeasure", source="capture")
+    for k in range(3):
+        nao_driver.set_target(int(targets[k]))
+        assert nao_driver.move_to(q[k])
+        capture_frame(store, nao_driver, sid, index=10 + k)
+    old = {f.index: f for f in store.frames(sid)}
+    frames = list(old.values())
+    plan_t = np.array([f.target for f in frames])
+    plan_t[1] = 1 - plan_t[1]  # frame 11 now predicted out of view: skipped, the old record stays
+    job = jobs.submit_thread(
+        "remeasure",
+        lambda ctx: replay(
+            ctx, store, nao_driver, sid, np.array([f.joints_rad for f in frames]), plan_t, [f.index for f in frames]
+        ),
+        session_id=sid,
+    )
+    snap = _wait(jobs, job)
+    assert snap["state"] == "done", snap["error"]
+    new = {f.index: f for f in store.frames(sid)}
+    assert sorted(new) == [10, 11, 12]
+    assert (new[11].captured, new[11].status, new[11].images) == (old[11].captured, old[11].status, old[11].images)
+    for i in (10, 12):
+        assert new[i].captured > old[i].captured
+        assert np.array_equal(new[i].joints_rad, old[i].joints_rad)
+
+
+def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao_driver) -> None:
+    sid = store.create_session("nao", "auto", source="capture")
+    d = nao_driver  # time_scale 20: settling 0.3 s takes 15 ms
+    auto = AutoCapture(store, d, sid, min_gap_rad=3 * DEG)
+    target = d.status().target
+    other_knee = nao.joint("RKneePitch" if target == 0 else "LKneePitch")  # the leg the camera does not watch
+
+    def settle() -> None:
+        while not d.settled(0.3):
+            time.sleep(0.005)
+
+    q = d.true_joints_rad()
+    q[other_knee] += 10 * DEG
+    d.move_to(q, wait=False)
+    assert auto.poll() is None  # moving
+    while d.status().moving:
+        time.sleep(0.002)
+    assert auto.poll() is None  # not yet settled for 0.3 s
+    settle()
+    first = auto.poll()
+    assert first is not None and first.status == "measured"
+    settle()
+    assert auto.poll() is None  # the same configuration again
+    q[other_knee] += 2 * DEG  # less than min_gap
+    assert d.move_to(q)
+    settle()
+    assert auto.poll() is None
+    q[other_knee] += 2 * DEG  # 4 deg from the first frame
+    assert d.move_to(q)
+    settle()
+    second = auto.poll()
+    assert second is not None and second.index == first.index + 1
+    # A look that finds nothing (the other foot's board is not in view) stores nothing, and the same
+    # configuration is not looked at again.
+    d.set_target(1 - target)
+    q[other_knee] += 5 * DEG
+    assert d.move_to(q)
+    settle()
+    assert auto.poll() is None
+    assert auto.last_look is not None and auto.last_look.sighting.status == "not found"
+    seen = auto.last_look
+    assert auto.poll() is None and auto.last_look is seen
+    assert [f.index for f in store.frames(sid)] == [first.index, second.index]
+    # A new AutoCapture continues from the session's last frame.
+    assert AutoCapture(store, d, sid, min_gap_rad=3 * DEG).poll() is None

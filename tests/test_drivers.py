@@ -1,0 +1,286 @@
+"""The simulated robot driver: limits with a margin, velocity-limited motion whose joints arrive together, an
+immediate stop, quantised readings, a camera that sees the fixture where the truth puts it, seeded by the
+calibration the robot was given, and a wander that stays within limits."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from app.drivers import LimitError, SimulatedDriver, check_limits
+from calib_core import SimulatedRobot, load_profile
+from calib_core.vision import predicted_points
+
+DEG = math.pi / 180
+
+
+@pytest.fixture(scope="module")
+def rn():
+    return load_profile("robonaut-a")
+
+
+@pytest.fixture(scope="module")
+def nao():
+    return load_profile("nao")
+
+
+@pytest.fixture
+def driver(rn):
+    d = SimulatedDriver(rn, seed=3, time_scale=10.0)
+    yield d
+    d.close()
+
+
+def _q(rn, **deg: float) -> np.ndarray:
+    """A configuration well inside the limits, with some joints set (deg)."""
+    q = np.zeros(len(rn.joints))
+    for name, value in deg.items():
+        q[rn.joint(name)] = value * DEG
+    return q
+
+
+def test_check_refuses_beyond_limits_naming_joint_value_and_limit(rn, driver) -> None:
+    with pytest.raises(LimitError, match=r"shoulder_pitch 95\.0 deg is beyond its upper limit 90\.0 deg") as info:
+        driver.check(_q(rn, shoulder_pitch=95))
+    assert info.value.joint == "shoulder_pitch" and info.value.beyond
+    with pytest.raises(LimitError, match=r"wrist_pitch -61\.5 deg is beyond its lower limit -60\.0 deg"):
+        driver.check(_q(rn, wrist_pitch=-61.5))
+    # Inside the 1 deg margin: refused too, but not "beyond" the limit itself.
+    with pytest.raises(LimitError, match=r"elbow_pitch 119\.5 deg is within the 1\.0 deg safety margin") as info:
+        driver.check(_q(rn, elbow_pitch=119.5))
+    assert not info.value.beyond
+    driver.check(_q(rn, elbow_pitch=118.9, shoulder_pitch=-88.9))
+    # neck_roll is fixed at 0 (range 0..0): exactly 0 passes, anything else is refused.
+    with pytest.raises(LimitError, match="neck_roll"):
+        driver.check(_q(rn, neck_roll=0.2))
+    with pytest.raises(LimitError, match="not a number"):
+        driver.check(_q(rn, wrist_yaw=math.nan))
+    with pytest.raises(ValueError, match="expected 10 joint values"):
+        check_limits(rn, np.zeros(3), DEG)
+
+
+def test_move_beyond_limits_is_refused_and_nothing_moves(rn, driver) -> None:
+    before = driver.true_joints_rad()
+    with pytest.raises(LimitError, match="elbow_roll"):
+        driver.move_to(_q(rn, elbow_roll=-90.5))
+    time.sleep(0.05)
+    assert not driver.status().moving
+    assert np.array_equal(driver.true_joints_rad(), before)
+
+
+def test_motion_keeps_velocity_limits_and_all_joints_arrive_together(rn) -> None:
+    time_scale = 10.0
+    with SimulatedDriver(rn, seed=3, time_scale=time_scale, start_rad=_q(rn)) as d:
+        goal = _q(rn, shoulder_roll=60, wrist_roll=-80, neck_yaw=20, elbow_pitch=10)
+        samples: list[tuple[float, np.ndarray]] = []
+        done = threading.Event()
+
+        def sample() -> None:
+            while not done.is_set():
+                st = d.status()
+                samples.append((st.stamp, st.joints_rad))
+                time.sleep(0.002)
+
+        sampler = threading.Thread(target=sample)
+        sampler.start()
+        t0 = time.monotonic()
+        assert d.move_to(goal)
+        elapsed = time.monotonic() - t0
+        done.set()
+        sampler.join()
+        assert np.allclose(d.read_joints(), goal, atol=0.051 * DEG)
+
+    velocity = np.array([j.velocity for j in rn.joints]) * time_scale
+    step = np.array([j.resolution for j in rn.joints])
+    stamps = np.array([s for s, _ in samples])
+    qs = np.array([q for _, q in samples])
+    keep = np.r_[True, np.diff(stamps) > 0]  # one sample per state of the motion thread
+    stamps, qs = stamps[keep], qs[keep]
+    assert len(stamps) >= 5
+    dq = np.abs(np.diff(qs, axis=0))
+    dt = np.diff(stamps)[:, None]
+    # Readings are rounded to the encoder step: allow one step per difference, and 1% on the speed.
+    assert np.all(dq <= velocity * dt * 1.01 + step + 1e-12)
+    # The slowest joint's ratio sets the duration (wrist_roll: 80 deg at 45 deg/s, shoulder_roll: 60 at 30).
+    expected_s = max(80 / 45, 60 / 30) / time_scale
+    assert expected_s * 0.98 <= elapsed <= expected_s + 0.1
+    # Linear interpolation: every sample is start + s (goal - start) with one s for all joints.
+    moving = np.abs(goal - _q(rn)) > 0
+    s = (qs[:, moving] - _q(rn)[moving]) / (goal - _q(rn))[moving]
+    assert np.all(np.ptp(s, axis=1) <= 2 * 0.05 / 10)  # half a 0.1 deg step over the smallest move (10 deg)
+
+
+def test_stop_halts_within_one_tick_and_move_to_returns_false(rn) -> None:
+    rate_hz = 50.0
+    with SimulatedDriver(rn, seed=3, time_scale=1.0, rate_hz=rate_hz, start_rad=_q(rn)) as d:
+        result: list[bool] = []
+        mover = threading.Thread(target=lambda: result.append(d.move_to(_q(rn, shoulder_roll=60))))
+        mover.start()
+        time.sleep(0.3)
+        before = d.true_joints_rad()
+        t_stop = time.monotonic()
+        d.stop()
+        after = d.true_joints_rad()
+        mover.join(timeout=1.0)
+        returned_s = time.monotonic() - t_stop
+        time.sleep(5 / rate_hz)
+        later = d.true_joints_rad()
+        st = d.status()
+    assert result == [False]
+    assert returned_s < 0.1
+    assert not st.moving and st.message == "stopped"
+    # At most one tick of motion (30 deg/s for 1/50 s) between the last tick and the stop, none after.
+    assert 5 * DEG < before[0] < 30 * DEG
+    assert abs(after[0] - before[0]) <= 30 * DEG / rate_hz + 1e-9
+    assert np.array_equal(later, after)
+
+
+def test_readings_are_quantised_to_the_encoder_step(rn) -> None:
+    with SimulatedDriver(rn, seed=3, time_scale=20.0, start_rad=_q(rn)) as d:
+        assert d.move_to(_q(rn, shoulder_roll=12.3456, elbow_pitch=-33.3333))
+        readings, true = d.read_joints(), d.true_joints_rad()
+        status = d.status().joints_rad
+    steps = readings / (0.1 * DEG)
+    assert np.allclose(steps, np.round(steps), atol=1e-9)
+    assert np.array_equal(status, readings)
+    assert not np.allclose(true, readings)  # the truth is not on the grid
+    assert np.all(np.abs(readings - true) <= 0.05 * DEG + 1e-12)
+    assert readings[rn.joint("shoulder_roll")] == pytest.approx(12.3 * DEG)
+
+
+def test_settled_needs_the_robot_still_for_the_time_asked(rn) -> None:
+    with SimulatedDriver(rn, seed=3, time_scale=1.0, start_rad=_q(rn)) as d:
+        assert d.move_to(_q(rn, wrist_yaw=1.0))
+        assert not d.settled(0.3)
+        time.sleep(0.35)
+        assert d.settled(0.3)
+
+
+def test_look_finds_the_sphere_within_1_cm_of_the_truth(rn) -> None:
+    """In typical visible configurations (a few, since the forearm can hide the sphere), the BallFinder
+    seeded by the nominal model measures the fixture centre where the hidden truth puts it."""
+    planner = SimulatedRobot.from_profile(rn, seed=5)
+    configurations, _ = planner.configurations(16)
+    with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
+        errors = []
+        for q in configurations:
+            try:
+                d.check(q)
+            except LimitError:
+                continue
+            assert d.move_to(q)
+            look = d.look()
+            assert look.target == 0 and set(look.images) == {"left", "right"}
+            assert look.images["left"].shape == (480, 640)
+            assert np.array_equal(look.readings_rad, d.read_joints())
+            if look.sighting.status == "measured":
+                truth = predicted_points(rn, d.true_params(), d.true_joints_rad(), 0)[0]
+                errors.append(float(np.linalg.norm(look.sighting.measured[0] - truth)))
+            if len(errors) == 2:
+                break
+    assert len(errors) == 2
+    assert max(errors) < 1.0  # cm
+
+
+def test_applied_calibration_seeds_the_detector(rn) -> None:
+    """A calibration that puts the fixture 60 cm away from where it is makes the BallFinder search in the
+    wrong place (outside its gate): the robot reports what its calibration lets it see."""
+    wrong = rn.nominal()
+    wrong[rn.param("fixture.x")] += 60.0
+    planner = SimulatedRobot.from_profile(rn, seed=5)
+    configurations, _ = planner.configurations(16)
+    with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
+        for q in configurations:
+            try:
+                d.check(q)
+            except LimitError:
+                continue
+            assert d.move_to(q)
+            if d.look().sighting.status == "measured":
+                break
+        else:
+            pytest.fail("no configuration measured with the nominal calibration")
+        d.apply_calibration("c-wrong", wrong)
+        assert d.status().calibration_id == "c-wrong"
+        assert np.array_equal(d.believed_params(), wrong)
+        assert d.look().sighting.status == "not found"
+        assert d.look(believed=rn.nominal()).sighting.status == "measured"  # an explicit belief wins
+        d.apply_calibration(None, None)
+        assert d.status().calibration_id is None
+        assert np.array_equal(d.believed_params(), rn.nominal())
+        assert d.look().sighting.status == "measured"
+
+
+def test_day_drifts_the_hidden_joint_offsets(rn) -> None:
+    with SimulatedDriver(rn, seed=1) as first, SimulatedDriver(rn, seed=1, day=2) as later:
+        changed = np.flatnonzero(first.true_params() != later.true_params())
+    assert len(changed) > 0
+    assert all(rn.parameter_names[i].endswith(".theta") for i in changed)
+
+
+def test_wander_moves_through_configurations_within_limits(rn) -> None:
+    lo, hi = rn.joint_limits()
+    margin = np.minimum(DEG, (hi - lo) / 2)
+    with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
+        start = d.true_joints_rad()
+        d.wander(True)
+        assert d.status().wandering
+        true, stopped = [], 0
+        t_end = time.monotonic() + 1.5
+        while time.monotonic() < t_end:
+            true.append(d.true_joints_rad())
+            stopped += not d.status().moving
+            time.sleep(0.005)
+        d.wander(False)
+        st = d.status()
+        assert not st.wandering and not st.moving
+    true_a = np.array(true)
+    distinct = np.unique(np.round(true_a, 9), axis=0)
+    assert len(distinct) > 20
+    assert np.max(np.abs(true_a - start)) > 10 * DEG  # it really went somewhere
+    assert stopped > 0  # with pauses between moves
+    assert np.all(true_a >= lo + margin - 1e-9) and np.all(true_a <= hi - margin + 1e-9)
+
+
+def test_an_operator_move_or_stop_ends_the_wander(rn) -> None:
+    with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
+        d.wander(True)
+        time.sleep(0.1)
+        assert d.move_to(_q(rn, shoulder_roll=10))
+        assert not d.status().wandering
+        time.sleep(0.1)
+        assert np.allclose(d.true_joints_rad(), _q(rn, shoulder_roll=10))
+        d.wander(True)
+        time.sleep(0.1)
+        d.stop()
+        halted = d.true_joints_rad()
+        time.sleep(0.1)
+        assert not d.status().wandering
+        assert np.array_equal(d.true_joints_rad(), halted)
+
+
+def test_nao_looks_at_the_board_of_the_selected_foot(nao) -> None:
+    with SimulatedDriver(nao, seed=3, time_scale=50.0) as d:
+        st = d.status()
+        look = d.look()
+        assert look.target == st.target
+        assert set(look.images) == {"image"}
+        assert look.sighting.status == "measured"
+        assert look.sighting.measured.shape == (24, 2)
+        with pytest.raises(ValueError, match=r"targets 0\.\.1"):
+            d.set_target(2)
+        d.set_target(1 - st.target)
+        assert d.status().target == 1 - st.target
+        assert d.look().target == 1 - st.target
+
+
+def test_a_closed_driver_reports_disconnected_and_refuses_moves(rn) -> None:
+    d = SimulatedDriver(rn, seed=3)
+    d.close()
+    assert not d.status().connected
+    with pytest.raises(RuntimeError, match="closed"):
+        d.move_to(_q(rn))

@@ -1,0 +1,65 @@
+"""Simulated capture -> rendered images -> detections -> calibration, judged against the simulator's truth:
+the predictions of the calibrated model on held-out configurations against the noise-free measurement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib_core import Problem, SimulatedRobot, calibrate, load_profile
+from calib_core.simulator import Simulation
+
+
+def _heldout_rms(profile, held: Simulation, p: np.ndarray) -> float:
+    """RMS distance between what p predicts from the readings and the noise-free truth."""
+    e = Problem(profile, held.data, [], p).predict(p) - held.exact
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
+def _twin(robot: SimulatedRobot, seed: int) -> SimulatedRobot:
+    return SimulatedRobot(robot.profile, robot.true_params, robot.pixel_noise, robot.disparity_noise, seed=seed)
+
+
+def test_nao_calibrated_from_its_own_images() -> None:
+    """4 stances x 3 head postures per leg, every board found; the 21 parameters from the detected
+    vertices predict held-out stances as well as those from the simulator's exact vertices with its
+    0.2 px of noise. With 24 frames both stay a quarter above the floor the encoders' rounding sets."""
+    nao = load_profile("nao")
+    robot = SimulatedRobot.from_profile(nao, seed=4)
+    images = robot.simulate_images(24)
+    assert images.data.n_configurations == 24  # the simulator picks only boards the detector can measure
+    idx = images.data.frame_ids - 1
+    exact = robot.measure(images.true_joints[idx], images.targets[idx]).exact
+    detector_px = np.sqrt(np.mean(np.sum((images.data.measured - exact) ** 2, axis=1)))
+    assert detector_px < 0.15  # below the simulator's 0.2 px per axis
+    held = _twin(robot, 40).simulate(48)
+    floor = _heldout_rms(nao, held, robot.true_params)  # the encoders' rounding alone
+    detected = _heldout_rms(nao, held, calibrate(nao, images.data, "full").params(nao))
+    simulated = robot.measure(images.true_joints[idx], images.targets[idx]).data
+    assert detected < 1.35 * floor
+    assert detected < 1.1 * _heldout_rms(nao, held, calibrate(nao, simulated, "full").params(nao))
+    assert _heldout_rms(nao, held, nao.nominal()) > 20 * floor
+
+
+def test_robonaut_daily_calibration_from_rendered_stereo() -> None:
+    """A later day: joint offsets drifted; the detectors seeded by the first day's calibration find the
+    sphere in the stereo depth of nearly every configuration, to about a millimetre, and the daily
+    calibration from them brings the held-out error from centimetres to within a millimetre of the
+    floor the encoders' rounding sets."""
+    rn = load_profile("robonaut-a")
+    day1 = SimulatedRobot.from_profile(rn, seed=5)
+    base = calibrate(rn, day1.simulate(67).data, "full")
+    day2 = day1.drifted(seed=6)
+    images = day2.simulate_images(16, base.params(rn))
+    assert images.data.n_configurations >= 14
+    idx = images.data.frame_ids - 1
+    exact = day2.measure(images.true_joints[idx], images.targets[idx]).exact
+    error_mm = 10 * np.linalg.norm(images.data.measured - exact, axis=1)
+    assert np.median(error_mm) < 1.5 and error_mm.max() < 4.0
+    cal = calibrate(rn, images.data, "daily", base)
+    held = _twin(day2, 60).simulate(100)
+    before = _heldout_rms(rn, held, base.params(rn))
+    after = _heldout_rms(rn, held, cal.params(rn))
+    assert before > 2.0  # cm: the drift
+    assert after < 0.2  # cm
+    assert after == pytest.approx(_heldout_rms(rn, held, day2.true_params), abs=0.1)  # the floor: 0.06 cm

@@ -1,0 +1,206 @@
+"""Review figures, marks and 3-D geometry against the simulator's ground truth.
+
+Sessions are simulated: the truth is known (`Simulation.exact`, the noise-free measurements, and
+the true parameters), and the readings are left unquantised, so with old = nominal and new = truth
+the new errors must be exactly the measurement noise and the old ones large, marks must land where
+the truth projects, and back-projected board vertices must lie on the predicted board and
+reproject to the measured pixels.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+import yourdfpy
+
+from app.review import Review
+from calib_core import Problem, SimulatedRobot, Simulation, load_profile
+from calib_core.kinematics import forward
+from calib_core.measurement import predict, project_to_image
+from calib_core.profile import Profile
+
+
+@dataclass
+class Frame:
+    """The attributes of app.store.FrameInfo a review uses."""
+
+    index: int
+    joints_rad: np.ndarray
+    target: int
+    status: str
+
+
+def session(name: str, n: int, unmeasured: int = 0, seed: int = 4) -> tuple[Profile, Simulation, list[Frame]]:
+    """A simulated session: n measured frames, then `unmeasured` frames whose detector found nothing."""
+    profile = load_profile(name)
+    robot = SimulatedRobot.from_profile(profile, seed=seed)
+    robot.quantise = False  # readings = the true joint angles: the truth predicts `exact` exactly
+    sim = robot.simulate(n)
+    data = sim.data
+    frames = [
+        Frame(int(data.frame_ids[c]), data.joints[c], int(data.target[data.cfg == c][0]), "measured")
+        for c in range(data.n_configurations)
+    ]
+    q, targets = robot.configurations(unmeasured) if unmeasured else (np.zeros((0, 0)), [])
+    first = len(frames) + 1
+    frames += [Frame(first + k, robot.readings(q[k]), int(targets[k]), "not found") for k in range(unmeasured)]
+    return profile, sim, frames
+
+
+@pytest.fixture(scope="module")
+def robonaut() -> tuple[Profile, Simulation, list[Frame], Review]:
+    profile, sim, frames = session("robonaut-a", 40, unmeasured=2)
+    heldout = set(range(1, 11))
+    review = Review.build(profile, frames, sim.data, profile.nominal(), sim.true_params, heldout_frames=heldout)
+    return profile, sim, frames, review
+
+
+@pytest.fixture(scope="module")
+def nao() -> tuple[Profile, Simulation, list[Frame], Review]:
+    profile, sim, frames = session("nao", 12, unmeasured=1)
+    review = Review.build(profile, frames, sim.data, profile.nominal(), sim.true_params)
+    return profile, sim, frames, review
+
+
+def test_robonaut_errors_are_noise_for_the_truth_and_large_for_nominal(robonaut) -> None:
+    profile, sim, frames, review = robonaut
+    data = sim.data
+    table = review.table()
+    assert [r["index"] for r in table] == [f.index for f in frames]
+    measured = [r for r in table if r["status"] == "measured"]
+    # One fixture per frame: with the truth, the frame's error is the measurement's noise.
+    noise_cm = np.linalg.norm(sim.exact - data.measured, axis=1)
+    np.testing.assert_allclose([r["err_new"] for r in measured], noise_cm, rtol=0, atol=1e-9)
+    # The old side is the nominal model, exactly as calib_core's Problem predicts it.
+    nominal = Problem(profile, data, [], profile.nominal()).predict(profile.nominal())
+    np.testing.assert_allclose(
+        [r["err_old"] for r in measured], np.linalg.norm(nominal - data.measured, axis=1), rtol=0, atol=1e-9
+    )
+    s = review.summary()
+    assert s["unit"] == "cm" and s["frames"] == 42 and s["measured"] == 40
+    assert s["new"]["n"] == s["old"]["n"] == 40
+    assert s["new"]["mean"] < 1.0 < 5.0 < s["old"]["mean"]
+    assert s["new"]["max"] >= s["new"]["rms"] >= s["new"]["mean"]
+    assert sum(s["histogram"]["old"]) == sum(s["histogram"]["new"]) == 40
+    assert len(s["histogram"]["edges"]) == len(s["histogram"]["old"]) + 1
+
+
+def test_heldout_figures_use_only_heldout_frames(robonaut) -> None:
+    _, _, _, review = robonaut
+    s = review.summary()
+    rows = [r for r in review.table() if r["heldout"]]
+    assert [r["index"] for r in rows] == list(range(1, 11)) and s["heldout_frames"] == 10
+    for side in ("old", "new"):
+        errors = np.array([r[f"err_{side}"] for r in rows])
+        assert s[f"heldout_{side}"]["n"] == 10
+        assert s[f"heldout_{side}"]["mean"] == pytest.approx(errors.mean())
+        assert s[f"heldout_{side}"]["max"] == pytest.approx(errors.max())
+        assert s[f"heldout_{side}"]["mean"] != pytest.approx(s[side]["mean"])
+
+
+def test_frames_without_a_measurement_have_no_error_but_a_prediction(robonaut) -> None:
+    _, _, _, review = robonaut
+    row = review.table()[-1]
+    assert row == {"index": 42, "status": "not found", "target": 0, "err_old": None, "err_new": None, "heldout": False}
+    g = review.frame_geometry(42)
+    assert np.isnan(g.measured_m["old"]).all() and np.isfinite(g.predicted_m["new"]).all()
+    marks = review.marks(42)
+    assert marks["measured"] == [None] and marks["new"][0] is not None
+
+
+def test_robonaut_marks_project_where_the_truth_projects(robonaut) -> None:
+    profile, sim, _, review = robonaut
+    sensor = profile.sensors[profile.data.sensor]
+    truth_px = project_to_image(sensor, sim.true_params, sim.exact)
+    for k in (0, 7, 23):
+        marks = review.marks(k + 1)
+        assert marks["role"] == "left" and (marks["width"], marks["height"]) == (640, 480)
+        # The measurement carries stereo noise (0.3 px lateral); the truth's prediction is exact.
+        assert np.linalg.norm(np.array(marks["measured"][0]) - truth_px[k]) < 1.5
+        np.testing.assert_allclose(marks["new"][0], truth_px[k], atol=1e-6)
+        assert np.linalg.norm(np.array(marks["old"][0]) - truth_px[k]) > 10
+
+
+def test_robonaut_geometry_agrees_with_each_sides_urdf(robonaut) -> None:
+    """The scene shows the URDF generated for each side at the readings: the points must sit on it."""
+    _, _, frames, review = robonaut
+    for side in ("old", "new"):
+        urdf = yourdfpy.URDF.load(io.StringIO(review.urdf[side]), build_scene_graph=True, load_meshes=False)
+        for f in (frames[0], frames[5], frames[-1]):
+            g = review.frame_geometry(f.index)
+            np.testing.assert_array_equal(g.joints_rad, f.joints_rad)
+            urdf.update_cfg(dict(zip(review.profile.joint_names, g.joints_rad, strict=True)))
+            fixture = urdf.get_transform(frame_to="fixture", frame_from="chest")[:3, 3]
+            np.testing.assert_allclose(g.predicted_m[side][0], fixture, atol=1e-9)
+    # A rigid transform keeps distances: prediction to measurement in 3-D is the frame's error.
+    g = review.frame_geometry(3)
+    distance_cm = 100 * np.linalg.norm(g.measured_m["new"][0] - g.predicted_m["new"][0])
+    assert distance_cm == pytest.approx(review.table()[2]["err_new"])
+
+
+def test_nao_errors_and_marks(nao) -> None:
+    _, sim, frames, review = nao
+    s = review.summary()
+    n_measured = len(frames) - 1
+    assert s["unit"] == "px" and s["old"]["n"] == s["new"]["n"] == 24 * n_measured
+    assert s["new"]["mean"] < 1.0 and s["old"]["mean"] > 10.0
+    assert s["heldout_old"] is None and s["heldout_new"] is None
+    noise_px = np.linalg.norm(sim.exact - sim.data.measured, axis=1).reshape(n_measured, 24).mean(axis=1)
+    errors = [r["err_new"] for r in review.table()[:n_measured]]
+    np.testing.assert_allclose(errors, noise_px, rtol=0, atol=1e-9)
+    marks = review.marks(2)
+    assert marks["role"] == "image" and len(marks["measured"]) == len(marks["old"]) == len(marks["new"]) == 24
+    np.testing.assert_allclose(marks["measured"], sim.data.measured[24:48], atol=1e-12)
+    np.testing.assert_allclose(marks["new"], sim.exact[24:48], atol=1e-6)
+
+
+def test_nao_measured_vertices_lie_on_each_sides_predicted_board(nao) -> None:
+    """Back-projected pixels: on the plane of the board the side predicts, and seen by that side's
+    camera exactly at the measured pixel."""
+    profile, sim, frames, review = nao
+    sensor = profile.sensors[profile.data.sensor]
+    for k in (0, 4, 9):
+        g = review.frame_geometry(frames[k].index)
+        for side, p in (("old", profile.nominal()), ("new", sim.true_params)):
+            predicted, measured = g.predicted_m[side], g.measured_m[side]
+            centre = predicted.mean(axis=0)
+            normal = np.linalg.svd(predicted - centre)[2][2]
+            assert np.abs((measured - centre) @ normal).max() < 1e-9
+            poses = forward(profile, p, frames[k].joints_rad[None], frames=[sensor.frame])
+            x = (measured * 1000 - poses.t[sensor.frame][0]) @ poses.R[sensor.frame][0]
+            np.testing.assert_allclose(predict(sensor, p, x)[0], sim.data.measured[24 * k : 24 * (k + 1)], atol=1e-6)
+        # With the truth the measured vertices sit on the predicted ones, up to the pixel noise
+        # (0.2 px, about 0.3 mm across the board, a few mm along grazing rays), well below nominal's offset.
+        assert np.linalg.norm(g.measured_m["new"] - g.predicted_m["new"], axis=1).max() < 0.005
+        noise_m = np.linalg.norm(g.measured_m["new"] - g.predicted_m["new"], axis=1).mean()
+        assert noise_m < np.linalg.norm(g.predicted_m["old"] - g.predicted_m["new"], axis=1).mean() / 3
+
+
+def test_without_a_new_calibration_only_the_old_side(robonaut) -> None:
+    profile, sim, frames, _ = robonaut
+    review = Review.build(profile, frames, sim.data, profile.nominal(), None)
+    s = review.summary()
+    assert s["new"] is None and s["heldout_new"] is None and s["histogram"]["new"] is None
+    assert all(r["err_new"] is None for r in review.table())
+    assert review.marks(1)["new"] is None
+    assert set(review.frame_geometry(1).predicted_m) == {"old"}
+    assert set(review.urdf) == {"old"}
+
+
+def test_a_session_with_nothing_measured(robonaut) -> None:
+    profile, _, frames, _ = robonaut
+    review = Review.build(profile, frames[-2:], None, profile.nominal(), None)
+    s = review.summary()
+    assert s["measured"] == 0 and s["old"] == {"mean": None, "rms": None, "max": None, "n": 0}
+    assert s["histogram"]["edges"] == []
+    assert [r["err_old"] for r in review.table()] == [None, None]
+
+
+def test_unknown_frame_is_a_clear_error(robonaut) -> None:
+    _, _, _, review = robonaut
+    for call in (review.frame_geometry, review.marks, review.row):
+        with pytest.raises(IndexError, match=r"frame 999 is not in this review \(frames 1\.\.42\)"):
+            call(999)

@@ -1,0 +1,205 @@
+"""The review scene's state in a real (in-process) viser server: nodes, colours, positions, URDF joints."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import viser
+
+from app.review import Review
+from app.scene import ReviewScene
+from calib_core import SimulatedRobot, load_profile
+from calib_core.kinematics import forward
+from calib_core.vision import Sighting
+
+URDF_DIR = Path(__file__).resolve().parents[1] / "calib_core" / "profiles"
+RED, BLUE, GREEN = [255, 0, 0], [0, 0, 255], [0, 200, 0]
+
+
+@dataclass
+class Frame:
+    index: int
+    joints_rad: np.ndarray
+    target: int
+    status: str
+
+
+@dataclass
+class Look:
+    readings_rad: np.ndarray
+    sighting: Sighting
+
+
+def build(name: str, n: int, *, new: bool = True) -> Review:
+    """n simulated measured frames and one more whose detector found nothing."""
+    profile = load_profile(name)
+    robot = SimulatedRobot.from_profile(profile, seed=2)
+    sim = robot.simulate(n)
+    data = sim.data
+    frames = [
+        Frame(int(data.frame_ids[c]), data.joints[c], int(data.target[data.cfg == c][0]), "measured")
+        for c in range(data.n_configurations)
+    ]
+    q, targets = robot.configurations(1)
+    frames.append(Frame(len(frames) + 1, robot.readings(q[0]), int(targets[0]), "not found"))
+    return Review.build(profile, frames, data, profile.nominal(), sim.true_params if new else None)
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[viser.ViserServer]:
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def robonaut() -> Review:
+    return build("robonaut-a", 12)
+
+
+def _points(state: dict, name: str) -> np.ndarray:
+    node = state["nodes"][name]
+    return np.array(node["points"] if node["kind"] == "points" else node["segments"])
+
+
+def test_select_shows_the_frame_on_both_copies(server: viser.ViserServer, robonaut: Review) -> None:
+    scene = ReviewScene(server, URDF_DIR / "robonaut-a.urdf")
+    assert scene.robot == "robonaut-a"
+    scene.load(robonaut)
+    assert scene.state()["index"] == 1
+    scene.select(5)
+    state = scene.state()
+    g = robonaut.frame_geometry(5)
+    assert state["index"] == 5 and not state["overlay"] and not state["all"]
+    for side, color in (("old", BLUE), ("new", GREEN)):
+        base = f"/review/{side}/base/frame"
+        assert state["nodes"][f"{base}/measured"]["color"] == RED
+        assert state["nodes"][f"{base}/predicted"]["color"] == color
+        assert state["nodes"][f"{base}/lines"]["color"] == color
+        for part in ("measured", "predicted", "lines"):
+            assert state["nodes"][f"{base}/{part}"]["shown"]
+            assert not state["nodes"][f"/review/{side}/base/all/{part}"]["shown"]
+        np.testing.assert_allclose(_points(state, f"{base}/measured"), g.measured_m[side], atol=1e-6)
+        np.testing.assert_allclose(_points(state, f"{base}/predicted"), g.predicted_m[side], atol=1e-6)
+        segments = _points(state, f"{base}/lines")
+        np.testing.assert_allclose(segments[:, 0], g.predicted_m[side], atol=1e-6)
+        np.testing.assert_allclose(segments[:, 1], g.measured_m[side], atol=1e-6)
+        joints = state["urdf"][side]["joints"]
+        assert state["urdf"][side]["shown"]
+        np.testing.assert_allclose([joints[n] for n in robonaut.profile.joint_names], g.joints_rad, atol=1e-12)
+        assert state["nodes"][f"/review/{side}/label"]["text"] == f"{side} calibration"
+    # Side by side along the world y: old on the left (-y), new on the right, apart by more than the robot.
+    y_old = state["nodes"]["/review/old"]["position"][1]
+    y_new = state["nodes"]["/review/new"]["position"][1]
+    span_m = robonaut.bounds_m[1] - robonaut.bounds_m[0]
+    assert y_new - y_old > span_m.max() * 0.5 and y_old < y_new
+    assert not state["urdf"]["ghost"]["shown"] and not state["live"]
+
+
+def test_overlay_and_show_all_change_the_scene(server: viser.ViserServer, robonaut: Review) -> None:
+    scene = ReviewScene(server)
+    scene.load(robonaut)
+    scene.select(3)
+    scene.set_overlay(True)
+    state = scene.state()
+    assert state["overlay"]
+    assert state["nodes"]["/review/old"]["position"] == state["nodes"]["/review/new"]["position"]
+    assert state["urdf"]["ghost"]["shown"] and not state["urdf"]["old"]["shown"] and state["urdf"]["new"]["shown"]
+    ghost = state["urdf"]["ghost"]["joints"]
+    np.testing.assert_allclose(
+        [ghost[n] for n in robonaut.profile.joint_names], robonaut.frame_geometry(3).joints_rad, atol=1e-12
+    )
+    scene.set_overlay(False)
+    state = scene.state()
+    assert state["nodes"]["/review/old"]["position"] != state["nodes"]["/review/new"]["position"]
+    assert state["urdf"]["old"]["shown"] and not state["urdf"]["ghost"]["shown"]
+
+    scene.show_all(True)
+    state = scene.state()
+    for side in ("old", "new"):
+        measured, predicted = robonaut.all_points(side)
+        assert len(measured) == 12  # the frame without a measurement has nothing to show here
+        np.testing.assert_allclose(_points(state, f"/review/{side}/base/all/measured"), measured, atol=1e-6)
+        np.testing.assert_allclose(_points(state, f"/review/{side}/base/all/predicted"), predicted, atol=1e-6)
+        for part in ("measured", "predicted", "lines"):
+            assert state["nodes"][f"/review/{side}/base/all/{part}"]["shown"]
+            assert not state["nodes"][f"/review/{side}/base/frame/{part}"]["shown"]
+    scene.show_all(False)
+    assert scene.state()["nodes"]["/review/new/base/frame/predicted"]["shown"]
+
+
+def test_a_frame_without_a_measurement_shows_only_its_prediction(server: viser.ViserServer, robonaut: Review) -> None:
+    scene = ReviewScene(server)
+    scene.load(robonaut)
+    scene.select(13)
+    state = scene.state()
+    for side in ("old", "new"):
+        base = f"/review/{side}/base/frame"
+        assert state["nodes"][f"{base}/predicted"]["shown"]
+        assert not state["nodes"][f"{base}/measured"]["shown"] and not state["nodes"][f"{base}/lines"]["shown"]
+
+
+def test_selecting_a_frame_that_is_not_there_is_a_clear_error(server: viser.ViserServer, robonaut: Review) -> None:
+    scene = ReviewScene(server)
+    with pytest.raises(ValueError, match="no review is loaded"):
+        scene.select(1)
+    scene.load(robonaut)
+    scene.select(2)
+    with pytest.raises(IndexError, match=r"frame 0 is not in this review \(frames 1\.\.13\)"):
+        scene.select(0)
+    assert scene.state()["index"] == 2
+
+
+def test_without_a_new_calibration_only_the_old_copy(server: viser.ViserServer) -> None:
+    scene = ReviewScene(server)
+    scene.load(build("robonaut-a", 4, new=False))
+    state = scene.state()
+    assert not state["nodes"]["/review/new"]["shown"] and state["nodes"]["/review/old"]["shown"]
+    assert state["nodes"]["/review/old/base/frame/predicted"]["color"] == BLUE
+
+
+def test_nao_board_and_switching_robots(server: viser.ViserServer, robonaut: Review) -> None:
+    scene = ReviewScene(server)
+    scene.load(robonaut)
+    review = build("nao", 6)
+    scene.load(review)
+    scene.select(4)
+    state = scene.state()
+    g = review.frame_geometry(4)
+    assert state["robot"] == "nao" and set(state["urdf"]["new"]["joints"]) == set(review.profile.joint_names)
+    for side in ("old", "new"):
+        assert len(_points(state, f"/review/{side}/base/frame/measured")) == 24
+        np.testing.assert_allclose(_points(state, f"/review/{side}/base/frame/measured"), g.measured_m[side], atol=1e-6)
+        joints = state["urdf"][side]["joints"]
+        np.testing.assert_allclose([joints[n] for n in review.profile.joint_names], g.joints_rad, atol=1e-12)
+    # NAO's torso has z up already; Robonaut's chest has y down and is turned upright.
+    assert state["nodes"]["/review/old/base"]["wxyz"] == pytest.approx([1.0, 0.0, 0.0, 0.0])
+
+
+def test_live_view_replaces_the_review_until_the_next_select(server: viser.ViserServer, robonaut: Review) -> None:
+    scene = ReviewScene(server)
+    scene.load(robonaut)
+    profile = robonaut.profile
+    p = profile.true_params()
+    q = robonaut.frame_geometry(2).joints_rad
+    point_cm = np.array([[3.0, 60.0, -1.0]])  # a detection in the eye frame
+    sighting = Sighting(0, "measured", "ok", point_cm, np.full((1, 3), np.nan), np.array([-1]))
+    scene.show_live(profile, Look(q, sighting), p)
+    state = scene.state()
+    assert state["live"] and state["nodes"]["/live"]["shown"]
+    assert not state["nodes"]["/review/old"]["shown"] and not state["nodes"]["/review/new"]["shown"]
+    joints = state["urdf"]["live"]["joints"]
+    np.testing.assert_allclose([joints[n] for n in profile.joint_names], q, atol=1e-12)
+    eye = profile.sensors[profile.data.sensor].frame
+    poses = forward(profile, p, q[None], frames=[eye])
+    expected_m = (poses.R[eye][0] @ point_cm[0] + poses.t[eye][0]) / 100
+    np.testing.assert_allclose(_points(state, "/live/base/frame/measured")[0], expected_m, atol=1e-6)
+    assert state["nodes"]["/live/base/frame/measured"]["color"] == RED
+    assert state["nodes"]["/live/base/frame/predicted"]["color"] == BLUE
+    scene.select(2)
+    state = scene.state()
+    assert not state["live"] and not state["nodes"]["/live"]["shown"] and state["nodes"]["/review/old"]["shown"]
