@@ -110,6 +110,9 @@ def _parser() -> argparse.ArgumentParser:
     sv.add_argument("--port", type=int, default=8000, help="the page and the API (default 8000)")
     sv.add_argument("--viser-port", type=int, default=None, help="the 3-D scene's port (default: --port + 1)")
     sv.add_argument("--data-dir", default="data", help="where sessions, calibrations and history live (default data/)")
+    sv.add_argument(
+        "--sim-speed", type=float, default=1.0, help="the simulated robots' speed, times their joint velocity limits"
+    )
     return p
 
 
@@ -371,5 +374,7 @@ def _serve(args: argparse.Namespace) -> int:
     if not 0 < args.port < 65536:
         raise InputError(f"--port {args.port} is not a TCP port")
     viser_port = args.port + 1 if args.viser_port is None else args.viser_port
-    serve(args.host, args.port, Path(args.data_dir), viser_port=viser_port)
+    if not 0.1 <= args.sim_speed <= 100:
+        raise InputError(f"--sim-speed {args.sim_speed} must be between 0.1 and 100")
+    serve(args.host, args.port, Path(args.data_dir), viser_port=viser_port, time_scale=args.sim_speed)
     return 0

@@ -72,7 +72,6 @@ class Desk:
             self.drivers[name] = driver
             self._push_active(name)
         self.viser = viser.ViserServer(host=self.viser_host, port=self.viser_port, verbose=False)
-        self.viser.gui.configure_theme(show_share_button=False, dark_mode=False)
         self.scene = ReviewScene(self.viser, PROFILE_DIR / f"{self.connected}.urdf")
 
     def stop(self) -> None:

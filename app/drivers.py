@@ -17,6 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
+from calib_core.errors import InputError
 from calib_core.profile import Profile
 from calib_core.simulator import SimulatedRobot
 from calib_core.vision import Sighting
@@ -27,7 +28,7 @@ _WANDER_POOL = 24  # visible configurations the wander picks from
 _WANDER_PAUSE_S = (0.5, 2.0)  # robot time between wander moves
 
 
-class LimitError(ValueError):
+class LimitError(InputError):
     """A configuration beyond a joint limit (less the safety margin). `beyond`: past the limit itself, not
     only inside the margin."""
 

@@ -46,6 +46,7 @@ LABELS = {"old": "old calibration", "new": "new calibration", "live": "live: act
 GHOST_RGBA = (0.45, 0.55, 1.0, 0.35)  # the old copy in the overlay: translucent, tinted like its points
 DEFAULT_POINT_M = 0.01
 LINE_PER_POINT = 0.06  # line thickness as a share of the point size
+ALL_SCALE = 0.3  # marker size of the all-frames view, relative to the one-frame view
 LABEL_LIFT_M = 0.08  # the old label's lift in the overlay, where both labels would coincide
 
 
@@ -104,6 +105,7 @@ class ReviewScene:
         self._centre_m = np.zeros(3)
         self._live_robot: str | None = None
         server.gui.configure_theme(show_share_button=False)
+        server.gui.main_panel.minimize()  # the page has the controls; the scene gets the room
         if urdf_path is not None:
             text = Path(urdf_path).read_text(encoding="utf-8")
             self.set_robot(urdf_path, yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=False).robot.name)
@@ -247,7 +249,10 @@ class ReviewScene:
             self._frame(f"{root}/base", wxyz=_wxyz(R))
             self._label(f"{root}/label", LABELS[side], (float(self._centre_m[0]), 0.0, self._label_z_m))
             for group in ("frame", "all"):
-                self._add_parts(f"{root}/base/{group}", SIDE_COLOR[side], size)
+                # Every frame at once: smaller markers, or the cloud hides the robot.
+                self._add_parts(
+                    f"{root}/base/{group}", SIDE_COLOR[side], size if group == "frame" else ALL_SCALE * size
+                )
         extent = float(max(self._separation_m + span[1], span[2], 0.5))
         c = self._centre_m
         self.server.initial_camera.look_at = (float(c[0]), 0.0, float(c[2]))

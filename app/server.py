@@ -20,7 +20,6 @@ from calib_core import InputError
 
 from .api import VERSION, router
 from .desk import PACKAGE_DIR, SAMPLE_DIR, Desk
-from .drivers import LimitError
 
 STATIC_DIR = PACKAGE_DIR / "static"
 log = logging.getLogger("calib.server")
@@ -66,12 +65,8 @@ def _error_handlers(app: FastAPI) -> None:
     def detail(status: int, text: str) -> JSONResponse:
         return JSONResponse({"detail": text}, status_code=status)
 
-    @app.exception_handler(InputError)
+    @app.exception_handler(InputError)  # also a joint limit refused (drivers.LimitError)
     async def input_error(request: Request, exc: InputError) -> JSONResponse:
-        return detail(422, str(exc))
-
-    @app.exception_handler(LimitError)
-    async def limit_error(request: Request, exc: LimitError) -> JSONResponse:
         return detail(422, str(exc))
 
     @app.exception_handler(KeyError)
@@ -97,9 +92,9 @@ def _error_handlers(app: FastAPI) -> None:
         return detail(500, f"internal error ({type(exc).__name__}); the server log has the details")
 
 
-def serve(host: str, port: int, data_dir: Path, *, viser_port: int) -> None:
+def serve(host: str, port: int, data_dir: Path, *, viser_port: int, time_scale: float = 1.0) -> None:
     import uvicorn
 
-    app = create_app(data_dir, viser_host=host, viser_port=viser_port)
+    app = create_app(data_dir, viser_host=host, viser_port=viser_port, time_scale=time_scale)
     print(f"calib dashboard: open http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/", flush=True)
     uvicorn.run(app, host=host, port=port, workers=1, log_level="warning")

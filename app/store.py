@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 from calib_core import Calibration, Dataset, InputError, Profile, load_profile, parse_dataset, to_csv
-from calib_core.dataset import _joints_needed
+from calib_core.dataset import joints_needed
 from calib_core.profile import BUILTIN_PROFILES
 from calib_core.session import read_session
 
@@ -307,7 +307,7 @@ class Store:
         )
         joints = np.array([json.loads(r["joints_rad"]) for r in frames], dtype=float).reshape(-1, len(profile.joints))
         needed = np.zeros((len(profile.targets), len(profile.joints)), bool)
-        for t, joints_of_t in _joints_needed(profile).items():
+        for t, joints_of_t in joints_needed(profile).items():
             needed[t, sorted(joints_of_t)] = True
         keep = np.zeros(joints.shape, bool)
         np.logical_or.at(keep, cfg, needed[target])

@@ -118,7 +118,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     joint_factor = ANGLE_IN_RAD[fmt.joint_unit]
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(fmt.measurement_unit, profile.length_unit)
     point_factor = length_factor(fmt.point_unit, profile.length_unit) if fmt.point_unit else 1.0
-    needed = _joints_needed(profile)
+    needed = joints_needed(profile)
 
     frame_index: dict[int, int] = {}
     frame_first_line: dict[int, int] = {}
@@ -214,7 +214,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     )
 
 
-def _joints_needed(profile: Profile) -> dict[int, set[int]]:
+def joints_needed(profile: Profile) -> dict[int, set[int]]:
     """For each target, the joints on the chains from the base to it and to the data's sensor."""
     sensor_frame = profile.sensors[profile.data.sensor].frame
     out = {}

@@ -50,12 +50,12 @@ class Server:
 
 
 @contextmanager
-def served(data_dir: Path, timeout_s: float = 60.0) -> Iterator[Server]:
+def served(data_dir: Path, timeout_s: float = 60.0, sim_speed: float = 1.0) -> Iterator[Server]:
     """`calib serve` as a user starts it, on free ports, until the block ends."""
     port, viser_port = free_port(), free_port()
     cmd = [str(Path(sys.executable).parent / "calib"), "serve", "--port", str(port), "--viser-port", str(viser_port)]
     proc = subprocess.Popen(
-        [*cmd, "--data-dir", str(data_dir)],
+        [*cmd, "--data-dir", str(data_dir), "--sim-speed", str(sim_speed)],
         cwd=Path(__file__).resolve().parent.parent,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,

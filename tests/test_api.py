@@ -291,3 +291,4 @@ def test_a_replay_beyond_the_limits_is_refused_before_moving(client: TestClient)
     assert "elbow_pitch" in dry["configurations"][0]["problem"]
     job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json={"remeasure": True}).json()["job"])
     assert job["state"] == "failed" and "elbow_pitch" in job["error"]
+    assert "internal error" not in job["error"]

@@ -77,3 +77,44 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         page.wait_for_selector("#history tr td", state="attached")
         shot(page, "5-apply")
         browser.close()
+
+
+def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
+    with served(tmp_path / "data", sim_speed=10.0) as server, playwright_api.sync_playwright() as pw:
+        browser = launch(pw)
+        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        page.select_option("#robot-select", "nao")
+        page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao')")
+
+        # A new capture session; Observe: watch live, capture one frame on a click.
+        page.click("#new-session-toggle")
+        page.fill("#new-session input[name=name]", "browser session")
+        page.click("#new-session button[type=submit]")
+        page.wait_for_selector("#tab-observe:not([hidden])")
+        sid = page.get_attribute("#sessions li.selected", "data-session")
+        page.locator("#observe-on").check()
+        page.click("#capture")
+        page.wait_for_function(
+            "sid => document.querySelector(`li[data-session='${sid}']`).textContent.includes('/1 frames')", arg=sid
+        )
+        page.wait_for_function("document.querySelector('#observe-state').textContent.startsWith('live:')")
+        shot(page, "1-observe")
+        page.locator("#observe-on").uncheck()
+
+        # Replay: a dry run of three new configurations, then drive through them.
+        page.click("#tabs button[data-tab='replay']")
+        page.check("input[name=replay-source][value=count]")
+        page.fill("#replay-count", "3")
+        page.click("#dry-run")
+        page.wait_for_function("document.querySelector('#dry-run-result').textContent.includes('3 configurations')")
+        page.click("#replay-start")
+        page.wait_for_function(
+            "document.querySelector('#replay-state').textContent.startsWith('done')", timeout=120_000
+        )
+        shot(page, "2-replay")
+        frames = server.get(f"/api/sessions/{sid}").json()["frames"]
+        assert [f["index"] for f in frames] == [1, 2, 3, 4]
+        assert sum(f["status"] == "measured" for f in frames[1:]) >= 1
+        browser.close()
