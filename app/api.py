@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, File, Form, HTTPException, Request, UploadFile
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Request, UploadFile
+from fastapi import Path as PathParam
 from fastapi.responses import FileResponse, Response
 from fastapi.sse import EventSourceResponse
 from pydantic import BaseModel, Field
@@ -34,7 +35,20 @@ ROBOT_EVENT_PERIOD_S = 0.1
 IMAGE_NAME = re.compile(r"^\d{4}_[a-z]+\.jpg$")
 ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,80}$")
 
-router = APIRouter(prefix="/api")
+
+# Every 4xx answer is one sentence naming what is wrong (app/server.py's handlers), also for the
+# event streams; declared here so that the OpenAPI document tells the truth about it.
+PROBLEM = {
+    "description": 'Bad input: {"detail": one sentence naming the problem}',
+    "content": {
+        "application/json": {
+            "schema": {"type": "object", "properties": {"detail": {"type": "string"}}, "required": ["detail"]}
+        }
+    },
+}
+router = APIRouter(prefix="/api", responses={"4XX": PROBLEM})
+# A frame number as the store keeps it (SQLite INTEGER): beyond it a 422, not an overflow deep inside.
+FrameIndex = Annotated[int, PathParam(ge=-(2**63), le=2**63 - 1, description="a frame number")]
 
 
 def desk(request: Request) -> Desk:
@@ -189,7 +203,7 @@ def session_calibrations(request: Request, session_id: str) -> list[dict[str, An
     ]
 
 
-@router.get("/files/sessions/{session_id}/images/{name}")
+@router.get("/files/sessions/{session_id}/images/{name}", responses={200: {"content": {"image/jpeg": {}}}})
 def image_file(request: Request, session_id: str, name: str) -> FileResponse:
     if not ID.match(session_id) or not IMAGE_NAME.match(name):
         raise HTTPException(404, "no such image")
@@ -224,10 +238,17 @@ def job(request: Request, job_id: str) -> dict[str, Any]:
     return desk(request).jobs.get(job_id)
 
 
+def _first_snapshot(request: Request, job_id: str) -> dict[str, Any]:
+    """Taken before the stream starts, so an unknown job answers 404 rather than breaking the stream."""
+    return desk(request).jobs.get(job_id)
+
+
 @router.get("/jobs/{job_id}/events", response_class=EventSourceResponse)
-async def job_events(request: Request, job_id: str) -> AsyncIterator[dict[str, Any]]:
+async def job_events(
+    request: Request, job_id: str, first: Annotated[dict[str, Any], Depends(_first_snapshot)]
+) -> AsyncIterator[dict[str, Any]]:
     d = desk(request)
-    snap = d.jobs.get(job_id)
+    snap = first
     yield snap
     while snap["state"] in ("queued", "running", "paused") and not await request.is_disconnected():
         snap = await asyncio.to_thread(d.jobs.wait_version, job_id, snap["version"], 1.0)
@@ -251,14 +272,26 @@ def calibration(request: Request, cal_id: str) -> dict[str, Any]:
 
 class ApplyRequest(BaseModel):
     note: str = Field("", max_length=500)
+    confirm: bool = False  # apply even if it is worse than the active one or moves beyond sane bounds
 
 
-@router.post("/calibrations/{cal_id}/apply")
+class ApplyConcerns(BaseModel):
+    """409: what needs the operator's confirmation (re-post with {"confirm": true})."""
+
+    detail: str
+    reasons: list[str]
+
+
+@router.post("/calibrations/{cal_id}/apply", responses={409: {"model": ApplyConcerns}})
 def apply(request: Request, cal_id: str, body: ApplyRequest | None = None) -> dict[str, Any]:
-    return desk(request).apply(cal_id, body.note if body else "")
+    body = body or ApplyRequest()
+    return desk(request).apply(cal_id, body.note, confirm=body.confirm)
 
 
-@router.get("/calibrations/{cal_id}/export")
+@router.get(
+    "/calibrations/{cal_id}/export",
+    responses={200: {"content": {"application/json": {}, "application/yaml": {}, "application/xml": {}}}},
+)
 def export(request: Request, cal_id: str, format: Literal["json", "yaml", "urdf"] = "json") -> Response:
     d = desk(request)
     cal = d.store.calibration(cal_id)
@@ -295,8 +328,16 @@ def robot(request: Request, robot: str | None = None) -> dict[str, Any]:
     return _robot_json(desk(request), robot)
 
 
+def _known_robot(request: Request, robot: str | None = None) -> str | None:
+    """Checked before the stream starts, so an unknown robot answers 422 rather than breaking the stream."""
+    desk(request).driver(robot)
+    return robot
+
+
 @router.get("/robot/events", response_class=EventSourceResponse)
-async def robot_events(request: Request, robot: str | None = None) -> AsyncIterator[dict[str, Any]]:
+async def robot_events(
+    request: Request, robot: Annotated[str | None, Depends(_known_robot)]
+) -> AsyncIterator[dict[str, Any]]:
     d = desk(request)
     while not await request.is_disconnected():
         yield _robot_json(d, robot)
@@ -420,13 +461,20 @@ class ReplayRequest(BaseModel):
     count: int | None = Field(None, ge=1, le=2000)
     remeasure: bool = False
     dry_run: bool = False
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**32 - 1)  # numpy takes non-negative seeds only
+    resume: bool = False  # leave out the configurations the session holds a frame at (go on after a fault)
 
 
 @router.post("/sessions/{session_id}/replay")
 def start_replay(request: Request, session_id: str, body: ReplayRequest, response: Response) -> dict[str, Any]:
     d = desk(request)
-    plan = {"from_session": body.from_session, "count": body.count, "remeasure": body.remeasure, "seed": body.seed}
+    plan = {
+        "from_session": body.from_session,
+        "count": body.count,
+        "remeasure": body.remeasure,
+        "seed": body.seed,
+        "resume": body.resume,
+    }
     if body.dry_run:
         return d.dry_run(session_id, **plan)
     response.status_code = 202
@@ -434,7 +482,7 @@ def start_replay(request: Request, session_id: str, body: ReplayRequest, respons
 
 
 @router.post("/sessions/{session_id}/frames/{index}/goto", status_code=202)
-def goto(request: Request, session_id: str, index: int) -> dict[str, Any]:
+def goto(request: Request, session_id: str, index: FrameIndex) -> dict[str, Any]:
     d = desk(request)
     s = d.store.session(session_id)
     frame = d.store.frame(session_id, index)
@@ -458,7 +506,7 @@ def review(request: Request, body: ReviewRequest) -> dict[str, Any]:
 
 
 class SelectRequest(BaseModel):
-    index: int
+    index: int = Field(ge=-(2**63), le=2**63 - 1)
     all: bool = False
     overlay: bool = False
 
@@ -469,5 +517,5 @@ def select(request: Request, body: SelectRequest) -> dict[str, Any]:
 
 
 @router.get("/review/marks/{index}")
-def marks(request: Request, index: int) -> dict[str, Any]:
+def marks(request: Request, index: FrameIndex) -> dict[str, Any]:
     return desk(request).marks(index)

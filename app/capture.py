@@ -20,7 +20,8 @@ from calib_core.errors import InputError
 from calib_core.simulator import SimulatedRobot
 from calib_core.solver import Cancelled
 
-from .drivers import LimitError, Look, RobotDriver
+from .drivers import LimitError, Look, RobotDriver, RobotFault
+from .store import StoreWriteError
 
 if TYPE_CHECKING:
     from .jobs import JobContext
@@ -116,7 +117,8 @@ def replay(
     its frames are replaced); None appends. The dry run comes first, with the robot's believed calibration
     unless `believed` is given. A skipped configuration is recorded as a "skipped" frame unless the session
     already holds a frame with its index (re-measure keeps the old one). On cancel, a stop or any failure the
-    robot is stopped; frames captured so far stay.
+    robot is stopped; frames captured so far stay. A robot fault (disconnected, not responding) or a data
+    directory that cannot be written fails the job naming the configuration it stopped at.
     """
     _check_robot(store, driver, session_id)
     q = np.asarray(configurations_rad, dtype=float)
@@ -131,6 +133,7 @@ def replay(
         )
     existing = {f.index for f in store.frames(session_id)} if indices is not None else set()
     counts = {"measured": 0, "not found": 0, "skipped": 0}
+    k = 0
     try:
         for k, row in enumerate(plan):
             ctx.checkpoint()
@@ -160,6 +163,14 @@ def replay(
                 not_found=counts["not found"],
                 skipped=counts["skipped"],
             )
+    except (RobotFault, StoreWriteError) as exc:
+        driver.stop()
+        done = sum(counts.values())
+        hint = " (start the replay again with resume to go on)" if indices is None else ""
+        raise InputError(
+            f"replay stopped at configuration {k + 1} of {len(plan)}: {exc}; the {done} frames before it are kept"
+            + hint
+        ) from exc
     except BaseException:
         driver.stop()
         raise

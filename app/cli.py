@@ -113,6 +113,11 @@ def _parser() -> argparse.ArgumentParser:
     sv.add_argument(
         "--sim-speed", type=float, default=1.0, help="the simulated robots' speed, times their joint velocity limits"
     )
+    sv.add_argument(
+        "--new-token",
+        action="store_true",
+        help="bound off loopback: replace the access token (printed once) with a new one",
+    )
     return p
 
 
@@ -314,10 +319,12 @@ def _load_depth(path: str) -> np.ndarray:
         depth = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise InputError("depth file does not exist", file=path) from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty or cut-off file
         raise InputError(f"is not a NumPy .npy array ({exc})", file=path) from None
     if not isinstance(depth, np.ndarray) or depth.ndim != 2 or not np.issubdtype(depth.dtype, np.floating):
         raise InputError("must hold a 2-D float array of depths in metres", file=path)
+    if depth.size == 0:
+        raise InputError(f"holds an empty depth map ({depth.shape[0]} x {depth.shape[1]})", file=path)
     return depth.astype(np.float32, copy=False)
 
 
@@ -376,5 +383,12 @@ def _serve(args: argparse.Namespace) -> int:
     viser_port = args.port + 1 if args.viser_port is None else args.viser_port
     if not 0.1 <= args.sim_speed <= 100:
         raise InputError(f"--sim-speed {args.sim_speed} must be between 0.1 and 100")
-    serve(args.host, args.port, Path(args.data_dir), viser_port=viser_port, time_scale=args.sim_speed)
+    serve(
+        args.host,
+        args.port,
+        Path(args.data_dir),
+        viser_port=viser_port,
+        time_scale=args.sim_speed,
+        new_token=args.new_token,
+    )
     return 0

@@ -17,6 +17,7 @@ import viser
 from calib_core import InputError, Profile, SimulatedRobot, load_profile
 from calib_core.profile import BUILTIN_PROFILES
 
+from . import safety, security
 from .capture import AutoCapture, capture_frame, dry_run, replay
 from .drivers import LimitError, RobotDriver, SimulatedDriver
 from .jobs import JobContext, JobManager
@@ -28,6 +29,9 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent
 SAMPLE_DIR = PACKAGE_DIR / "sample_sessions"
 PROFILE_DIR = PACKAGE_DIR / "calib_core" / "profiles"
 OBSERVE_PERIOD_S = 0.5
+# A resumed replay leaves out a configuration the session holds a frame at within this on every joint: a
+# frame's joints are the encoder readings at the commanded configuration (0.1 deg resolution, servo error).
+RESUME_TOLERANCE_DEG = 0.5
 # The simulated robots' "today": Robonaut is the later-day robot of its day-2 sample session (its
 # offsets drifted since day 1), so a calibration made on day 1 and applied shows the drift live.
 SIMULATED_DAY = {"robonaut-a": 2}
@@ -72,6 +76,7 @@ class Desk:
             self.drivers[name] = driver
             self._push_active(name)
         self.viser = viser.ViserServer(host=self.viser_host, port=self.viser_port, verbose=False)
+        security.close_viser_share(self.viser)
         self.scene = ReviewScene(self.viser, PROFILE_DIR / f"{self.connected}.urdf")
 
     def stop(self) -> None:
@@ -103,7 +108,8 @@ class Desk:
         return self.drivers[robot]
 
     def connect(self, robot: str) -> None:
-        self.driver(robot)
+        if robot not in self.drivers:  # named exactly: driver() would take "" for the connected one
+            raise InputError(f"no robot '{robot}' to connect (known: {', '.join(self.drivers)})")
         if robot != self.connected:
             self.observe(None)
             self.connected = robot
@@ -120,13 +126,47 @@ class Desk:
         cal_id, p = self.active_params(robot)
         self.drivers[robot].apply_calibration(cal_id, None if cal_id is None else p)
 
-    def apply(self, cal_id: str, note: str = "") -> dict[str, Any]:
-        """Make a calibration its robot's active one: recorded first, then pushed to the driver."""
+    def apply(self, cal_id: str, note: str = "", *, confirm: bool = False) -> dict[str, Any]:
+        """Make a calibration its robot's active one: recorded first, then pushed to the driver. One that
+        is worse than the active one or moves a parameter beyond its sane bound (app/safety.py) raises
+        ConfirmationRequired unless `confirm`."""
         info = self.store.calibration_info(cal_id)
+        if not confirm:
+            reasons = self.apply_concerns(cal_id)
+            if reasons:
+                raise safety.ConfirmationRequired(
+                    f"applying {cal_id} to {info.robot} needs confirmation: {reasons[0]}"
+                    + (f" (and {len(reasons) - 1} more)" if len(reasons) > 1 else ""),
+                    reasons,
+                )
         active, previous = self.store.apply(info.robot, cal_id, note)
         if info.robot in self.drivers:
             self._push_active(info.robot)
         return {"active": active, "previous": previous, "robot": info.robot}
+
+    def apply_concerns(self, cal_id: str) -> list[str]:
+        """Why applying this calibration needs a confirmation (empty: it does not)."""
+        info = self.store.calibration_info(cal_id)
+        profile = self.profile(info.robot)
+        active_id, active_p = self.active_params(info.robot)
+        if active_id == cal_id:
+            return []
+        active = "the nominal model" if active_id is None else f"the active calibration {active_id}"
+        cal = self.store.calibration(cal_id)
+        new_p = cal.params(profile)
+        reasons = []
+        if info.session_id is not None and info.session_id in {s.id for s in self.store.sessions()}:
+            data = self.store.dataset(info.session_id, profile)
+            heldout = np.isin(data.frame_ids, cal.frames.get("holdout", []))
+            where = f"the held-out frames of session {info.session_id}"
+            if not heldout.any():
+                heldout[:] = True
+                where = f"the frames of session {info.session_id}"
+            worse = safety.worse_than_active(profile, data.select(heldout), new_p, active_p, active, where)
+            if worse is not None:
+                reasons.append(worse)
+        reasons += safety.parameter_jumps(profile, new_p, active_p, active, from_nominal=active_id is None)
+        return safety.concerns(reasons)
 
     # --- capture ------------------------------------------------------------------------------
     def capture(self, session_id: str) -> FrameInfo:
@@ -134,9 +174,39 @@ class Desk:
         return capture_frame(self.store, self.driver(session.robot), session_id)
 
     def replay_plan(
-        self, session_id: str, *, from_session: str | None, count: int | None, remeasure: bool, seed: int = 0
+        self,
+        session_id: str,
+        *,
+        from_session: str | None,
+        count: int | None,
+        remeasure: bool,
+        seed: int = 0,
+        resume: bool = False,
     ) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
-        """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
+        """The configurations (rad), targets and frame indices (None: append) a replay drives through.
+
+        `resume` goes on with a replay a fault or an abort stopped: the same plan (source session, or count
+        and seed with the same active calibration) less the configurations the session holds a frame at.
+        """
+        if resume and remeasure:
+            raise InputError("resume goes on with a replay that adds frames; start a re-measure again instead")
+        q, targets, indices = self._plan(
+            session_id, from_session=from_session, count=count, remeasure=remeasure, seed=seed
+        )
+        if not resume:
+            return q, targets, indices
+        have = np.array([f.joints_rad for f in self.store.frames(session_id)]).reshape(-1, q.shape[1])
+        near = np.abs(q[:, None, :] - have[None, :, :]) <= np.radians(RESUME_TOLERANCE_DEG)
+        todo = ~np.all(near, axis=2).any(axis=1)
+        if not todo.any():
+            raise InputError(
+                f"nothing to resume: session '{session_id}' has a frame at each of the {len(q)} configurations"
+            )
+        return q[todo], targets[todo], None
+
+    def _plan(
+        self, session_id: str, *, from_session: str | None, count: int | None, remeasure: bool, seed: int
+    ) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
         session = self.store.session(session_id)
         profile = self.profile(session.robot)
         if remeasure or from_session:

@@ -23,6 +23,7 @@ from calib_core.simulator import SimulatedRobot
 from calib_core.vision import Sighting
 
 DEFAULT_MARGIN_DEG = 1.0
+MOVE_SLACK_S = 5.0  # real seconds a move may overrun its planned duration before the robot counts as not responding
 _WAIT_POLL_S = 0.01  # how often a waiting move_to asks its caller whether to stop
 _WANDER_POOL = 24  # visible configurations the wander picks from
 _WANDER_PAUSE_S = (0.5, 2.0)  # robot time between wander moves
@@ -52,6 +53,11 @@ class LimitError(InputError):
                 f"limit {limit_deg:.1f} deg"
             )
         super().__init__(message)
+
+
+class RobotFault(RuntimeError):
+    """The robot failed, not the operator: its link was lost, or a move did not arrive in time. The
+    robot is stopped; what was captured before stays."""
 
 
 def check_limits(profile: Profile, q_rad: np.ndarray, margin_rad: float) -> None:
@@ -140,8 +146,12 @@ class _Move:
     owner: str  # "operator" or "wander"
     done: threading.Event = field(default_factory=threading.Event)
     arrived: bool = False
+    stalled: bool = False  # an injected fault: the robot never gets there
+    drops_link: bool = False  # an injected fault: the link is lost halfway
 
     def position(self, now: float) -> tuple[np.ndarray, bool]:
+        if self.stalled:
+            return self.start.copy(), False
         s = 1.0 if self.duration_s <= 0 else min(1.0, (now - self.t0) / self.duration_s)
         return self.start + (self.goal - self.start) * s, s >= 1.0
 
@@ -166,6 +176,7 @@ class SimulatedDriver:
         rate_hz: float = 50.0,
         margin_deg: float = DEFAULT_MARGIN_DEG,
         start_rad: np.ndarray | None = None,
+        move_slack_s: float = MOVE_SLACK_S,
     ) -> None:
         if time_scale <= 0 or rate_hz <= 0 or margin_deg < 0:
             raise ValueError("time_scale and rate_hz must be positive and margin_deg not negative")
@@ -173,6 +184,7 @@ class SimulatedDriver:
         self.time_scale = float(time_scale)
         self.rate_hz = float(rate_hz)
         self.margin_rad = math.radians(margin_deg)
+        self.move_slack_s = float(move_slack_s)
         robot = SimulatedRobot.from_profile(profile, seed=seed)
         for d in range(2, day + 1):
             robot = robot.drifted(seed=1000 * seed + d)
@@ -193,6 +205,9 @@ class SimulatedDriver:
         self._cal_id: str | None = None
         self._believed = profile.nominal()
         self._stopped = False
+        self._link_lost = False
+        self._operator_moves = 0
+        self._fault: tuple[str, int] | None = None  # (kind, the operator move it strikes)
         self._wander_stop: threading.Event | None = None
         self._wander_thread: threading.Thread | None = None
         self._closed = threading.Event()
@@ -223,6 +238,8 @@ class SimulatedDriver:
             closed = self._closed.is_set()
             if closed:
                 message = "disconnected"
+            elif self._link_lost:
+                message = "disconnected: the link to the robot was lost"
             elif wandering:
                 message = "wandering: someone else drives the robot"
             elif moving:
@@ -233,7 +250,7 @@ class SimulatedDriver:
                 message = "idle"
             return RobotStatus(
                 robot=self.profile.name,
-                connected=not closed,
+                connected=not (closed or self._link_lost),
                 moving=moving,
                 joints_rad=self._sim.readings(q),
                 target=self._target,
@@ -245,6 +262,7 @@ class SimulatedDriver:
 
     def read_joints(self) -> np.ndarray:
         with self._lock:
+            self._check_link()
             return self._sim.readings(self._q)
 
     def settled(self, for_s: float = 0.3) -> bool:
@@ -265,6 +283,7 @@ class SimulatedDriver:
     # --- seeing -------------------------------------------------------------------------------------
     def look(self, believed: np.ndarray | None = None) -> Look:
         with self._lock:
+            self._check_link()
             q, target = self._q.copy(), self._target
             p = (self._believed if believed is None else np.asarray(believed, float)).copy()
         with self._render_lock:
@@ -301,9 +320,17 @@ class SimulatedDriver:
         move = self._begin(q, "operator")
         if not wait:
             return True
+        limit_s = move.duration_s + self.move_slack_s
         while not move.done.wait(_WAIT_POLL_S):
             if should_stop is not None and should_stop():
                 self.stop()
+            elif time.monotonic() - move.t0 > limit_s:
+                self.stop()
+                raise RobotFault(
+                    f"{self.profile.name} did not arrive within {limit_s:.1f} s (not responding); the robot was stopped"
+                )
+        with self._lock:
+            self._check_link()
         return move.arrived
 
     def jog(self, joint_name: str, value_deg: float) -> None:
@@ -333,6 +360,7 @@ class SimulatedDriver:
                 if self._move is not None and self._move.owner == "wander":
                     self._halt(time.monotonic())
                 return
+            self._check_link()
             stop = threading.Event()
             self._wander_stop = stop
             self._stopped = False
@@ -340,6 +368,26 @@ class SimulatedDriver:
                 target=self._wander, args=(stop,), name=f"wander-{self.profile.name}", daemon=True
             )
             self._wander_thread.start()
+
+    # --- faults (simulation only: for tests and demos) ----------------------------------------------
+    def inject_fault(self, kind: str, *, after_moves: int = 0) -> None:
+        """Make a later move fail as a real robot's can. The move after the next `after_moves` operator moves:
+        "disconnect" loses the link halfway (the robot halts and reports itself disconnected until
+        reconnect()); "stall" never arrives (a jammed joint, a lost command), so move_to times out."""
+        if kind not in ("disconnect", "stall") or after_moves < 0:
+            raise ValueError(f"unknown fault '{kind}' or negative after_moves")
+        with self._lock:
+            self._fault = (kind, self._operator_moves + after_moves + 1)
+
+    def reconnect(self) -> None:
+        """The link is back (after an injected disconnect)."""
+        with self._lock:
+            self._link_lost = False
+
+    def _check_link(self) -> None:
+        """Raise RobotFault when the link is lost (lock held)."""
+        if self._link_lost:
+            raise RobotFault(f"{self.profile.name} disconnected (the link to the robot was lost)")
 
     # --- internals ----------------------------------------------------------------------------------
     def _home(self) -> tuple[np.ndarray, int]:
@@ -369,8 +417,11 @@ class SimulatedDriver:
             return self._begin_locked(goal, owner)
 
     def _begin_locked(self, goal: np.ndarray, owner: str) -> _Move:
+        """Every motion starts here (operator, replay, wander): checked against the limits once more."""
         if self._closed.is_set():
             raise RuntimeError(f"the {self.profile.name} driver is closed")
+        self._check_link()
+        self.check(goal)
         now = time.monotonic()
         self._halt(now)
         delta = np.abs(goal - self._q)
@@ -378,6 +429,11 @@ class SimulatedDriver:
             raise ValueError("a joint to move has no velocity limit above 0")
         robot_s = float(np.max(np.where(delta > 0, delta / np.where(self._velocity > 0, self._velocity, 1), 0)))
         move = _Move(self._q.copy(), goal.copy(), now, robot_s / self.time_scale, owner)
+        if owner == "operator":
+            self._operator_moves += 1
+            if self._fault is not None and self._fault[1] == self._operator_moves:
+                move.stalled, move.drops_link = self._fault[0] == "stall", self._fault[0] == "disconnect"
+                self._fault = None
         self._move = move
         self._stopped = False
         return move
@@ -403,7 +459,10 @@ class SimulatedDriver:
                 now = time.monotonic()
                 self._q, arrived = move.position(now)
                 self._stamp = now
-                if arrived:
+                if move.drops_link and (arrived or now - move.t0 >= move.duration_s / 2):
+                    self._link_lost = True
+                    self._halt(now)
+                elif arrived:
                     self._q = move.goal.copy()
                     self._move = None
                     self._still_since = now
@@ -417,10 +476,13 @@ class SimulatedDriver:
             k = int(rng.integers(len(qs)))
             with self._lock:
                 # Checked under the lock that wander(False) takes: no wander move starts after it.
-                if stop.is_set() or self._closed.is_set():
+                if stop.is_set() or self._closed.is_set() or self._link_lost:
                     break
+                try:
+                    move = self._begin_locked(qs[k], "wander")
+                except LimitError:
+                    break  # the pool is checked already; should it hold a bad one, the wander ends
                 self._target = int(targets[k])
-                move = self._begin_locked(qs[k], "wander")
             while not move.done.wait(_WAIT_POLL_S) and not stop.is_set():
                 pass
             if not move.arrived:

@@ -40,7 +40,7 @@ from calib_core.calibrate import METHODS
 from calib_core.solver import Cancelled
 from calib_core.validation import holdout_split
 
-from .store import jsonable
+from .store import StoreWriteError, jsonable
 
 if TYPE_CHECKING:
     from .store import Store
@@ -470,7 +470,7 @@ class JobManager:
             result = fn(JobContext(self, job_id))
         except Cancelled:
             self._finish(job, "cancelled")
-        except InputError as exc:
+        except (InputError, StoreWriteError) as exc:
             self._finish(job, "failed", error=_one_line(str(exc)))
         except Exception as exc:
             log.exception("job %s (%s) failed", job_id, job.snap["kind"])
@@ -559,7 +559,7 @@ class JobManager:
         if outcome == "done":
             try:
                 result = job.finish(value, job_id) if job.finish else (None if value is None else str(value))
-            except InputError as exc:
+            except (InputError, StoreWriteError) as exc:  # StoreWriteError: the disk refused the result
                 outcome, value = "failed", _one_line(str(exc))
             except Exception as exc:
                 log.exception("job %s: its result could not be stored", job_id)

@@ -7,7 +7,7 @@ stopped in the app's lifespan; calibrations run in a spawn process pool (app/job
 from __future__ import annotations
 
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -18,8 +18,12 @@ from fastapi.staticfiles import StaticFiles
 
 from calib_core import InputError
 
-from .api import VERSION, router
+from . import security
+from .api import MAX_UPLOAD_BYTES, VERSION, router
 from .desk import PACKAGE_DIR, SAMPLE_DIR, Desk
+from .drivers import RobotFault
+from .safety import ConfirmationRequired
+from .store import StoreWriteError
 
 STATIC_DIR = PACKAGE_DIR / "static"
 log = logging.getLogger("calib.server")
@@ -29,15 +33,26 @@ def create_app(
     data_dir: Path,
     *,
     sample_dir: Path | None = SAMPLE_DIR,
-    viser_host: str = "127.0.0.1",
+    host: str = "127.0.0.1",
+    viser_host: str | None = None,
     viser_port: int = 0,
     time_scale: float = 1.0,
     workers: int = 1,
+    trusted_hosts: Iterable[str] | None = None,
+    new_token: bool = False,
 ) -> FastAPI:
+    """`host`: the address the server is bound to; off loopback every /api request but /api/health needs
+    the access token (app/security.py); `app.state.new_token` is the token made at this start (shown
+    once), None when one was stored before. `trusted_hosts`: the Host names answered (None: any)."""
+    tokens = None
+    token = None
+    if not security.is_loopback(host):
+        tokens = security.TokenFile(data_dir)
+        token = tokens.renew() if new_token else tokens.ensure()
     desk = Desk(
         data_dir,
         sample_dir=sample_dir,
-        viser_host=viser_host,
+        viser_host=host if viser_host is None else viser_host,
         viser_port=viser_port,
         time_scale=time_scale,
         workers=workers,
@@ -53,17 +68,32 @@ def create_app(
             desk.stop()
 
     app = FastAPI(title="robot-selfcal dashboard", version=VERSION, lifespan=lifespan)
+    app.state.new_token = token
     app.include_router(router)
-    _error_handlers(app)
+    _error_handlers(app, security.Scrubber([Path(data_dir), PACKAGE_DIR, Path.home()]))
+    app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts, max_upload_bytes=MAX_UPLOAD_BYTES)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
 
 
-def _error_handlers(app: FastAPI) -> None:
-    """The user's mistakes answer 4xx with one sentence; a bug answers 500 without a traceback."""
+def _error_handlers(app: FastAPI, scrub: Callable[[str], str]) -> None:
+    """The user's mistakes answer 4xx with one sentence; a bug answers 500 without a traceback; no
+    sentence names a path of the server (a file under the data directory is named by its file name)."""
 
     def detail(status: int, text: str) -> JSONResponse:
-        return JSONResponse({"detail": text}, status_code=status)
+        return JSONResponse({"detail": scrub(text)}, status_code=status)
+
+    @app.exception_handler(ConfirmationRequired)
+    async def needs_confirmation(request: Request, exc: ConfirmationRequired) -> JSONResponse:
+        return JSONResponse({"detail": scrub(exc.detail), "reasons": [scrub(r) for r in exc.reasons]}, status_code=409)
+
+    @app.exception_handler(StoreWriteError)  # the disk is full or read-only: nothing was half-written
+    async def cannot_write(request: Request, exc: StoreWriteError) -> JSONResponse:
+        return detail(507, str(exc))
+
+    @app.exception_handler(RobotFault)  # the robot is disconnected or not responding
+    async def robot_fault(request: Request, exc: RobotFault) -> JSONResponse:
+        return detail(503, str(exc))
 
     @app.exception_handler(InputError)  # also a joint limit refused (drivers.LimitError)
     async def input_error(request: Request, exc: InputError) -> JSONResponse:
@@ -82,7 +112,7 @@ def _error_handlers(app: FastAPI) -> None:
     async def invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
         parts = []
         for err in exc.errors()[:5]:
-            where = ".".join(str(x) for x in err.get("loc", ()) if x != "body")
+            where = ".".join(str(x) for x in err.get("loc", ()) if x != "body") or "request body"
             parts.append(f"{where}: {err.get('msg', 'invalid')}")
         return detail(422, "; ".join(parts) or "invalid request")
 
@@ -92,9 +122,31 @@ def _error_handlers(app: FastAPI) -> None:
         return detail(500, f"internal error ({type(exc).__name__}); the server log has the details")
 
 
-def serve(host: str, port: int, data_dir: Path, *, viser_port: int, time_scale: float = 1.0) -> None:
+def serve(
+    host: str, port: int, data_dir: Path, *, viser_port: int, time_scale: float = 1.0, new_token: bool = False
+) -> None:
     import uvicorn
 
-    app = create_app(data_dir, viser_host=host, viser_port=viser_port, time_scale=time_scale)
-    print(f"calib dashboard: open http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/", flush=True)
+    loopback = security.is_loopback(host)
+    app = create_app(
+        data_dir,
+        host=host,
+        viser_port=viser_port,
+        time_scale=time_scale,
+        trusted_hosts=security.LOOPBACK_NAMES if loopback else None,
+        new_token=new_token,
+    )
+    url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/"
+    token = app.state.new_token
+    if token is not None:
+        print(f"calib dashboard: open {url}?token={token}", flush=True)
+        print(
+            f"access token (shown this once; stored hashed in {Path(data_dir) / security.TOKEN_FILE}; "
+            f"calib serve --new-token makes a new one): {token}",
+            flush=True,
+        )
+    else:
+        print(f"calib dashboard: open {url}", flush=True)
+        if not loopback:
+            print("every API request needs the access token printed at the first start", flush=True)
     uvicorn.run(app, host=host, port=port, workers=1, log_level="warning")

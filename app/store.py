@@ -13,6 +13,7 @@ serves every thread, behind a lock.
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import logging
@@ -51,6 +52,22 @@ JPEG_QUALITY = 90
 SWEEP_AGE_S = 60.0  # leftovers younger than this may be a write in flight: the sweep leaves them
 _ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 _ROLE = re.compile(r"[a-z][a-z0-9_]{0,31}")
+# Why the disk refused a write: by errno (files) and by SQLite result code (the database).
+_WRITE_ERRNOS = {
+    errno.ENOSPC: "no space left on device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EFBIG: "file too large",
+    errno.EROFS: "read-only file system",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "permission denied",
+    errno.EIO: "input/output error",
+}
+_SQLITE_WRITE_FAILURES = {
+    "SQLITE_FULL": "no space left on device",
+    "SQLITE_READONLY": "the database is read-only",
+    "SQLITE_IOERR": "input/output error",
+    "SQLITE_CANTOPEN": "the database cannot be opened",
+}
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -79,6 +96,33 @@ CREATE TABLE IF NOT EXISTS jobs (
     id TEXT PRIMARY KEY, kind TEXT NOT NULL, state TEXT NOT NULL, session_id TEXT,
     created TEXT NOT NULL, updated TEXT NOT NULL, snapshot TEXT NOT NULL);
 """
+
+
+class StoreWriteError(OSError):
+    """The data directory refused a write (disk full, read-only, no permission). The change it belonged to
+    was rolled back and its files removed, so nothing is half-written; the message names no path."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(f"the data directory cannot be written ({reason})")
+        self.reason = reason
+
+
+@contextmanager
+def _writing() -> Iterator[None]:
+    """Report the disk refusing a write (an OSError or SQLite error of that kind) as StoreWriteError."""
+    try:
+        yield
+    except (OSError, sqlite3.OperationalError) as exc:
+        if isinstance(exc, StoreWriteError):
+            raise
+        if isinstance(exc, OSError):
+            reason = _WRITE_ERRNOS.get(exc.errno or 0)
+        else:
+            name = getattr(exc, "sqlite_errorname", "") or ""
+            reason = next((why for code, why in _SQLITE_WRITE_FAILURES.items() if name.startswith(code)), None)
+        if reason is None:
+            raise
+        raise StoreWriteError(reason) from exc
 
 
 @dataclass
@@ -458,10 +502,11 @@ class Store:
         cid = "c-" + secrets.token_hex(4)
         rel = f"calibrations/{cid}.json"
         path = self.data_dir / rel
-        cal.save(path)
-        _fsync_dir(path.parent)
         figures = json.dumps(jsonable({k: v.to_dict() for k, v in cal.figures.items()}))
         try:
+            with _writing():
+                cal.save(path)
+                _fsync_dir(path.parent)
             with self._tx() as db:
                 if session_id is not None and not self._exists("sessions", session_id):
                     raise KeyError(f"unknown session '{session_id}'")
@@ -603,15 +648,17 @@ class Store:
     # --- internals ----------------------------------------------------------------------------------
     @contextmanager
     def _tx(self) -> Iterator[sqlite3.Connection]:
-        """One write transaction (BEGIN IMMEDIATE ... COMMIT), rolled back on any exception."""
-        with self._lock:
+        """One write transaction (BEGIN IMMEDIATE ... COMMIT), rolled back on any exception, a failed COMMIT
+        included (the disk full); the disk refusing a write in it raises StoreWriteError."""
+        with self._lock, _writing():
             self._db.execute("BEGIN IMMEDIATE")
             try:
                 yield self._db
+                self._db.execute("COMMIT")
             except BaseException:
-                self._db.execute("ROLLBACK")
+                if self._db.in_transaction:
+                    self._db.execute("ROLLBACK")
                 raise
-            self._db.execute("COMMIT")
 
     @contextmanager
     def _snapshot(self) -> Iterator[sqlite3.Connection]:

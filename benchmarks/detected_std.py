@@ -23,21 +23,27 @@ import numpy as np
 
 from calib_core import SimulatedRobot, calibrate, load_profile
 
+WEIGHTINGS = {
+    "stereo model": None,
+    "stereo 0.28/0.023": {"model": "stereo", "pixel": 0.28, "disparity": 0.023},
+    "isotropic z^2": {"model": "isotropic", "sigma": 0.052, "reference_distance": 100.0},
+}
 
-def one_run(seed: int) -> tuple[dict[str, tuple[float, float]], dict[str, tuple[float, float]], float, float]:
-    """Estimates (value, std) from detections and from exact measurements, and the two fits' sigma."""
+
+def one_run(seed: int) -> dict[str, tuple[dict[str, tuple[float, float]], float]]:
+    """Estimates (value, std) and the fit's sigma: from detections under each weighting, and from
+    the simulator's exact measurements with its nominal noise."""
     rn = load_profile("robonaut-a")
     robot = SimulatedRobot.from_profile(rn, seed=50_000 + seed)
     images = robot.simulate_images(67)
-    cal_detected = calibrate(rn, images.data, "full")
+    out = {}
+    for name, noise in WEIGHTINGS.items():
+        cal = calibrate(rn if noise is None else rn.with_noise(noise), images.data, "full")
+        out[name] = (_estimates(cal), cal.solver["sigma"])
     exact = SimulatedRobot.from_profile(rn, seed=60_000 + seed).simulate(67)
-    cal_exact = calibrate(rn, exact.data, "full")
-    return (
-        _estimates(cal_detected),
-        _estimates(cal_exact),
-        cal_detected.solver["sigma"],
-        cal_exact.solver["sigma"],
-    )
+    cal = calibrate(rn, exact.data, "full")
+    out["exact, stereo model"] = (_estimates(cal), cal.solver["sigma"])
+    return out
 
 
 def _estimates(cal) -> dict[str, tuple[float, float]]:
@@ -63,17 +69,16 @@ def main() -> None:
     args = ap.parse_args()
     with mp.Pool(args.processes) as pool:
         results = pool.map(one_run, range(args.runs))
-    detected = ratios([r[0] for r in results])
-    exact = ratios([r[1] for r in results])
+    columns = list(results[0])
+    table = {c: ratios([r[c][0] for r in results]) for c in columns}
     print(f"Robonaut full, 67 configurations, {args.runs} runs: reported std / spread of the estimates")
-    print(f"{'parameter':<24} {'detected':>9} {'exact':>9}")
-    for name in sorted(detected):
-        print(f"{name:<24} {detected[name]:>9.2f} {exact.get(name, float('nan')):>9.2f}")
-    d, e = np.array(list(detected.values())), np.array(list(exact.values()))
-    print(f"{'median (range)':<24} {np.median(d):>9.2f} {np.median(e):>9.2f}   ({d.min():.2f}-{d.max():.2f} detected)")
-    sig_d = np.median([r[2] for r in results])
-    sig_e = np.median([r[3] for r in results])
-    print(f"fit sigma (residuals in units of the noise model), median: detected {sig_d:.3f}, exact {sig_e:.3f}")
+    print(f"{'parameter':<22}" + "".join(f"{c:>22}" for c in columns))
+    for name in sorted(table[columns[0]]):
+        print(f"{name:<22}" + "".join(f"{table[c].get(name, float('nan')):>22.2f}" for c in columns))
+    for label, f in (("median", np.median), ("min", np.min), ("max", np.max)):
+        print(f"{label:<22}" + "".join(f"{f(list(table[c].values())):>22.2f}" for c in columns))
+    sigmas = [np.median([r[c][1] for r in results]) for c in columns]
+    print(f"{'fit sigma (median)':<22}" + "".join(f"{v:>22.3f}" for v in sigmas))
 
 
 if __name__ == "__main__":

@@ -7,8 +7,8 @@ Prints the render and SGBM time per 640 x 480 frame, and the SGBM depth error ag
 depth on the sphere's interior (pixels more than 3 px inside its visible silhouette) by distance bin:
 median and 90th percentile of the absolute error (mm), the median signed error (bias) and the fraction of
 interior pixels with a valid depth; also on the sphere's rim (its outer 3 px). And how often the arm hides
-the sphere (the simulator's configurations only check the field of view) or it reaches into the left band
-of columns where SGBM gives no depth.
+the sphere or it reaches into the left band of columns where SGBM gives no depth: the simulator picks
+configurations that avoid both (SimulatedRobot.visible), so both counts should be 0.
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ import cv2
 import numpy as np
 
 from calib_core import SimulatedRobot, load_profile
-from calib_core.stereo import SPHERE, StereoHead, depth_from_pair, render_pair
+from calib_core.stereo import SPHERE, StereoHead, depth_from_pair, no_depth_band_px, render_pair
 
 BINS_M = ((0.4, 0.6), (0.6, 0.8), (0.8, 1.0), (1.0, 1.2))
 INNER_PX = 3.0
-BAND_PX = 128  # SGBM's largest disparity: the left image's columns without depth
 
 
 def main() -> None:
@@ -38,6 +37,7 @@ def main() -> None:
     robot = SimulatedRobot.from_profile(profile, seed=args.seed)
     q, _ = robot.configurations(args.n)
     head = StereoHead.from_profile(profile, robot.true_params)
+    band_px = no_depth_band_px(head)  # SGBM's largest disparity: the left image's columns without depth
     rng = np.random.default_rng(args.seed)
     render_pair(profile, robot.true_params, q[0], head, rng)  # warm up (texture tables)
 
@@ -59,7 +59,7 @@ def main() -> None:
         if sphere.sum() < 50:
             hidden += 1
             continue
-        in_band += bool(sphere[:, :BAND_PX].any())
+        in_band += bool(sphere[:, :band_px].any())
         inside = cv2.distanceTransform(sphere.astype(np.uint8), cv2.DIST_L2, 3) > INNER_PX
         error_m = depth_m - images.depth_true
         z_m = float(np.median(images.depth_true[sphere]))
@@ -76,7 +76,7 @@ def main() -> None:
         f"per frame (median); render + SGBM {1e3 * statistics.median(np.add(render_s, sgbm_s)):.0f} ms"
     )
     print(f"  sphere hidden (< 50 px visible: the arm in front): {hidden} of {len(q)} configurations")
-    print(f"  sphere partly in the leftmost {BAND_PX} columns (no SGBM depth there): {in_band}")
+    print(f"  sphere partly in the leftmost {band_px} columns (no SGBM depth there): {in_band}")
     print("  SGBM depth error on the sphere interior (> 3 px inside the silhouette), mm:")
     print("    distance     frames   median |e|   p90 |e|   bias   valid")
     for b, (lo, hi) in enumerate(BINS_M):

@@ -95,6 +95,8 @@ class Calibration:
                 )
             params = []
             for i, p in enumerate(d["parameters"]):
+                if not isinstance(p["name"], str):  # a list or null would surface later as a TypeError
+                    raise InputError(f"parameters[{i}].name: expected a string, got {p['name']!r}", file=source)
                 for key in ("value", "base", "nominal"):
                     if not isinstance(p[key], int | float) or not math.isfinite(p[key]):
                         raise InputError(f"parameters[{i}].{key}: expected a finite number", file=source)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import fnmatch
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -235,6 +235,46 @@ class Profile:
     def true_params(self) -> np.ndarray:
         """The simulator's hidden true robot (the profile's `simulation.truth`), internal units."""
         return self.params_from_display(self.simulation.get("truth", {}))
+
+    def with_noise(self, noise: dict[str, Any]) -> Profile:
+        """The same robot with the data sensor's observations weighed by `noise` (a noise model as in
+        the YAML's `sensors[].noise`): for data measured with another precision than the profile
+        assumes, such as the simulated detectors' (`simulation.detected_noise`)."""
+        i = self.data.sensor
+        sensors = list(self.sensors)
+        sensors[i] = replace(sensors[i], noise=noise_model(noise, sensors[i], f"noise of sensor '{sensors[i].name}'"))
+        return replace(self, sensors=sensors)
+
+
+NOISE_MODELS = ("isotropic", "stereo")
+
+
+def noise_model(noise: dict[str, Any], sensor: Sensor, where: str) -> dict[str, Any]:
+    """A checked copy of a sensor's noise model; InputError naming `where` and the field if it is wrong.
+
+    isotropic: `sigma` in the measurement's unit (px, or the length unit). stereo: a point3d sensor
+    with intrinsics and a baseline; `pixel` (lateral) and `disparity` noise in px."""
+    out: dict[str, Any] = {str(k): v for k, v in noise.items()}
+    kind = out.get("model", "isotropic")
+    if kind not in NOISE_MODELS:
+        raise InputError(f"{where}.model: unknown noise model '{kind}' ({', '.join(NOISE_MODELS)})")
+    if kind == "stereo" and (
+        sensor.model != "point3d" or sensor.intrinsics is None or sensor.baseline is None or sensor.range is None
+    ):
+        raise InputError(f"{where}: the stereo noise model needs a point3d sensor with intrinsics, a baseline, a range")
+    wanted = {"isotropic": ("sigma",), "stereo": ("pixel", "disparity")}[kind]
+    for k, v in out.items():
+        if k == "model":
+            continue
+        if k not in wanted:
+            raise InputError(f"{where}.{k}: not a field of the {kind} noise model ({', '.join(wanted)})")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
+            raise InputError(f"{where}.{k}: expected a positive number, got {v!r}")
+        out[k] = float(v)
+    missing = [k for k in wanted if k not in out]
+    if missing:
+        raise InputError(f"{where}.{missing[0]}: the {kind} noise model needs it")
+    return out
 
 
 # --- loading ------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ detector found nothing, and where each frame's images are.
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -25,7 +26,7 @@ import numpy as np
 from .calibration import write_atomic
 from .dataset import Dataset, read_dataset, to_csv
 from .errors import InputError
-from .profile import Profile, load_profile
+from .profile import BUILTIN_PROFILES, Profile, load_profile
 
 FORMAT = "calib-session/1"
 
@@ -121,12 +122,18 @@ def read_session(folder: str | Path) -> SessionFolder:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise InputError(f"not a session file (format is not {FORMAT!r})", file=str(meta_path))
     try:
+        if meta["robot"] not in BUILTIN_PROFILES:  # a name, never a path to read a profile from
+            raise InputError(f"robot: unknown robot {meta['robot']!r} (known: {', '.join(BUILTIN_PROFILES)})")
         profile = load_profile(meta["robot"])
-        frames = [FrameRecord(**fr) for fr in meta["frames"]]
-        data = read_dataset(profile, folder / meta.get("data", "data.csv"))
+        if not isinstance(meta["frames"], list):
+            raise InputError("frames: expected a list")
+        frames = [_frame_record(fr, i) for i, fr in enumerate(meta["frames"])]
+        data = read_dataset(profile, folder / _text(meta, "data", "data.csv"))
         truth = None
         if meta.get("truth"):
-            truth = json.loads((folder / meta["truth"]).read_text(encoding="utf-8"))
+            truth = json.loads((folder / _text(meta, "truth")).read_text(encoding="utf-8"))
+            if not isinstance(truth, dict) or not all(_finite(v) for v in truth.values()):
+                raise InputError(f"{meta['truth']}: expected parameter names with finite numbers")
         return SessionFolder(
             folder,
             profile.name,
@@ -137,7 +144,49 @@ def read_session(folder: str | Path) -> SessionFolder:
             data,
             truth,
         )
+    except InputError as exc:
+        if exc.file:  # the data file's own error (line, column)
+            raise
+        raise InputError(exc.message, file=str(meta_path)) from None
     except KeyError as exc:
         raise InputError(f"lacks the field {exc}", file=str(meta_path)) from None
     except (TypeError, json.JSONDecodeError, OSError) as exc:
         raise InputError(f"is malformed ({exc})", file=str(meta_path)) from None
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _text(meta: dict, key: str, default: str | None = None) -> str:
+    value = meta.get(key, default)
+    if not isinstance(value, str) or not value:
+        raise InputError(f"{key}: expected a file name, got {value!r}")
+    return value
+
+
+def _frame_record(fr: Any, i: int) -> FrameRecord:
+    """One frame of session.json, every field of its type: what the importer relies on."""
+    where = f"frames[{i}]"
+    if not isinstance(fr, dict):
+        raise InputError(f"{where}: expected an object")
+    fields = ("frame", "joints_deg", "status", "reason", "images", "detail")
+    missing, unknown = [k for k in fields if k not in fr], sorted(set(fr) - set(fields))
+    if missing or unknown:
+        raise InputError(
+            f"{where}: " + (f"lacks the field '{missing[0]}'" if missing else f"unknown field '{unknown[0]}'")
+        )
+    frame, joints, images = fr["frame"], fr["joints_deg"], fr["images"]
+    if not isinstance(frame, int) or isinstance(frame, bool) or not -(2**63) <= frame < 2**63:
+        raise InputError(f"{where}.frame: expected a whole number, got {frame!r}")
+    if not isinstance(joints, dict) or not all(isinstance(k, str) and _finite(v) for k, v in joints.items()):
+        raise InputError(f"{where}.joints_deg: expected joint names with finite angles in deg")
+    for key in ("status", "reason"):
+        if not isinstance(fr[key], str):
+            raise InputError(f"{where}.{key}: expected text, got {fr[key]!r}")
+    if not isinstance(images, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in images.items()):
+        raise InputError(f"{where}.images: expected image roles with file names")
+    if not isinstance(fr["detail"], dict):
+        raise InputError(f"{where}.detail: expected an object")
+    joints_deg = {k: float(v) for k, v in joints.items()}
+    return FrameRecord(frame, joints_deg, fr["status"], fr["reason"], images, fr["detail"])

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .dataset import Dataset
+from .errors import InputError
 from .kinematics import sensor_points
 from .measurement import optical_rotation, predict, project_to_image
 from .profile import Profile
@@ -64,6 +65,11 @@ class ImageSimulation:
     true_params: np.ndarray
     true_joints: np.ndarray  # (N, n_joints) unquantised readings of every frame
     targets: np.ndarray  # (N,) the target each frame shows
+    noise: dict | None = None  # the detectors' noise model (profile `simulation.detected_noise`), for weighing
+
+    def profile_for_data(self, profile: Profile) -> Profile:
+        """The profile that weighs these detections by the detectors' own noise (if the profile states it)."""
+        return profile if self.noise is None else profile.with_noise(self.noise)
 
 
 @dataclass
@@ -130,7 +136,7 @@ class SimulatedRobot:
             if len(found) >= n:
                 break
         if len(found) < n:
-            raise RuntimeError(f"found only {len(found)} visible configurations of {n}")
+            raise InputError(f"found only {len(found)} visible configurations of the {n} asked: ask for fewer")
         return np.array(found[:n]), np.full(n, target)
 
     def _stances(self, sampling: dict, n: int | None) -> tuple[np.ndarray, np.ndarray]:
@@ -167,7 +173,10 @@ class SimulatedRobot:
                     targets += [ti] * postures
                     got += 1
             if got < per_target:
-                raise RuntimeError(f"found only {got} visible stances for {tname}")
+                raise InputError(
+                    f"found only {got} visible stances for {tname} of the {per_target} needed: "
+                    "ask for fewer configurations or another seed"
+                )
         return np.array(qs), np.array(targets)
 
     def _aim(self, q: np.ndarray, joint: int, target: int) -> np.ndarray:
@@ -361,7 +370,14 @@ class SimulatedRobot:
         believed = prof.nominal() if believed is None else believed
         q, targets = self.configurations(n)
         captures = [self.capture(k + 1, q[k], int(targets[k]), believed) for k in range(len(q))]
-        return ImageSimulation(dataset_from_captures(prof, captures), captures, self.true_params.copy(), q, targets)
+        return ImageSimulation(
+            dataset_from_captures(prof, captures),
+            captures,
+            self.true_params.copy(),
+            q,
+            targets,
+            prof.simulation.get("detected_noise"),
+        )
 
     def simulate(self, n: int | None = None, **kwargs) -> Simulation:
         """Random visible configurations, observed."""

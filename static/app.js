@@ -17,8 +17,22 @@ const state = {
 };
 
 // --- HTTP ------------------------------------------------------------------------------------
-async function api(method, path, body) {
+// Off loopback the desk wants its access token: from `?token=` in the address calib serve printed (kept
+// for this tab, then removed from the address bar), or asked once when the server answers 401.
+const TOKEN_KEY = "calib-access-token";
+(function takeToken() {
+  const url = new URL(location.href);
+  const token = url.searchParams.get("token");
+  if (!token) return;
+  sessionStorage.setItem(TOKEN_KEY, token);
+  url.searchParams.delete("token");
+  history.replaceState(null, "", url);
+})();
+
+async function api(method, path, body, retried = false) {
   const opts = { method, headers: {} };
+  const token = sessionStorage.getItem(TOKEN_KEY);
+  if (token) opts.headers.Authorization = `Bearer ${token}`;
   if (body instanceof FormData) opts.body = body;
   else if (body !== undefined) {
     opts.headers["Content-Type"] = "application/json";
@@ -27,7 +41,20 @@ async function api(method, path, body) {
   const res = await fetch(`/api${path}`, opts);
   const text = await res.text();
   const data = text ? JSON.parse(text) : null;
-  if (!res.ok) throw new Error((data && data.detail) || `${res.status} ${res.statusText}`);
+  if (res.status === 401 && !retried) {
+    const given = window.prompt("This desk is reachable from the network: its access token, please " +
+      "(calib serve printed it at its first start).");
+    if (given) {
+      sessionStorage.setItem(TOKEN_KEY, given.trim());
+      return api(method, path, body, true);
+    }
+  }
+  if (!res.ok) {
+    const err = new Error((data && data.detail) || `${res.status} ${res.statusText}`);
+    err.status = res.status;
+    err.data = data;
+    throw err;
+  }
   return data;
 }
 
@@ -107,6 +134,11 @@ function wire() {
   $("#overlay").addEventListener("change", () => selectFrame(state.frame));
   $("#all-frames").addEventListener("change", () => selectFrame(state.frame));
   $("#apply").addEventListener("click", () => act(applyNew));
+  $("#goto").addEventListener("click", () => act(async () => {
+    if (!state.session || state.frame === null) throw new Error("select a frame first");
+    await api("POST", `/sessions/${state.session.id}/frames/${state.frame}/goto`);
+    toast(`Driving to frame ${state.frame}'s configuration.`, "info");
+  }));
   $("#capture").addEventListener("click", () => act(captureNow));
   $("#observe-on").addEventListener("change", () => act(setObserve));
   $("#autocapture").addEventListener("change", () => act(setObserve));
@@ -490,8 +522,25 @@ function renderApply() {
   }
 }
 
+// A calibration worse than the active one, or moving a parameter beyond its sane bound, is applied only
+// when the operator confirms the server's reasons (409); null when not applied.
+async function applyCalibration(id, note) {
+  try {
+    return await api("POST", `/calibrations/${id}/apply`, { note });
+  } catch (err) {
+    if (err.status !== 409 || !err.data || !err.data.reasons) throw err;
+    const ask = `${err.data.detail}\n\n- ${err.data.reasons.join("\n- ")}\n\nApply it anyway?`;
+    if (!window.confirm(ask)) {
+      toast("Not applied.", "info");
+      return null;
+    }
+    return api("POST", `/calibrations/${id}/apply`, { note, confirm: true });
+  }
+}
+
 async function applyNew() {
-  const r = await api("POST", `/calibrations/${state.newCal}/apply`, { note: "" });
+  const r = await applyCalibration(state.newCal, "");
+  if (!r) return;
   $("#apply-state").textContent = `Active: ${r.active} (previous: ${r.previous || "nominal model"})`;
   await refreshActive();
   toast("Applied to the robot.", "info");
@@ -508,8 +557,7 @@ async function refreshActive() {
       el("td", {}, h.mode || ""), el("td", {}, h.session || ""),
       el("td", {}, h.figures && h.figures.after ? fmt(h.figures.after.mean) : ""),
       el("td", {}, el("button", { onclick: () => act(async () => {
-        await api("POST", `/calibrations/${h.calibration}/apply`, { note: "re-applied from history" });
-        await refreshActive();
+        if (await applyCalibration(h.calibration, "re-applied from history")) await refreshActive();
       }) }, "re-apply"))));
   }
 }
@@ -566,6 +614,7 @@ async function replay(dry) {
   const body = { dry_run: dry, remeasure: source === "remeasure" };
   if (source === "from") body.from_session = $("#replay-from").value;
   if (source === "count") body.count = +$("#replay-count").value;
+  if ($("#replay-continue").checked) body.resume = true;
   const r = await api("POST", `/sessions/${state.session.id}/replay`, body);
   if (dry) {
     const bad = r.configurations.filter((c) => !c.ok);

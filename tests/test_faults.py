@@ -1,0 +1,438 @@
+"""Faults, each injected: the robot disconnecting or stalling mid-replay (frames kept, the replay resumed),
+`calib serve` killed with SIGKILL mid-capture, mid-calibration and mid-apply (a consistent store after the
+restart), a calibration worker killed through the API, and a data directory that refuses writes (507, nothing
+half-written). The store's own killed-writer and sweep tests are in test_store.py, the worker crash and
+time-out tests at the JobManager level in test_jobs.py."""
+
+from __future__ import annotations
+
+import errno
+import itertools
+import os
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import suppress
+from pathlib import Path
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from browser import Server, free_port
+from fastapi.testclient import TestClient
+
+from app.jobs import CRASHED
+from app.server import create_app
+from app.store import INTERRUPTED, Store
+from calib_core import load_profile, read_dataset
+
+ROOT = Path(__file__).resolve().parent.parent
+SAMPLES = ROOT / "sample_sessions"
+FINISHED = ("done", "failed", "cancelled")
+
+
+def wait_job(get, job_id: str, timeout_s: float = 60.0) -> dict:
+    """Poll GET /api/jobs/{id} (`get`: a TestClient's or a Server's get) until the job has finished."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        job = get(f"/api/jobs/{job_id}").json()
+        if job["state"] in FINISHED:
+            return job
+        assert time.monotonic() < deadline, f"job still {job['state']}: {job}"
+        time.sleep(0.05)
+
+
+# --- in-process: one app with the Robonaut day-1 sample --------------------------------------------------
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("data")
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory: pytest.TempPathFactory, data_dir: Path) -> Iterator[TestClient]:
+    samples = tmp_path_factory.mktemp("samples")
+    shutil.copytree(SAMPLES / "robonaut-a-day1", samples / "robonaut-a-day1")
+    with TestClient(create_app(data_dir, sample_dir=samples, time_scale=50.0)) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def daily(client: TestClient) -> str:
+    """A daily calibration of the day-1 sample (to apply)."""
+    r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"})
+    job = wait_job(client.get, r.json()["job"])
+    assert job["state"] == "done", job
+    return job["result"]
+
+
+def _frames(client: TestClient, session_id: str) -> list[dict]:
+    return client.get(f"/api/sessions/{session_id}").json()["frames"]
+
+
+def _plan_rad(client: TestClient, session_id: str, count: int, seed: int) -> np.ndarray:
+    q, _, _ = client.app.state.desk.replay_plan(session_id, from_session=None, count=count, remeasure=False, seed=seed)
+    return q
+
+
+def _each_configuration_once(client: TestClient, frames: list[dict], q_plan: np.ndarray) -> bool:
+    names = client.app.state.desk.profile("nao").joint_names
+    q_frames = np.radians([[f["joints"][n] for n in names] for f in frames])
+    near = np.all(np.abs(q_plan[:, None, :] - q_frames[None, :, :]) <= np.radians(0.1), axis=2)
+    return bool((near.sum(axis=1) == 1).all() and (near.sum(axis=0) == 1).all())
+
+
+def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan(client: TestClient) -> None:
+    driver = client.app.state.desk.drivers["nao"]
+    sid = client.post("/api/sessions", json={"robot": "nao", "name": "disconnect"}).json()["id"]
+    plan = {"count": 4, "seed": 1}
+    q_plan = _plan_rad(client, sid, 4, 1)
+    driver.inject_fault("disconnect", after_moves=2)
+    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
+    assert job["state"] == "failed"
+    assert job["error"] == (
+        "replay stopped at configuration 3 of 4: nao disconnected (the link to the robot was lost); the 2 frames "
+        "before it are kept (start the replay again with resume to go on)"
+    )
+    kept = _frames(client, sid)
+    assert [f["index"] for f in kept] == [1, 2] and all(f["images"] for f in kept)
+    robot = client.get("/api/robot", params={"robot": "nao"}).json()
+    assert (robot["connected"], robot["moving"]) == (False, False)
+    r = client.post("/api/robot/move", json={"robot": "nao", "joints": {}})
+    assert r.status_code == 503 and r.json()["detail"] == "nao disconnected (the link to the robot was lost)"
+
+    driver.reconnect()
+    dry = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True, "dry_run": True}).json()
+    assert len(dry["configurations"]) == 2
+    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
+    assert job["state"] == "done", job
+    frames = _frames(client, sid)
+    assert [f["index"] for f in frames] == [1, 2, 3, 4]
+    assert frames[:2] == kept  # untouched by the resume
+    assert _each_configuration_once(client, frames, q_plan)
+    r = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True})
+    assert r.status_code == 422 and r.json()["detail"].startswith("nothing to resume")
+
+
+def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestClient) -> None:
+    driver = client.app.state.desk.drivers["nao"]
+    sid = client.post("/api/sessions", json={"robot": "nao", "name": "stall"}).json()["id"]
+    plan = {"count": 2, "seed": 5}
+    q_plan = _plan_rad(client, sid, 2, 5)
+    driver.move_slack_s = 0.5
+    try:
+        driver.inject_fault("stall", after_moves=1)
+        t0 = time.monotonic()
+        job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
+        elapsed_s = time.monotonic() - t0
+    finally:
+        driver.move_slack_s = 5.0
+    assert job["state"] == "failed" and elapsed_s < 10
+    assert job["error"].startswith("replay stopped at configuration 2 of 2: nao did not arrive within ")
+    assert job["error"].endswith(
+        "(not responding); the robot was stopped; the 1 frames before it are kept "
+        "(start the replay again with resume to go on)"
+    )
+    assert [f["index"] for f in _frames(client, sid)] == [1]
+    robot = client.get("/api/robot", params={"robot": "nao"}).json()
+    assert (robot["connected"], robot["moving"]) == (True, False)
+    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
+    assert job["state"] == "done", job
+    assert _each_configuration_once(client, _frames(client, sid), q_plan)
+
+
+def test_a_calibration_worker_killed_through_the_api_fails_its_job_and_the_server_stays_up(
+    client: TestClient,
+) -> None:
+    jobs = client.app.state.desk.jobs
+    # Twenty-fold cross-validation: 21 solves, seconds of work, so the worker is caught running.
+    r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "full", "folds": 20})
+    job_id = r.json()["job"]
+    deadline = time.monotonic() + 30
+    while jobs.worker_pid(job_id) is None:
+        assert time.monotonic() < deadline and jobs.get(job_id)["state"] not in FINISHED
+        time.sleep(0.01)
+    os.kill(jobs.worker_pid(job_id), signal.SIGKILL)
+    job = wait_job(client.get, job_id, timeout_s=15)
+    assert (job["state"], job["error"]) == ("failed", CRASHED)
+    assert client.get("/api/health").status_code == 200
+
+
+# --- the data directory refusing writes ---------------------------------------------------------------
+def _state(client: TestClient, data_dir: Path) -> dict:
+    """The files under the data directory and every row the API shows of sessions, calibrations, applies."""
+    files = sorted(
+        str(p.relative_to(data_dir))
+        for p in data_dir.rglob("*")
+        if p.is_file() and not p.name.startswith("store.sqlite")
+    )
+    sessions = client.get("/api/sessions").json()
+    return {
+        "files": files,
+        "sessions": sessions,
+        "frames": {s["id"]: _frames(client, s["id"]) for s in sessions},
+        "calibrations": [c["id"] for c in client.get("/api/sessions/robonaut-a-day1/calibrations").json()],
+        "history": client.get("/api/robot/history", params={"robot": "robonaut-a"}).json(),
+        "driver": client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"],
+    }
+
+
+def _refused(r: httpx.Response, reason: str) -> None:
+    assert r.status_code == 507, r.text
+    assert r.json() == {"detail": f"the data directory cannot be written ({reason})"}
+
+
+@pytest.fixture(scope="module")
+def capture_session(client: TestClient) -> str:
+    return client.post("/api/sessions", json={"robot": "robonaut-a", "name": "disk"}).json()["id"]
+
+
+def test_a_full_disk_fails_a_capture_and_a_calibration_and_writes_nothing(
+    client: TestClient, data_dir: Path, capture_session: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Tests may run as root, where a read-only folder still takes writes: the file data is refused where a
+    # full disk refuses it, at the flush to the device.
+    def fsync(fd: int) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    before = _state(client, data_dir)
+    with monkeypatch.context() as m:
+        m.setattr(os, "fsync", fsync)
+        _refused(client.post(f"/api/sessions/{capture_session}/capture"), "no space left on device")
+        r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"})
+        job = wait_job(client.get, r.json()["job"])
+    assert (job["state"], job["error"]) == ("failed", "the data directory cannot be written (no space left on device)")
+    assert _state(client, data_dir) == before
+    # Once the disk takes writes again, so does the store.
+    r = client.post(f"/api/sessions/{capture_session}/capture")
+    assert r.status_code == 201
+    for url in r.json()["frame"]["images"].values():
+        assert cv2.imdecode(np.frombuffer(client.get(url).content, np.uint8), cv2.IMREAD_COLOR) is not None
+
+
+def test_a_read_only_database_fails_import_capture_apply_and_calibration_and_writes_nothing(
+    client: TestClient, data_dir: Path, capture_session: str, daily: str
+) -> None:
+    store = client.app.state.desk.store
+    csv = (SAMPLES / "robonaut-a-day1" / "data.csv").read_bytes()
+    upload = {"data": ("day1.csv", csv, "text/csv")}
+    before = _state(client, data_dir)
+    with store._lock:  # the store's own connection: every write it tries is refused by SQLite
+        store._db.execute("PRAGMA query_only = ON")
+    try:
+        reason = "the database is read-only"
+        _refused(client.post("/api/sessions/import", data={"robot": "robonaut-a", "name": "ro"}, files=upload), reason)
+        # The images are written first, then the row is refused: the images go again.
+        _refused(client.post(f"/api/sessions/{capture_session}/capture"), reason)
+        _refused(client.post(f"/api/calibrations/{daily}/apply", json={"confirm": True}), reason)
+        job = wait_job(
+            client.get, client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"}).json()["job"]
+        )
+        assert (job["state"], job["error"]) == ("failed", f"the data directory cannot be written ({reason})")
+        assert _state(client, data_dir) == before
+    finally:
+        with store._lock:
+            store._db.execute("PRAGMA query_only = OFF")
+    r = client.post(f"/api/calibrations/{daily}/apply", json={"confirm": True})
+    assert (
+        r.status_code == 200 and client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == daily
+    )
+
+
+def test_a_full_database_fails_an_import_and_keeps_no_part_of_it(client: TestClient, data_dir: Path) -> None:
+    store = client.app.state.desk.store
+    csv = (SAMPLES / "robonaut-a-day2" / "data.csv").read_bytes()
+    upload = {"data": ("day2.csv", csv, "text/csv")}
+    before = _state(client, data_dir)
+    with store._lock:  # the database may not grow by a page: SQLite answers SQLITE_FULL, as on a full disk
+        pages = store._db.execute("PRAGMA page_count").fetchone()[0]
+        limit = store._db.execute("PRAGMA max_page_count").fetchone()[0]
+        store._db.execute(f"PRAGMA max_page_count = {pages}")
+    try:
+        r = client.post("/api/sessions/import", data={"robot": "robonaut-a", "name": "full"}, files=upload)
+        _refused(r, "no space left on device")
+        assert _state(client, data_dir) == before
+    finally:
+        with store._lock:
+            store._db.execute(f"PRAGMA max_page_count = {limit}")
+    r = client.post("/api/sessions/import", data={"robot": "robonaut-a", "name": "full"}, files=upload)
+    n_csv = read_dataset(load_profile("robonaut-a"), SAMPLES / "robonaut-a-day2" / "data.csv").n_configurations
+    assert r.status_code == 201 and client.get(f"/api/sessions/{r.json()['id']}").json()["measured"] == n_csv
+
+
+# --- SIGKILL: a real `calib serve`, killed at random moments ----------------------------------------------
+KILLS = 2
+
+
+def _serve(data_dir: Path, log: Path, timeout_s: float = 120.0) -> Server:
+    """`calib serve` in a process group of its own (so its workers can be cleaned up after a kill)."""
+    port, viser_port = free_port(), free_port()
+    cmd = [str(Path(sys.executable).parent / "calib"), "serve", "--port", str(port), "--viser-port", str(viser_port)]
+    with open(log, "ab") as out:
+        proc = subprocess.Popen(
+            [*cmd, "--data-dir", str(data_dir), "--sim-speed", "50"],
+            cwd=ROOT,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            start_new_session=True,
+        )
+    server = Server(f"http://127.0.0.1:{port}", proc, data_dir)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        assert proc.poll() is None, f"calib serve exited: {log.read_text()[-2000:]}"
+        with suppress(httpx.HTTPError):
+            if server.get("/api/health").status_code == 200:
+                return server
+        assert time.monotonic() < deadline, "calib serve did not answer in time"
+        time.sleep(0.1)
+
+
+def _kill(server: Server) -> None:
+    """SIGKILL the server, then whatever it left running (the job Manager, calibration workers)."""
+    server.process.kill()
+    server.process.wait()
+    with suppress(ProcessLookupError):
+        os.killpg(server.process.pid, signal.SIGKILL)
+
+
+class _Applier(threading.Thread):
+    """Applies two calibrations in turn, back to back, until the server dies under it."""
+
+    def __init__(self, server: Server, cal_ids: list[str]) -> None:
+        super().__init__(daemon=True)
+        self.server, self.cal_ids = server, cal_ids
+        self.acked: list[str] = []
+        self.in_flight: str | None = None
+        self.refused: list[str] = []
+
+    def run(self) -> None:
+        with httpx.Client(base_url=self.server.url, timeout=30) as http:
+            for k in range(100_000):
+                self.in_flight = self.cal_ids[k % 2]
+                try:
+                    r = http.post(f"/api/calibrations/{self.in_flight}/apply", json={"confirm": True})
+                except httpx.HTTPError:
+                    return
+                if r.status_code != 200:
+                    self.refused.append(r.text)
+                    return
+                self.acked.append(self.in_flight)
+                self.in_flight = None
+
+
+def _calibrate(server: Server, session_id: str, mode: str) -> str:
+    job = wait_job(
+        server.get, server.post(f"/api/sessions/{session_id}/calibrations", json={"mode": mode}).json()["job"]
+    )
+    assert job["state"] == "done", job
+    return job["result"]
+
+
+def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    seed = secrets.randbits(32)
+    rng = np.random.default_rng(seed)
+    data, log = tmp_path / "data", tmp_path / "serve.log"
+    server = _serve(data, log)
+    rounds = []
+    try:
+        cals = [_calibrate(server, "robonaut-a-day1", "daily"), _calibrate(server, "robonaut-a-day1", "full")]
+        bodies = {c: server.get(f"/api/calibrations/{c}").json() for c in cals}
+        sid = server.post("/api/sessions", json={"robot": "nao", "name": "killed"}).json()["id"]
+        n_source = len(server.get("/api/sessions/nao").json()["frames"])
+        acked, active = 0, None
+        for k in range(KILLS):
+            applier = _Applier(server, cals)
+            applier.start()
+            replay = server.post(f"/api/sessions/{sid}/replay", json={"from_session": "nao", "resume": k > 0})
+            replay_job = replay.json()["job"]
+            t0 = time.monotonic()
+            time.sleep(rng.uniform(0.5, 2.0))
+            # Ten-fold cross-validation: seconds of solving, so the kill most likely finds it running.
+            cal_job = server.post("/api/sessions/nao/calibrations", json={"mode": "full", "folds": 10}).json()["job"]
+            time.sleep(rng.uniform(0.02, 0.4))
+            seen = len(server.get(f"/api/sessions/{sid}").json()["frames"])
+            _kill(server)
+            killed_after_s = time.monotonic() - t0
+            applier.join(timeout=30)
+            acked += len(applier.acked)
+            assert not applier.refused, applier.refused
+            last = applier.acked[-1] if applier.acked else active
+            server = _serve(data, log)
+            where = f"round {k}, seed {seed}"
+
+            assert server.get("/api/health").status_code == 200
+            jobs = {j["id"]: j for j in server.get("/api/jobs").json()}
+            assert all(j["state"] in FINISHED for j in jobs.values()), where
+            assert (jobs[replay_job]["state"], jobs[replay_job]["error"]) == ("failed", INTERRUPTED), where
+            cal = jobs[cal_job]
+            assert cal["state"] == "done" or (cal["state"], cal["error"]) == ("failed", INTERRUPTED), where
+            if cal["state"] == "done":
+                assert server.get(f"/api/calibrations/{cal['result']}").status_code == 200, where
+
+            # Frames: numbered without a gap, none the client saw lost, every image readable.
+            frames = server.get(f"/api/sessions/{sid}").json()["frames"]
+            assert [f["index"] for f in frames] == list(range(1, len(frames) + 1)), where
+            assert len(frames) >= seen, where
+            for f in frames:
+                for url in f["images"].values():
+                    img = cv2.imdecode(np.frombuffer(server.get(url).content, np.uint8), cv2.IMREAD_UNCHANGED)
+                    assert img is not None and img.size > 0, (where, url)
+            # Each source configuration is a frame or still to do: the resume plan is exactly the rest.
+            dry = server.post(
+                f"/api/sessions/{sid}/replay", json={"from_session": "nao", "resume": True, "dry_run": True}
+            )
+            assert len(dry.json()["configurations"]) == n_source - len(frames), where
+
+            # Applies: the active calibration is the last acknowledged or the one in flight, whole, and the
+            # history is one unbroken chain.
+            history = server.get("/api/robot/history", params={"robot": "robonaut-a"}).json()
+            active = server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"]
+            assert active in {last, applier.in_flight} - {None}, where
+            assert active == history[0]["calibration"], where
+            assert server.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == active, where
+            assert all(h["previous"] == older["calibration"] for h, older in itertools.pairwise(history)), where
+            assert history[-1]["previous"] is None and acked <= len(history) <= acked + k + 1, where
+            for c in cals:
+                assert server.get(f"/api/calibrations/{c}").json() == bodies[c], where
+            rounds.append(
+                {
+                    "killed_after_s": round(killed_after_s, 2),
+                    "frames_seen": seen,
+                    "frames_after": len(frames),
+                    "calibration": cal["state"],
+                    "applies_acked": len(applier.acked),
+                    "active_was_in_flight": active == applier.in_flight,
+                }
+            )
+    finally:
+        server.process.send_signal(signal.SIGINT)
+        try:
+            server.process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            _kill(server)
+        with suppress(ProcessLookupError):
+            os.killpg(server.process.pid, signal.SIGKILL)
+    print(f"\nSIGKILL rounds (seed {seed}): {rounds}")
+
+    # After the sweep (leftovers of any age), files and rows match one to one.
+    monkeypatch.setattr("app.store.SWEEP_AGE_S", 0.0)
+    store = Store(data)
+    cal_files = {f"calibrations/{p.name}" for p in (data / "calibrations").iterdir()}
+    assert cal_files == {store.calibration_info(c.id).path for c in store.calibrations()}
+    for c in store.calibrations():
+        store.calibration(c.id)  # loads whole
+    for s in store.sessions():
+        referenced = {rel for f in store.frames(s.id) for rel in f.images.values()}
+        images = data / "sessions" / s.id / "images"
+        on_disk = {f"sessions/{s.id}/images/{p.name}" for p in images.iterdir()} if images.is_dir() else set()
+        assert on_disk == referenced, s.id
+    assert not [p for p in data.rglob("*") if p.name.endswith(".tmp") or p.name.startswith(".s-")]
+    store.close()
