@@ -34,7 +34,9 @@ from calib_core import (
     write_atomic,
 )
 from calib_core.ballfinder import find_sphere
+from calib_core.dataset import Dataset, select_rows
 from calib_core.profile import Profile
+from calib_core.registration import register, registration_params
 from calib_core.sandal_board import detect_board
 from calib_core.session import FrameRecord, write_session
 from calib_core.units import length_factor
@@ -46,6 +48,19 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         self.print_usage(sys.stderr)
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+WHERE_HELP = "use only the rows with this value in this column (repeatable; e.g. leica_frame_group=A)"
+
+
+def _where(data: Dataset, items: list[str]) -> Dataset:
+    where = {}
+    for item in items:
+        column, sep, value = item.partition("=")
+        if not sep or not column:
+            raise InputError(f"--where {item!r} must be COLUMN=VALUE")
+        where[column.strip()] = value.strip()
+    return select_rows(data, where) if where else data
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -60,6 +75,7 @@ def _parser() -> argparse.ArgumentParser:
         help="robonaut-a: daily, full; nao: full (profiles may define more)",
     )
     s.add_argument("--data", required=True, help="the dataset CSV")
+    s.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE", help=WHERE_HELP)
     s.add_argument("--base", help="calibration JSON to start from; keeps its non-estimated parameters")
     s.add_argument("--out", required=True, help="where to write the calibration JSON")
     s.add_argument("--holdout", type=float, default=0.0, help="share of configurations held out (0..0.9)")
@@ -72,7 +88,16 @@ def _parser() -> argparse.ArgumentParser:
     pr.add_argument("--robot", required=True)
     pr.add_argument("--calibration", help="calibration JSON (default: the nominal model)")
     pr.add_argument("--data", required=True)
+    pr.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE", help=WHERE_HELP)
     pr.add_argument("--out", required=True, help="CSV: the input rows plus prediction columns")
+
+    ex = sub.add_parser("export", help="what a driver takes: the calibrated URDF or the joint offsets (YAML)")
+    ex.add_argument("--robot", required=True, help="built-in profile or a profile YAML file")
+    ex.add_argument("--calibration", required=True, help="calibration JSON (from solve)")
+    ex.add_argument(
+        "--format", required=True, choices=["urdf", "yaml"], help="urdf: corrected joint origins; yaml: offsets"
+    )
+    ex.add_argument("--out", required=True, help="the file to write")
 
     sim = sub.add_parser("simulate", help="write a dataset measured on the simulated robot")
     sim.add_argument("--robot", required=True)
@@ -105,6 +130,24 @@ def _parser() -> argparse.ArgumentParser:
     db.add_argument("--rows", required=True, type=int, help="inner corners per column (4 for the NAO sandals)")
     db.add_argument("--json", action="store_true", help="one line of JSON (default: indented JSON)")
 
+    ib = sub.add_parser(
+        "import-bag", help="a session folder from a ROS 1 or ROS 2 bag: still poses, images, detections"
+    )
+    ib.add_argument("bag", help="the ROS 1 .bag file, or the ROS 2 bag folder (or its .db3 / .mcap file)")
+    ib.add_argument("--robot", required=True, help="built-in profile (robonaut-a, nao) or a profile YAML file")
+    ib.add_argument("--out", required=True, help="the session folder to write (a new one, or an earlier session)")
+    ib.add_argument("--joint-topic", default="/joint_states", help="sensor_msgs/JointState topic (/joint_states)")
+    ib.add_argument(
+        "--image-topic",
+        action="append",
+        help="an image topic (Image or CompressedImage); twice for a stereo head, left then right "
+        "(default: the bag's only image topic; for a stereo head those naming left and right)",
+    )
+    ib.add_argument("--still-deg-s", type=float, help="still: every joint at most this fast, deg/s (default 1)")
+    ib.add_argument("--still-s", type=float, help="still for at least this long, s (default 0.5)")
+    ib.add_argument("--name", help="the session's name (default: the folder's name)")
+    ib.add_argument("--calibration", help="the calibration the robot ran with (seeds the detectors; default nominal)")
+
     sv = sub.add_parser("serve", help="start the dashboard (simulated robots, sample sessions) in a browser")
     sv.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     sv.add_argument("--port", type=int, default=8000, help="the page and the API (default 8000)")
@@ -127,9 +170,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         commands = {
             "solve": _solve,
             "predict": _predict,
+            "export": _export,
             "simulate": _simulate,
             "detect-sphere": _detect_sphere,
             "detect-board": _detect_board,
+            "import-bag": _import_bag,
             "serve": _serve,
         }
         return commands[args.command](args)
@@ -157,7 +202,7 @@ def _solve(args: argparse.Namespace) -> int:
     profile = load_profile(args.robot)
     profile.mode(args.mode)
     base = _load_calibration(args.base, profile) if args.base else None
-    data = read_dataset(profile, args.data)
+    data = _where(read_dataset(profile, args.data), args.where)
     _check_writable(args.out)
     cal = calibrate(
         profile,
@@ -180,8 +225,10 @@ def _predict(args: argparse.Namespace) -> int:
     profile = load_profile(args.robot)
     cal = _load_calibration(args.calibration, profile) if args.calibration else None
     p = cal.params(profile) if cal else profile.nominal()
-    data = read_dataset(profile, args.data)
+    data = _where(read_dataset(profile, args.data), args.where)
     _check_writable(args.out)
+    if cal is None and registration_params(profile):
+        p = register(profile, data, p)  # the nominal model, seen from where the tracker stands
     pred = Problem(profile, data, [], p, noise_model=False).predict(p)
     fmt = profile.data
     if fmt.measurement_unit != "px":
@@ -194,8 +241,21 @@ def _predict(args: argparse.Namespace) -> int:
     _save(args.out, lambda: write_atomic(Path(args.out), out.getvalue()))
     print(
         f"{len(data.rows)} rows predicted with "
-        f"{'calibration ' + args.calibration if cal else 'the nominal model'}: {args.out}"
+        f"{'calibration ' + args.calibration if cal else 'the nominal model'}"
+        f"{' (registration fitted to these rows)' if cal is None and registration_params(profile) else ''}: {args.out}"
     )
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from calib_core.export import calibrated_urdf, offsets_yaml
+
+    profile = load_profile(args.robot)
+    cal = _load_calibration(args.calibration, profile)
+    _check_writable(args.out)
+    text = calibrated_urdf(profile, cal) if args.format == "urdf" else offsets_yaml(profile, cal)
+    _save(args.out, lambda: write_atomic(Path(args.out), text))
+    print(f"{'URDF with corrected joint origins' if args.format == 'urdf' else 'joint offsets'}: {args.out}")
     return 0
 
 
@@ -314,6 +374,30 @@ def _detect_board(args: argparse.Namespace) -> int:
     return 0
 
 
+def _import_bag(args: argparse.Namespace) -> int:
+    from calib_core.bag_import import import_bag  # rosbags loads only for this subcommand
+
+    profile = load_profile(args.robot)
+    believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None
+    _check_writable(args.out, session=True)
+    start = time.perf_counter()
+    still = {k: v for k, v in (("still_deg_s", args.still_deg_s), ("still_s", args.still_s)) if v is not None}
+    made_by = shlex.join(["calib", *sys.argv[1:]]) if sys.argv[0].endswith("calib") else "calib import-bag"
+    result = import_bag(
+        args.bag,
+        profile,
+        args.out,
+        joint_topic=args.joint_topic,
+        image_topics=args.image_topic,
+        name=args.name,
+        believed=believed,
+        made_by=made_by,
+        **still,
+    )
+    print(f"{result.summary()}, in {time.perf_counter() - start:.1f} s: {args.out}")
+    return 0
+
+
 def _load_depth(path: str) -> np.ndarray:
     try:
         depth = np.load(path, allow_pickle=False)
@@ -371,10 +455,6 @@ def _save(path: str, write) -> None:
         raise InputError(f"cannot be written ({exc.strerror})", file=path) from None
 
 
-if __name__ == "__main__":
-    sys.exit(main())
-
-
 def _serve(args: argparse.Namespace) -> int:
     from .server import serve  # the web stack loads only for this subcommand
 
@@ -392,3 +472,7 @@ def _serve(args: argparse.Namespace) -> int:
         new_token=args.new_token,
     )
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 
 import numpy as np
@@ -26,12 +26,17 @@ from .dataset import Dataset
 from .errors import InputError
 from .identifiability import Dependency, find_dependencies, report, strong_correlations, weak_parameters
 from .problem import Problem
-from .profile import Mode, Profile
+from .profile import Mode, Profile, Sensor
+from .registration import register, registration_params
 from .solver import Robust, SolveResult, block_norms_sq, levenberg_marquardt, nelder_mead
+from .units import LENGTH_IN_M
 from .validation import Figures, figures, holdout_split, kfold_splits
 
 METHODS = ("lm", "nelder-mead")
 OUTLIER_QUANTILE = 0.9999
+# No robot's nominal model is this far off once the tracker's pose is fitted; rows from two tracker
+# set-ups (or the wrong arm) are.
+REGISTRATION_MISFIT_M = 0.05
 
 
 @dataclass
@@ -78,6 +83,10 @@ def calibrate(
             f"{train.n_observations} observations cannot determine the {len(m.free)} parameters of mode '{mode}'",
             file=data.source,
         )
+    m = observed_mode(profile, train, m)
+    if set(registration_params(profile)) & set(m.free):
+        # A tracker set-up of its own: "before" is the old model with only the registration fitted.
+        p_base = register(profile, train, p_base)
     fit = fit_parameters(
         profile,
         train,
@@ -118,6 +127,19 @@ def calibrate(
         solver["folds"] = folds
         solver["cv_seconds"] = cv_seconds
     return _result(profile, data, train, mode, method, fit, p_base, figs, solver, test_idx)
+
+
+def observed_mode(profile: Profile, data: Dataset, mode: Mode) -> Mode:
+    """The mode without the parameters no observation depends on: those of chains the data do not
+    use (the other arm of a two-armed robot) and the points of targets never seen."""
+    sensor = profile.sensors[profile.data.sensor]
+    targets = [profile.targets[t] for t in np.unique(data.target)]
+    frames = set(profile.chain(sensor.frame)).union(*(profile.chain(t.frame) for t in targets))
+    used = {op.param for f in frames for op in profile.frames[f].ops}
+    used |= {i for t in targets for i in (t.point_params or ())}
+    used |= set(sensor.intrinsics or ()) | set(sensor.distortion or ())
+    leaders = {t.leader for t in mode.ties if t.follower in used}
+    return replace(mode, free=tuple(i for i in mode.free if i in used or i in leaders))
 
 
 def fit_parameters(
@@ -180,14 +202,21 @@ def fit_parameters(
     else:
         res = run(problem.x0, None, initial)
         x = res.x
+        if problem.priors:
+            # A prior's sigma is meant against the residuals' actual scale (a MAP estimate), not
+            # the declared sensor noise: on a real robot the model error outweighs the noise.
+            problem.prior_scale = _robust_sigma(problem.residuals(x)[:n_rows], dim)
+            res = run(x, None)
+            x = res.x
         # Outliers show in the least-squares residuals; only then is the robust pass worth its time.
-        if robust and len(problem.free) and _outliers(problem.residuals(x)[:n_rows], dim).any():
+        limit = outlier_limit(problem.sensor, dim)
+        if robust and len(problem.free) and outliers_of(problem.residuals(x)[:n_rows], dim, limit).any():
             sigma = _robust_sigma(problem.residuals(x)[:n_rows], dim)
             problem.prior_scale = sigma
             res = run(x, Robust(dim, n_rows, sigma * np.sqrt(chi2.ppf(0.95, dim))))
             x = res.x
             r = problem.residuals(x)[:n_rows]
-            problem.included = ~_outliers(r, dim)
+            problem.included = ~outliers_of(r, dim, limit)
             problem.prior_scale = _robust_sigma(r, dim)
             res = run(x, None)
             x = res.x
@@ -275,13 +304,20 @@ def inliers(profile: Profile, data: Dataset, p: np.ndarray, sigma: float) -> np.
     problem = Problem(profile, data, [], p)
     r = problem.residuals(np.zeros(0))[: problem.n_data_rows]
     norms = np.sqrt(block_norms_sq(r, problem.dim))
-    return norms <= sigma * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, problem.dim))
+    return norms <= sigma * outlier_limit(problem.sensor, problem.dim)
 
 
-def _outliers(r: np.ndarray, dim: int) -> np.ndarray:
-    """Observations beyond the 99.99% quantile of the residuals' robust spread."""
+def outlier_limit(sensor: Sensor, dim: int) -> float:
+    """How many robust sigmas make an outlier: the sensor's declared `noise.outliers`, else the
+    99.99% quantile. A detector fails now and then (a misread corner); a laser tracker does not, and
+    the heavy tail of a real robot's model error is not an outlier, so its profile sets a wide limit."""
+    return float(sensor.noise.get("outliers", np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dim))))
+
+
+def outliers_of(r: np.ndarray, dim: int, limit: float) -> np.ndarray:
+    """Observations beyond `limit` times the residuals' robust spread."""
     norms = np.sqrt(block_norms_sq(r, dim))
-    return norms > _robust_sigma(r, dim) * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dim))
+    return norms > _robust_sigma(r, dim) * limit
 
 
 def _robust_sigma(r: np.ndarray, dim: int) -> float:
@@ -361,7 +397,7 @@ def _result(
         for k in np.flatnonzero(~problem.included)
     ]
     warnings = [d.describe(profile) for d in fit.dependencies]
-    warnings += weak_parameters(profile, rep, problem.free)
+    warnings += weak_parameters(profile, rep, problem.free, frozenset(registration_params(profile)))
     if outliers:
         frames = sorted({o.frame for o in outliers})
         shown = ", ".join(str(f) for f in frames[:10]) + (" ..." if len(frames) > 10 else "")
@@ -373,6 +409,12 @@ def _result(
             f"held-out RMS {figs['holdout_after'].rms:.3g} {unit} is much worse than training RMS "
             f"{figs['after'].rms:.3g} {unit}: the calibration may not generalise "
             "(too few or too similar configurations)"
+        )
+    misfit = REGISTRATION_MISFIT_M / LENGTH_IN_M[profile.length_unit]
+    if set(registration_params(profile)) & set(problem.free) and figs["before"].rms > misfit:
+        warnings.append(
+            f"with only the registration fitted the model is {figs['before'].rms:.3g} {unit} RMS off: are these rows "
+            "from one tracker set-up and the arm the data say? Calibrate each set-up on its own (calib solve --where)"
         )
     if figs["after"].rms > figs["before"].rms:
         warnings.append("the calibration fits the data worse than its starting point")

@@ -1,7 +1,8 @@
 """Datasets: configurations (joint readings) and what the sensor measured in each, read from and
 written to the CSV formats of a profile's `data` section (specs/robonaut-a.md, specs/nao.md).
 
-One CSV row is one observation. Rows with the same frame id share one configuration. Every problem
+One CSV row is one observation. Rows with the same frame id share one configuration; a format
+without a frame column (the Motoman tracker files) makes every row a configuration of its own. Every problem
 with a file is reported as an InputError naming the file, the line and the column.
 """
 
@@ -101,9 +102,12 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     header_line, header = lines[0]
     header = [h.strip() for h in header]
     col = {h: i for i, h in enumerate(header)}
-    required = [fmt.frame_column, *fmt.measurement_columns, *fmt.joint_columns.values()]
-    if fmt.target_column:
-        required.append(fmt.target_column)
+    required = [*fmt.measurement_columns, *fmt.joint_columns.values()]
+    if fmt.frame_column:
+        required.append(fmt.frame_column)
+    target_column = fmt.target_column if fmt.target_column in col or fmt.target_default is None else None
+    if target_column:
+        required.append(target_column)
     if fmt.point_columns:
         required += list(fmt.point_columns)
     if fmt.vertex_column:
@@ -142,19 +146,22 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
                 raise InputError(f"'{s}' is implausibly large (beyond {MAX_MAGNITUDE:g})", file=name, line=ln, column=c)
             return v
 
-        f = number(fmt.frame_column)
-        if f != int(f):
-            raise InputError(f"frame id {f} is not an integer", file=name, line=ln, column=fmt.frame_column)
-        fid = int(f)
-        if fmt.target_column:
-            tv = row[col[fmt.target_column]].strip()
+        if fmt.frame_column:
+            f = number(fmt.frame_column)
+            if f != int(f):
+                raise InputError(f"frame id {f} is not an integer", file=name, line=ln, column=fmt.frame_column)
+            fid = int(f)
+        else:
+            fid = len(measured) + 1
+        if target_column:
+            tv = row[col[target_column]].strip()
             if tv not in fmt.target_values:
                 known = ", ".join(fmt.target_values)
-                raise InputError(f"'{tv}' is not one of {known}", file=name, line=ln, column=fmt.target_column)
+                raise InputError(f"'{tv}' is not one of {known}", file=name, line=ln, column=target_column)
             ti = fmt.target_values[tv]
         else:
-            assert fmt.target is not None
-            ti = fmt.target
+            ti = fmt.target if fmt.target is not None else fmt.target_default
+            assert ti is not None
         q = np.full(n_joints, np.nan)
         for jname, c in fmt.joint_columns.items():
             j = profile.joint(jname)
@@ -177,11 +184,9 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
             joints_rows.append(q)
         if fmt.point_columns:
             point.append([number(c) * point_factor for c in fmt.point_columns])
-        else:
-            point.append([np.nan] * 3)
         if fmt.vertex_column:
             v = number(fmt.vertex_column)
-            grid = profile.targets[ti].grid
+            grid = profile.targets[ti].grid if profile.targets[ti].points is None else profile.targets[ti].points
             if v != int(v) or v < 0 or (grid is not None and v >= len(grid)):
                 raise InputError(
                     f"vertex {row[col[fmt.vertex_column]].strip()} is not a vertex id",
@@ -192,6 +197,9 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
             vertex.append(int(v))
         else:
             vertex.append(-1)
+        if not fmt.point_columns:
+            fixed = profile.targets[ti].points
+            point.append([np.nan] * 3 if fixed is None else fixed[max(vertex[-1], 0)])
         measured.append([number(c) * meas_factor for c in fmt.measurement_columns])
         cfg.append(frame_index[fid])
         target.append(ti)
@@ -214,6 +222,36 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     )
 
 
+def select_rows(data: Dataset, where: dict[str, str]) -> Dataset:
+    """The observations whose CSV row has every given column equal to the given value (one tracker
+    set-up of a file that holds several, one arm, one source file)."""
+    col = {h: i for i, h in enumerate(data.header)}
+    for c in where:
+        if c not in col:
+            raise InputError(f"no column '{c}' to select rows by", file=data.source, column=c)
+    keep = np.array([all(row[col[c]].strip() == v for c, v in where.items()) for row in data.rows], bool)
+    if not keep.any():
+        said = ", ".join(f"{c}={v}" for c, v in where.items())
+        raise InputError(f"no row has {said}", file=data.source)
+    return data.select(np.unique(data.cfg[keep])) if keep.all() else _select_observations(data, keep)
+
+
+def _select_observations(data: Dataset, keep: np.ndarray) -> Dataset:
+    cfgs = np.unique(data.cfg[keep])
+    out = data.select(cfgs)
+    inner = keep[np.isin(data.cfg, cfgs)]
+    return replace(
+        out,
+        cfg=out.cfg[inner],
+        target=out.target[inner],
+        point=out.point[inner],
+        vertex=out.vertex[inner],
+        measured=out.measured[inner],
+        lines=None if out.lines is None else out.lines[inner],
+        rows=[r for r, k in zip(out.rows, inner, strict=True) if k],
+    )
+
+
 def joints_needed(profile: Profile) -> dict[int, set[int]]:
     """For each target, the joints on the chains from the base to it and to the data's sensor."""
     sensor_frame = profile.sensors[profile.data.sensor].frame
@@ -229,7 +267,7 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
     fmt = profile.data
     joint_factor = ANGLE_IN_RAD[fmt.joint_unit]
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(profile.length_unit, fmt.measurement_unit)
-    header = [fmt.frame_column]
+    header = [fmt.frame_column] if fmt.frame_column else []
     if fmt.target_column:
         header.append(fmt.target_column)
     if fmt.vertex_column:
@@ -246,7 +284,7 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
     w.writerow(header)
     for m in range(data.n_observations):
         c = data.cfg[m]
-        row: list[object] = [int(data.frame_ids[c])]
+        row: list[object] = [int(data.frame_ids[c])] if fmt.frame_column else []
         if fmt.target_column:
             row.append(tnames[int(data.target[m])])
         if fmt.vertex_column:

@@ -15,9 +15,10 @@ import numpy as np
 from .profile import Profile
 
 # A unit column whose part outside the span of the kept columns is shorter than this is a
-# combination of them (exact structural dependence shows up near 1e-12, weak but real dependence
-# far above it).
-DEPENDENCE_TOLERANCE = 1e-7
+# combination of them: exact structural dependence shows up near 1e-12; on a real robot, readings
+# that barely move (the Motoman's E axis, jittering by 0.01 deg) leave a remainder near 1e-5, which
+# no data can turn into an estimate (its standard deviation would be inflated 10^4 times).
+DEPENDENCE_TOLERANCE = 1e-4
 CORRELATION_LISTED = 0.9  # pairs listed in the report
 INFLATION_WARNING = 20.0  # sd inflated this much by the others (VIF 400): warned about
 
@@ -160,16 +161,19 @@ def strong_correlations(profile: Profile, corr: np.ndarray, free: list[int]) -> 
     return sorted(out, key=lambda t: -abs(t[2]))
 
 
-def weak_parameters(profile: Profile, rep: Report, free: list[int]) -> list[str]:
+def weak_parameters(
+    profile: Profile, rep: Report, free: list[int], nuisance: frozenset[int] = frozenset()
+) -> list[str]:
     """One warning per group of parameters the data determine only in combination.
 
     A parameter is weak when the others mimic more than 99.75% of its effect (its standard
     deviation is at least INFLATION_WARNING times what it would be alone); weak parameters that
-    trade off against each other (|correlation| >= 0.8) form one group.
+    trade off against each other (|correlation| >= 0.8) form one group. `nuisance` parameters (a
+    tracker's registration, which nobody applies to the robot) are not warned about.
     """
     if rep.inflation is None or rep.correlation is None:
         return []
-    weak = [k for k in np.argsort(-rep.inflation) if rep.inflation[k] >= INFLATION_WARNING]
+    weak = [k for k in np.argsort(-rep.inflation) if rep.inflation[k] >= INFLATION_WARNING and free[k] not in nuisance]
     group = {k: k for k in weak}
 
     def root(k: int) -> int:

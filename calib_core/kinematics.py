@@ -163,10 +163,13 @@ def op_signs(profile: Profile, target_frame: int, sensor_frame: int) -> dict[int
 
 
 def target_points(profile: Profile, p: np.ndarray, target: int) -> np.ndarray:
-    """The points (K, 3) of a target in its frame: a board's grid, or the calibrated point."""
+    """The points (K, 3) of a target in its frame: a board's grid, fixed points (markers, the frame's
+    origin) or the calibrated point."""
     t = profile.targets[target]
     if t.grid is not None:
         return t.grid
+    if t.points is not None:
+        return t.points
     assert t.point_params is not None
     return p[list(t.point_params)][None]
 

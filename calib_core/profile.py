@@ -9,10 +9,13 @@ Modified DH, standard DH and URDF-style joints are sugar for such op lists:
     dh:   Rot_z(offset + q) Trans_z(d) Trans_x(a) Rot_x(alpha)           (distal; Motoman)
     urdf: Trans(x, y, z) Rot_z(yaw) Rot_y(pitch) Rot_x(roll) Rot_axis(offset + q)   (NAO)
     ops:  any list such as [{ry: 0, param: CamPitch}, {tx: 0, param: LTransX}]
+    registration: true   Trans(x, y, z) Rot_z(yaw) Rot_y(pitch) Rot_x(roll): the unknown pose of an
+          external measuring device (a laser tracker), estimated with every calibration (Motoman)
 
 Parameters are named `<frame>.<field>` (`shoulder_roll.theta`) unless the frame renames them
 (`names: {offset: LHipYawPitch}`) or an op names its own (`param: CamPitch`). Targets (points on the
-robot the sensors see), sensors (a 3-D point sensor or a pinhole camera), the CSV data format and the
+robot the sensors see: a calibrated point, a checkerboard grid, a list of fixed marker points, or
+the frame's origin), sensors (a 3-D point sensor or a pinhole camera), the CSV data format and the
 calibration modes (free parameters, ties, priors) complete the profile. Joints shared by several
 chains, several sensors and targets need nothing special: they are frames of the one tree.
 """
@@ -32,7 +35,7 @@ import yaml
 from .errors import InputError
 from .units import ANGLE_IN_RAD, LENGTH_IN_M
 
-BUILTIN_PROFILES = ("robonaut-a", "nao")
+BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
 
 AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -63,6 +66,7 @@ class Frame:
     parent: int  # -1: the base frame
     ops: tuple[Op, ...]
     joint: int  # the joint that drives this frame, or -1
+    registration: bool = False  # the pose of an external device, first estimated from the data
 
 
 @dataclass(frozen=True)
@@ -84,6 +88,7 @@ class Target:
     grid: np.ndarray | None  # (K, 3) fixed points in the target frame (a checkerboard's vertices)
     grid_shape: tuple[int, int] | None  # (rows, cols)
     radius: float | None  # a sphere's radius, profile length unit
+    points: np.ndarray | None = None  # (K, 3) fixed points (markers; the origin), picked by vertex id
 
 
 @dataclass(frozen=True)
@@ -123,7 +128,7 @@ class Mode:
 class DataFormat:
     """How a CSV row maps to an observation (specs/robonaut-a.md, specs/nao.md)."""
 
-    frame_column: str
+    frame_column: str | None  # None: every row is a configuration of its own
     joint_columns: dict[str, str]  # joint name -> column
     joint_unit: str
     sensor: int
@@ -136,6 +141,7 @@ class DataFormat:
     measurement_columns: tuple[str, ...]
     measurement_unit: str
     prediction_columns: tuple[str, ...]
+    target_default: int | None = None  # the target of rows when the target column is absent
 
 
 @dataclass
@@ -292,6 +298,10 @@ def load_profile(name_or_path: str | Path) -> Profile:
     if not isinstance(doc, dict):
         raise InputError("a robot profile must be a YAML mapping", file=source)
     try:
+        if "urdf" in doc:  # frames, joints and default modes from a URDF file (calib_core.urdf_import)
+            from .urdf_import import compile_urdf_profile
+
+            return compile_urdf_profile(doc, source, lambda d: _Compiler(d, source).compile())
         return _Compiler(doc, source).compile()
     except InputError:
         raise
@@ -447,18 +457,25 @@ class _Compiler:
             renames = spec.get("names", {}) or {}
             ops = self.compile_ops(spec, fname, joint, renames, where)
             names[fname] = len(frames)
-            frames.append(Frame(fname, parent, tuple(ops), joint))
+            frames.append(Frame(fname, parent, tuple(ops), joint, bool(spec.get("registration", False))))
         return frames
 
     def compile_ops(self, spec: dict, fname: str, joint: int, renames: dict, where: str) -> list[Op]:
-        kinds = [k for k in ("mdh", "dh", "urdf", "ops") if k in spec]
+        kinds = [k for k in ("mdh", "dh", "urdf", "ops", "registration") if k in spec]
         if len(kinds) != 1:
-            raise self.fail(where, "needs exactly one of mdh, dh, urdf, ops")
+            raise self.fail(where, "needs exactly one of mdh, dh, urdf, ops, registration")
         kind = kinds[0]
         body = spec[kind]
         steps: list[tuple[str, np.ndarray, str, float, bool]] = []  # (t|r, vector, field, value, jointed)
         e = np.eye(3)
-        if kind in ("mdh", "dh"):
+        if kind == "registration":
+            if body is not True:
+                raise self.fail(f"{where}.registration", "must be true")
+            if joint >= 0:
+                raise self.fail(where, "a registration frame cannot be driven by a joint")
+            steps = [("t", e[k], "xyz"[k], 0.0, False) for k in range(3)]
+            steps += [("r", e[2], "yaw", 0.0, False), ("r", e[1], "pitch", 0.0, False), ("r", e[0], "roll", 0.0, False)]
+        elif kind in ("mdh", "dh"):
             vals = {
                 k: self.number(self.get(body, k, f"{where}.{kind}", 0.0), f"{where}.{kind}.{k}")
                 for k in ("a", "alpha", "d")
@@ -530,6 +547,16 @@ class _Compiler:
         point_params = None
         grid = None
         shape = None
+        points = None
+        if sum(k in spec for k in ("point", "grid", "points")) > 1:
+            raise self.fail(where, "needs at most one of point, grid, points")
+        if "points" in spec:
+            pts = spec["points"]
+            if not isinstance(pts, list) or not pts:
+                raise self.fail(f"{where}.points", "expected a list of [x, y, z]")
+            points = np.array([self.vector(v, f"{where}.points[{k}]") for k, v in enumerate(pts)])
+        elif "point" not in spec and "grid" not in spec:
+            points = np.zeros((1, 3))  # the frame's origin (a reflector at the end of a DH row)
         if "point" in spec:
             point_params = self.add_params(tname, "length", spec["point"], ("x", "y", "z"), f"{where}.point")
         if "grid" in spec:
@@ -556,6 +583,7 @@ class _Compiler:
             grid,
             shape,
             None if radius is None else self.number(radius, f"{where}.radius"),
+            points,
         )
 
     def compile_sensor(self, spec: dict, where: str) -> Sensor:
@@ -635,10 +663,13 @@ class _Compiler:
             tvalues[str(k)] = self.target_index[v]
         if target is None and not spec.get("target_column"):
             raise self.fail(where, "needs a target or a target_column")
+        default = spec.get("target_default")
+        if default is not None and str(default) not in tvalues:
+            raise self.fail(f"{where}.target_default", f"'{default}' is not one of the targets' values")
         meas = self.get(spec, "measurement", where)
         point = spec.get("point")
         return DataFormat(
-            frame_column=str(spec.get("frame_column", "frame")),
+            frame_column=None if spec.get("frame_column", "frame") is None else str(spec.get("frame_column", "frame")),
             joint_columns=jcols,
             joint_unit=str(spec.get("joint_unit", "deg")),
             sensor=self.sensor_index[sensor],
@@ -651,6 +682,7 @@ class _Compiler:
             measurement_columns=tuple(self.get(meas, "columns", f"{where}.measurement")),
             measurement_unit=str(meas.get("unit", self.length_unit)),
             prediction_columns=tuple(self.get(spec, "prediction_columns", where)),
+            target_default=None if default is None else tvalues[str(default)],
         )
 
     def compile_mode(self, name: str, spec: dict, where: str) -> Mode:
@@ -682,9 +714,10 @@ class _Compiler:
         free = list(dict.fromkeys(i for i in free if i not in followers))
         priors = {}
         for pname, sigma in (spec.get("priors") or {}).items():
-            if pname not in self.index:
-                raise self.fail(f"{where}.priors", f"unknown parameter '{pname}'")
-            i = self.index[pname]
+            hits = [n for n in names if fnmatch.fnmatchcase(n, str(pname))]
+            if not hits:
+                raise self.fail(f"{where}.priors", f"'{pname}' matches no parameter")
             s = self.number(sigma, f"{where}.priors.{pname}")
-            priors[i] = s * (self.to_rad if self.params[i].kind == "angle" else 1.0)
+            for i in (self.index[h] for h in hits):
+                priors[i] = s * (self.to_rad if self.params[i].kind == "angle" else 1.0)
         return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors)

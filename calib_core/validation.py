@@ -30,7 +30,8 @@ class Figures:
         return asdict(self)
 
     def __str__(self) -> str:
-        out = f"mean {self.mean:.3f} {self.unit}, RMS {self.rms:.3f}, max {self.max:.3f} (n={self.n}"
+        scale, unit = (1000.0, "mm") if self.unit == "m" else (1.0, self.unit)  # a metre profile reads in mm
+        out = f"mean {self.mean * scale:.3f} {unit}, RMS {self.rms * scale:.3f}, max {self.max * scale:.3f} (n={self.n}"
         return out + (f", {self.excluded} outliers left out)" if self.excluded else ")")
 
 
@@ -56,10 +57,31 @@ def figures(pred: np.ndarray, measured: np.ndarray, unit: str, keep: np.ndarray 
     )
 
 
-def configuration_groups(data: Dataset, decimals: int = 4) -> np.ndarray:
-    """A group id per configuration; configurations with equal readings (to 1e-4 rad) share one."""
-    key = np.round(np.nan_to_num(data.joints), decimals)
-    _, groups = np.unique(key, axis=0, return_inverse=True)
+REPEAT_TOLERANCE_RAD = 0.01  # readings this close on every joint: the same commanded configuration
+
+
+def configuration_groups(data: Dataset, tolerance_rad: float = REPEAT_TOLERANCE_RAD) -> np.ndarray:
+    """A group id per configuration: repeats of one configuration (every joint reading within
+    `tolerance_rad`, transitively) share one, so a held-out set never has a twin in training."""
+    q = np.nan_to_num(data.joints)
+    n = len(q)
+    parent = np.arange(n)
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for start in range(0, n, 256):  # blocks of rows keep the pairwise table small
+        block = q[start : start + 256]
+        near = np.max(np.abs(block[:, None, :] - q[None, :, :]), axis=2) <= tolerance_rad
+        for a, b in zip(*np.nonzero(near), strict=True):
+            ra, rb = root(start + int(a)), root(int(b))
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+    roots = np.array([root(i) for i in range(n)])
+    _, groups = np.unique(roots, return_inverse=True)
     return groups.ravel()
 
 

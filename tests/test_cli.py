@@ -565,6 +565,8 @@ HELP_PARAMS = [
     pytest.param(("detect-sphere",), id="detect-sphere"),
     pytest.param(("detect-board",), id="detect-board"),
     pytest.param(("serve",), id="serve"),
+    pytest.param(("import-bag",), id="import-bag"),
+    pytest.param(("export",), id="export"),
 ]
 
 
@@ -584,12 +586,14 @@ def test_every_subcommand_answers_help(sub: tuple[str, ...], help_runs: dict) ->
     assert "usage:" in proc.stdout
     assert "Traceback" not in proc.stderr
     options: dict[str, list[str]] = {
-        "solve": ["--robot", "--mode", "--data", "--base", "--out"],
-        "predict": ["--robot", "--calibration", "--data", "--out"],
+        "solve": ["--robot", "--mode", "--data", "--base", "--out", "--where"],
+        "predict": ["--robot", "--calibration", "--data", "--out", "--where"],
         "simulate": ["--robot", "--out"],
         "detect-sphere": ["--depth", "--fx", "--fy", "--cx", "--cy", "--radius", "--seed", "--json"],
         "detect-board": ["--image", "--cols", "--rows", "--json"],
         "serve": ["--host", "--port", "--data-dir"],
+        "import-bag": ["--robot", "--out", "--joint-topic", "--image-topic", "--still-deg-s", "--still-s"],
+        "export": ["--robot", "--calibration", "--format", "--out"],
     }
     for opt in options.get(sub[0] if sub else "", ["solve", "predict", "simulate"]):
         assert opt in proc.stdout, (opt, proc.stdout)

@@ -1,0 +1,170 @@
+"""Real data: the CTU Motoman laser-tracker and camera sets (../shared/datasets/motoman).
+
+1. Held-out error of `calib solve --robot motoman` on the tracker data: 10 random 70/30 splits
+   (repeats of a configuration on one side), each subset (one tracker set-up, one arm), modes
+   registration (the "before": nominal model, registration fitted), offsets and full, next to the
+   plain least-squares figures of the data set's README; and how far the parameters moved.
+2. Self-observation: calibrate from the camera pixels alone (mode `cameras`), then judge the result
+   with the tracker it never saw (only the registration fitted; and, since no camera sees the
+   reflector, the registration plus the reflector's row), next to the tracker-trained calibration.
+3. Identifiability on real data: free S, T and the torso row as well, and name what the data cannot
+   separate.
+
+    python benchmarks/motoman.py [--data ../shared/datasets/motoman] [--splits 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calib_core import calibrate, load_profile
+from calib_core.calibrate import observed_mode
+from calib_core.ctu_motoman import LEICA_SUBSETS, camera_datasets, camera_profile, leica_subset
+from calib_core.dataset import Dataset
+from calib_core.identifiability import find_dependencies
+from calib_core.problem import Problem
+from calib_core.profile import Profile
+from calib_core.registration import register
+from calib_core.self_observation import calibrate_sensors
+from calib_core.solver import levenberg_marquardt
+from calib_core.validation import holdout_split
+
+# The data set README's held-out figures (mm): M0, M1, M2 as mean / RMS / max, and M2r RMS.
+README = {
+    "aug2019-right": ((2.58, 3.03, 9.7), (2.28, 2.63, 8.1), (2.16, 2.52, 7.5), 2.52),
+    "feb2019-A-right": ((6.14, 6.54, 10.8), (0.53, 0.58, 1.20), (0.36, 0.42, 0.93), 0.41),
+    "feb2019-left-cube": ((0.35, 0.38, 0.74), (0.10, 0.11, 0.26), (0.072, 0.077, 0.15), 0.077),
+    "feb2019-B-right-cube": ((0.32, 0.34, 0.58), (0.11, 0.13, 0.31), (0.068, 0.073, 0.14), 0.077),
+}
+MODES = {"registration": 0, "offsets": 1, "full": 2}
+
+
+def errors_mm(profile: Profile, data: Dataset, p: np.ndarray) -> np.ndarray:
+    return 1000.0 * np.linalg.norm(Problem(profile, data, [], p).predict(p) - data.measured, axis=1)
+
+
+def stats(e: np.ndarray) -> tuple[float, float, float]:
+    return float(e.mean()), float(np.sqrt(np.mean(e**2))), float(e.max())
+
+
+def moved(profile: Profile, p: np.ndarray) -> tuple[float, float]:
+    """Largest change from nominal of the robot's own parameters (not the registration): mm, deg."""
+    nominal = profile.nominal()
+    length, angle = 0.0, 0.0
+    for i, prm in enumerate(profile.parameters):
+        if prm.name.startswith("tracker."):
+            continue
+        d = abs(p[i] - nominal[i])
+        if prm.kind == "length":
+            length = max(length, 1000.0 * d)
+        elif prm.kind == "angle":
+            angle = max(angle, math.degrees(d))
+    return length, angle
+
+
+def tracker_holdout(profile: Profile, folder: Path, splits: int) -> None:
+    print(f"## 1. Tracker data, held-out error over {splits} random 70/30 splits (mm, mean ± std over splits)\n")
+    print("| subset (poses) | mode | mean | RMS | max | README mean / RMS / max | largest change | solve |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in LEICA_SUBSETS:
+        data = leica_subset(profile, folder, name)
+        for mode, k in MODES.items():
+            rows, changes, seconds = [], [], []
+            for seed in range(splits):
+                start = time.perf_counter()
+                cal = calibrate(profile, data, mode, holdout=0.3, seed=seed)
+                seconds.append(time.perf_counter() - start)
+                _, test = holdout_split(data, 0.3, seed)
+                p = cal.params(profile)
+                rows.append(stats(errors_mm(profile, data.select(test), p)))
+                changes.append(moved(profile, p))
+            r = np.array(rows)
+            ref = README[name][k]
+            cell = " | ".join(f"{m:.3f} ± {s:.3f}" for m, s in zip(r.mean(0), r.std(0), strict=True))
+            ch = np.max(np.array(changes), axis=0)
+            change = "-" if mode == "registration" else f"{ch[0]:.1f} mm, {ch[1]:.2f}°"
+            print(
+                f"| {name} ({data.n_observations}) | {mode} | {cell} | {ref[0]} / {ref[1]} / {ref[2]} | "
+                f"{change} | {1000 * np.median(seconds):.0f} ms |"
+            )
+    print("\nREADME M2r (with a weak prior) RMS: " + ", ".join(f"{n} {v[3]}" for n, v in README.items()))
+
+
+def self_observation(profile: Profile, folder: Path) -> None:
+    print("\n## 2. Self-observation: calibrated from the camera pixels alone, judged by the tracker\n")
+    cams = camera_datasets(profile, folder)
+    parts = {name: (camera_profile(profile, name), data) for name, data in cams.items()}
+    start = time.perf_counter()
+    fit = calibrate_sensors(parts, profile.mode("cameras"), profile.nominal())
+    seconds = time.perf_counter() - start
+    for name, (_, data) in parts.items():
+        print(
+            f"- {name}: {data.n_observations} face centres in {data.n_configurations} poses; "
+            f"before {fit.before[name]}; after {fit.after[name]}"
+        )
+    held = ", ".join(profile.parameters[i].name for i in fit.held) or "none"
+    print(f"- {len(fit.free)} parameters in {seconds:.1f} s ({fit.result.iterations} iterations); held: {held}")
+    names = profile.parameter_names
+    intrinsics = [f"camera{c}.{k}" for c in (1, 2) for k in ("fx", "fy", "cx", "cy")]
+    print(
+        "- intrinsics (px), nominal -> fitted: "
+        + ", ".join(f"{n} {profile.nominal()[names.index(n)]:.0f} -> {fit.p[names.index(n)]:.0f}" for n in intrinsics)
+    )
+    registration = list(profile.mode("registration").free)
+    print("\n| subset | model | registration only: mean / RMS / max | registration + reflector row |")
+    print("|---|---|---|---|")
+    for name in ("feb2019-A-right", "feb2019-left-cube", "feb2019-B-right-cube"):
+        data = leica_subset(profile, folder, name)
+        for label, p in (("nominal", profile.nominal()), ("cameras", fit.p)):
+            q = register(profile, data, p)
+            only = stats(errors_mm(profile, data, q))
+            arm = data.target[0] + 1  # LR1 or LR2
+            reflector = [names.index(f"LR{arm}.{k}") for k in ("a", "d", "offset")]
+            problem = Problem(profile, data, registration + reflector, q)
+            q2 = problem.params(levenberg_marquardt(problem.residuals_jacobian, problem.x0).x)
+            both = stats(errors_mm(profile, data, q2))
+            print(f"| {name} | {label} | {_fmt(only)} | {_fmt(both)} |")
+        for mode in ("offsets", "full"):
+            p = calibrate(profile, data, mode).params(profile)
+            print(f"| {name} | tracker-trained {mode} (in-sample) | {_fmt(stats(errors_mm(profile, data, p)))} | - |")
+
+
+def identifiability(profile: Profile, folder: Path) -> None:
+    print("\n## 3. Identifiability on real data: mode `full` plus S, T and the torso row freed\n")
+    names = profile.parameter_names
+    for name in ("aug2019-right", "feb2019-A-right", "feb2019-left-cube"):
+        data = leica_subset(profile, folder, name)
+        arm = "2" if "left" in name else "1"
+        extra = [i for i, n in enumerate(names) if n.split(".")[0] in (f"TT{arm}", f"S{arm}", f"T{arm}")]
+        free = list(observed_mode(profile, data, profile.mode("full")).free) + extra
+        p0 = register(profile, data, profile.nominal())
+        problem = Problem(profile, data, free, p0)
+        J = problem.residuals_jacobian(problem.x0)[1][: problem.n_data_rows]
+        deps = find_dependencies(profile, J, free)
+        print(f"- {name}: {len(free)} parameters, {len(deps)} the data cannot separate from the others:")
+        for d in deps:
+            print(f"  - {d.describe(profile)}")
+
+
+def _fmt(s: tuple[float, float, float]) -> str:
+    return f"{s[0]:.2f} / {s[1]:.2f} / {s[2]:.2f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared/datasets/motoman")
+    ap.add_argument("--splits", type=int, default=10)
+    args = ap.parse_args()
+    profile = load_profile("motoman")
+    tracker_holdout(profile, args.data, args.splits)
+    self_observation(profile, args.data)
+    identifiability(profile, args.data)
+
+
+if __name__ == "__main__":
+    main()
