@@ -142,6 +142,13 @@ def observed_mode(profile: Profile, data: Dataset, mode: Mode) -> Mode:
     return replace(mode, free=tuple(i for i in mode.free if i in used or i in leaders))
 
 
+def box(profile: Profile, mode: Mode, free: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """The mode's bounds on the free parameters: nominal -/+ the largest change it allows."""
+    nominal = profile.nominal()
+    reach = np.array([mode.bounds.get(i, np.inf) for i in free])
+    return nominal[free] - reach, nominal[free] + reach
+
+
 def fit_parameters(
     profile: Profile,
     data: Dataset,
@@ -164,6 +171,7 @@ def fit_parameters(
         initial = None
     dim = problem.dim
     n_rows = problem.n_data_rows
+    lower, upper = box(profile, mode, problem.free)
     iterations = 0
     evaluations = 0
     history: list[float] = []
@@ -184,6 +192,8 @@ def fit_parameters(
             ftol=1e-6 if loss else 1e-10,
             progress=tick,
             should_stop=should_stop,
+            lower=lower,
+            upper=upper,
         )
         iterations += res.iterations
         evaluations += res.evaluations
@@ -402,6 +412,16 @@ def _result(
         frames = sorted({o.frame for o in outliers})
         shown = ", ".join(str(f) for f in frames[:10]) + (" ..." if len(frames) > 10 else "")
         warnings.append(f"{len(outliers)} observations rejected as outliers (frames {shown})")
+    bounded = [
+        profile.label(i)
+        for i in problem.free
+        if i in profile.mode(mode).bounds and abs(fit.p[i] - nominal[i]) >= profile.mode(mode).bounds[i] * (1 - 1e-9)
+    ]
+    if bounded:
+        warnings.append(
+            f"{', '.join(bounded)} stopped at the bound the profile allows: the data push further than a "
+            "physical error would (a wrong nominal value, or data from another set-up?)"
+        )
     if method == "lm" and solver["status"] == "maximum iterations reached":
         warnings.append("the solver stopped at its iteration limit: the result may not be converged")
     if "holdout_after" in figs and figs["holdout_after"].rms > 1.5 * figs["after"].rms:

@@ -192,6 +192,8 @@ class Problem:
         local = self.data.point[g.obs]
         if target.point_params is not None:
             local = np.broadcast_to(p[list(target.point_params)], local.shape)
+        elif target.points is not None:  # fixed points (markers, the frame's origin) by vertex id
+            local = target.points[np.maximum(self.data.vertex[g.obs], 0)]
         Rt = poses.R[target.frame][cfg]
         P = (Rt @ local[:, :, None])[:, :, 0] + poses.t[target.frame][cfg]
         Rs = poses.R[self.sensor.frame][cfg]

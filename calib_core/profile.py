@@ -122,6 +122,7 @@ class Mode:
     free: tuple[int, ...]  # estimated parameters, leaders only (followers come through ties)
     ties: tuple[Tie, ...]
     priors: dict[int, float]  # parameter index -> standard deviation (internal units)
+    bounds: dict[int, float] = field(default_factory=dict)  # index -> largest |change| from nominal
 
 
 @dataclass(frozen=True)
@@ -712,12 +713,20 @@ class _Compiler:
             ties.append(Tie(self.index[f], self.index[lead], self.number(t.get("sign", 1), f"{w}.sign")))
         followers = {t.follower for t in ties}
         free = list(dict.fromkeys(i for i in free if i not in followers))
-        priors = {}
-        for pname, sigma in (spec.get("priors") or {}).items():
+        priors = self.per_parameter(spec, "priors", names, where)
+        bounds = self.per_parameter(spec, "bounds", names, where)
+        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds)
+
+    def per_parameter(self, spec: dict, key: str, names: list[str], where: str) -> dict[int, float]:
+        """{name or glob pattern: positive number in the profile's units} -> {index: internal units}."""
+        out = {}
+        for pname, value in (spec.get(key) or {}).items():
             hits = [n for n in names if fnmatch.fnmatchcase(n, str(pname))]
             if not hits:
-                raise self.fail(f"{where}.priors", f"'{pname}' matches no parameter")
-            s = self.number(sigma, f"{where}.priors.{pname}")
+                raise self.fail(f"{where}.{key}", f"'{pname}' matches no parameter")
+            v = self.number(value, f"{where}.{key}.{pname}")
+            if v <= 0:
+                raise self.fail(f"{where}.{key}.{pname}", f"must be positive, got {v}")
             for i in (self.index[h] for h in hits):
-                priors[i] = s * (self.to_rad if self.params[i].kind == "angle" else 1.0)
-        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors)
+                out[i] = v * (self.to_rad if self.params[i].kind == "angle" else 1.0)
+        return out

@@ -21,7 +21,7 @@ import numpy as np
 
 from .dataset import Dataset
 from .errors import InputError
-from .kinematics import sensor_points
+from .kinematics import forward, sensor_points, target_points
 from .measurement import optical_rotation, predict, project_to_image
 from .profile import Profile
 from .sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, render_board_image
@@ -81,6 +81,7 @@ class SimulatedRobot:
     quantise: bool = True  # round readings to each joint's encoder resolution (profile)
     margin: float = 10.0  # px kept clear of the image border
     seed: int = 0
+    point_noise: float = 0.0  # profile length unit per axis: a point sensor without a camera (a laser tracker)
     rng: np.random.Generator = field(init=False)
 
     def __post_init__(self) -> None:
@@ -96,6 +97,7 @@ class SimulatedRobot:
             pixel_noise=float(noise.get("pixel", 0.0)),
             disparity_noise=float(noise.get("disparity", 0.0)),
             seed=seed,
+            point_noise=float(noise.get("point", 0.0)),
         )
 
     def drifted(self, seed: int) -> SimulatedRobot:
@@ -115,6 +117,7 @@ class SimulatedRobot:
             self.quantise,
             self.margin,
             seed,
+            self.point_noise,
         )
 
     # --- configurations ---------------------------------------------------------------------------
@@ -182,12 +185,22 @@ class SimulatedRobot:
     def _aim(self, q: np.ndarray, joint: int, target: int) -> np.ndarray:
         """For each configuration (row of q), the angle of `joint` that puts the target's centre in the
         image's centre column."""
-        lo, hi = self.profile.joint_limits()
+        prof, p = self.profile, self.true_params
+        lo, hi = prof.joint_limits()
         candidates = np.linspace(max(lo[joint], -1.2), min(hi[joint], 1.2), 121)
         qs = np.repeat(q, len(candidates), axis=0)
         qs[:, joint] = np.tile(candidates, len(q))
-        x = self._sensor_points(qs, np.full(len(qs), target), self.true_params, center_only=True)
-        sensor = self.profile.sensors[self.profile.data.sensor]
+        sensor = prof.sensors[prof.data.sensor]
+        tf = prof.targets[target].frame
+        if any(op.joint == joint for f in prof.chain(tf) for op in prof.frames[f].ops):
+            x = self._sensor_points(qs, np.full(len(qs), target), p, center_only=True)
+        else:  # only the sensor turns: the target's centre once per row, the sensor's chain per candidate
+            centre = target_points(prof, p, target).mean(axis=0, keepdims=True)
+            poses = forward(prof, p, q, frames=[tf])
+            P = np.repeat(poses.R[tf] @ centre.T + poses.t[tf][:, :, None], len(candidates), axis=0)
+            poses = forward(prof, p, qs, frames=[sensor.frame])
+            Rs, ts = poses.R[sensor.frame], poses.t[sensor.frame]
+            x = (Rs.transpose(0, 2, 1) @ (P - ts[:, :, None]))[:, :, 0]  # as kinematics.sensor_points
         uv = project_to_image(sensor, self.true_params, x)
         ahead = (x @ optical_rotation(sensor))[:, 2] > 0
         cost = np.where(ahead, np.abs(uv[:, 0] - sensor.image[0] / 2), np.inf) if sensor.image else np.zeros(len(x))
@@ -326,7 +339,7 @@ class SimulatedRobot:
         if sensor.model == "pinhole":
             return h + self.rng.normal(0.0, self.pixel_noise, h.shape)
         if sensor.intrinsics is None or sensor.baseline is None:
-            return h + self.rng.normal(0.0, self.pixel_noise, h.shape)
+            return h + self.rng.normal(0.0, self.point_noise, h.shape)
         # Triangulate from the left pixel and the disparity, each with its own noise.
         fx, fy, cx, cy = (self.true_params[i] for i in sensor.intrinsics)
         X = xs @ sensor.R_frame_optical

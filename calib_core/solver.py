@@ -71,15 +71,21 @@ def levenberg_marquardt(
     ftol: float = 1e-10,
     progress: Progress | None = None,
     should_stop: Callable[[], bool] | None = None,
+    lower: np.ndarray | None = None,
+    upper: np.ndarray | None = None,
 ) -> SolveResult:
-    """Minimise 0.5 |r(x)|^2 (or the robust cost) by Levenberg-Marquardt with Marquardt scaling."""
+    """Minimise 0.5 |r(x)|^2 (or the robust cost) by Levenberg-Marquardt with Marquardt scaling,
+    within the box [lower, upper] when given: a variable at a bound that the gradient pushes
+    outward leaves the step's system, and every step is projected into the box."""
     start = time.perf_counter()
+    lo = np.full(len(x0), -np.inf) if lower is None else np.asarray(lower, float)
+    hi = np.full(len(x0), np.inf) if upper is None else np.asarray(upper, float)
 
     def cost_of(r: np.ndarray) -> float:
         return robust.cost(r) if robust else 0.5 * float(r @ r)
 
-    x = x0.astype(float).copy()
-    r, J = initial if initial is not None else fun_jac(x)
+    x = np.clip(x0.astype(float), lo, hi)
+    r, J = initial if initial is not None and np.array_equal(x, x0) else fun_jac(x)
     evaluations = 1
     cost = cost_of(r)
     history = [cost]
@@ -94,8 +100,9 @@ def levenberg_marquardt(
         Jw = J * w[:, None] if w is not None else J
         H = Jw.T @ J
         g = Jw.T @ r
-        diag = np.maximum(np.diag(H), 1e-12 * max(1.0, float(np.max(np.diag(H)))))
-        if np.max(np.abs(g)) <= 1e-14 * max(1.0, cost):
+        diag = np.maximum(np.diag(H), 1e-12 * max(1.0, float(np.max(np.diag(H), initial=0.0))))
+        held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))  # at a bound, pushed outward
+        if np.max(np.abs(np.where(held, 0.0, g)), initial=0.0) <= 1e-14 * max(1.0, cost):
             status = "gradient vanished"
             break
         # Near the solution nearly every step is accepted, so the trial point gets its Jacobian
@@ -103,7 +110,7 @@ def levenberg_marquardt(
         accepted = False
         while True:
             try:
-                dx = -scipy.linalg.solve(H + lam * np.diag(diag), g, assume_a="pos")
+                dx = _box_step(H + lam * np.diag(diag), g, x, lo, hi, held)
             except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
                 lam *= nu
                 nu *= 2.0
@@ -139,6 +146,24 @@ def levenberg_marquardt(
             status = "cost change below tolerance"
             break
     return SolveResult(x, cost, iteration, evaluations, time.perf_counter() - start, status, history)
+
+
+def _box_step(
+    A: np.ndarray, g: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, held: np.ndarray
+) -> np.ndarray:
+    """The damped step -A^-1 g inside the box: a variable whose step would leave the box stops at
+    its bound and the others are solved again with it fixed (a held one does not move at all)."""
+    fixed = held.copy()
+    dx = np.zeros_like(x)
+    while True:
+        free = ~fixed
+        rhs = -(g[free] + A[np.ix_(free, fixed)] @ dx[fixed])
+        dx[free] = scipy.linalg.solve(A[np.ix_(free, free)], rhs, assume_a="pos") if free.any() else 0.0
+        out = free & ((x + dx < lo) | (x + dx > hi))
+        if not out.any():
+            return dx
+        dx[out] = np.clip(x + dx, lo, hi)[out] - x[out]
+        fixed |= out
 
 
 def nelder_mead(

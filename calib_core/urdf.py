@@ -46,6 +46,7 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None) -> str:
     for name, rgba in MATERIALS.items():
         ET.SubElement(ET.SubElement(robot, "material", name=name), "color", rgba=rgba)
     links = {profile.base: _link(robot, profile.base)}
+    driven: set[str] = set()  # joints that already have their URDF joint
 
     for frame in profile.frames:
         parent = profile.base if frame.parent < 0 else profile.frames[frame.parent].name
@@ -60,7 +61,12 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None) -> str:
             joint = profile.joints[op.joint]
             child = frame.name if k == len(frame.ops) - 1 else f"{frame.name}__{joint.name}"
             links[child] = _link(robot, child)
-            el = _joint(robot, joint.name, "revolute", links[parent], child, T)
+            # A joint that turns several frames (Motoman's torso axis E turns both arms and both
+            # cameras): one URDF joint of its name, the others mimic it (joint names are unique).
+            shared = joint.name in driven
+            name = f"{joint.name}__{frame.name}" if shared else joint.name
+            driven.add(joint.name)
+            el = _joint(robot, name, "revolute", links[parent], child, T)
             ET.SubElement(el, "axis", xyz=_nums(op.vector))
             ET.SubElement(
                 el,
@@ -70,6 +76,8 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None) -> str:
                 effort=_num(EFFORT),
                 velocity=_num(joint.velocity),
             )
+            if shared:
+                ET.SubElement(el, "mimic", joint=joint.name, multiplier="1.0", offset="0.0")
             parent, T = child, np.eye(4)
         if frame.name not in links:
             links[frame.name] = _link(robot, frame.name)

@@ -330,3 +330,17 @@ def test_real_camera_pixels_calibrate_and_the_tracker_agrees(mm) -> None:
         q = register(mm, cube, p)
         errors[label] = np.sqrt(np.mean(np.sum((Problem(mm, cube, [], q).predict(q) - cube.measured) ** 2, axis=1)))
     assert errors["cameras"] < errors["nominal"]
+
+
+def test_a_parameter_beyond_its_bound_stops_there_with_a_warning(mm) -> None:
+    """The toolbox's bound on the reflector row is 5 cm: a reflector mounted 8 cm further out is
+    not physical for the profile, and the calibration says so instead of wandering off."""
+    truth = mm.nominal().copy()
+    d = mm.param("LR1.d")
+    truth[d] += 0.08
+    truth[registration_params(mm)] = [2.0, 1.0, 0.5, 0.3, 0.0, 0.0]
+    data = synthetic_tracker(mm, truth, 150, seed=6)
+    cal = calibrate(mm, data, "offsets")
+    p = cal.params(mm)
+    assert abs(p[d] - mm.nominal()[d]) <= 0.05 + 1e-12
+    assert any("d(LR1)" in w and "bound" in w for w in cal.warnings), cal.warnings
