@@ -149,6 +149,13 @@ def identifiability(profile: Profile, folder: Path) -> None:
         print(f"- {name}: {len(free)} parameters, {len(deps)} the data cannot separate from the others:")
         for d in deps:
             print(f"  - {d.describe(profile)}")
+        warnings = calibrate(profile, data, "full").warnings
+        held = [w.split(" cannot")[0] for w in warnings if "held at its base value" in w]
+        weak = [w.split(":")[0] for w in warnings if "weakly determined" in w]
+        print(
+            f"  - mode `full` itself: held: {'; '.join(held) or 'none'}; "
+            f"weakly determined (only in combination): {'; '.join(weak) or 'none'}"
+        )
 
 
 def _fmt(s: tuple[float, float, float]) -> str:
