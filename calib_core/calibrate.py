@@ -84,7 +84,14 @@ def calibrate(
             file=data.source,
         )
     m = observed_mode(profile, train, m)
-    if set(registration_params(profile)) & set(m.free):
+    reg = set(registration_params(profile))
+    if reg and not reg & set(m.free) and base is None:
+        raise InputError(
+            f"mode '{mode}' does not estimate the registration of '{profile.sensors[profile.data.sensor].name}' "
+            "(where it stands), which these data need: choose a mode that does, or start from a calibration "
+            "of the same set-up (--base)"
+        )
+    if reg & set(m.free):
         # A tracker set-up of its own: "before" is the old model with only the registration fitted.
         p_base = register(profile, train, p_base)
     fit = fit_parameters(

@@ -62,6 +62,9 @@ def camera_datasets(profile: Profile, folder: str | Path, sources: set[str] | No
 
     `sources` keeps only those source files (e.g. the poses a tracker also measured)."""
     folder = Path(folder)
+    for name in ("camera_poses.csv", "camera_observations.csv"):
+        if not (folder / name).is_file():
+            raise InputError("is missing from the data set's folder", file=str(folder / name))
     poses: dict[tuple[str, str], np.ndarray] = {}
     joint_cols = {profile.joint(j): c for j, c in profile.data.joint_columns.items()}
     with open(folder / "camera_poses.csv", newline="", encoding="utf-8") as fh:

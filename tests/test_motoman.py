@@ -344,3 +344,13 @@ def test_a_parameter_beyond_its_bound_stops_there_with_a_warning(mm) -> None:
     p = cal.params(mm)
     assert abs(p[d] - mm.nominal()[d]) <= 0.05 + 1e-12
     assert any("d(LR1)" in w and "bound" in w for w in cal.warnings), cal.warnings
+
+
+def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(mm) -> None:
+    truth = perturbed_truth(mm, 10)
+    data = synthetic_tracker(mm, truth, 60, seed=7)
+    with pytest.raises(InputError, match="does not estimate the registration of 'tracker'"):
+        calibrate(mm, data, "cameras")
+    first = calibrate(mm, data, "registration")
+    again = calibrate(mm, data, "cameras", first)  # the registration comes from the base
+    assert again.figures["before"].rms < 0.01  # m: the base's registration puts the model in place
