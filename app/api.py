@@ -83,15 +83,18 @@ def health(request: Request) -> dict[str, Any]:
 
 @router.get("/robots")
 def robots(request: Request) -> list[dict[str, Any]]:
+    """Every robot: `simulated` ones can be connected, moved, observed and replayed; the others (real data
+    only) have sessions imported from CSV, calibrations and reviews."""
     d = desk(request)
     out = []
-    for name in d.drivers:
+    for name in d.robots:
         p = d.profile(name)
         sensor = p.sensors[p.data.sensor]
         out.append(
             {
                 "name": name,
                 "title": p.title,
+                "simulated": name in d.drivers,
                 "joints": [
                     {
                         "name": j.name,

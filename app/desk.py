@@ -6,6 +6,9 @@ directly. One desk per process: it owns the viser server and the robot drivers.
 
 from __future__ import annotations
 
+import site
+import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -14,8 +17,9 @@ from typing import Any
 import numpy as np
 import viser
 
-from calib_core import InputError, Profile, SimulatedRobot, load_profile
+from calib_core import Dataset, InputError, Profile, SimulatedRobot, load_profile
 from calib_core.profile import BUILTIN_PROFILES
+from calib_core.registration import register, registration_params
 
 from . import safety, security
 from .capture import AutoCapture, capture_frame, dry_run, replay
@@ -32,6 +36,7 @@ OBSERVE_PERIOD_S = 0.5
 # A resumed replay leaves out a configuration the session holds a frame at within this on every joint: a
 # frame's joints are the encoder readings at the commanded configuration (0.1 deg resolution, servo error).
 RESUME_TOLERANCE_DEG = 0.5
+MAX_PLANNED = 2000  # new configurations one replay may plan
 # The simulated robots' "today": Robonaut is the later-day robot of its day-2 sample session (its
 # offsets drifted since day 1), so a calibration made on day 1 and applied shows the drift live.
 SIMULATED_DAY = {"robonaut-a": 2}
@@ -54,6 +59,7 @@ class Desk:
         self.viser_port = viser_port
         self.time_scale = time_scale
         self.workers = workers
+        self.scrub = security.Scrubber(server_paths(self.data_dir))  # every error text the desk shows
         self.profiles: dict[str, Profile] = {}
         self.drivers: dict[str, RobotDriver] = {}
         self.connected = BUILTIN_PROFILES[0]
@@ -68,16 +74,21 @@ class Desk:
         self.store.fail_interrupted_jobs()
         if self.sample_dir is not None and self.sample_dir.is_dir():
             self.store.ensure_samples(self.sample_dir)
-        self.jobs = JobManager(self.store, workers=self.workers)
+        self.jobs = JobManager(self.store, workers=self.workers, scrub=self.scrub)
         for name in BUILTIN_PROFILES:
             profile = self.profile(name)
+            if not simulated(profile):
+                continue  # real data only: its sessions are imported, there is no robot to drive
             day = SIMULATED_DAY.get(name, 1)
             driver = SimulatedDriver(profile, seed=1, day=day, time_scale=self.time_scale)
             self.drivers[name] = driver
             self._push_active(name)
+        if self.connected not in self.drivers and self.drivers:
+            self.connected = next(iter(self.drivers))
         self.viser = viser.ViserServer(host=self.viser_host, port=self.viser_port, verbose=False)
         security.close_viser_share(self.viser)
-        self.scene = ReviewScene(self.viser, PROFILE_DIR / f"{self.connected}.urdf")
+        urdf = PROFILE_DIR / f"{self.connected}.urdf"
+        self.scene = ReviewScene(self.viser, urdf if urdf.is_file() else None)
 
     def stop(self) -> None:
         self.observe(None)
@@ -101,18 +112,32 @@ class Desk:
             self.profiles[robot] = load_profile(robot)
         return self.profiles[robot]
 
+    @property
+    def robots(self) -> tuple[str, ...]:
+        """Every robot the desk knows: those it can drive and those with real data only."""
+        return BUILTIN_PROFILES
+
     def driver(self, robot: str | None = None) -> RobotDriver:
         robot = robot or self.connected
         if robot not in self.drivers:
-            raise InputError(f"no robot '{robot}' is connected (known: {', '.join(self.drivers)})")
+            raise InputError(self._no_driver(robot))
         return self.drivers[robot]
 
     def connect(self, robot: str) -> None:
         if robot not in self.drivers:  # named exactly: driver() would take "" for the connected one
-            raise InputError(f"no robot '{robot}' to connect (known: {', '.join(self.drivers)})")
+            raise InputError(self._no_driver(robot))
         if robot != self.connected:
             self.observe(None)
             self.connected = robot
+
+    def _no_driver(self, robot: str) -> str:
+        drivable = ", ".join(self.drivers) or "none"
+        if robot in BUILTIN_PROFILES:
+            return (
+                f"{robot} has no robot to drive here (real data only, no simulation): import its sessions "
+                f"from CSV to calibrate and review them (robots to drive: {drivable})"
+            )
+        return f"no robot '{robot}' to drive (robots to drive: {drivable})"
 
     def active_params(self, robot: str) -> tuple[str | None, np.ndarray]:
         """The robot's active calibration id and its parameters (the nominal model when none)."""
@@ -159,10 +184,14 @@ class Desk:
             data = self.store.dataset(info.session_id, profile)
             heldout = np.isin(data.frame_ids, cal.frames.get("holdout", []))
             where = f"the held-out frames of session {info.session_id}"
+            train = ~heldout
             if not heldout.any():
                 heldout[:] = True
                 where = f"the frames of session {info.session_id}"
-            worse = safety.worse_than_active(profile, data.select(heldout), new_p, active_p, active, where)
+            # An external tracker (if any) stood where this session's data say: the active parameters see it
+            # through a registration fitted on the frames the candidate was fitted on.
+            active_here = register(profile, data.select(train if train.any() else heldout), active_p)
+            worse = safety.worse_than_active(profile, data.select(heldout), new_p, active_here, active, where)
             if worse is not None:
                 reasons.append(worse)
         reasons += safety.parameter_jumps(profile, new_p, active_p, active, from_nominal=active_id is None)
@@ -188,8 +217,7 @@ class Desk:
         `resume` goes on with a replay a fault or an abort stopped: the same plan (source session, or count
         and seed with the same active calibration) less the configurations the session holds a frame at.
         """
-        if resume and remeasure:
-            raise InputError("resume goes on with a replay that adds frames; start a re-measure again instead")
+        self._check_plan(session_id, from_session=from_session, count=count, remeasure=remeasure, resume=resume)
         q, targets, indices = self._plan(
             session_id, from_session=from_session, count=count, remeasure=remeasure, seed=seed
         )
@@ -203,6 +231,17 @@ class Desk:
                 f"nothing to resume: session '{session_id}' has a frame at each of the {len(q)} configurations"
             )
         return q[todo], targets[todo], None
+
+    def _check_plan(
+        self, session_id: str, *, from_session: str | None, count: int | None, remeasure: bool, resume: bool
+    ) -> None:
+        """What can be wrong with a replay request before any planning: the session, its robot, the options."""
+        robot = self.store.session(session_id).robot
+        self.driver(robot)  # a robot with real data only has nothing to replay on
+        if resume and remeasure:
+            raise InputError("resume goes on with a replay that adds frames; start a re-measure again instead")
+        if not (remeasure or from_session) and (not count or count < 1 or count > MAX_PLANNED):
+            raise InputError(f"give from_session, remeasure, or a count of configurations between 1 and {MAX_PLANNED}")
 
     def _plan(
         self, session_id: str, *, from_session: str | None, count: int | None, remeasure: bool, seed: int
@@ -219,9 +258,9 @@ class Desk:
             q = np.array([f.joints_rad for f in frames])
             targets = np.array([f.target for f in frames])
             return q, targets, [f.index for f in frames] if remeasure else None
-        if not count or count < 1 or count > 2000:
-            raise InputError("give from_session, remeasure, or a count of configurations between 1 and 2000")
-        # Configurations the robot believes it sees the fixture in: planned with its active model.
+        assert count is not None  # _check_plan
+        # Configurations the robot believes it sees the fixture in: planned with its active model. Twice
+        # as many as asked, since those inside a joint's safety margin are left out.
         _, believed = self.active_params(session.robot)
         planner = SimulatedRobot.from_profile(profile, seed=seed, truth=believed)
         q, targets = planner.configurations(2 * count + 10)
@@ -237,11 +276,31 @@ class Desk:
         return {"ok": all(r["ok"] for r in rows), "configurations": rows}
 
     def start_replay(self, session_id: str, **plan: Any) -> str:
+        """Queue a replay job. A plan from frames (another session's, or a re-measure) is made here, so its
+        mistakes answer at once; N new configurations are planned in the job (NAO: tens of ms each), so the
+        request returns at once and the job shows "planning" meanwhile."""
         robot = self.store.session(session_id).robot
-        q, targets, indices = self.replay_plan(session_id, **plan)
         driver = self.driver(robot)
+        if plan.get("remeasure") or plan.get("from_session"):
+            ready = self.replay_plan(session_id, **plan)
+        else:
+            self._check_plan(
+                session_id,
+                from_session=None,
+                count=plan.get("count"),
+                remeasure=False,
+                resume=bool(plan.get("resume")),
+            )
+            ready = None
 
         def run(ctx: JobContext) -> str | None:
+            if ready is None:
+                ctx.progress(0.0, phase="planning")
+                q, targets, indices = self.replay_plan(session_id, **plan)
+                ctx.checkpoint()
+                ctx.progress(0.0, phase="driving")
+            else:
+                q, targets, indices = ready
             return replay(ctx, self.store, driver, session_id, q, targets, indices)
 
         return self.jobs.submit_thread("replay", run, session_id=session_id)
@@ -285,14 +344,29 @@ class Desk:
             heldout = set(self.store.calibration(new_id).frames.get("holdout", []))
         frames = self.store.frames(session_id)
         data = self.store.dataset(session_id, profile) if session.measured else None
+        if data is not None and registration_params(profile):
+            old_p = self._registered(profile, data, old_p, old_id, session_id, heldout)
+            new_p = None if new_p is None else self._registered(profile, data, new_p, new_id, session_id, heldout)
         review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout)
         with self._review_lock:
-            if self.scene.robot != session.robot:
-                self.scene.set_robot(PROFILE_DIR / f"{session.robot}.urdf", session.robot)
+            urdf = PROFILE_DIR / f"{session.robot}.urdf"
+            if self.scene.robot != session.robot and urdf.is_file():  # without one, load() shows to_urdf's
+                self.scene.set_robot(urdf, session.robot)
             self.scene.load(review)
             self._review = review
             self._review_key = {"session": session_id, "old": old_id, "new": new_id}
         return {**self._review_key, "robot": session.robot, "table": review.table(), "summary": review.summary()}
+
+    def _registered(
+        self, profile: Profile, data: Dataset, p: np.ndarray, cal_id: str | None, session_id: str, heldout: set[int]
+    ) -> np.ndarray:
+        """An external tracker's pose belongs to its set-up, that is to a session: parameters from elsewhere
+        (the nominal model, another session's calibration) see this session's tracker through a registration
+        fitted on its frames (those the new calibration was fitted on, when it held some out)."""
+        if cal_id is not None and self.store.calibration_info(cal_id).session_id == session_id:
+            return p
+        train = ~np.isin(data.frame_ids, sorted(heldout))
+        return register(profile, data.select(train) if train.any() else data, p)
 
     def _current_review(self) -> Review:
         if self._review is None:
@@ -314,6 +388,21 @@ class Desk:
         frame = self.store.frame(self._review_key["session"], index)
         path = frame.images.get(marks["role"]) if marks.get("role") else None
         return {**marks, "image": None if path is None else f"/api/files/{path}"}
+
+
+def simulated(profile: Profile) -> bool:
+    """Whether the simulator can stand in for the robot: the profile has a simulation section and its data
+    sensor is one the simulator renders (a stereo head or a camera; calib_core.simulator's capture)."""
+    sensor = profile.sensors[profile.data.sensor]
+    renders = sensor.model == "pinhole" or (sensor.model == "point3d" and sensor.baseline is not None)
+    return bool(profile.simulation) and renders
+
+
+def server_paths(data_dir: Path) -> list[Path]:
+    """The folders no answer may name a path in: the data directory, the code, the home folder, the
+    Python installation (virtualenv, site-packages) and the temporary folder."""
+    python = {Path(sys.prefix), Path(sys.base_prefix), Path(sys.exec_prefix), *map(Path, site.getsitepackages())}
+    return [Path(data_dir), PACKAGE_DIR, Path.home(), *sorted(python), Path(tempfile.gettempdir())]
 
 
 def _within_limits(driver: RobotDriver, q_rad: np.ndarray) -> bool:
@@ -354,7 +443,7 @@ class _Observer:
             try:
                 self._tick()
             except Exception as exc:  # a failed look must not end observing; it is shown instead
-                self._last["message"] = f"{type(exc).__name__}: {exc}"
+                self._last["message"] = self.desk.scrub(f"{type(exc).__name__}: {exc}")
 
     def _tick(self) -> None:
         look = None

@@ -6,7 +6,8 @@ crashes. Each worker slot is a one-process ProcessPoolExecutor: a crashed or kil
 only its own pool, which fails only its own job and is then rebuilt. Workers send (iteration, cost)
 through a queue of a spawned multiprocessing Manager (a killed client cannot corrupt it) and read
 their cancel flag from the same Manager; a thread in the server turns the messages into the job's
-snapshot and kills a worker that overruns its time limit or ignores a cancel.
+snapshot and kills a worker that overruns its time limit or ignores a cancel. Workers and the Manager
+end by themselves when the server dies without cleaning up (SIGKILL): `watch_parent`.
 
 A job's snapshot is what the API shows: {"id", "kind", "state", "progress", "result", "error",
 "session", "created", "updated", "detail", "cost", "version", "paused"}. `version` grows on every
@@ -33,6 +34,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from functools import partial
+from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
 from calib_core import Calibration, InputError, calibrate, load_profile
@@ -52,6 +54,7 @@ FINISHED = ("done", "failed", "cancelled")
 MAX_HOLDOUT = 0.9
 PROGRESS_CAP = 0.95  # a solve's end is unknown until it comes: the estimate stays below 1 until then
 CANCEL_POLL_S = 0.05  # how often a worker asks the Manager whether it was cancelled
+PARENT_POLL_S = 0.2  # how often a worker or the Manager looks whether the server still runs
 CRASHED = "the calibration worker process stopped unexpectedly (crashed or killed); the worker was restarted"
 
 
@@ -115,6 +118,21 @@ def calibration_worker(payload: dict, link: WorkerLink) -> dict:
     return cal.to_dict()
 
 
+def watch_parent(parent_pid: int) -> None:
+    """Runs first in every worker and in the Manager process: ends this process as soon as the server that
+    started it is gone. A server killed with SIGKILL cleans nothing up, and neither child would notice by
+    itself (a worker waits on a task queue whose write end it holds too; the Manager waits for clients).
+    A thread polls the parent pid rather than PR_SET_PDEATHSIG, which fires when the *thread* that started
+    the child ends (the pool starts workers from whichever thread submits)."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="watch-server", daemon=True).start()
+
+
 def warm_up() -> int:
     """Run first in every new worker: spawning and importing numpy/scipy take a second or two."""
     return os.getpid()
@@ -172,13 +190,21 @@ class _Slot:
 
 class JobManager:
     def __init__(
-        self, store: Store, workers: int = 1, *, timeout_s: float = 1800.0, cancel_grace_s: float = 5.0
+        self,
+        store: Store,
+        workers: int = 1,
+        *,
+        timeout_s: float = 1800.0,
+        cancel_grace_s: float = 5.0,
+        scrub: Callable[[str], str] | None = None,
     ) -> None:
         """`workers` calibration processes. A worker still running after `timeout_s`, or `cancel_grace_s`
-        after its job was cancelled, is killed (the job fails, or ends cancelled) and replaced."""
+        after its job was cancelled, is killed (the job fails, or ends cancelled) and replaced. `scrub`
+        takes the server's paths out of a failed job's message (the one the HTTP errors go through)."""
         if workers < 1:
             raise ValueError("at least one worker")
         self.store = store
+        self._scrub = scrub or (lambda text: text)
         self.timeout_s = timeout_s
         self.cancel_grace_s = cancel_grace_s
         self._lock = threading.RLock()
@@ -188,7 +214,8 @@ class JobManager:
         self._pending: deque[str] = deque()
         self._closed = False
         self._ctx = multiprocessing.get_context("spawn")
-        self._mp = self._ctx.Manager()
+        self._mp = SyncManager(ctx=self._ctx)
+        self._mp.start(watch_parent, (os.getpid(),))
         self._messages = self._mp.Queue()
         self._cancel_flags = self._mp.dict()
         self._slots = [_Slot(self._new_executor()) for _ in range(workers)]
@@ -441,6 +468,8 @@ class JobManager:
         with self._changed:
             if job.snap["state"] in FINISHED:
                 return
+            if error is not None:  # a job's message is shown to the page: no path of the server in it
+                error = self._scrub(error)
             job.snap.update(state=state, result=result, error=error, paused=False)
             if state == "done":
                 job.snap["progress"] = 1.0
@@ -505,7 +534,9 @@ class JobManager:
 
     # --- internals: process jobs --------------------------------------------------------------------
     def _new_executor(self) -> ProcessPoolExecutor:
-        executor = ProcessPoolExecutor(max_workers=1, mp_context=self._ctx)
+        executor = ProcessPoolExecutor(
+            max_workers=1, mp_context=self._ctx, initializer=watch_parent, initargs=(os.getpid(),)
+        )
         executor.submit(warm_up)
         return executor
 

@@ -15,7 +15,9 @@ calibration, or the nominal model when none was applied):
   (no calibration applied yet) the bounds are FROM_NOMINAL times wider: the nominal model is the drawing,
   and a first calibration corrects assembly tolerances as well as drift (the paper's own full
   calibration of Robonaut moves wrist_yaw.a by 7.5 cm); later ones correct drift (the simulated daily
-  drift of a joint offset has a 4 deg standard deviation, so 10 deg is 2.5 of them).
+  drift of a joint offset has a 4 deg standard deviation, so 10 deg is 2.5 of them). An external
+  tracker's registration (Motoman's laser tracker) is where the tracker stood, not the robot's geometry:
+  it has no bound.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import numpy as np
 
 from calib_core import Dataset, Profile
 from calib_core.problem import Problem
+from calib_core.registration import registration_params
 from calib_core.units import length_factor
 
 WORSE_BY = 0.05
@@ -71,7 +74,10 @@ def parameter_jumps(
     """One sentence per parameter that moves beyond its sane bound, largest move (relative to bound) first."""
     found = []
     factor = FROM_NOMINAL if from_nominal else 1.0
+    tracker = set(registration_params(profile))  # where an external tracker stood: not the robot's geometry
     for i, q in enumerate(profile.parameters):
+        if i in tracker:
+            continue
         b = bound(profile, q.kind, factor)
         change = float(new_p[i] - active_p[i])
         if not math.isfinite(change) or abs(change) > b.internal:

@@ -70,7 +70,7 @@ def create_app(
     app = FastAPI(title="robot-selfcal dashboard", version=VERSION, lifespan=lifespan)
     app.state.new_token = token
     app.include_router(router)
-    _error_handlers(app, security.Scrubber([Path(data_dir), PACKAGE_DIR, Path.home()]))
+    _error_handlers(app, desk.scrub)
     app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts, max_upload_bytes=MAX_UPLOAD_BYTES)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app

@@ -12,25 +12,19 @@ load times, which happen once per (session, old, new).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
-from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import viser
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from sim_frames import measured_frames
+
 from app.review import Review
 from app.scene import ReviewScene
 from calib_core import SimulatedRobot, load_profile
-
-
-@dataclass
-class Frame:
-    """The attributes of app.store.FrameInfo that a review uses."""
-
-    index: int
-    joints_rad: np.ndarray
-    target: int
-    status: str
 
 
 def main() -> None:
@@ -43,11 +37,7 @@ def main() -> None:
     profile = load_profile(args.robot)
     sim = SimulatedRobot.from_profile(profile, seed=0).simulate(args.frames)
     data = sim.data
-    first_obs = np.searchsorted(data.cfg, np.arange(data.n_configurations))
-    frames = [
-        Frame(int(data.frame_ids[c]), data.joints[c], int(data.target[first_obs[c]]), "measured")
-        for c in range(data.n_configurations)
-    ]
+    frames = measured_frames(data)
 
     start = time.perf_counter()
     review = Review.build(profile, frames, data, profile.nominal(), sim.true_params)

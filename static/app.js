@@ -5,7 +5,7 @@
 const $ = (sel) => document.querySelector(sel);
 const state = {
   robots: {},          // name -> /api/robots entry
-  robot: null,         // the connected robot
+  robot: null,         // the selected robot: the connected one, or one with real data only (not simulated)
   session: null,       // the selected session (full /api/sessions/{id} answer)
   calibrations: [],    // of the selected session
   review: null,        // the last /api/review answer
@@ -76,7 +76,12 @@ async function act(fn) {
   }
 }
 
-const fmt = (v, d = 3) => (v === null || v === undefined || Number.isNaN(v) ? "—" : Number(v).toFixed(d));
+// d decimals; a small figure (a laser tracker's errors in metres) keeps d significant digits instead of 0.000.
+const fmt = (v, d = 3) => {
+  if (v === null || v === undefined || Number.isNaN(v)) return "—";
+  const x = Number(v);
+  return x !== 0 && Math.abs(x) < 0.01 ? x.toPrecision(d) : x.toFixed(d);
+};
 const el = (tag, attrs = {}, ...children) => {
   const e = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) {
@@ -95,7 +100,9 @@ async function init() {
   scene.src = `${location.protocol}//${location.hostname}:${health.viser_port}/`;
   for (const r of await api("GET", "/robots")) state.robots[r.name] = r;
   const sel = $("#robot-select");
-  for (const name of Object.keys(state.robots)) sel.append(el("option", { value: name }, name));
+  for (const [name, r] of Object.entries(state.robots)) {
+    sel.append(el("option", { value: name }, r.simulated ? name : `${name} (real data only)`));
+  }
   const status = await api("GET", "/robot");
   state.robot = status.robot;
   sel.value = state.robot;
@@ -104,15 +111,32 @@ async function init() {
   await loadSessions();
   robotEvents();
   buildJoints();
+  showDrivable();
   await refreshActive();
   document.body.dataset.ready = "1";
 }
 
+// A robot with real data only (no simulation) has sessions imported from CSV, calibrations and reviews,
+// but nothing to connect to or move: its capture and motion controls are disabled.
 async function connect(robot) {
-  await api("POST", "/robot/connect", { robot });
+  if (state.robots[robot].simulated) await api("POST", "/robot/connect", { robot });
   state.robot = robot;
   buildJoints();
+  showDrivable();
   await refreshActive();
+}
+
+const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "#dry-run", "#replay-start",
+  "#replay-pause", "#replay-resume", "#replay-abort", "#goto", "#new-session button"];
+
+function showDrivable() {
+  const drivable = state.robots[state.robot].simulated;
+  for (const sel of MOTION_CONTROLS) $(sel).disabled = !drivable;
+  document.body.dataset.drivable = drivable ? "1" : "0";
+  if (!drivable) {
+    $("#robot-state").textContent = `${state.robot}: real data only (no robot to drive; import its sessions)`;
+    $("#robot-state").className = "pill";
+  }
 }
 
 function wire() {
@@ -394,6 +418,9 @@ function loadImage(url) {
 }
 
 async function drawSplit(index) {
+  const robot = state.review && state.robots[state.review.robot];
+  $("#split").hidden = Boolean(robot && !robot.sensor.image);  // a laser tracker has no image to mark
+  if ($("#split").hidden) return;
   const m = await api("GET", `/review/marks/${index}`);
   const img = m.image ? await loadImage(m.image) : null;
   drawMarks($("#split-old"), img, m, m.old, "#0050ff");
@@ -568,6 +595,7 @@ function buildJoints() {
   t.replaceChildren();
   for (const j of state.robots[state.robot].joints) {
     const slider = el("input", { type: "range", min: j.lower_deg, max: j.upper_deg, step: 0.1, "data-joint": j.name });
+    slider.disabled = !state.robots[state.robot].simulated;
     slider.addEventListener("change", () => act(() => api("POST", "/robot/move", { joints: { [j.name]: +slider.value } })));
     t.append(el("tr", {}, el("td", {}, j.name), el("td", {}, slider), el("td", { "data-reading": j.name }, "—")));
   }
@@ -627,7 +655,8 @@ async function replay(dry) {
   await follow(r.job, (j) => {
     $("#replay-progress").value = j.progress;
     const d = j.detail || {};
-    $("#replay-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
+    const planning = j.state === "running" && d.phase === "planning" ? " · planning the configurations" : "";
+    $("#replay-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${planning}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
   });
   await loadSessions(state.session.id);
 }

@@ -292,3 +292,72 @@ def test_a_replay_beyond_the_limits_is_refused_before_moving(client: TestClient)
     job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json={"remeasure": True}).json()["job"])
     assert job["state"] == "failed" and "elbow_pitch" in job["error"]
     assert "internal error" not in job["error"]
+
+
+# --- a robot with real data only (Motoman: a laser tracker, no simulation) ------------------------
+MOTOMAN_CSV = Path(__file__).resolve().parent.parent.parent / "shared" / "datasets" / "motoman" / "leica_feb2019.csv"
+
+
+@pytest.mark.skipif(not MOTOMAN_CSV.is_file(), reason="the Motoman data set is not beside the project")
+def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_be_driven(client: TestClient) -> None:
+    robots = {r["name"]: r for r in client.get("/api/robots").json()}
+    assert robots["motoman"]["simulated"] is False
+    assert robots["robonaut-a"]["simulated"] and robots["nao"]["simulated"]
+    assert robots["motoman"]["sensor"] == {"kind": "point3d", "unit": "m", "image": None}
+
+    # One tracker set-up (group A), both arms (reflector_arm), every fourth row; the extra columns are ignored.
+    lines = MOTOMAN_CSV.read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [line for line in lines[1:] if line.split(",")[header.index("leica_frame_group")] == "A"][::4]
+    arms = {row.split(",")[header.index("reflector_arm")] for row in rows}
+    assert arms == {"left", "right"}
+    text = "\n".join([lines[0], *rows]) + "\n"
+    r = client.post(
+        "/api/sessions/import",
+        data={"robot": "motoman", "name": "Leica, Feb 2019, set-up A"},
+        files={"data": ("leica_feb2019.csv", io.BytesIO(text.encode()), "text/csv")},
+    )
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    s = client.get(f"/api/sessions/{sid}").json()
+    assert (s["robot"], len(s["frames"])) == ("motoman", len(rows))
+    first = rows[0].split(",")
+    assert s["frames"][0]["joints"]["S1"] == pytest.approx(float(first[header.index("S1_deg")]), abs=1e-4)
+    assert {f["target"] for f in s["frames"]} == {"LR1", "LR2"}
+
+    # Nothing to connect to or move: each such request is refused with a sentence saying why.
+    refused = [
+        client.post("/api/robot/connect", json={"robot": "motoman"}),
+        client.post("/api/robot/move", json={"robot": "motoman", "joints": {"S1": 10.0}}),
+        client.post("/api/robot/wander", json={"robot": "motoman", "on": True}),
+        client.get("/api/robot", params={"robot": "motoman"}),
+        client.post(f"/api/sessions/{sid}/capture"),
+        client.post(f"/api/sessions/{sid}/observe", json={"on": True}),
+        client.post(f"/api/sessions/{sid}/replay", json={"count": 3, "dry_run": True}),
+        client.post(f"/api/sessions/{sid}/replay", json={"count": 3}),
+        client.post(f"/api/sessions/{sid}/replay", json={"remeasure": True}),
+        client.post(f"/api/sessions/{sid}/frames/1/goto"),
+    ]
+    for r in refused:
+        assert r.status_code == 422, (r.request.url, r.text)
+        assert r.json()["detail"].startswith("motoman has no robot to drive here (real data only"), r.text
+    assert client.get("/api/robot").json()["robot"] in ("robonaut-a", "nao")  # still connected to a simulated one
+
+    # Calibrated, reviewed (both sides see this session's tracker) and applied like any other robot.
+    r = client.post(f"/api/sessions/{sid}/calibrations", json={"mode": "offsets", "holdout": 0.3})
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["job"])
+    assert job["state"] == "done", job
+    review = client.post("/api/review", json={"session": sid, "old": None, "new": job["result"]})
+    assert review.status_code == 200, review.text
+    summary = review.json()["summary"]
+    assert summary["unit"] == "m"
+    table = review.json()["table"]
+    old = np.mean([row["err_old"] for row in table])
+    new = np.mean([row["err_new"] for row in table])
+    assert new < old < 0.02, (old, new)  # the nominal model, registered to this tracker: millimetres off
+    assert client.post("/api/review/frame", json={"index": table[0]["index"]}).status_code == 200
+    # The tracker's registration moves metres from the nominal model's, but it is no robot parameter.
+    r = client.post(f"/api/calibrations/{job['result']}/apply")
+    assert r.status_code == 200, r.text
+    assert client.get("/api/robot/calibration", params={"robot": "motoman"}).json()["id"] == job["result"]

@@ -1,8 +1,9 @@
 """Faults, each injected: the robot disconnecting or stalling mid-replay (frames kept, the replay resumed),
 `calib serve` killed with SIGKILL mid-capture, mid-calibration and mid-apply (a consistent store after the
-restart), a calibration worker killed through the API, and a data directory that refuses writes (507, nothing
-half-written). The store's own killed-writer and sweep tests are in test_store.py, the worker crash and
-time-out tests at the JobManager level in test_jobs.py."""
+restart, and no job Manager or worker process of it left running), a calibration worker killed through the
+API, a job failing on a file error (its message names no path of the server), and a data directory that
+refuses writes (507, nothing half-written). The store's own killed-writer and sweep tests are in
+test_store.py, the worker crash and time-out tests at the JobManager level in test_jobs.py."""
 
 from __future__ import annotations
 
@@ -115,8 +116,11 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
     assert [f["index"] for f in frames] == [1, 2, 3, 4]
     assert frames[:2] == kept  # untouched by the resume
     assert _each_configuration_once(client, frames, q_plan)
-    r = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True})
-    assert r.status_code == 422 and r.json()["detail"].startswith("nothing to resume")
+    # New configurations are planned in the job (the request returns at once): it fails with nothing to do.
+    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
+    assert job["state"] == "failed" and job["error"].startswith("nothing to resume"), job
+    dry = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True, "dry_run": True})
+    assert dry.status_code == 422 and dry.json()["detail"].startswith("nothing to resume")
 
 
 def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestClient) -> None:
@@ -161,6 +165,27 @@ def test_a_calibration_worker_killed_through_the_api_fails_its_job_and_the_serve
     job = wait_job(client.get, job_id, timeout_s=15)
     assert (job["state"], job["error"]) == ("failed", CRASHED)
     assert client.get("/api/health").status_code == 200
+
+
+def test_a_job_that_fails_on_a_file_error_names_the_file_but_no_path_of_the_server(
+    client: TestClient, data_dir: Path
+) -> None:
+    # A file where the calibrations folder belongs: storing the result fails with an OSError that is not a
+    # full or read-only disk, whose text holds the full path of the file it tried to write.
+    folder = data_dir / "calibrations"
+    folder.rename(data_dir / "calibrations.away")
+    folder.write_text("not a folder")
+    try:
+        r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"})
+        job = wait_job(client.get, r.json()["job"])
+    finally:
+        folder.unlink()
+        (data_dir / "calibrations.away").rename(folder)
+    assert job["state"] == "failed"
+    listed = next(j for j in client.get("/api/jobs").json() if j["id"] == job["id"])
+    for error in (job["error"], listed["error"]):
+        assert error.startswith("internal error: NotADirectoryError: [Errno 20] Not a directory: "), error
+        assert ".json" in error and "/" not in error and "Traceback" not in error, error
 
 
 # --- the data directory refusing writes ---------------------------------------------------------------
@@ -334,6 +359,56 @@ def _calibrate(server: Server, session_id: str, mode: str) -> str:
     return job["result"]
 
 
+PROC = Path("/proc/self/stat").is_file()  # Linux: the process tree is read from /proc
+
+
+def _descendants(pid: int) -> dict[int, int]:
+    """{pid: start time} of every live process below `pid`, read from /proc."""
+    children: dict[int, list[tuple[int, int]]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and (stat := _stat(int(entry.name))) is not None:
+            children.setdefault(stat[1], []).append((int(entry.name), stat[2]))
+    found: dict[int, int] = {}
+    todo = [pid]
+    while todo:
+        for child, start in children.get(todo.pop(), []):
+            found[child] = start
+            todo.append(child)
+    return found
+
+
+def _stat(pid: int) -> tuple[str, int, int] | None:
+    """(state, parent pid, start time) of a process, None once it is gone."""
+    try:
+        fields = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return fields[0], int(fields[1]), int(fields[19])
+
+
+def _alive(pid: int, start: int) -> bool:
+    """The very process (not a later one with its pid) still runs (a zombie has ended)."""
+    stat = _stat(pid)
+    return stat is not None and stat[2] == start and stat[0] not in "ZX"
+
+
+def _kill_leaving_no_children(server: Server) -> float:
+    """SIGKILL the server alone: its job Manager and calibration workers (spawned python processes, and the
+    resource tracker) must end by themselves within seconds. Returns how long they took."""
+    children = _descendants(server.process.pid) if PROC else {}
+    assert len(children) >= 2 or not PROC, children  # the Manager and the warmed-up worker at least
+    server.process.kill()
+    server.process.wait()
+    killed = time.monotonic()
+    try:
+        while left := {pid for pid, start in children.items() if _alive(pid, start)}:
+            assert time.monotonic() < killed + 5.0, f"still running 5 s after the server was killed: {left}"
+            time.sleep(0.05)
+        return time.monotonic() - killed
+    finally:
+        _kill(server)
+
+
 def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -359,7 +434,7 @@ def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
             cal_job = server.post("/api/sessions/nao/calibrations", json={"mode": "full", "folds": 10}).json()["job"]
             time.sleep(rng.uniform(0.02, 0.4))
             seen = len(server.get(f"/api/sessions/{sid}").json()["frames"])
-            _kill(server)
+            children_gone_s = _kill_leaving_no_children(server)
             killed_after_s = time.monotonic() - t0
             applier.join(timeout=30)
             acked += len(applier.acked)
@@ -410,6 +485,7 @@ def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
                     "calibration": cal["state"],
                     "applies_acked": len(applier.acked),
                     "active_was_in_flight": active == applier.in_flight,
+                    "children_gone_after_s": round(children_gone_s, 2),
                 }
             )
     finally:

@@ -10,11 +10,11 @@ reproject to the measured pixels.
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 import yourdfpy
+from sim_frames import Frame, measured_frames, unmeasured_frames
 
 from app.review import Review
 from calib_core import Problem, SimulatedRobot, Simulation, load_profile
@@ -23,30 +23,14 @@ from calib_core.measurement import predict, project_to_image
 from calib_core.profile import Profile
 
 
-@dataclass
-class Frame:
-    """The attributes of app.store.FrameInfo a review uses."""
-
-    index: int
-    joints_rad: np.ndarray
-    target: int
-    status: str
-
-
 def session(name: str, n: int, unmeasured: int = 0, seed: int = 4) -> tuple[Profile, Simulation, list[Frame]]:
     """A simulated session: n measured frames, then `unmeasured` frames whose detector found nothing."""
     profile = load_profile(name)
     robot = SimulatedRobot.from_profile(profile, seed=seed)
     robot.quantise = False  # readings = the true joint angles: the truth predicts `exact` exactly
     sim = robot.simulate(n)
-    data = sim.data
-    frames = [
-        Frame(int(data.frame_ids[c]), data.joints[c], int(data.target[data.cfg == c][0]), "measured")
-        for c in range(data.n_configurations)
-    ]
-    q, targets = robot.configurations(unmeasured) if unmeasured else (np.zeros((0, 0)), [])
-    first = len(frames) + 1
-    frames += [Frame(first + k, robot.readings(q[k]), int(targets[k]), "not found") for k in range(unmeasured)]
+    frames = measured_frames(sim.data)
+    frames += unmeasured_frames(robot, len(frames) + 1, unmeasured)
     return profile, sim, frames
 
 

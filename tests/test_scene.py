@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
+from sim_frames import measured_frames, unmeasured_frames
 
 from app.review import Review
 from app.scene import ReviewScene
@@ -18,14 +19,6 @@ from calib_core.vision import Sighting
 
 URDF_DIR = Path(__file__).resolve().parents[1] / "calib_core" / "profiles"
 RED, BLUE, GREEN = [255, 0, 0], [0, 0, 255], [0, 200, 0]
-
-
-@dataclass
-class Frame:
-    index: int
-    joints_rad: np.ndarray
-    target: int
-    status: str
 
 
 @dataclass
@@ -39,14 +32,9 @@ def build(name: str, n: int, *, new: bool = True) -> Review:
     profile = load_profile(name)
     robot = SimulatedRobot.from_profile(profile, seed=2)
     sim = robot.simulate(n)
-    data = sim.data
-    frames = [
-        Frame(int(data.frame_ids[c]), data.joints[c], int(data.target[data.cfg == c][0]), "measured")
-        for c in range(data.n_configurations)
-    ]
-    q, targets = robot.configurations(1)
-    frames.append(Frame(len(frames) + 1, robot.readings(q[0]), int(targets[0]), "not found"))
-    return Review.build(profile, frames, data, profile.nominal(), sim.true_params if new else None)
+    frames = measured_frames(sim.data)
+    frames += unmeasured_frames(robot, len(frames) + 1, 1)
+    return Review.build(profile, frames, sim.data, profile.nominal(), sim.true_params if new else None)
 
 
 @pytest.fixture(scope="module")
