@@ -9,10 +9,12 @@ print(cal.summary()); cal.save("full.json")
 
 from .calibrate import calibrate, fit_parameters
 from .calibration import Calibration, write_atomic
-from .dataset import Dataset, parse_dataset, read_dataset, to_csv
+from .dataset import Dataset, parse_dataset, read_dataset, select_rows, to_csv
 from .errors import InputError
 from .problem import Problem
 from .profile import Profile, load_profile
+from .registration import register
+from .self_observation import calibrate_sensors
 from .simulator import SimulatedRobot, Simulation
 
 __all__ = [
@@ -24,10 +26,13 @@ __all__ = [
     "SimulatedRobot",
     "Simulation",
     "calibrate",
+    "calibrate_sensors",
     "fit_parameters",
     "load_profile",
     "parse_dataset",
     "read_dataset",
+    "register",
+    "select_rows",
     "to_csv",
     "write_atomic",
 ]
