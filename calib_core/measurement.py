@@ -3,7 +3,8 @@
 - `point3d`: the point itself (a stereo head with a sphere finder; a laser tracker).
 - `pinhole`: pixels. With the robot convention (x forward, y left, z up) and no distortion this is
   the NAO paper's Eq. 1, u = c_u - f y / x, v = c_v - f z / x. Optionally OpenCV's radial-tangential
-  distortion (k1, k2, p1, p2, k3) between normalisation and the intrinsics.
+  distortion (k1, k2, p1, p2, k3, and the rational model's k4, k5, k6) between normalisation and the
+  intrinsics.
 """
 
 from __future__ import annotations
@@ -24,6 +25,18 @@ def intrinsic_params(sensor: Sensor) -> list[int]:
     return list(sensor.intrinsics or ()) + list(sensor.distortion or ())
 
 
+def distortion_coefficients(sensor: Sensor, p: np.ndarray) -> tuple[float, ...]:
+    """k1, k2, p1, p2, k3, k4, k5, k6 in OpenCV's order; zero where the sensor has none."""
+    values = [float(p[i]) for i in sensor.distortion or ()]
+    return tuple(values + [0.0] * (8 - len(values)))
+
+
+def radial_terms(k: tuple[float, ...], r2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The radial factor's numerator 1 + k1 r2 + k2 r2^2 + k3 r2^3 and denominator 1 + k4 r2 + ..."""
+    k1, k2, _, _, k3, k4, k5, k6 = k
+    return 1 + r2 * (k1 + r2 * (k2 + r2 * k3)), 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+
+
 def predict(
     sensor: Sensor, p: np.ndarray, x: np.ndarray, *, derivatives: bool = False
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -42,19 +55,20 @@ def predict(
     X = x @ M.T
     Z = X[:, 2]
     a, b = X[:, 0] / Z, X[:, 1] / Z
-    if sensor.distortion is not None:
-        k1, k2, p1, p2, k3 = (p[i] for i in sensor.distortion)
-    else:
-        k1 = k2 = p1 = p2 = k3 = 0.0
+    k = distortion_coefficients(sensor, p)
+    k1, k2, p1, p2, k3, k4, k5, k6 = k
     r2 = a * a + b * b
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    num, den = radial_terms(k, r2)
+    radial = num / den
     ad = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a)
     bd = b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
     uv = np.stack([fx * ad + cx, fy * bd + cy], axis=1)
     if not derivatives:
         return uv, None, None
     # d(radial)/d(r2), then d(ad, bd)/d(a, b).
-    drad = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+    dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+    dden = k4 + r2 * (2 * k5 + 3 * k6 * r2)
+    drad = (dnum * den - num * dden) / den**2
     dad_da = radial + 2 * a * a * drad + 2 * p1 * b + 6 * p2 * a
     dad_db = 2 * a * b * drad + 2 * p1 * a + 2 * p2 * b
     dbd_da = 2 * a * b * drad + 2 * p1 * a + 2 * p2 * b
@@ -80,12 +94,15 @@ def predict(
     ]
     if sensor.distortion is not None:
         cols += [
-            np.stack([fx * a * r2, fy * b * r2], 1),  # k1
-            np.stack([fx * a * r2**2, fy * b * r2**2], 1),  # k2
+            np.stack([fx * a * r2 / den, fy * b * r2 / den], 1),  # k1
+            np.stack([fx * a * r2**2 / den, fy * b * r2**2 / den], 1),  # k2
             np.stack([fx * 2 * a * b, fy * (r2 + 2 * b * b)], 1),  # p1
             np.stack([fx * (r2 + 2 * a * a), fy * 2 * a * b], 1),  # p2
-            np.stack([fx * a * r2**3, fy * b * r2**3], 1),  # k3
+            np.stack([fx * a * r2**3 / den, fy * b * r2**3 / den], 1),  # k3
         ]
+        if len(sensor.distortion) == 8:
+            g = -radial / den  # d(radial)/d(den), times d(den)/d(k4..k6) = r2, r2^2, r2^3
+            cols += [np.stack([fx * a * g * r2**n, fy * b * g * r2**n], 1) for n in (1, 2, 3)]
     return uv, duv_dx, np.stack(cols, axis=2)
 
 

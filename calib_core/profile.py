@@ -100,7 +100,7 @@ class Sensor:
     model: str
     convention: str  # "x-forward" (robot: x forward, y left, z up) or "z-forward" (OpenCV)
     intrinsics: tuple[int, int, int, int] | None  # parameter indices of fx, fy, cx, cy
-    distortion: tuple[int, ...] | None  # parameter indices of k1, k2, p1, p2, k3
+    distortion: tuple[int, ...] | None  # parameter indices of k1, k2, p1, p2, k3 (and k4, k5, k6)
     image: tuple[int, int] | None  # width, height in px
     R_frame_optical: np.ndarray  # the OpenCV optical frame's axes in the sensor frame
     range: tuple[float, float] | None  # visible distances, profile length unit
@@ -605,7 +605,9 @@ class _Compiler:
             raise self.fail(where, "a pinhole sensor needs intrinsics")
         dist = None
         if "distortion" in spec:
-            keys = ("k1", "k2", "p1", "p2", "k3")
+            # OpenCV's order: k1 k2 p1 p2 k3, and k4 k5 k6 of the rational model when any is given.
+            rational = isinstance(spec["distortion"], dict) and any(k in spec["distortion"] for k in ("k4", "k5", "k6"))
+            keys = ("k1", "k2", "p1", "p2", "k3") + (("k4", "k5", "k6") if rational else ())
             dist = self.add_params(sname, "scalar", spec["distortion"], keys, f"{where}.distortion", default=0.0)
         # The optical frame's axes in the sensor frame; x-forward: x_cv = -y, y_cv = -z, z_cv = x.
         R_opt = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]) if convention == "x-forward" else np.eye(3)

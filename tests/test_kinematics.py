@@ -335,22 +335,33 @@ def test_nao_jacobian_all_parameters(nao, nao_sim) -> None:
     assert nonzero == len(nao.parameters)
 
 
-DISTORTION = "    distortion: {k1: -0.2, k2: 0.05, p1: 0.001, p2: -0.002, k3: 0.01}\n"
+DISTORTION = {
+    "plumb-bob": "{k1: -0.2, k2: 0.05, p1: 0.001, p2: -0.002, k3: 0.01}",
+    "rational": "{k1: -0.2, k2: 0.05, p1: 0.001, p2: -0.002, k3: 0.01, k4: 0.1, k5: -0.03, k6: 0.02}",
+}
 
 
-@pytest.fixture(scope="module")
-def nao_distorted(tmp_path_factory):
+@pytest.fixture(scope="module", params=list(DISTORTION))
+def nao_distorted(request, tmp_path_factory):
     text = (resources.files("calib_core") / "profiles" / "nao.yaml").read_text(encoding="utf-8")
     anchor = "    intrinsics: {fx: 562.5, fy: 562.5, cx: 324, cy: 189}\n"
     assert text.count(anchor) == 1
-    path = tmp_path_factory.mktemp("profiles") / "nao-distorted.yaml"
-    path.write_text(text.replace(anchor, anchor + DISTORTION), encoding="utf-8")
+    path = tmp_path_factory.mktemp("profiles") / f"nao-{request.param}.yaml"
+    line = f"    distortion: {DISTORTION[request.param]}\n"
+    path.write_text(text.replace(anchor, anchor + line), encoding="utf-8")
     return load_profile(path)
+
+
+def _coefficients(profile) -> tuple[str, ...]:
+    return tuple(profile.parameter_names[i].split(".")[1] for i in profile.sensors[profile.data.sensor].distortion)
 
 
 def test_distortion_profile_has_the_coefficients(nao_distorted) -> None:
     values = nao_distorted.params_to_display(nao_distorted.nominal())
     expected = {"k1": -0.2, "k2": 0.05, "p1": 0.001, "p2": -0.002, "k3": 0.01}
+    if len(_coefficients(nao_distorted)) == 8:
+        expected |= {"k4": 0.1, "k5": -0.03, "k6": 0.02}
+    assert _coefficients(nao_distorted) == tuple(expected)
     for k, v in expected.items():
         assert values[f"lower_camera.{k}"] == pytest.approx(v)
 
@@ -368,7 +379,7 @@ def test_nao_jacobian_with_distortion(nao, nao_sim, nao_distorted) -> None:
     # The intrinsics and distortion columns in particular (the loop above covers them; make sure
     # they are there and are not trivially zero).
     _, J = problem.residuals_jacobian(problem.x0)
-    for k in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"):
+    for k in ("fx", "fy", "cx", "cy", *_coefficients(nao_distorted)):
         assert np.linalg.norm(J[:, names.index(f"lower_camera.{k}")]) > 1e-3, k
 
 
@@ -383,7 +394,7 @@ def test_distortion_matches_opencv(nao_distorted) -> None:
     values = nao_distorted.params_to_display(p)
     fx, fy, cx, cy = (values[f"lower_camera.{k}"] for k in ("fx", "fy", "cx", "cy"))
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-    dist = np.array([values[f"lower_camera.{k}"] for k in ("k1", "k2", "p1", "p2", "k3")])
+    dist = np.array([values[f"lower_camera.{k}"] for k in _coefficients(nao_distorted)])
     X_cv = np.stack([-pts[:, 1], -pts[:, 2], pts[:, 0]], axis=1)
     ref, _ = cv2.projectPoints(X_cv, np.zeros(3), np.zeros(3), K, dist)
     ref = ref.reshape(-1, 2)
