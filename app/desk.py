@@ -11,6 +11,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ from calib_core.registration import register, registration_params
 
 from . import safety, security
 from .capture import AutoCapture, capture_frame, dry_run, replay
-from .drivers import LimitError, RobotDriver, SimulatedDriver
+from .drivers import LimitError, Look, RobotDriver, SimulatedDriver, reads_points
 from .jobs import JobContext, JobManager
 from .review import Review
 from .scene import ReviewScene
@@ -33,6 +34,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent
 SAMPLE_DIR = PACKAGE_DIR / "sample_sessions"
 PROFILE_DIR = PACKAGE_DIR / "calib_core" / "profiles"
 OBSERVE_PERIOD_S = 0.5
+MIN_REGISTRATION_FRAMES = 3  # measured frames an external tracker's pose is fitted on (3 points not on one line)
 # A resumed replay leaves out a configuration the session holds a frame at within this on every joint: a
 # frame's joints are the encoder readings at the commanded configuration (0.1 deg resolution, servo error).
 RESUME_TOLERANCE_DEG = 0.5
@@ -129,6 +131,21 @@ class Desk:
         if robot != self.connected:
             self.observe(None)
             self.connected = robot
+        self._show(robot)
+
+    def _show(self, robot: str) -> None:
+        """The scene shows this robot (its built-in URDF at zero joint angles) unless it shows it already;
+        the review of another robot it showed is closed."""
+        with self._review_lock:
+            if self.scene.robot == robot:
+                return
+            urdf = PROFILE_DIR / f"{robot}.urdf"
+            if urdf.is_file():
+                self.scene.set_robot(urdf, robot)
+            else:
+                self.scene.show_robot(self.profile(robot))
+            self._review = None
+            self._review_key = {}
 
     def _no_driver(self, robot: str) -> str:
         drivable = ", ".join(self.drivers) or "none"
@@ -348,11 +365,11 @@ class Desk:
             old_p = self._registered(profile, data, old_p, old_id, session_id, heldout)
             new_p = None if new_p is None else self._registered(profile, data, new_p, new_id, session_id, heldout)
         review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout)
+        watched = self._observe.driver.profile.name if self._observe is not None else None
+        if watched is not None and watched != session.robot:
+            self.observe(None)  # the scene shows one robot: the review replaces the live view of another
         with self._review_lock:
-            urdf = PROFILE_DIR / f"{session.robot}.urdf"
-            if self.scene.robot != session.robot and urdf.is_file():  # without one, load() shows to_urdf's
-                self.scene.set_robot(urdf, session.robot)
-            self.scene.load(review)
+            self.scene.load(review)  # another robot's: replaces everything the scene showed
             self._review = review
             self._review_key = {"session": session_id, "old": old_id, "new": new_id}
         return {**self._review_key, "robot": session.robot, "table": review.table(), "summary": review.summary()}
@@ -392,10 +409,11 @@ class Desk:
 
 def simulated(profile: Profile) -> bool:
     """Whether the simulator can stand in for the robot: the profile has a simulation section and its data
-    sensor is one the simulator renders (a stereo head or a camera; calib_core.simulator's capture)."""
+    sensor is one the simulator renders (a stereo head or a camera; calib_core.simulator's capture) or reads
+    directly (a point sensor without images, like the Motoman's laser tracker; drivers.reads_points)."""
     sensor = profile.sensors[profile.data.sensor]
     renders = sensor.model == "pinhole" or (sensor.model == "point3d" and sensor.baseline is not None)
-    return bool(profile.simulation) and renders
+    return bool(profile.simulation) and (renders or reads_points(sensor))
 
 
 def server_paths(data_dir: Path) -> list[Path]:
@@ -426,6 +444,7 @@ class _Observer:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="observe", daemon=True)
         self._last: dict[str, Any] = {"session": session_id, "autocapture": autocapture, "captured": 0}
+        self._registration: tuple[tuple, np.ndarray | None] | None = None  # (frames and calibration, fitted p)
 
     def start(self) -> None:
         self._thread.start()
@@ -462,5 +481,24 @@ class _Observer:
             look = self.driver.look()
         self._last["detection"] = look.sighting.status
         self._last["reason"] = look.sighting.reason
-        robot = self.driver.profile.name
-        self.desk.scene.show_live(self.desk.profile(robot), look, self.desk.active_params(robot)[1])
+        p, registered = self._live_params()
+        if not registered:  # where the tracker stands is unknown: its reading has no place in the scene yet
+            look = Look(look.readings_rad, look.target, replace(look.sighting, measured=None), look.images)
+            self._last["reason"] = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
+        self.desk.scene.show_live(self.driver.profile, look, p)
+
+    def _live_params(self) -> tuple[np.ndarray, bool]:
+        """The active calibration, seeing an external tracker (if any) through a registration fitted on this
+        session's measured frames; False when the session has too few of them to place the tracker."""
+        profile = self.driver.profile
+        cal_id, p = self.desk.active_params(profile.name)
+        if not registration_params(profile):
+            return p, True
+        frames = self.desk.store.frames(self.session_id)
+        key = (cal_id, tuple(f.index for f in frames if f.status == "measured"))
+        if self._registration is None or self._registration[0] != key:
+            data = self.desk.store.dataset(self.session_id, profile)
+            fitted = register(profile, data, p) if data.n_configurations >= MIN_REGISTRATION_FRAMES else None
+            self._registration = (key, fitted)
+        fitted = self._registration[1]
+        return (p, False) if fitted is None else (fitted, True)

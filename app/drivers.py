@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from calib_core.errors import InputError
-from calib_core.profile import Profile
+from calib_core.profile import Profile, Sensor
 from calib_core.simulator import SimulatedRobot
 from calib_core.vision import Sighting
 
@@ -58,6 +58,19 @@ class LimitError(InputError):
 class RobotFault(RuntimeError):
     """The robot failed, not the operator: its link was lost, or a move did not arrive in time. The
     robot is stopped; what was captured before stays."""
+
+
+def reads_points(sensor: Sensor) -> bool:
+    """A sensor that reports 3-D points with no image to detect them in (a laser tracker): the simulated robot
+    reads it directly, with its noise, instead of rendering and detecting."""
+    return sensor.model == "point3d" and sensor.baseline is None and sensor.intrinsics is None
+
+
+def readable_targets(profile: Profile) -> list[int]:
+    """The targets a point-reading sensor can be pointed at: those its data format names (the Motoman's
+    reflector on either arm, its `reflector_arm` column), else every single-point target."""
+    named = sorted(set(profile.data.target_values.values()))
+    return named or [t for t, target in enumerate(profile.targets) if target.grid is None and target.points is None]
 
 
 def check_limits(profile: Profile, q_rad: np.ndarray, margin_rad: float) -> None:
@@ -106,7 +119,8 @@ class RobotDriver(Protocol):
         ...
 
     def look(self, believed: np.ndarray | None = None) -> Look:
-        """The images now and the detector's Sighting, seeded by the active calibration (or `believed`)."""
+        """The images now and the detector's Sighting, seeded by the active calibration (or `believed`); a
+        sensor without images (a tracker) gives its reading and no images."""
         ...
 
     def check(self, q_rad: np.ndarray) -> None:
@@ -163,7 +177,10 @@ class SimulatedDriver:
     `calib simulate --day` does, so seed 1 day 2 is the robot of the sample session robonaut-a-day2). A motion
     thread moves the true joint angles at rate_hz; `time_scale` speeds the robot's clock (moves, pauses and
     settling) for tests and demos. `look()` renders what the sensor sees at the true pose and runs the
-    detector seeded by the calibration the robot was given, so a better calibration finds the fixture better.
+    detector seeded by the calibration the robot was given, so a better calibration finds the fixture better;
+    a sensor without images (a laser tracker, `reads_points`) is read directly: the true position of the
+    target it is pointed at (`set_target`: the Motoman's reflector on the right or the left arm), with the
+    profile's `simulation.noise.point`.
     """
 
     def __init__(
@@ -188,7 +205,8 @@ class SimulatedDriver:
         robot = SimulatedRobot.from_profile(profile, seed=seed)
         for d in range(2, day + 1):
             robot = robot.drifted(seed=1000 * seed + d)
-        self._sim = robot  # renders and detects (its rng is guarded by _render_lock)
+        self._sim = robot  # renders and detects, or reads a tracker (its rng is guarded by _render_lock)
+        self._reads = reads_points(profile.sensors[profile.data.sensor])
         self._planner = SimulatedRobot.from_profile(profile, seed=seed + 1, truth=robot.true_params)
         self._seed = seed
         self._velocity = np.array([j.velocity for j in profile.joints])
@@ -287,8 +305,18 @@ class SimulatedDriver:
             q, target = self._q.copy(), self._target
             p = (self._believed if believed is None else np.asarray(believed, float)).copy()
         with self._render_lock:
+            if self._reads:
+                return self._read(q, target)
             cap = self._sim.capture(0, q, target, p)
         return Look(cap.readings, target, cap.sighting, cap.images)
+
+    def _read(self, q: np.ndarray, target: int) -> Look:
+        """A tracker's reading of the target at true joint angles q (render lock held): no image, no detector."""
+        d = self._sim.measure(q[None], np.array([target])).data
+        fixed = self.profile.targets[target].points  # a reflector: its frame's origin, as a CSV row's point
+        points = d.point if fixed is None else fixed[np.maximum(d.vertex, 0)]
+        sighting = Sighting(target, "measured", "ok", d.measured, points, d.vertex, {"sensor": "read directly"})
+        return Look(d.joints[0], target, sighting, {})
 
     def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None:
         p = self.profile.nominal() if params is None else np.asarray(params, float).copy()
@@ -305,6 +333,10 @@ class SimulatedDriver:
     def set_target(self, target: int) -> None:
         if not 0 <= target < len(self.profile.targets):
             raise ValueError(f"{self.profile.name} has targets 0..{len(self.profile.targets) - 1}, not {target}")
+        if self._reads and target not in readable_targets(self.profile):
+            names = ", ".join(self.profile.targets[t].name for t in readable_targets(self.profile))
+            sensor = self.profile.sensors[self.profile.data.sensor].name
+            raise InputError(f"the {sensor} reads {names}, not {self.profile.targets[target].name}")
         with self._lock:
             self._target = int(target)
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from calib_core import Dataset, Profile
 from calib_core.kinematics import forward
-from calib_core.measurement import predict, project_to_image
+from calib_core.measurement import distortion_coefficients, predict, project_to_image, radial_terms
 from calib_core.profile import Sensor
 from calib_core.units import length_factor
 from calib_core.urdf import to_urdf
@@ -277,7 +277,9 @@ def _observations(
                 joints[r] = np.where(np.isnan(data.joints[c]), joints[r], data.joints[c])
     for r in np.flatnonzero(~seen):
         t = profile.targets[int(targets[r])]
-        pts = np.full((1, 3), np.nan) if t.grid is None else t.grid
+        # The whole target: a board's grid, fixed points (markers, a reflector at its frame's origin), or
+        # the calibrated point (NaN).
+        pts = t.grid if t.grid is not None else t.points if t.points is not None else np.full((1, 3), np.nan)
         rows.append(np.full(len(pts), r))
         target.append(np.full(len(pts), targets[r]))
         point.append(pts)
@@ -370,10 +372,12 @@ def _rays(sensor: Sensor, p: np.ndarray, uv: np.ndarray) -> np.ndarray:
     ad, bd = (uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy
     a, b = ad, bd
     if sensor.distortion is not None:
-        k1, k2, p1, p2, k3 = (p[i] for i in sensor.distortion)
+        k = distortion_coefficients(sensor, p)
+        p1, p2 = k[2], k[3]
         for _ in range(UNDISTORT_ITERATIONS):
             r2 = a * a + b * b
-            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            num, den = radial_terms(k, r2)
+            radial = num / den
             a, b = (
                 (ad - 2 * p1 * a * b - p2 * (r2 + 2 * a * a)) / radial,
                 (bd - p1 * (r2 + 2 * b * b) - 2 * p2 * a * b) / radial,
@@ -385,11 +389,13 @@ def _rays(sensor: Sensor, p: np.ndarray, uv: np.ndarray) -> np.ndarray:
 def frame_bounds_m(
     profile: Profile, p: np.ndarray, joints: np.ndarray, points_m: Iterable[np.ndarray] = ()
 ) -> np.ndarray:
-    """(2, 3) min and max, base frame, m, of every frame origin in every configuration and every point."""
+    """(2, 3) min and max, base frame, m, of every frame origin in every configuration and every point.
+    An external device's frame (a laser tracker's registration, metres away) is not the robot's extent."""
     to_m = length_factor(profile.length_unit, "m")
     q = joints if len(joints) else np.zeros((1, len(profile.joints)))
-    poses = forward(profile, p, q)
-    pts = [np.concatenate(poses.t) * to_m, np.zeros((1, 3))] + [x for x in points_m if len(x)]
+    robot = [f for f, frame in enumerate(profile.frames) if not frame.registration]
+    poses = forward(profile, p, q, frames=robot)
+    pts = [np.concatenate([poses.t[f] for f in robot]) * to_m, np.zeros((1, 3))] + [x for x in points_m if len(x)]
     allp = np.concatenate(pts)
     allp = allp[np.isfinite(allp).all(axis=1)]
     return np.stack([allp.min(axis=0), allp.max(axis=0)])

@@ -4,7 +4,8 @@
         label                      "old calibration"
         base                       the robot's base frame, turned upright (display_rotation)
             robot/...              URDF at the old calibration's parameters (ViserUrdf)
-            ghost/...              the same, translucent: shown instead of `robot` in the overlay
+            ghost/...              the same, translucent: shown instead of `robot` in the overlay (built
+                                   when the overlay is first asked for: a third copy costs the browser)
             frame/measured         the selected frame: measured points, red
             frame/predicted        its predictions, blue (green on the new side)
             frame/lines            prediction -> measurement, one segment per point
@@ -15,6 +16,12 @@
 Each side's URDF is generated from that side's parameters (`Review.urdf`), so both copies take the
 same joint readings and still differ where the calibrations differ. The scene keeps its own registry
 of the nodes it made (viser has no public listing) and reports it through `state()`.
+
+One robot at a time: when the robot shown changes (a review, the built-in robot, or the live view of
+another robot), everything shown for the previous one is removed from viser (re-adding a node under the
+same name would keep the old children, so a Robonaut arm would stay inside a NAO scene) and every
+browser's camera is framed on the new robot (app/framing.py): the copies' extents at the nominal model and
+zero joint angles, where the layout puts them.
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ from calib_core.units import length_factor
 from calib_core.urdf import to_urdf
 from calib_core.vision import Sighting
 
+from .framing import ClientFraming, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
 
 SIDES = ("old", "new")
@@ -59,13 +67,18 @@ class LookLike(Protocol):
 
 @dataclass
 class _Copy:
-    """One URDF copy: its document, its own yourdfpy object (update_cfg mutates it), its viser handle."""
+    """One URDF copy: its document, its own yourdfpy object (update_cfg mutates it), its viser handle.
+
+    `root` is the slot's frame (kept, its visibility is the copy's); the URDF's nodes hang under `node`, a
+    child named once per build (`root`/u<n>), removed with the copy: viser's buffer merges the removal of
+    a name with its re-creation, so a rebuilt copy under the same names could keep the old one's nodes."""
 
     text: str
     profile: Profile
     urdf: yourdfpy.URDF
     handle: ViserUrdf
     root: str
+    node: viser.FrameHandle
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
 
 
@@ -74,10 +87,18 @@ def display_rotation(profile: Profile) -> np.ndarray:
 
     Profiles do not say which way is up (Robonaut's chest frame has y down, NAO's torso z up), but
     a robot's head sits above its base: up is the base axis nearest the direction from the base to
-    the data sensor at zero joint angles; forward is the base x axis (y if x is up)."""
-    sensor = profile.sensors[profile.data.sensor]
-    poses = forward(profile, profile.nominal(), np.zeros((1, len(profile.joints))), frames=[sensor.frame])
-    v = poses.t[sensor.frame][0]
+    the data sensor at zero joint angles (or the first other sensor on the robot when the data come
+    from an external device, like the Motoman's laser tracker); forward is the base x axis (y if x is
+    up). A robot with no sensor of its own keeps its base axes."""
+    on_robot = [
+        s.frame for s in profile.sensors if not any(profile.frames[f].registration for f in profile.chain(s.frame))
+    ]
+    data_frame = profile.sensors[profile.data.sensor].frame
+    if not on_robot:
+        return np.eye(3)
+    frame = data_frame if data_frame in on_robot else on_robot[0]
+    poses = forward(profile, profile.nominal(), np.zeros((1, len(profile.joints))), frames=[frame])
+    v = poses.t[frame][0]
     k = int(np.argmax(np.abs(v)))
     up = np.zeros(3)
     up[k] = 1.0 if v[k] >= 0 else -1.0
@@ -99,11 +120,14 @@ class ReviewScene:
         self._nodes: dict[str, viser.SceneNodeHandle] = {}
         self._counts: dict[str, int] = {}  # points or segments node -> how many it really holds
         self._copies: dict[str, _Copy] = {}
+        self._builds = 0  # URDF copies built: names each build's node
         self._profile: Profile | None = None
         self._separation_m = 0.0
         self._label_z_m = 0.0
         self._centre_m = np.zeros(3)
         self._live_robot: str | None = None
+        self._extent_m = np.zeros((2, 3))  # the robot's world box at the nominal model, zero joint angles
+        self.camera = ClientFraming(server)
         server.gui.configure_theme(show_share_button=False)
         server.gui.main_panel.minimize()  # the page has the controls; the scene gets the room
         if urdf_path is not None:
@@ -113,23 +137,35 @@ class ReviewScene:
     # --- loading --------------------------------------------------------------------------------
     def set_robot(self, urdf_path: Path, robot: str) -> None:
         """Show built-in robot `robot` from a URDF file on both copies at zero joint angles, no frame."""
-        profile = load_profile(robot)
-        text = Path(urdf_path).read_text(encoding="utf-8")
-        zero = np.zeros(len(profile.joints))
+        self.show_robot(load_profile(robot), Path(urdf_path).read_text(encoding="utf-8"))
+
+    def show_robot(self, profile: Profile, urdf_text: str | None = None) -> None:
+        """Show a robot on both copies at zero joint angles, no frame: from a URDF document, or the
+        profile's own at the nominal model."""
         with self._lock:
-            self.review = None
-            self.index = None
-            self._setup(profile, frame_bounds_m(profile, profile.nominal(), zero[None]))
-            for side in SIDES:
-                self._ensure_side(profile, side, text)
-                self._set_joints(self._copies[side], zero)
-            self.live = False
-            self._refresh()
+            if self._show_robot(profile, urdf_text):
+                self._reframe()
+
+    def _show_robot(self, profile: Profile, urdf_text: str | None) -> bool:
+        """show_robot without framing the cameras; True if the robot shown changed."""
+        text = to_urdf(profile, profile.nominal()) if urdf_text is None else urdf_text
+        zero = np.zeros(len(profile.joints))
+        switched = self._switch(profile)
+        self.review = None
+        self.index = None
+        self._setup(profile, frame_bounds_m(profile, profile.nominal(), zero[None]))
+        for side in SIDES:
+            self._ensure_side(profile, side, text)
+            self._set_joints(self._copies[side], zero)
+        self.live = False
+        self._refresh()
+        return switched
 
     def load(self, review: Review) -> None:
         """Show a review: both copies, every frame's points (sent once, shown by show_all), and
         its first frame selected."""
         with self._lock:
+            switched = self._switch(review.profile)
             self._setup(review.profile, review.bounds_m)
             self.review = review
             self.index = None
@@ -145,6 +181,8 @@ class ReviewScene:
                 self.select(int(review.indices[0]))
             else:
                 self._refresh()
+            if switched:
+                self._reframe()
 
     # --- interaction ----------------------------------------------------------------------------
     def select(self, index: int) -> None:
@@ -172,8 +210,8 @@ class ReviewScene:
     def set_overlay(self, on: bool) -> None:
         """Both copies in one place, the old one translucent (on), or side by side."""
         with self._lock:
-            if on and not self.overlay and self.review is not None and self.index is not None:
-                self._set_joints(self._copies["ghost"], self.review.frame_geometry(self.index).joints_rad)
+            if on and "old" in self._copies:
+                self._ensure_ghost()
             self.overlay = bool(on)
             self._refresh()
 
@@ -184,6 +222,8 @@ class ReviewScene:
         geometry = live_geometry(profile, p, look.readings_rad, s.target, s.points, s.measured)
         text = to_urdf(profile, p)
         with self._lock:
+            # Another robot: it replaces the one shown (and its review), and the cameras frame it live.
+            switched = self.robot != profile.name and self._show_robot(profile, None)
             if self._live_robot != profile.name:
                 self._live_robot = profile.name
                 R = display_rotation(profile)
@@ -199,6 +239,8 @@ class ReviewScene:
                 self._show_frame("/live/base/frame", geometry, "old")
                 self.live = True
                 self._refresh()
+            if switched:
+                self._reframe()
 
     def hide_live(self) -> None:
         """Back to the review copies."""
@@ -208,12 +250,15 @@ class ReviewScene:
 
     # --- tests and the API ----------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
-        """{robot, index, overlay, all, live, nodes, urdf}. nodes: {name: {kind ("frame", "points",
+        """{robot, index, overlay, all, live, nodes, urdf, camera}. nodes: {name: {kind ("frame", "points",
         "lines", "label"), visible, shown (it and its ancestors visible), position, wxyz (relative to
         its parent), and color + points (N, 3) / segments (N, 2, 3) of what it really holds, or text}};
-        urdf: {copy ("old", "ghost", "new", "live"): {root, shown, joints: {name: rad}}}."""
+        urdf: {copy ("old", "ghost", "new", "live"): {root, node (the URDF's nodes hang under it), shown,
+        joints: {name: rad}}}; camera: the
+        framing of the robot shown and each browser's camera (app.framing.ClientFraming.state)."""
         with self._lock:
             return {
+                "camera": self.camera.state(),
                 "robot": self.robot,
                 "index": self.index,
                 "overlay": self.overlay,
@@ -223,6 +268,7 @@ class ReviewScene:
                 "urdf": {
                     slot: {
                         "root": c.root,
+                        "node": c.node.name,
                         "shown": self._shown(c.root),
                         "joints": dict(zip(c.urdf.actuated_joint_names, map(float, c.urdf.cfg), strict=True)),
                     }
@@ -253,16 +299,52 @@ class ReviewScene:
                 self._add_parts(
                     f"{root}/base/{group}", SIDE_COLOR[side], size if group == "frame" else ALL_SCALE * size
                 )
-        extent = float(max(self._separation_m + span[1], span[2], 0.5))
-        c = self._centre_m
-        self.server.initial_camera.look_at = (float(c[0]), 0.0, float(c[2]))
-        self.server.initial_camera.position = (float(c[0]) + 0.9 * extent, 0.0, float(c[2]) + 0.35 * extent)
-        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+        zero = np.zeros((1, len(profile.joints)))
+        self._extent_m = _box(_corners(frame_bounds_m(profile, profile.nominal(), zero)) @ R.T)
+
+    def _switch(self, profile: Profile) -> bool:
+        """Before showing `profile`: if it is another robot than the one shown, remove everything shown
+        for that one: every URDF copy with all its nodes, and the live view (hidden until show_live builds
+        it for the new robot); the points and labels are made anew by _setup. True if switched."""
+        if self.robot == profile.name and self._profile is not None:
+            return False
+        for slot in list(self._copies):
+            self._drop_copy(slot)
+        if "/live" in self._nodes:
+            self._nodes["/live"].visible = False
+            for name in [n for n in self._counts if n.startswith("/live/")]:
+                self._update_points(name, np.zeros((0, 3)))
+        self._live_robot = None
+        self.review = None
+        self.index = None
+        self.live = False
+        return True
+
+    def _reframe(self) -> None:
+        """Every browser's camera on the copies shown, each its nominal extent where the layout puts it."""
+        roots = (
+            ["/live"]
+            if self.live
+            else ["/review/old"] + (["/review/new"] if self._nodes["/review/new"].visible else [])
+        )
+        boxes = [self._extent_m + np.asarray(self._nodes[r].position, float) for r in roots]
+        self.camera.frame(framing(_box(np.concatenate(boxes))))
 
     def _ensure_side(self, profile: Profile, side: str, text: str) -> None:
         self._ensure_copy(side, f"/review/{side}/base/robot", profile, text, None)
         if side == "old":
-            self._ensure_copy("ghost", "/review/old/base/ghost", profile, text, GHOST_RGBA)
+            ghost = self._copies.get("ghost")
+            if self.overlay:
+                self._ensure_ghost()
+            elif ghost is not None and ghost.text != text:
+                self._drop_copy("ghost")  # built again when the overlay is next asked for
+
+    def _ensure_ghost(self) -> _Copy:
+        """The old copy's translucent twin, at the old copy's joints."""
+        old = self._copies["old"]
+        ghost = self._ensure_copy("ghost", "/review/old/base/ghost", old.profile, old.text, GHOST_RGBA)
+        ghost.handle.update_cfg(np.asarray(old.urdf.cfg, float))
+        return ghost
 
     def _ensure_copy(
         self, slot: str, root: str, profile: Profile, text: str, rgba: tuple[float, float, float, float] | None
@@ -274,11 +356,19 @@ class ReviewScene:
         urdf = yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=True, load_meshes=True)
         if urdf.scene is None or not urdf.scene.geometry:
             raise ValueError(f"the URDF of the '{slot}' copy has no visual geometry to show")
-        self._frame(root, replace=True)  # a new root node takes the old copy's nodes with it
-        handle = ViserUrdf(self.server, urdf, root_node_name=root, mesh_color_override=rgba)
+        self._frame(root)
+        if current is not None:
+            self._drop_copy(slot)
+        self._builds += 1
+        node = self.server.scene.add_frame(f"{root}/u{self._builds}", show_axes=False)
+        handle = ViserUrdf(self.server, urdf, root_node_name=node.name, mesh_color_override=rgba)
         order = [profile.joint(name) for name in urdf.actuated_joint_names]
-        self._copies[slot] = _Copy(text, profile, urdf, handle, root, order)
+        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order)
         return self._copies[slot]
+
+    def _drop_copy(self, slot: str) -> None:
+        """Remove a copy's URDF from viser: its build node and every node under it."""
+        self._copies.pop(slot).node.remove()
 
     def _set_joints(self, copy: _Copy, q_rad: np.ndarray) -> None:
         """Drive a copy with readings in the profile's joint order."""
@@ -325,14 +415,10 @@ class ReviewScene:
                 self._nodes[name].visible = self._counts[name] > 0
 
     # --- nodes ----------------------------------------------------------------------------------
-    def _frame(
-        self, name: str, *, wxyz: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0), visible: bool = True, replace: bool = False
-    ) -> None:
-        if name in self._nodes and not replace:
+    def _frame(self, name: str, *, wxyz: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0), visible: bool = True) -> None:
+        if name in self._nodes:
             self._nodes[name].wxyz = wxyz  # type: ignore[assignment]
             return
-        if name in self._nodes:
-            visible = self._nodes[name].visible
         self._nodes[name] = self.server.scene.add_frame(name, show_axes=False, wxyz=wxyz, visible=visible)
 
     def _label(self, name: str, text: str, position: tuple[float, float, float]) -> None:
@@ -404,6 +490,11 @@ class ReviewScene:
 def _wxyz(R: np.ndarray) -> tuple[float, float, float, float]:
     w, x, y, z = (float(v) for v in viser.transforms.SO3.from_matrix(R).wxyz)
     return w, x, y, z
+
+
+def _box(points: np.ndarray) -> np.ndarray:
+    """(2, 3) min and max of points (N, 3)."""
+    return np.stack([points.min(axis=0), points.max(axis=0)])
 
 
 def _corners(bounds_m: np.ndarray) -> np.ndarray:

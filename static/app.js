@@ -118,12 +118,28 @@ async function init() {
 
 // A robot with real data only (no simulation) has sessions imported from CSV, calibrations and reviews,
 // but nothing to connect to or move: its capture and motion controls are disabled.
+// The 3-D scene shows the connected robot: a session and review of another robot are closed.
 async function connect(robot) {
   if (state.robots[robot].simulated) await api("POST", "/robot/connect", { robot });
   state.robot = robot;
+  if (state.session && state.session.robot !== robot) closeSession();
   buildJoints();
   showDrivable();
   await refreshActive();
+}
+
+function closeSession() {
+  Object.assign(state, { session: null, review: null, newCal: null, frame: null, frameOrder: [], calibrations: [] });
+  for (const li of document.querySelectorAll("#sessions li")) li.classList.remove("selected");
+  for (const sel of ["#frames", "#summary", "#parameters", "#warnings", "#calibrations"]) $(sel).replaceChildren();
+  for (const sel of ["#split-old", "#split-new", "#histogram"]) {
+    const canvas = $(sel);
+    canvas.getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
+  }
+  $("#frame-label").textContent = "frame —";
+  $("#frame-slider").max = 0;
+  $("#split").hidden = !state.robots[state.robot].sensor.image;  // a laser tracker has no image to mark
+  renderApply();
 }
 
 const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "#dry-run", "#replay-start",

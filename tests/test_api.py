@@ -6,6 +6,7 @@ numbers the server wrote.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -18,8 +19,9 @@ import yaml
 import yourdfpy
 from fastapi.testclient import TestClient
 
+from app.desk import simulated
 from app.server import create_app
-from calib_core import load_profile
+from calib_core import load_profile, parse_dataset, to_csv
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 
@@ -294,12 +296,23 @@ def test_a_replay_beyond_the_limits_is_refused_before_moving(client: TestClient)
     assert "internal error" not in job["error"]
 
 
-# --- a robot with real data only (Motoman: a laser tracker, no simulation) ------------------------
+# --- a robot with real data only (a profile without a simulation section: no driver) --------------
 MOTOMAN_CSV = Path(__file__).resolve().parent.parent.parent / "shared" / "datasets" / "motoman" / "leica_feb2019.csv"
 
 
+def test_only_a_profile_with_a_simulation_section_gets_a_simulated_robot() -> None:
+    motoman = load_profile("motoman")
+    assert simulated(motoman) and simulated(load_profile("nao")) and simulated(load_profile("robonaut-a"))
+    assert not simulated(dataclasses.replace(motoman, simulation={}))
+
+
 @pytest.mark.skipif(not MOTOMAN_CSV.is_file(), reason="the Motoman data set is not beside the project")
-def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_be_driven(client: TestClient) -> None:
+def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_be_driven(
+    client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The Motoman's real tracker data on a desk that has no robot to drive for it: what a desk makes of a
+    profile without a simulation section (Desk.start makes no driver for it)."""
+    monkeypatch.delitem(client.app.state.desk.drivers, "motoman")
     robots = {r["name"]: r for r in client.get("/api/robots").json()}
     assert robots["motoman"]["simulated"] is False
     assert robots["robonaut-a"]["simulated"] and robots["nao"]["simulated"]
@@ -361,3 +374,102 @@ def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_b
     r = client.post(f"/api/calibrations/{job['result']}/apply")
     assert r.status_code == 200, r.text
     assert client.get("/api/robot/calibration", params={"robot": "motoman"}).json()["id"] == job["result"]
+
+
+# --- the simulated Motoman: a laser tracker read directly, no images ------------------------------
+def _observed(client: TestClient, session: str, timeout_s: float = 10.0) -> dict:
+    """Observe a session until the live view shows a reading: the scene's state and what observing reports."""
+    assert client.post(f"/api/sessions/{session}/observe", json={"on": True}).status_code == 200
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        observing = client.get("/api/robot").json()["observing"]
+        state = client.app.state.desk.scene.state()
+        if observing and observing.get("detection") == "measured" and state["live"]:
+            return {**state, "observing": observing}
+        time.sleep(0.1)
+    raise AssertionError(f"no live reading while observing {session}: {observing}")
+
+
+def test_the_simulated_motoman_replays_and_calibrates_to_its_tracker_noise(client: TestClient) -> None:
+    """Connect the Motoman, replay 20 planned configurations (each frame a tracker reading of the right arm's
+    reflector), then calibrate. Every commanded configuration is inside the joint limits; the session's CSV is
+    the Motoman format. Mode `full` (every parameter in which the simulated robot differs from the nominal
+    model) gets to the tracker's noise on held-out frames and recovers the truth within 4 reported standard
+    deviations; mode `offsets` cannot (the simulated robot's lengths and twists differ from the nominal
+    model's by millimetres and tenths of a degree), but still removes most of the error."""
+    desk = client.app.state.desk
+    profile = load_profile("motoman")
+    assert client.post("/api/robot/connect", json={"robot": "motoman"}).status_code == 200
+    driver = desk.drivers["motoman"]
+    commanded: list[np.ndarray] = []
+    move_to = driver.move_to
+
+    def recording_move_to(q_rad: np.ndarray, **kw) -> bool:
+        commanded.append(np.array(q_rad, float))
+        return move_to(q_rad, **kw)
+
+    driver.move_to = recording_move_to
+    try:
+        sid = client.post("/api/sessions", json={"robot": "motoman", "name": "simulated Motoman"}).json()["id"]
+        r = client.post(f"/api/sessions/{sid}/replay", json={"count": 20})
+        assert r.status_code == 202, r.text
+        job = wait_job(client, r.json()["job"])
+        assert job["state"] == "done", job
+
+        # Observe: the live view places the tracker's reading through a registration fitted on the session's
+        # frames; a session with none yet shows only the prediction.
+        fresh = client.post("/api/sessions", json={"robot": "motoman", "name": "no frames yet"}).json()["id"]
+        live = _observed(client, fresh)
+        assert "3 frames are measured" in live["observing"]["reason"]
+        assert not live["nodes"]["/live/base/frame/measured"]["shown"] and live["nodes"]["/live"]["shown"]
+        live = _observed(client, sid)
+        measured = np.array(live["nodes"]["/live/base/frame/measured"]["points"])
+        predicted = np.array(live["nodes"]["/live/base/frame/predicted"]["points"])
+        # Beside its prediction through the active calibration (the nominal model: mm off; one applied from the
+        # real robot's data in another test: cm), not where the unregistered tracker would put it (metres off).
+        assert len(measured) == 1 and np.linalg.norm(measured - predicted) < 0.05
+        client.post(f"/api/sessions/{sid}/observe", json={"on": False})
+    finally:
+        del driver.move_to
+        client.post("/api/robot/connect", json={"robot": "robonaut-a"})
+    frames = client.get(f"/api/sessions/{sid}").json()["frames"]
+    assert len(frames) == len(commanded) == 20
+    assert all(f["status"] == "measured" and f["target"] == "LR1" and f["images"] == {} for f in frames)
+    lo, hi = profile.joint_limits()
+    margin = math.radians(1.0)
+    assert all(np.all(q >= lo + margin - 1e-12) and np.all(q <= hi - margin + 1e-12) for q in commanded)
+
+    # The session's data in the Motoman's CSV format: one row per reading, the arm in reflector_arm.
+    data = desk.store.dataset(sid, profile)
+    text = to_csv(profile, data)
+    header = text.splitlines()[0].split(",")
+    assert {"E_deg", "S1_deg", "T2_deg", "reflector_arm", "x_m", "y_m", "z_m"} <= set(header)
+    again = parse_dataset(profile, text, "data.csv")
+    assert {row[header.index("reflector_arm")] for row in again.rows} == {"right"}
+    np.testing.assert_allclose(again.measured, data.measured, atol=1e-6)  # micrometres, as written
+    np.testing.assert_array_equal(again.point, data.point)
+
+    noise_m = profile.simulation["noise"]["point"]  # per axis
+    truth = profile.params_to_display(profile.true_params())
+    figures = {}
+    for mode in ("offsets", "full"):
+        r = client.post(f"/api/sessions/{sid}/calibrations", json={"mode": mode, "holdout": 0.3})
+        assert r.status_code == 202, r.text
+        job = wait_job(client, r.json()["job"])
+        assert job["state"] == "done", job
+        cal = client.get(f"/api/calibrations/{job['result']}").json()
+        figures[mode] = cal["figures"]
+        if mode == "full":
+            estimated = [p for p in cal["parameters"] if p["estimated"] and p["std"]]
+            assert any(p["name"] == "B1.offset" for p in estimated)
+            off = [p["name"] for p in estimated if abs(p["value"] - truth[p["name"]]) > 4 * p["std"]]
+            assert off == [], [(p["name"], p["value"], truth[p["name"]], p["std"]) for p in estimated]
+    # A reading's error is about sqrt(3) sigma; the held-out frames' also carries the estimate's own error.
+    assert figures["full"]["holdout_after"]["rms"] < 3 * math.sqrt(3) * noise_m
+    assert figures["offsets"]["holdout_after"]["mean"] < 0.6 * figures["offsets"]["holdout_before"]["mean"]
+
+    # Reviewed like any session: every frame's reading beside its prediction, through the full calibration.
+    review = client.post("/api/review", json={"session": sid, "old": None, "new": job["result"]})
+    assert review.status_code == 200, review.text
+    errors = np.array([row["err_new"] for row in review.json()["table"]], float)
+    assert len(errors) == 20 and np.all(errors < 10 * noise_m), errors

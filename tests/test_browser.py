@@ -8,10 +8,18 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+import viser
 from browser import PAPER_COLOURS, colour_pixels, launch, served, wait_for_scene
+from test_scene import URDF_DIR, build
+
+from app.review import frame_bounds_m
+from app.scene import ReviewScene, display_rotation
+from calib_core import load_profile
 
 playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = pytest.mark.skipif(shutil.which("chromium") is None, reason="Debian's chromium is not installed")
@@ -118,3 +126,118 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         assert [f["index"] for f in frames] == [1, 2, 3, 4]
         assert sum(f["status"] == "measured" for f in frames[1:]) >= 1
         browser.close()
+
+
+HOLDS = "p => !!window.__viserSceneTree && Object.keys(window.__viserSceneTree.getState()).some(k => k.startsWith(p))"
+
+
+def _in_client(page, prefix: str) -> bool:
+    """Whether the browser's viser scene holds a node under `prefix`."""
+    return page.evaluate(HOLDS, prefix)
+
+
+def _shown_box(scene: ReviewScene) -> np.ndarray:
+    """The world box of the copies the scene shows: the robot's frame origins at the nominal model and zero
+    joint angles, turned upright and placed where each copy's root is."""
+    state = scene.state()
+    profile = load_profile(state["robot"])
+    zero = np.zeros((1, len(profile.joints)))
+    b = frame_bounds_m(profile, profile.nominal(), zero)
+    corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    corners = corners @ display_rotation(profile).T
+    roots = [r for r in ("/review/old", "/review/new", "/live") if r in state["nodes"] and state["nodes"][r]["shown"]]
+    points = np.concatenate([corners + state["nodes"][r]["position"] for r in roots])
+    return np.stack([points.min(axis=0), points.max(axis=0)])
+
+
+def _framed(
+    reports: list, since: float, box: np.ndarray, others: frozenset[int] = frozenset(), timeout_s: float = 30.0
+) -> tuple:
+    """Wait until a browser (not one of `others`) reports, after `since`, a camera framed on the box (_fits);
+    return its latest report (time, client id, look_at, position, fov, width, height)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        latest = {r[1]: r for r in reports if r[0] > since and r[1] not in others}
+        if latest and all(_fits(r, box) for r in latest.values()):
+            return next(iter(latest.values()))
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no browser camera framed on {box.round(3).tolist()} after the switch: {latest}")
+        time.sleep(0.1)
+
+
+def _fits(report: tuple, box: np.ndarray) -> bool:
+    """The camera looks at the box's centre from a distance where the box's bounding sphere fits both fields of
+    view, without the robot shrunk to a speck (less than 1.5 times the distance that just fits)."""
+    _, _, look_at, position, fov, width, height = report
+    radius = np.linalg.norm(box[1] - box[0]) / 2
+    horizontal = 2 * np.arctan(np.tan(fov / 2) * width / height)
+    just_fits = radius / np.sin(min(fov, horizontal) / 2)
+    distance = np.linalg.norm(np.asarray(position) - look_at)
+    return bool(np.allclose(look_at, box.mean(axis=0), atol=1e-4) and just_fits <= distance <= 1.5 * just_fits)
+
+
+def _distance(report: tuple) -> float:
+    return float(np.linalg.norm(np.asarray(report[3]) - report[2]))
+
+
+def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
+    """A Robonaut review in an open browser, then NAO, then the Motoman: nothing of the previous robot stays in
+    the browser's scene, and every browser's camera is framed on the robot now shown (a browser opened later
+    too)."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    reports: list[tuple] = []  # (time, client, look_at, position, fov, width, height) as the browsers send them
+
+    def record(client: viser.ClientHandle) -> None:
+        client.camera.on_update(
+            lambda c: reports.append(
+                (
+                    time.time(),
+                    client.client_id,
+                    c.look_at.copy(),
+                    c.position.copy(),
+                    c.fov,
+                    c.image_width,
+                    c.image_height,
+                )
+            )
+        )
+
+    server.on_client_connect(record)
+    try:
+        scene = ReviewScene(server)
+        scene.load(build("robonaut-a", 4))
+        robonaut = {slot: c["node"] for slot, c in scene.state()["urdf"].items()}
+        with playwright_api.sync_playwright() as pw:
+            browser = launch(pw)
+            page = browser.new_page(viewport={"width": 480, "height": 360})
+            page.goto(f"http://127.0.0.1:{server.get_port()}/")
+            page.wait_for_function(HOLDS, arg=f"{robonaut['old']}/visual/", timeout=60_000)
+            assert _in_client(page, f"{robonaut['old']}/visual/shoulder_roll/")  # the arm with its sphere
+            robonaut_distance = _distance(_framed(reports, 0.0, _shown_box(scene)))
+
+            since = time.time()
+            scene.load(build("nao", 3, new=False))
+            nao = scene.state()["urdf"]["old"]["node"]
+            page.wait_for_function(HOLDS, arg=f"{nao}/visual/")
+            box = _shown_box(scene)
+            nao_distance = _distance(_framed(reports, since, box))
+            gone = [node for node in robonaut.values() if _in_client(page, node)]
+            assert gone == [], f"Robonaut copies still in the browser: {gone}"
+
+            since = time.time()
+            scene.set_robot(URDF_DIR / "motoman.urdf", "motoman")
+            box = _shown_box(scene)
+            assert box[1, 2] - box[0, 2] > 2.0  # metres tall, not NAO's half metre
+            motoman_distance = _distance(_framed(reports, since, box))
+            assert not _in_client(page, nao)
+            assert motoman_distance > 3 * nao_distance and robonaut_distance > nao_distance
+
+            # A browser that opens now starts framed on the Motoman, in its own (tall) window.
+            since, first = time.time(), {r[1] for r in reports}
+            second = browser.new_page(viewport={"width": 300, "height": 480})
+            second.goto(f"http://127.0.0.1:{server.get_port()}/")
+            assert _framed(reports, since, box, others=frozenset(first))[1] not in first
+            assert len(server.get_clients()) == 2
+            browser.close()
+    finally:
+        server.stop()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
+import yourdfpy
 from sim_frames import measured_frames, unmeasured_frames
 
 from app.review import Review
@@ -85,7 +87,7 @@ def test_select_shows_the_frame_on_both_copies(server: viser.ViserServer, robona
     y_new = state["nodes"]["/review/new"]["position"][1]
     span_m = robonaut.bounds_m[1] - robonaut.bounds_m[0]
     assert y_new - y_old > span_m.max() * 0.5 and y_old < y_new
-    assert not state["urdf"]["ghost"]["shown"] and not state["live"]
+    assert "ghost" not in state["urdf"] and not state["live"]  # built when the overlay is first asked for
 
 
 def test_overlay_and_show_all_change_the_scene(server: viser.ViserServer, robonaut: Review) -> None:
@@ -191,3 +193,52 @@ def test_live_view_replaces_the_review_until_the_next_select(server: viser.Viser
     scene.select(2)
     state = scene.state()
     assert not state["live"] and not state["nodes"]["/live"]["shown"] and state["nodes"]["/review/old"]["shown"]
+
+
+def _link_nodes(urdf_text: str, node: str) -> set[str]:
+    """The viser names ViserUrdf gives a URDF's links under `node`: visual/<links from the root's child down>."""
+    urdf = yourdfpy.URDF.load(io.StringIO(urdf_text), build_scene_graph=False)
+    parent = {j.child: j.parent for j in urdf.joint_map.values()}
+    names = set()
+    for link in urdf.link_map:
+        chain = [link]
+        while chain[-1] in parent:
+            chain.append(parent[chain[-1]])
+        if len(chain) > 1:  # the root link is the `visual` frame itself
+            names.add(f"{node}/visual/" + "/".join(reversed(chain[:-1])))
+    return names
+
+
+def test_switching_robots_removes_everything_the_previous_one_showed(
+    server: viser.ViserServer, robonaut: Review
+) -> None:
+    """A Robonaut review (and its live view), then a NAO review: no node of a Robonaut copy is left in viser
+    (what a browser gets), and the scene shows NAO's copies only."""
+    scene = ReviewScene(server, URDF_DIR / "robonaut-a.urdf")
+    scene.load(robonaut)
+    profile = robonaut.profile
+    sighting = Sighting(0, "measured", "ok", np.array([[3.0, 60.0, -1.0]]), np.full((1, 3), np.nan), np.array([-1]))
+    scene.set_overlay(True)
+    scene.show_live(profile, Look(robonaut.frame_geometry(2).joints_rad, sighting), profile.true_params())
+    state = scene.state()
+    assert set(state["urdf"]) == {"old", "ghost", "new", "live"}
+    texts = {slot: scene._copies[slot].text for slot in state["urdf"]}
+    before = {name for slot, c in state["urdf"].items() for name in _link_nodes(texts[slot], c["node"])}
+    assert any(name.endswith("/wrist_yaw/fixture") for name in before)  # the arm and its sphere
+    assert all(server.scene.get_handle_by_name(name) is not None for name in before)
+
+    nao = build("nao", 3, new=False)
+    scene.load(nao)
+    state = scene.state()
+    assert state["robot"] == "nao" and not state["live"] and not state["nodes"]["/live"]["shown"]
+    assert set(state["urdf"]) == {"old", "ghost"}  # no new calibration: no Robonaut copy stays on that side
+    scene.set_overlay(False)
+    left = sorted(name for name in before if server.scene.get_handle_by_name(name) is not None)
+    assert left == [], f"{len(left)} Robonaut nodes left, e.g. {left[:3]}"
+    for c in state["urdf"].values():
+        assert set(c["joints"]) == set(nao.profile.joint_names)
+        assert all(server.scene.get_handle_by_name(n) is not None for n in _link_nodes(nao.urdf["old"], c["node"]))
+    # Robonaut's detection and points went with it: the only points shown are NAO's frame on the old side.
+    shown = {n for n, v in state["nodes"].items() if v["kind"] in ("points", "lines") and v["shown"]}
+    assert shown == {f"/review/old/base/frame/{part}" for part in ("measured", "predicted", "lines")}
+    assert len(_points(state, "/review/old/base/frame/measured")) == 24

@@ -1,0 +1,127 @@
+"""Where the 3-D view's camera stands: a framing of a box, kept on every browser that shows the scene.
+
+A framing looks at the box's centre from the front (+x, the way the scene turns every robot) and a little
+above, far enough that the box's bounding sphere fits the narrower of the camera's two fields of view. When
+the robot shown changes, `ClientFraming.frame` moves every connected browser's camera (its own framing
+would show a 2 m robot through a camera set for a 0.5 m one, or the other way round) and sets viser's
+initial camera for browsers that connect later. A browser that has not reported its camera yet is framed
+when it first does.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import viser
+
+ELEVATION_DEG = 20.0  # the camera's height above the box centre, as an angle
+MARGIN = 1.1  # room around the bounding sphere
+DEFAULT_FOV_RAD = math.radians(75.0)  # viser's vertical field of view (three.js' default)
+MIN_RADIUS_M = 0.05  # a box of a single point still gets a view
+
+
+@dataclass(frozen=True)
+class Framing:
+    """A view of a (2, 3) world box: look at its centre from `direction` (unit, centre to camera)."""
+
+    box_m: np.ndarray
+    look_at: np.ndarray
+    direction: np.ndarray
+    radius_m: float  # of the box's bounding sphere
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+    def distance(self, fov_rad: float = DEFAULT_FOV_RAD, aspect: float = 1.0) -> float:
+        """From the look-at point to the camera: the bounding sphere inside the vertical field of view
+        `fov_rad` and the horizontal one it gives at `aspect` (width / height)."""
+        if not (math.isfinite(fov_rad) and 0 < fov_rad < math.pi):
+            fov_rad = DEFAULT_FOV_RAD
+        aspect = aspect if math.isfinite(aspect) and aspect > 0 else 1.0
+        horizontal = 2 * math.atan(math.tan(fov_rad / 2) * aspect)
+        return MARGIN * self.radius_m / math.sin(min(fov_rad, horizontal) / 2)
+
+    def position(self, fov_rad: float = DEFAULT_FOV_RAD, aspect: float = 1.0) -> np.ndarray:
+        return self.look_at + self.distance(fov_rad, aspect) * self.direction
+
+
+def framing(box_m: np.ndarray) -> Framing:
+    """The framing of a (2, 3) min/max box in the world (z up)."""
+    box = np.asarray(box_m, dtype=float).reshape(2, 3)
+    e = math.radians(ELEVATION_DEG)
+    radius = max(float(np.linalg.norm(box[1] - box[0])) / 2, MIN_RADIUS_M)
+    return Framing(box, box.mean(axis=0), np.array([math.cos(e), 0.0, math.sin(e)]), radius)
+
+
+def camera_reported(camera: viser.CameraHandle) -> bool:
+    """Whether the browser has sent its camera yet (before that viser knows nothing of it)."""
+    try:
+        return camera.update_timestamp > 0
+    except AssertionError:
+        return False
+
+
+class ClientFraming:
+    """Keeps every browser's camera on the latest framing: moved once per framing, free in between."""
+
+    def __init__(self, server: viser.ViserServer) -> None:
+        self.server = server
+        self.current: Framing | None = None
+        self._version = 0
+        self._framed: dict[int, int] = {}  # client id -> the framing version its camera was given
+        self._lock = threading.Lock()
+        server.on_client_connect(self._connected)
+        server.on_client_disconnect(self._disconnected)
+
+    def frame(self, f: Framing) -> None:
+        """Frame `f` on every connected browser now, and on those that connect later."""
+        with self._lock:
+            self.current = f
+            self._version += 1
+            self.server.initial_camera.up = f.up
+            self.server.initial_camera.look_at = tuple(float(v) for v in f.look_at)
+            self.server.initial_camera.position = tuple(float(v) for v in f.position())
+        for client in list(self.server.get_clients().values()):
+            self._apply(client)
+
+    def state(self) -> dict[str, Any]:
+        """{framing: {look_at, radius_m, box_m} or None, clients: {id: {framed, look_at, position}}}."""
+        with self._lock:
+            f, version, framed = self.current, self._version, dict(self._framed)
+        clients: dict[int, dict[str, Any]] = {}
+        for cid, client in self.server.get_clients().items():
+            cam = client.camera
+            seen = camera_reported(cam)
+            clients[cid] = {
+                "framed": framed.get(cid) == version,
+                "look_at": [float(v) for v in cam.look_at] if seen else None,
+                "position": [float(v) for v in cam.position] if seen else None,
+            }
+        out = None
+        if f is not None:
+            out = {"look_at": f.look_at.tolist(), "radius_m": f.radius_m, "box_m": f.box_m.tolist()}
+        return {"framing": out, "clients": clients}
+
+    # --- viser callbacks ----------------------------------------------------------------------------
+    def _connected(self, client: viser.ClientHandle) -> None:
+        client.camera.on_update(lambda _camera: self._apply(client))
+
+    def _disconnected(self, client: viser.ClientHandle) -> None:
+        with self._lock:
+            self._framed.pop(client.client_id, None)
+
+    def _apply(self, client: viser.ClientHandle) -> None:
+        """Move this browser's camera to the current framing unless it has it already."""
+        cam = client.camera
+        with self._lock:
+            f, version = self.current, self._version
+            if f is None or self._framed.get(client.client_id) == version or not camera_reported(cam):
+                return
+            self._framed[client.client_id] = version
+            aspect = cam.image_width / cam.image_height if cam.image_height else 1.0
+            position = f.position(cam.fov, aspect)
+            cam.up_direction = f.up
+            cam.position = position  # moves the look-at point along with it
+            cam.look_at = f.look_at
