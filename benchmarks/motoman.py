@@ -99,17 +99,27 @@ def self_observation(profile: Profile, folder: Path) -> None:
     print("\n## 2. Self-observation: calibrated from the camera pixels alone, judged by the tracker\n")
     cams = camera_datasets(profile, folder)
     parts = {name: (camera_profile(profile, name), data) for name, data in cams.items()}
+    names = profile.parameter_names
     start = time.perf_counter()
-    fit = calibrate_sensors(parts, profile.mode("cameras"), profile.nominal())
+    fit = calibrate_sensors(parts, profile.mode("cameras"), profile.nominal(), holdout=0.3)
     seconds = time.perf_counter() - start
     for name, (_, data) in parts.items():
         print(
-            f"- {name}: {data.n_observations} face centres in {data.n_configurations} poses; "
-            f"before {fit.before[name]}; after {fit.after[name]}"
+            f"- {name}: {data.n_observations} face centres in {data.n_configurations} poses, 30% of the poses "
+            f"held out; training before {fit.before[name]}; after {fit.after[name]}; "
+            f"held out before {fit.holdout_before[name]}; after {fit.holdout_after[name]}"
         )
+    offsets = [f"{j}{a}.offset" for a in (1, 2) for j in "LURB"]
+    print(
+        "- joint offsets found (deg, ± standard deviation): "
+        + ", ".join(
+            f"{n} {math.degrees(fit.p[names.index(n)] - profile.nominal()[names.index(n)]):+.3f} "
+            f"± {math.degrees(fit.std[names.index(n)]):.3f}"
+            for n in offsets
+        )
+    )
     held = ", ".join(profile.parameters[i].name for i in fit.held) or "none"
     print(f"- {len(fit.free)} parameters in {seconds:.1f} s ({fit.result.iterations} iterations); held: {held}")
-    names = profile.parameter_names
     intrinsics = [f"camera{c}.{k}" for c in (1, 2) for k in ("fx", "fy", "cx", "cy")]
     print(
         "- intrinsics (px), nominal -> fitted: "

@@ -222,19 +222,19 @@ def fit_parameters(
         if problem.priors:
             # A prior's sigma is meant against the residuals' actual scale (a MAP estimate), not
             # the declared sensor noise: on a real robot the model error outweighs the noise.
-            problem.prior_scale = _robust_sigma(problem.residuals(x)[:n_rows], dim)
+            problem.prior_scale = robust_sigma(problem.residuals(x)[:n_rows], dim)
             res = run(x, None)
             x = res.x
         # Outliers show in the least-squares residuals; only then is the robust pass worth its time.
         limit = outlier_limit(problem.sensor, dim)
         if robust and len(problem.free) and outliers_of(problem.residuals(x)[:n_rows], dim, limit).any():
-            sigma = _robust_sigma(problem.residuals(x)[:n_rows], dim)
+            sigma = robust_sigma(problem.residuals(x)[:n_rows], dim)
             problem.prior_scale = sigma
             res = run(x, Robust(dim, n_rows, sigma * np.sqrt(chi2.ppf(0.95, dim))))
             x = res.x
             r = problem.residuals(x)[:n_rows]
             problem.included = ~outliers_of(r, dim, limit)
-            problem.prior_scale = _robust_sigma(r, dim)
+            problem.prior_scale = robust_sigma(r, dim)
             res = run(x, None)
             x = res.x
         status = res.status
@@ -334,10 +334,10 @@ def outlier_limit(sensor: Sensor, dim: int) -> float:
 def outliers_of(r: np.ndarray, dim: int, limit: float) -> np.ndarray:
     """Observations beyond `limit` times the residuals' robust spread."""
     norms = np.sqrt(block_norms_sq(r, dim))
-    return norms > _robust_sigma(r, dim) * limit
+    return norms > robust_sigma(r, dim) * limit
 
 
-def _robust_sigma(r: np.ndarray, dim: int) -> float:
+def robust_sigma(r: np.ndarray, dim: int) -> float:
     """Scale of whitened residual blocks from their median norm (|r|^2 ~ sigma^2 chi2(dim))."""
     norms = np.sqrt(block_norms_sq(r, dim))
     norms = norms[norms > 0]

@@ -300,13 +300,18 @@ def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
         )
         exact = Problem(prof, data, [], truth).predict(truth)
         parts[cam] = (prof, replace(data, measured=exact + rng.normal(0, 0.5, exact.shape)))
-    fit = calibrate_sensors(parts, mm.mode("cameras"), mm.nominal())
+    fit = calibrate_sensors(parts, mm.mode("cameras"), mm.nominal(), holdout=0.3, seed=2)
     for cam in parts:
         assert fit.before[cam].rms > 10 * fit.after[cam].rms
         assert fit.after[cam].rms < 1.0  # px: the 0.5 px noise
+        assert fit.holdout_after[cam].rms < 1.3 * fit.after[cam].rms
+        assert fit.holdout_after[cam].n > 0.2 * (fit.holdout_after[cam].n + fit.after[cam].n)
     offsets = [mm.param(f"{j}{a}.offset") for j in "LURB" for a in (1, 2)]
     for i in offsets:
         assert abs(fit.p[i] - truth[i]) < math.radians(0.05), mm.parameters[i].name
+    # The reported standard deviations are honest: every estimate within 4 of them of the truth.
+    z = [abs(fit.p[i] - truth[i]) / fit.std[i] for i in fit.free]
+    assert max(z) < 4.0, max(z)
 
 
 @needs_data
