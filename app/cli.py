@@ -91,6 +91,17 @@ def _parser() -> argparse.ArgumentParser:
     pr.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE", help=WHERE_HELP)
     pr.add_argument("--out", required=True, help="CSV: the input rows plus prediction columns")
 
+    so = sub.add_parser(
+        "self-observe", help="calibrate from what the robot's cameras see of its markers (the CTU camera format)"
+    )
+    so.add_argument("--robot", required=True, help="a profile with camera1, camera2 and markers1, markers2 (motoman)")
+    so.add_argument("--mode", default="cameras", help="the profile's mode (default cameras)")
+    so.add_argument("--data", required=True, help="folder with camera_observations.csv and camera_poses.csv")
+    so.add_argument("--source", action="append", default=[], help="use only this source_file (repeatable)")
+    so.add_argument("--holdout", type=float, default=0.3, help="share of poses held out (default 0.3)")
+    so.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    so.add_argument("--out", required=True, help="where to write the calibration JSON")
+
     ex = sub.add_parser("export", help="what a driver takes: the calibrated URDF or the joint offsets (YAML)")
     ex.add_argument("--robot", required=True, help="built-in profile or a profile YAML file")
     ex.add_argument("--calibration", required=True, help="calibration JSON (from solve)")
@@ -171,6 +182,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "solve": _solve,
             "predict": _predict,
             "export": _export,
+            "self-observe": _self_observe,
             "simulate": _simulate,
             "detect-sphere": _detect_sphere,
             "detect-board": _detect_board,
@@ -244,6 +256,27 @@ def _predict(args: argparse.Namespace) -> int:
         f"{'calibration ' + args.calibration if cal else 'the nominal model'}"
         f"{' (registration fitted to these rows)' if cal is None and registration_params(profile) else ''}: {args.out}"
     )
+    return 0
+
+
+def _self_observe(args: argparse.Namespace) -> int:
+    from calib_core.ctu_motoman import camera_datasets, camera_profile
+    from calib_core.self_observation import calibrate_sensors, to_calibration
+
+    if not 0.0 <= args.holdout <= 0.9:
+        raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
+    profile = load_profile(args.robot)
+    mode = profile.mode(args.mode)
+    cams = camera_datasets(profile, args.data, set(args.source) or None)
+    parts = {name: (camera_profile(profile, name), data) for name, data in cams.items() if data.n_observations}
+    _check_writable(args.out)
+    fit = calibrate_sensors(parts, mode, profile.nominal(), holdout=args.holdout, seed=args.seed)
+    cal = to_calibration(profile, fit, args.mode, profile.nominal(), str(Path(args.data) / "camera_observations.csv"))
+    _save(args.out, lambda: cal.save(args.out))
+    print(cal.summary())
+    for name in parts:
+        print(f"  {name}: after {fit.after[name]}")
+    print(f"  written: {args.out}")
     return 0
 
 

@@ -11,10 +11,12 @@ does for one sensor.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import UTC, datetime
 
 import numpy as np
 
 from .calibrate import box, observed_mode, outlier_limit, outliers_of, robust_sigma
+from .calibration import Calibration, ParameterEstimate
 from .dataset import Dataset
 from .errors import InputError
 from .identifiability import find_dependencies, report
@@ -34,6 +36,7 @@ class JointFit:
     after: dict[str, Figures]
     holdout_before: dict[str, Figures]  # per sensor, on the held-out poses (empty without a hold-out)
     holdout_after: dict[str, Figures]
+    pooled: dict[str, Figures]  # before, after (and holdout_before, holdout_after) over every sensor
     result: SolveResult
 
 
@@ -83,22 +86,29 @@ def calibrate_sensors(
     probs[0].prior_scale = robust_sigma(data_rows(res.x), probs[0].dim)  # priors against the actual scale
     res = levenberg_marquardt(fun_jac, res.x, lower=lower, upper=upper)
     p = probs[0].params(res.x)
-    out = {k: {} for k in ("before", "after", "holdout_before", "holdout_after")}
+    rows: dict[str, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]] = {"": [], "holdout_": []}
     for name, pr in zip(parts, probs, strict=True):
-        out["before"][name] = figures(pr.predict(p_base), pr.data.measured, "px", pr.included)
-        out["after"][name] = figures(pr.predict(p), pr.data.measured, "px", pr.included)
+        rows[""].append((name, pr.predict(p_base), pr.predict(p), pr.data.measured, pr.included))
         prof, data = parts[name]
         test = data.select(np.isin(data.frame_ids, test_ids))
         if test.n_observations:
             # Misread markers among the held-out poses are left out by the training residuals' spread.
             sigma = robust_sigma(pr.residuals(res.x)[: pr.n_data_rows], pr.dim)
             tp = Problem(prof, test, [], p)
-            keep = np.sqrt(block_norms_sq(tp.residuals(np.zeros(0)), pr.dim)) <= sigma * outlier_limit(
-                pr.sensor, pr.dim
-            )
-            out["holdout_before"][name] = figures(tp.predict(p_base), test.measured, "px", keep)
-            out["holdout_after"][name] = figures(tp.predict(p), test.measured, "px", keep)
-    return JointFit(p, free, held, _std(probs, res.x), **out, result=res)
+            norms = np.sqrt(block_norms_sq(tp.residuals(np.zeros(0)), pr.dim))
+            keep = norms <= sigma * outlier_limit(pr.sensor, pr.dim)
+            rows["holdout_"].append((name, tp.predict(p_base), tp.predict(p), test.measured, keep))
+    out: dict[str, dict[str, Figures]] = {k: {} for k in ("before", "after", "holdout_before", "holdout_after")}
+    pooled = {}
+    for prefix, entries in rows.items():
+        for name, before, after, measured, keep in entries:
+            out[f"{prefix}before"][name] = figures(before, measured, "px", keep)
+            out[f"{prefix}after"][name] = figures(after, measured, "px", keep)
+        if entries:
+            before, after, measured, keep = (np.concatenate(c) for c in list(zip(*entries, strict=True))[1:])
+            pooled[f"{prefix}before"] = figures(before, measured, "px", keep)
+            pooled[f"{prefix}after"] = figures(after, measured, "px", keep)
+    return JointFit(p, free, held, _std(probs, res.x), **out, pooled=pooled, result=res)
 
 
 def _held_out_poses(parts: dict[str, tuple[Profile, Dataset]], share: float, seed: int) -> np.ndarray:
@@ -122,3 +132,49 @@ def _std(probs: list[Problem], x: np.ndarray) -> dict[int, float]:
     sigma = float(np.sqrt(np.sum(r[:n_data] ** 2) / max(n_in - len(x), 1)))
     rep = report(J, r, sigma, clusters)
     return {} if rep.std is None else {i: float(v) for i, v in zip(probs[0].free, rep.std, strict=True)}
+
+
+def to_calibration(profile: Profile, fit: JointFit, mode: str, p_base: np.ndarray, source: str) -> Calibration:
+    """The result as a calibration file (figures pooled over the sensors, px), which `export`,
+    `predict` and the dashboard take like any other."""
+    nominal = profile.nominal()
+    held, free = set(fit.held), set(fit.free)
+    params = [
+        ParameterEstimate(
+            name=prm.name,
+            label=profile.label(i),
+            unit=profile.unit(i),
+            value=profile.to_display(i, fit.p[i]),
+            base=profile.to_display(i, p_base[i]),
+            nominal=profile.to_display(i, nominal[i]),
+            estimated=i in free,
+            std=abs(profile.to_display(i, fit.std[i])) if i in fit.std else None,
+            note="the data cannot separate it from the others: held at its base value" if i in held else None,
+        )
+        for i, prm in enumerate(profile.parameters)
+    ]
+    res = fit.result
+    sensors = ", ".join(f"{name}: {f}" for name, f in fit.after.items())
+    return Calibration(
+        robot=profile.name,
+        mode=mode,
+        method="lm",
+        created=datetime.now(UTC).isoformat(timespec="seconds"),
+        source=source,
+        parameters=params,
+        figures=dict(fit.pooled),
+        solver={
+            "method": "lm",
+            "iterations": res.iterations,
+            "evaluations": res.evaluations,
+            "solve_seconds": res.seconds,
+            "status": res.status,
+            "cost_history": res.cost_history,
+            "sensors": sensors,
+        },
+        identifiability={
+            "free": [profile.parameters[i].name for i in fit.free],
+            "held_fixed": sorted(profile.parameters[i].name for i in held),
+        },
+        warnings=[f"{profile.label(i)} cannot be told apart from the others by these data: held" for i in fit.held],
+    )

@@ -567,6 +567,7 @@ HELP_PARAMS = [
     pytest.param(("serve",), id="serve"),
     pytest.param(("import-bag",), id="import-bag"),
     pytest.param(("export",), id="export"),
+    pytest.param(("self-observe",), id="self-observe"),
 ]
 
 
@@ -594,6 +595,7 @@ def test_every_subcommand_answers_help(sub: tuple[str, ...], help_runs: dict) ->
         "serve": ["--host", "--port", "--data-dir"],
         "import-bag": ["--robot", "--out", "--joint-topic", "--image-topic", "--still-deg-s", "--still-s"],
         "export": ["--robot", "--calibration", "--format", "--out"],
+        "self-observe": ["--robot", "--mode", "--data", "--source", "--holdout", "--out"],
     }
     for opt in options.get(sub[0] if sub else "", ["solve", "predict", "simulate"]):
         assert opt in proc.stdout, (opt, proc.stdout)

@@ -5,6 +5,7 @@ files, self-observation from camera pixels, and identifiability on real data."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -359,3 +360,44 @@ def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(mm) ->
     first = calibrate(mm, data, "registration")
     again = calibrate(mm, data, "cameras", first)  # the registration comes from the base
     assert again.figures["before"].rms < 0.01  # m: the base's registration puts the model in place
+
+
+@needs_data
+def test_cli_self_observe_writes_a_calibration_export_takes(tmp_path: Path) -> None:
+    cal, yaml_out = tmp_path / "cams.json", tmp_path / "cams.yaml"
+    sources = ["--source", "leica_left_hand_6x6x6_dataset.mat", "--source", "no_leica_wall_table1_5x5_dataset.mat"]
+    assert main(["self-observe", "--robot", "motoman", "--data", str(DATA), *sources, "--out", str(cal)]) == 0
+    doc = json.loads(cal.read_text())
+    figs = doc["figures"]
+    assert figs["holdout_after"]["median"] < 0.4 * figs["holdout_before"]["median"]  # px
+    offsets = {p["name"]: p for p in doc["parameters"] if p["name"].endswith(".offset") and p["estimated"]}
+    assert {"L2.offset", "U2.offset"} <= set(offsets) and all(p["std"] > 0 for p in offsets.values())
+    assert (
+        main(["export", "--robot", "motoman", "--calibration", str(cal), "--format", "yaml", "--out", str(yaml_out)])
+        == 0
+    )
+    assert "L2:" in yaml_out.read_text()
+
+
+@pytest.mark.parametrize(
+    ("line", "column", "value", "words"),
+    [(3, 4, "7", "arm 7 is not 1 or 2"), (3, 6, "abc", "'abc' is not a number"), (3, 3, "21", "face 21 is not")],
+)
+def test_self_observe_names_the_bad_line_and_writes_nothing(
+    tmp_path: Path, line: int, column: int, value: str, words: str
+) -> None:
+    (tmp_path / "camera_poses.csv").write_text(
+        "source_file,pose_id,E_deg," + ",".join(f"{j}{a}_deg" for a in (1, 2) for j in "SLURBT") + "\n"
+        "f.mat,1," + ",".join(["0"] * 13) + "\n"
+    )
+    rows = ["source_file,pose_id,face_id,arm,camera,u_px,v_px"] + ["f.mat,1,3,1,1,1500.5,3300.25"] * 3
+    cells = rows[line - 1].split(",")
+    cells[column - 1] = value
+    rows[line - 1] = ",".join(cells)
+    (tmp_path / "camera_observations.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "x.json"
+    with pytest.raises(InputError, match=words) as err:
+        camera_datasets(load_profile("motoman"), tmp_path)
+    assert f"line {line}" in str(err.value)
+    assert main(["self-observe", "--robot", "motoman", "--data", str(tmp_path), "--out", str(out)]) == 2
+    assert not out.exists()
