@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 import numpy as np
 from scipy.stats import chi2
 
-from .calibration import Calibration, Outlier, ParameterEstimate
+from .calibration import Calibration, Outlier, parameter_estimate
 from .dataset import Dataset
 from .errors import InputError
 from .identifiability import Dependency, find_dependencies, report, strong_correlations, weak_parameters
@@ -377,7 +377,7 @@ def _result(
     dep_note = {d.fixed: d.describe(profile) for d in fit.dependencies}
     nominal = profile.nominal()
     params = []
-    for i, prm in enumerate(profile.parameters):
+    for i in range(len(profile.parameters)):
         estimated = i in std_of
         std = std_of.get(i)
         note = None
@@ -388,19 +388,7 @@ def _result(
             note = f"tied: {'-' if tie.sign < 0 else ''}{profile.label(tie.leader)}"
         if i in dep_note:
             note = dep_note[i]
-        params.append(
-            ParameterEstimate(
-                name=prm.name,
-                label=profile.label(i),
-                unit=profile.unit(i),
-                value=profile.to_display(i, fit.p[i]),
-                base=profile.to_display(i, p_base[i]),
-                nominal=profile.to_display(i, nominal[i]),
-                estimated=estimated,
-                std=None if std is None else abs(profile.to_display(i, std)),
-                note=note,
-            )
-        )
+        params.append(parameter_estimate(profile, i, fit.p, p_base, estimated=estimated, std=std, note=note))
     corr = strong_correlations(profile, rep.correlation, problem.free) if rep.correlation is not None else []
     unit = figs["after"].unit
     norms = np.linalg.norm(problem.predict(fit.p) - train.measured, axis=1)

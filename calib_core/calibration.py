@@ -160,6 +160,30 @@ class Calibration:
         return "\n".join(lines)
 
 
+def parameter_estimate(
+    profile: Profile,
+    i: int,
+    p: np.ndarray,
+    p_base: np.ndarray,
+    *,
+    estimated: bool,
+    std: float | None = None,
+    note: str | None = None,
+) -> ParameterEstimate:
+    """Parameter i of full parameters p (internal units) as the file holds it: display units."""
+    return ParameterEstimate(
+        name=profile.parameters[i].name,
+        label=profile.label(i),
+        unit=profile.unit(i),
+        value=profile.to_display(i, p[i]),
+        base=profile.to_display(i, p_base[i]),
+        nominal=profile.to_display(i, profile.nominal()[i]),
+        estimated=estimated,
+        std=None if std is None else abs(profile.to_display(i, std)),
+        note=note,
+    )
+
+
 def write_atomic(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")

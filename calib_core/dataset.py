@@ -70,6 +70,22 @@ class Dataset:
             rows=[r for r, k in zip(self.rows, obs, strict=False) if k] if self.rows else [],
         )
 
+    def observations(self, keep: np.ndarray) -> Dataset:
+        """The observations of a bool mask, with the configurations they belong to."""
+        cfgs = np.unique(self.cfg[keep])
+        out = self.select(cfgs)
+        inner = keep[np.isin(self.cfg, cfgs)]
+        return replace(
+            out,
+            cfg=out.cfg[inner],
+            target=out.target[inner],
+            point=out.point[inner],
+            vertex=out.vertex[inner],
+            measured=out.measured[inner],
+            lines=None if out.lines is None else out.lines[inner],
+            rows=[r for r, k in zip(out.rows, inner, strict=True) if k] if out.rows else [],
+        )
+
 
 def read_dataset(profile: Profile, path: str | Path) -> Dataset:
     """Read a CSV in the profile's data format. Raises InputError naming file, line and column."""
@@ -233,23 +249,7 @@ def select_rows(data: Dataset, where: dict[str, str]) -> Dataset:
     if not keep.any():
         said = ", ".join(f"{c}={v}" for c, v in where.items())
         raise InputError(f"no row has {said}", file=data.source)
-    return data.select(np.unique(data.cfg[keep])) if keep.all() else _select_observations(data, keep)
-
-
-def _select_observations(data: Dataset, keep: np.ndarray) -> Dataset:
-    cfgs = np.unique(data.cfg[keep])
-    out = data.select(cfgs)
-    inner = keep[np.isin(data.cfg, cfgs)]
-    return replace(
-        out,
-        cfg=out.cfg[inner],
-        target=out.target[inner],
-        point=out.point[inner],
-        vertex=out.vertex[inner],
-        measured=out.measured[inner],
-        lines=None if out.lines is None else out.lines[inner],
-        rows=[r for r, k in zip(out.rows, inner, strict=True) if k],
-    )
+    return data.observations(keep)
 
 
 def joints_needed(profile: Profile) -> dict[int, set[int]]:

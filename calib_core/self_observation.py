@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 import numpy as np
 
 from .calibrate import box, observed_mode, outlier_limit, outliers_of, robust_sigma
-from .calibration import Calibration, ParameterEstimate
+from .calibration import Calibration, parameter_estimate
 from .dataset import Dataset
 from .errors import InputError
 from .identifiability import find_dependencies, report
@@ -137,21 +137,13 @@ def _std(probs: list[Problem], x: np.ndarray) -> dict[int, float]:
 def to_calibration(profile: Profile, fit: JointFit, mode: str, p_base: np.ndarray, source: str) -> Calibration:
     """The result as a calibration file (figures pooled over the sensors, px), which `export`,
     `predict` and the dashboard take like any other."""
-    nominal = profile.nominal()
     held, free = set(fit.held), set(fit.free)
+    note = "the data cannot separate it from the others: held at its base value"
     params = [
-        ParameterEstimate(
-            name=prm.name,
-            label=profile.label(i),
-            unit=profile.unit(i),
-            value=profile.to_display(i, fit.p[i]),
-            base=profile.to_display(i, p_base[i]),
-            nominal=profile.to_display(i, nominal[i]),
-            estimated=i in free,
-            std=abs(profile.to_display(i, fit.std[i])) if i in fit.std else None,
-            note="the data cannot separate it from the others: held at its base value" if i in held else None,
+        parameter_estimate(
+            profile, i, fit.p, p_base, estimated=i in free, std=fit.std.get(i), note=note if i in held else None
         )
-        for i, prm in enumerate(profile.parameters)
+        for i in range(len(profile.parameters))
     ]
     res = fit.result
     sensors = ", ".join(f"{name}: {f}" for name, f in fit.after.items())

@@ -13,7 +13,7 @@ import pytest
 import yaml
 import yourdfpy
 
-from calib_core.calibration import Calibration, ParameterEstimate
+from calib_core.calibration import Calibration, parameter_estimate
 from calib_core.export import calibrated_urdf, offsets_geometry, offsets_yaml
 from calib_core.kinematics import forward
 from calib_core.profile import BUILTIN_PROFILES, Profile, load_profile
@@ -26,17 +26,8 @@ N_CONFIGS = 8
 def _calibration(profile: Profile, p: np.ndarray, mode: str) -> Calibration:
     nominal = profile.nominal()
     params = [
-        ParameterEstimate(
-            name,
-            profile.label(i),
-            profile.unit(i),
-            profile.to_display(i, p[i]),
-            profile.to_display(i, nominal[i]),
-            profile.to_display(i, nominal[i]),
-            bool(p[i] != nominal[i]),
-            0.001,
-        )
-        for i, name in enumerate(profile.parameter_names)
+        parameter_estimate(profile, i, p, nominal, estimated=bool(p[i] != nominal[i]), std=0.001)
+        for i in range(len(profile.parameters))
     ]
     return Calibration(profile.name, mode, "lm", "2026-01-01T00:00:00Z", "test data", params, {}, {}, {})
 

@@ -289,16 +289,7 @@ def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
         uv = Problem(prof, data, [], truth).predict(truth)
         x = Problem(prof, data, [], truth).sensor_points(truth)
         seen = (x[:, 2] > 0.3) & (np.abs(uv - 2500).max(axis=1) < 2500)  # in front, inside a 5000 px image
-        data = data.select(np.unique(cfg[seen]))
-        keep = seen[np.isin(cfg, data.frame_ids - 1)]
-        data = replace(
-            data,
-            cfg=data.cfg[keep],
-            target=data.target[keep],
-            point=data.point[keep],
-            vertex=data.vertex[keep],
-            measured=data.measured[keep],
-        )
+        data = data.observations(seen)
         exact = Problem(prof, data, [], truth).predict(truth)
         parts[cam] = (prof, replace(data, measured=exact + rng.normal(0, 0.5, exact.shape)))
     fit = calibrate_sensors(parts, mm.mode("cameras"), mm.nominal(), holdout=0.3, seed=2)

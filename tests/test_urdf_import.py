@@ -20,6 +20,7 @@ from lxml import etree
 
 from app.cli import main
 from calib_core import Calibration, InputError, load_profile
+from calib_core.calibration import parameter_estimate
 from calib_core.export import calibrated_urdf, offsets_yaml
 from calib_core.kinematics import forward
 from calib_core.units import length_factor
@@ -453,21 +454,10 @@ def test_offsets_yaml_with_the_original_urdf_is_the_calibrated_model(tmp_path: P
 
 
 def _calibration(profile, p: np.ndarray) -> Calibration:
-    from calib_core.calibration import ParameterEstimate
-
     nominal = profile.nominal()
     params = [
-        ParameterEstimate(
-            name,
-            profile.label(i),
-            profile.unit(i),
-            profile.to_display(i, p[i]),
-            profile.to_display(i, nominal[i]),
-            profile.to_display(i, nominal[i]),
-            bool(p[i] != nominal[i]),
-            0.01,
-        )
-        for i, name in enumerate(profile.parameter_names)
+        parameter_estimate(profile, i, p, nominal, estimated=bool(p[i] != nominal[i]), std=0.01)
+        for i in range(len(profile.parameters))
     ]
     return Calibration(profile.name, "test", "lm", "2026-01-01T00:00:00Z", "test", params, {}, {}, {})
 
