@@ -30,7 +30,7 @@ from .calibration import Calibration
 from .kinematics import axis_angle
 from .profile import Frame, Profile
 from .units import length_factor
-from .urdf import _nums, _rpy, to_urdf
+from .urdf import rpy_angles, to_urdf, urdf_numbers
 from .urdf_import import UrdfRobot, profile_urdf
 
 DIGITS = 10  # decimals of the YAML's values: far below any calibration, exact enough to 1e-9 m
@@ -148,8 +148,8 @@ def corrected_urdf(profile: Profile, p: np.ndarray, robot: UrdfRobot, header: st
         old = "none" if origin is None else f'xyz="{origin.get("xyz", "0 0 0")}" rpy="{origin.get("rpy", "0 0 0")}"'
         if origin is None:
             origin = _append_indented(el, "origin")
-        origin.set("xyz", _nums(T[:3, 3]))
-        origin.set("rpy", _nums(_rpy(T[:3, :3])))
+        origin.set("xyz", urdf_numbers(T[:3, 3]))
+        origin.set("rpy", urdf_numbers(rpy_angles(T[:3, :3])))
         changes = [
             f"{profile.parameter_names[op.param]} {_signed(profile, op.param, p[op.param] - nominal[op.param])}"
             + (" (offset, folded in about the axis)" if op.joint >= 0 else "")

@@ -67,7 +67,7 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None) -> str:
             name = f"{joint.name}__{frame.name}" if shared else joint.name
             driven.add(joint.name)
             el = _joint(robot, name, "revolute", links[parent], child, T)
-            ET.SubElement(el, "axis", xyz=_nums(op.vector))
+            ET.SubElement(el, "axis", xyz=urdf_numbers(op.vector))
             ET.SubElement(
                 el,
                 "limit",
@@ -98,11 +98,11 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None) -> str:
             size = ((cols + 1) * spacing, (rows + 1) * spacing, BOARD_THICKNESS)
             T = np.eye(4)
             T[:3, 3] = target.grid.mean(axis=0) * scale
-            _visual(link, T, "box", "board", size=_nums(size))
+            _visual(link, T, "box", "board", size=urdf_numbers(size))
     for sensor in profile.sensors:
         T = np.eye(4)
         T[:3, :3] = sensor.R_frame_optical
-        _visual(links[profile.frames[sensor.frame].name], T, "box", "camera", size=_nums(CAMERA_BOX))
+        _visual(links[profile.frames[sensor.frame].name], T, "box", "camera", size=urdf_numbers(CAMERA_BOX))
 
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
@@ -142,7 +142,7 @@ def _link(robot: ET.Element, name: str, sphere: bool = True) -> ET.Element:
 def _joint(robot: ET.Element, name: str, kind: str, parent_link: ET.Element, child: str, T: np.ndarray) -> ET.Element:
     """A joint at origin T, plus the parent link's cylinder that draws the segment to the child."""
     el = ET.SubElement(robot, "joint", name=name, type=kind)
-    ET.SubElement(el, "origin", xyz=_nums(T[:3, 3]), rpy=_nums(_rpy(T[:3, :3])))
+    ET.SubElement(el, "origin", xyz=urdf_numbers(T[:3, 3]), rpy=urdf_numbers(rpy_angles(T[:3, :3])))
     ET.SubElement(el, "parent", link=parent_link.get("name", ""))
     ET.SubElement(el, "child", link=child)
     length = float(np.linalg.norm(T[:3, 3]))
@@ -156,7 +156,7 @@ def _joint(robot: ET.Element, name: str, kind: str, parent_link: ET.Element, chi
 
 def _visual(link: ET.Element, T: np.ndarray, shape: str, material: str, **size: str) -> None:
     visual = ET.SubElement(link, "visual")
-    ET.SubElement(visual, "origin", xyz=_nums(T[:3, 3]), rpy=_nums(_rpy(T[:3, :3])))
+    ET.SubElement(visual, "origin", xyz=urdf_numbers(T[:3, 3]), rpy=urdf_numbers(rpy_angles(T[:3, :3])))
     ET.SubElement(ET.SubElement(visual, "geometry"), shape, **size)
     ET.SubElement(visual, "material", name=material)
 
@@ -171,7 +171,7 @@ def _z_to(d: np.ndarray) -> np.ndarray:
     return axis_angle(axis / s, math.atan2(s, d[2]))
 
 
-def _rpy(R: np.ndarray) -> tuple[float, float, float]:
+def rpy_angles(R: np.ndarray) -> tuple[float, float, float]:
     """URDF roll, pitch, yaw with R = Rz(yaw) Ry(pitch) Rx(roll).
 
     At pitch = ±90 deg roll and yaw are one degree of freedom and atan2 of the tiny R[2, 1:] is
@@ -192,5 +192,5 @@ def _num(x: float) -> str:
     return repr(round(float(x), 15) + 0.0)
 
 
-def _nums(values: np.ndarray | tuple[float, ...]) -> str:
+def urdf_numbers(values: np.ndarray | tuple[float, ...]) -> str:
     return " ".join(_num(v) for v in values)
