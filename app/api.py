@@ -24,7 +24,7 @@ from fastapi.sse import EventSourceResponse
 from pydantic import BaseModel, Field
 
 from calib_core import InputError
-from calib_core.export import calibrated_urdf, offsets_yaml
+from calib_core.io.export import calibrated_urdf, offsets_yaml
 
 from .desk import Desk
 from .store import FrameInfo

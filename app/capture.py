@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calib_core.errors import InputError
-from calib_core.simulator import SimulatedRobot
-from calib_core.solver import Cancelled
+from calib_core.estimation.solver import Cancelled
+from calib_core.sim.simulator import SimulatedRobot
 
 from .drivers import LimitError, Look, RobotDriver, RobotFault
 from .store import StoreWriteError

@@ -33,13 +33,14 @@ from calib_core import (
     to_csv,
     write_atomic,
 )
-from calib_core.ballfinder import find_sphere
-from calib_core.dataset import Dataset, select_rows
-from calib_core.profile import Profile
-from calib_core.registration import register, registration_params
-from calib_core.sandal_board import detect_board
-from calib_core.session import FrameRecord, write_session
+from calib_core.dataset import Dataset
+from calib_core.estimation.registration import register, registration_params
+from calib_core.io.csv_format import select_rows
+from calib_core.io.session import FrameRecord, write_session
+from calib_core.model.profile import Profile
 from calib_core.units import length_factor
+from calib_core.vision.ballfinder import find_sphere
+from calib_core.vision.sandal_board import detect_board
 
 
 class _Parser(argparse.ArgumentParser):
@@ -260,8 +261,8 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _self_observe(args: argparse.Namespace) -> int:
-    from calib_core.ctu_motoman import camera_datasets, camera_profile
-    from calib_core.self_observation import calibrate_sensors, to_calibration
+    from calib_core.estimation.self_observation import calibrate_sensors, to_calibration
+    from calib_core.io.ctu_motoman import camera_datasets, camera_profile
 
     if not 0.0 <= args.holdout <= 0.9:
         raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
@@ -281,7 +282,7 @@ def _self_observe(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from calib_core.export import calibrated_urdf, offsets_yaml
+    from calib_core.io.export import calibrated_urdf, offsets_yaml
 
     profile = load_profile(args.robot)
     cal = _load_calibration(args.calibration, profile)
@@ -408,7 +409,7 @@ def _detect_board(args: argparse.Namespace) -> int:
 
 
 def _import_bag(args: argparse.Namespace) -> int:
-    from calib_core.bag_import import import_bag  # rosbags loads only for this subcommand
+    from calib_core.io.bag_import import import_bag  # rosbags loads only for this subcommand
 
     profile = load_profile(args.robot)
     believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None

@@ -19,8 +19,8 @@ import numpy as np
 import viser
 
 from calib_core import Dataset, InputError, Profile, SimulatedRobot, load_profile
-from calib_core.profile import BUILTIN_PROFILES
-from calib_core.registration import register, registration_params
+from calib_core.estimation.registration import register, registration_params
+from calib_core.model.loader import BUILTIN_PROFILES
 
 from . import safety, security
 from .capture import AutoCapture, capture_frame, dry_run, replay
@@ -32,7 +32,7 @@ from .store import FrameInfo, Store
 
 PACKAGE_DIR = Path(__file__).resolve().parent.parent
 SAMPLE_DIR = PACKAGE_DIR / "sample_sessions"
-PROFILE_DIR = PACKAGE_DIR / "calib_core" / "profiles"
+PROFILE_DIR = PACKAGE_DIR / "calib_core" / "model" / "profiles"
 OBSERVE_PERIOD_S = 0.5
 MIN_REGISTRATION_FRAMES = 3  # measured frames an external tracker's pose is fitted on (3 points not on one line)
 # A resumed replay leaves out a configuration the session holds a frame at within this on every joint: a

@@ -18,9 +18,9 @@ from typing import Protocol
 import numpy as np
 
 from calib_core.errors import InputError
-from calib_core.profile import Profile, Sensor
-from calib_core.simulator import SimulatedRobot
-from calib_core.vision import Sighting
+from calib_core.model.profile import Profile, Sensor
+from calib_core.sim.simulator import SimulatedRobot
+from calib_core.vision.sighting import Sighting
 
 DEFAULT_MARGIN_DEG = 1.0
 MOVE_SLACK_S = 5.0  # real seconds a move may overrun its planned duration before the robot counts as not responding

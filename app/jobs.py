@@ -38,9 +38,9 @@ from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
 from calib_core import Calibration, InputError, calibrate, load_profile
-from calib_core.calibrate import METHODS
-from calib_core.solver import Cancelled
-from calib_core.validation import holdout_split
+from calib_core.estimation.calibrate import METHODS
+from calib_core.estimation.solver import Cancelled
+from calib_core.estimation.validation import holdout_split
 
 from .store import StoreWriteError, jsonable
 

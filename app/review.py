@@ -26,11 +26,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from calib_core import Dataset, Profile
-from calib_core.kinematics import forward
-from calib_core.measurement import distortion_coefficients, predict, project_to_image, radial_terms
-from calib_core.profile import Sensor
+from calib_core.io.urdf_export import to_urdf
+from calib_core.model.kinematics import forward
+from calib_core.model.profile import Sensor
+from calib_core.sensors.measurement import distortion_coefficients, predict, project_to_image, radial_terms
 from calib_core.units import length_factor
-from calib_core.urdf import to_urdf
 
 HISTOGRAM_BINS = 20
 UNDISTORT_ITERATIONS = 20

@@ -38,10 +38,10 @@ import yourdfpy
 from viser.extras import ViserUrdf
 
 from calib_core import Profile, load_profile
-from calib_core.kinematics import forward
+from calib_core.io.urdf_export import to_urdf
+from calib_core.model.kinematics import forward
 from calib_core.units import length_factor
-from calib_core.urdf import to_urdf
-from calib_core.vision import Sighting
+from calib_core.vision.sighting import Sighting
 
 from .framing import ClientFraming, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry

@@ -38,9 +38,9 @@ import cv2
 import numpy as np
 
 from calib_core import Calibration, Dataset, InputError, Profile, load_profile, parse_dataset, to_csv
-from calib_core.dataset import joints_needed
-from calib_core.profile import BUILTIN_PROFILES
-from calib_core.session import read_session
+from calib_core.io.csv_format import joints_needed
+from calib_core.io.session import read_session
+from calib_core.model.loader import BUILTIN_PROFILES
 
 log = logging.getLogger(__name__)
 

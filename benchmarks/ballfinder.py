@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from calib_core.ballfinder import FinderOptions
-from calib_core.depth_scenes import RADIUS_M, case, detect, random_centre, render, seed_near
+from calib_core.vision.ballfinder import FinderOptions
+from calib_core.vision.depth_scenes import RADIUS_M, case, detect, random_centre, render, seed_near
 
 BINS_M = ((0.4, 0.6), (0.6, 0.8), (0.8, 1.0), (1.0, 1.2))
 NOISE = {"none": 0.0, "nominal": 1.0, "2x": 2.0}

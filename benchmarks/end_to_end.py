@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core import Calibration, Problem, Profile, SimulatedRobot, calibrate, load_profile
-from calib_core.simulator import ImageSimulation, Simulation
+from calib_core.sim.simulator import ImageSimulation, Simulation
 
 
 @dataclass

@@ -23,16 +23,16 @@ from pathlib import Path
 import numpy as np
 
 from calib_core import calibrate, load_profile
-from calib_core.calibrate import observed_mode
-from calib_core.ctu_motoman import LEICA_SUBSETS, camera_datasets, camera_profile, leica_subset
 from calib_core.dataset import Dataset
-from calib_core.identifiability import find_dependencies
-from calib_core.problem import Problem
-from calib_core.profile import Profile
-from calib_core.registration import register
-from calib_core.self_observation import calibrate_sensors
-from calib_core.solver import levenberg_marquardt
-from calib_core.validation import holdout_split
+from calib_core.estimation.calibrate import observed_mode
+from calib_core.estimation.identifiability import find_dependencies
+from calib_core.estimation.problem import Problem
+from calib_core.estimation.registration import register
+from calib_core.estimation.self_observation import calibrate_sensors
+from calib_core.estimation.solver import levenberg_marquardt
+from calib_core.estimation.validation import holdout_split
+from calib_core.io.ctu_motoman import LEICA_SUBSETS, camera_datasets, camera_profile, leica_subset
+from calib_core.model.profile import Profile
 
 # The data set README's held-out figures (mm): M0, M1, M2 as mean / RMS / max, and M2r RMS.
 README = {

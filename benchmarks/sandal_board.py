@@ -20,7 +20,7 @@ from collections import Counter
 import numpy as np
 
 from calib_core import SimulatedRobot, load_profile
-from calib_core.sandal_board import board_corners, detect_board, render_board_image
+from calib_core.vision.sandal_board import board_corners, detect_board, render_board_image
 
 OBLIQUITY_BINS_DEG = (70.0, 80.0, 83.0, 85.0, 86.0, 90.0)
 

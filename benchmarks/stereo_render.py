@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from calib_core import SimulatedRobot, load_profile
-from calib_core.stereo import SPHERE, StereoHead, depth_from_pair, no_depth_band_px, render_pair
+from calib_core.vision.stereo import SPHERE, StereoHead, depth_from_pair, no_depth_band_px, render_pair
 
 BINS_M = ((0.4, 0.6), (0.6, 0.8), (0.8, 1.0), (1.0, 1.2))
 INNER_PX = 3.0

@@ -5,18 +5,38 @@ profile = load_profile("robonaut-a")
 data = read_dataset(profile, "day1.csv")
 cal = calibrate(profile, data, "full", holdout=0.3)
 print(cal.summary()); cal.save("full.json")
+
+The subpackages, by concern: `model` (profiles, URDF import, kinematics), `sensors` (measurement
+models), `estimation` (problem, solver, calibration, identifiability, validation, registration),
+`vision` (detectors and renderers), `sim` (the simulated robot) and `io` (CSV formats, session
+folders, bags, exports). The names below load their module on first use, so `import calib_core`
+stays light (no SciPy or OpenCV until something needs them).
 """
 
-from .calibrate import calibrate, fit_parameters
-from .calibration import Calibration, write_atomic
-from .dataset import Dataset, parse_dataset, read_dataset, select_rows, to_csv
-from .errors import InputError
-from .problem import Problem
-from .profile import Profile, load_profile
-from .registration import register
-from .self_observation import calibrate_sensors
-from .simulator import SimulatedRobot, Simulation
+from __future__ import annotations
 
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+_EXPORTS = {
+    "Calibration": "estimation.calibration",
+    "Dataset": "dataset",
+    "InputError": "errors",
+    "Problem": "estimation.problem",
+    "Profile": "model.profile",
+    "SimulatedRobot": "sim.simulator",
+    "Simulation": "sim.simulator",
+    "calibrate": "estimation.calibrate",
+    "calibrate_sensors": "estimation.self_observation",
+    "fit_parameters": "estimation.calibrate",
+    "load_profile": "model.loader",
+    "parse_dataset": "io.csv_format",
+    "read_dataset": "io.csv_format",
+    "register": "estimation.registration",
+    "select_rows": "io.csv_format",
+    "to_csv": "io.csv_format",
+    "write_atomic": "files",
+}
 __all__ = [
     "Calibration",
     "Dataset",
@@ -36,3 +56,26 @@ __all__ = [
     "to_csv",
     "write_atomic",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'calib_core' has no attribute {name!r}")
+    value = getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+if TYPE_CHECKING:
+    from .dataset import Dataset
+    from .errors import InputError
+    from .estimation.calibrate import calibrate, fit_parameters
+    from .estimation.calibration import Calibration
+    from .estimation.problem import Problem
+    from .estimation.registration import register
+    from .estimation.self_observation import calibrate_sensors
+    from .files import write_atomic
+    from .io.csv_format import parse_dataset, read_dataset, select_rows, to_csv
+    from .model.loader import load_profile
+    from .model.profile import Profile
+    from .sim.simulator import SimulatedRobot, Simulation

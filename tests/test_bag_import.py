@@ -25,7 +25,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from app.cli import main
 from calib_core import InputError, SimulatedRobot, load_profile
-from calib_core.bag_import import (
+from calib_core.io.bag_import import (
     DEFAULT_STILL_DEG_S,
     DEFAULT_STILL_S,
     decode_image,
@@ -33,9 +33,9 @@ from calib_core.bag_import import (
     import_bag,
     speeds_deg_s,
 )
-from calib_core.sandal_board import render_board_image
-from calib_core.session import read_session
-from calib_core.stereo import StereoHead, render_pair
+from calib_core.io.session import read_session
+from calib_core.vision.sandal_board import render_board_image
+from calib_core.vision.stereo import StereoHead, render_pair
 
 EPOCH_NS = 1_700_000_000 * 10**9
 JOINT_RATE_HZ = 50.0
@@ -430,7 +430,7 @@ def test_joint_names_may_be_the_data_columns_and_a_fixed_joint_may_be_absent(tmp
     with pytest.raises(InputError, match=r"joint 'elbow_roll'.*topic '/joint_states'"):
         import_bag(bag2, prof, tmp_path / "s2")
     assert not (tmp_path / "s2").exists()
-    source = (Path(__file__).resolve().parents[1] / "calib_core" / "profiles" / "robonaut-a.yaml").read_text()
+    source = (Path(__file__).resolve().parents[1] / "calib_core" / "model" / "profiles" / "robonaut-a.yaml").read_text()
     assert source.count("    elbow_roll: elbow_roll\n") == 1  # the data section's column
     (tmp_path / "r2.yaml").write_text(source.replace("    elbow_roll: elbow_roll\n", "    elbow_roll: r2/elbow_roll\n"))
     columns = load_profile(tmp_path / "r2.yaml")

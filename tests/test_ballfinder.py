@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from calib_core.ballfinder import FinderOptions
-from calib_core.depth_scenes import H_PX, RADIUS_M, W_PX, case, detect, random_centre, render, seed_near
+from calib_core.vision.ballfinder import FinderOptions
+from calib_core.vision.depth_scenes import H_PX, RADIUS_M, W_PX, case, detect, random_centre, render, seed_near
 
 
 def test_centre_within_millimetres_with_a_seed_15_cm_off():

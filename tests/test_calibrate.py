@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from calib_core import Calibration, Dataset, Problem, SimulatedRobot, calibrate, load_profile
-from calib_core.validation import configuration_groups, kfold_splits
+from calib_core.estimation.validation import configuration_groups, kfold_splits
 
 
 def rms_error(profile, data: Dataset, p: np.ndarray) -> float:

@@ -13,7 +13,7 @@ import pytest
 
 from app.drivers import LimitError, SimulatedDriver, check_limits
 from calib_core import InputError, SimulatedRobot, load_profile
-from calib_core.vision import predicted_points
+from calib_core.vision.sighting import predicted_points
 
 DEG = math.pi / 180
 

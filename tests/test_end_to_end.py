@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile
-from calib_core.simulator import Simulation
+from calib_core.sim.simulator import Simulation
 
 
 def _heldout_rms(profile, held: Simulation, p: np.ndarray) -> float:

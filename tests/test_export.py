@@ -13,12 +13,13 @@ import pytest
 import yaml
 import yourdfpy
 
-from calib_core.calibration import Calibration, parameter_estimate
-from calib_core.export import calibrated_urdf, offsets_geometry, offsets_yaml
-from calib_core.kinematics import forward
-from calib_core.profile import BUILTIN_PROFILES, Profile, load_profile
+from calib_core.estimation.calibration import Calibration, parameter_estimate
+from calib_core.io.export import calibrated_urdf, offsets_geometry, offsets_yaml
+from calib_core.io.urdf_export import to_urdf
+from calib_core.model.kinematics import forward
+from calib_core.model.loader import BUILTIN_PROFILES, load_profile
+from calib_core.model.profile import Profile
 from calib_core.units import length_factor
-from calib_core.urdf import to_urdf
 
 N_CONFIGS = 8
 

@@ -17,7 +17,7 @@ import pytest
 from app.jobs import CRASHED, FINISHED, JobContext, JobManager, WorkerLink, calibration_worker
 from app.store import INTERRUPTED, Store
 from calib_core import InputError
-from calib_core.solver import Cancelled
+from calib_core.estimation.solver import Cancelled
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 

@@ -23,7 +23,7 @@ import pytest
 from spec_tables import RN_ARM, RN_JOINTS, RN_NECK, RN_TABLE_I, RN_TABLE_II
 
 from calib_core import Problem, SimulatedRobot, load_profile, parse_dataset, to_csv
-from calib_core.measurement import predict as sensor_predict
+from calib_core.sensors.measurement import predict as sensor_predict
 
 RN_PE = np.array([10.0, 0.0, 0.0])  # nominal fixture centre in the hand frame, cm
 
@@ -343,7 +343,7 @@ DISTORTION = {
 
 @pytest.fixture(scope="module", params=list(DISTORTION))
 def nao_distorted(request, tmp_path_factory):
-    text = (resources.files("calib_core") / "profiles" / "nao.yaml").read_text(encoding="utf-8")
+    text = (resources.files("calib_core.model") / "profiles" / "nao.yaml").read_text(encoding="utf-8")
     anchor = "    intrinsics: {fx: 562.5, fy: 562.5, cx: 324, cy: 189}\n"
     assert text.count(anchor) == 1
     path = tmp_path_factory.mktemp("profiles") / f"nao-{request.param}.yaml"

@@ -31,12 +31,12 @@ from app.cli import main as calib
 from app.server import create_app
 from app.store import Store
 from calib_core import Calibration, InputError, calibrate, load_profile, read_dataset
-from calib_core.profile import BUILTIN_PROFILES
-from calib_core.session import read_session
+from calib_core.io.session import read_session
+from calib_core.model.loader import BUILTIN_PROFILES
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "sample_sessions"
-PROFILE_YAML = ROOT / "calib_core" / "profiles" / "robonaut-a.yaml"
+PROFILE_YAML = ROOT / "calib_core" / "model" / "profiles" / "robonaut-a.yaml"
 FUZZ = settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
 
 

@@ -15,16 +15,17 @@ import pytest
 
 from app.cli import main
 from calib_core import calibrate, load_profile
-from calib_core.calibrate import observed_mode
-from calib_core.ctu_motoman import camera_datasets, camera_profile, leica_subset
-from calib_core.dataset import Dataset, parse_dataset, to_csv
+from calib_core.dataset import Dataset
 from calib_core.errors import InputError
-from calib_core.identifiability import find_dependencies
-from calib_core.kinematics import forward
-from calib_core.problem import Problem
-from calib_core.registration import register, registration_params, rigid_fit
-from calib_core.self_observation import calibrate_sensors
-from calib_core.validation import holdout_split
+from calib_core.estimation.calibrate import observed_mode
+from calib_core.estimation.identifiability import find_dependencies
+from calib_core.estimation.problem import Problem
+from calib_core.estimation.registration import register, registration_params, rigid_fit
+from calib_core.estimation.self_observation import calibrate_sensors
+from calib_core.estimation.validation import holdout_split
+from calib_core.io.csv_format import parse_dataset, to_csv
+from calib_core.io.ctu_motoman import camera_datasets, camera_profile, leica_subset
+from calib_core.model.kinematics import forward
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "motoman"
 needs_data = pytest.mark.skipif(

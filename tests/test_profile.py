@@ -13,7 +13,7 @@ import pytest
 from spec_tables import RN_JOINTS, RN_TABLE_I, RN_TABLE_II
 
 from calib_core import InputError, load_profile
-from calib_core.profile import BUILTIN_PROFILES
+from calib_core.model.loader import BUILTIN_PROFILES
 
 NAO_21 = [
     "CamYaw",
@@ -25,7 +25,7 @@ NAO_21 = [
 
 
 def _builtin_text(name: str) -> str:
-    return (resources.files("calib_core") / "profiles" / f"{name}.yaml").read_text(encoding="utf-8")
+    return (resources.files("calib_core.model") / "profiles" / f"{name}.yaml").read_text(encoding="utf-8")
 
 
 # --- the built-in profiles ------------------------------------------------------------------------------

@@ -18,9 +18,9 @@ from sim_frames import Frame, measured_frames, unmeasured_frames
 
 from app.review import Review
 from calib_core import Problem, SimulatedRobot, Simulation, load_profile
-from calib_core.kinematics import forward
-from calib_core.measurement import predict, project_to_image
-from calib_core.profile import Profile
+from calib_core.model.kinematics import forward
+from calib_core.model.profile import Profile
+from calib_core.sensors.measurement import predict, project_to_image
 
 
 def session(name: str, n: int, unmeasured: int = 0, seed: int = 4) -> tuple[Profile, Simulation, list[Frame]]:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from calib_core import Profile, SimulatedRobot, load_profile
-from calib_core.sandal_board import BoardImage, board_corners, detect_board, render_board_image
+from calib_core.vision.sandal_board import BoardImage, board_corners, detect_board, render_board_image
 
 SHARP = {"blur_px": 0.0, "noise": 0.0, "light": 0.0}
 

@@ -16,10 +16,10 @@ from sim_frames import measured_frames, unmeasured_frames
 from app.review import Review
 from app.scene import ReviewScene
 from calib_core import SimulatedRobot, load_profile
-from calib_core.kinematics import forward
-from calib_core.vision import Sighting
+from calib_core.model.kinematics import forward
+from calib_core.vision.sighting import Sighting
 
-URDF_DIR = Path(__file__).resolve().parents[1] / "calib_core" / "profiles"
+URDF_DIR = Path(__file__).resolve().parents[1] / "calib_core" / "model" / "profiles"
 RED, BLUE, GREEN = [255, 0, 0], [0, 0, 255], [0, 200, 0]
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calib_core import InputError, Problem, load_profile
-from calib_core.session import read_session
+from calib_core.io.session import read_session
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from calib_core import Problem, SimulatedRobot, load_profile
-from calib_core.kinematics import forward
-from calib_core.stereo import SPHERE, StereoHead, no_depth_band_px, render_pair, sphere_views
+from calib_core.model.kinematics import forward
+from calib_core.vision.stereo import SPHERE, StereoHead, no_depth_band_px, render_pair, sphere_views
 
 # specs/nao.md joint limits (deg).
 NAO_LIMITS = {

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.solver import levenberg_marquardt
+from calib_core.estimation.solver import levenberg_marquardt
 
 
 def linear(A: np.ndarray, b: np.ndarray):

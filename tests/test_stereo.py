@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from calib_core import SimulatedRobot, load_profile
-from calib_core.measurement import project_to_image
-from calib_core.profile import Profile, Sensor
-from calib_core.stereo import (
+from calib_core.model.profile import Profile, Sensor
+from calib_core.sensors.measurement import project_to_image
+from calib_core.vision.stereo import (
     NONE,
     OBJECT_NAMES,
     SPHERE,

@@ -13,12 +13,13 @@ import pytest
 import yaml
 import yourdfpy
 
-from calib_core.kinematics import forward
-from calib_core.profile import BUILTIN_PROFILES, Profile, load_profile
+from calib_core.io.urdf_export import to_urdf, write_urdf
+from calib_core.model.kinematics import forward
+from calib_core.model.loader import BUILTIN_PROFILES, load_profile
+from calib_core.model.profile import Profile
 from calib_core.units import length_factor
-from calib_core.urdf import to_urdf, write_urdf
 
-PROFILES_DIR = Path(__file__).resolve().parents[1] / "calib_core" / "profiles"
+PROFILES_DIR = Path(__file__).resolve().parents[1] / "calib_core" / "model" / "profiles"
 N_CONFIGS = 20
 
 
@@ -57,7 +58,7 @@ def test_shipped_urdf_matches_forward_kinematics(name: str) -> None:
 @pytest.mark.parametrize("name", BUILTIN_PROFILES)
 def test_shipped_urdf_is_up_to_date(name: str) -> None:
     shipped = (PROFILES_DIR / f"{name}.urdf").read_text(encoding="utf-8")
-    assert shipped == to_urdf(load_profile(name)), f"regenerate calib_core/profiles/{name}.urdf"
+    assert shipped == to_urdf(load_profile(name)), f"regenerate calib_core/model/profiles/{name}.urdf"
 
 
 @pytest.mark.parametrize("name", BUILTIN_PROFILES)

@@ -20,11 +20,11 @@ from lxml import etree
 
 from app.cli import main
 from calib_core import Calibration, InputError, load_profile
-from calib_core.calibration import parameter_estimate
-from calib_core.export import calibrated_urdf, offsets_yaml
-from calib_core.kinematics import forward
+from calib_core.estimation.calibration import parameter_estimate
+from calib_core.io.export import calibrated_urdf, offsets_yaml
+from calib_core.model.kinematics import forward
+from calib_core.model.urdf_import import profile_frames, read_urdf
 from calib_core.units import length_factor
-from calib_core.urdf_import import profile_frames, read_urdf
 
 HALF_PI = math.pi / 2
 # name, type, parent, child, xyz (m), rpy (rad), axis: a UR5-like arm, fixed flange and TCP, a prismatic finger

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import axis_angle
-from .profile import Op, Profile
-from .units import length_factor
+from ..model.kinematics import axis_angle
+from ..model.profile import Op, Profile
+from ..units import length_factor
 
 EFFORT = 100.0  # URDF requires an effort limit; profiles have none
 JOINT_SPHERE = 0.01  # m, the sphere drawn at every link's origin

@@ -44,9 +44,9 @@ import numpy as np
 import yaml
 from lxml import etree
 
-from .errors import InputError
+from ..errors import InputError
+from ..units import ANGLE_IN_RAD, LENGTH_IN_M
 from .profile import Mode, Profile
-from .units import ANGLE_IN_RAD, LENGTH_IN_M
 
 SUPPORTED = ("revolute", "continuous", "fixed")
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
@@ -374,7 +374,7 @@ def urdf_path(doc: dict, source: str) -> Path:
     if path.is_absolute():
         return path
     if source.endswith(BUILTIN_SUFFIX):
-        return Path(str(resources.files("calib_core") / "profiles")) / path
+        return Path(str(resources.files("calib_core.model") / "profiles")) / path
     return Path(source).parent / path
 
 
@@ -462,7 +462,7 @@ def profile_urdf(profile: Profile) -> UrdfRobot | None:
     source = profile.source
     try:
         if source.endswith(BUILTIN_SUFFIX):
-            res = resources.files("calib_core") / "profiles" / f"{source[: -len(BUILTIN_SUFFIX)]}.yaml"
+            res = resources.files("calib_core.model") / "profiles" / f"{source[: -len(BUILTIN_SUFFIX)]}.yaml"
             text = res.read_text(encoding="utf-8")
         else:
             text = Path(source).read_text(encoding="utf-8")

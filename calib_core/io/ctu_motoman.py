@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataset import Dataset, read_dataset, select_rows
-from .errors import InputError
-from .profile import Profile
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.profile import Profile
+from .csv_format import read_dataset, select_rows
 
 # The tracker subsets of the data set's README: (file, filter on its columns) per set-up and arm.
 LEICA_SUBSETS: dict[str, tuple[str, dict[str, str]]] = {

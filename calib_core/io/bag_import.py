@@ -46,13 +46,13 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
-from .errors import InputError
-from .measurement import in_front, predict
-from .profile import Profile, Sensor
+from ..errors import InputError
+from ..model.profile import Profile, Sensor
+from ..sensors.measurement import in_front, predict
+from ..sim.simulator import Capture, SimulatedRobot, dataset_from_captures
+from ..vision.sighting import Sighting, predicted_points, sight_board, sight_fixture
+from ..vision.stereo import StereoHead, depth_from_pair
 from .session import FrameRecord, write_session
-from .simulator import Capture, SimulatedRobot, dataset_from_captures
-from .stereo import StereoHead, depth_from_pair
-from .vision import Sighting, predicted_points, sight_board, sight_fixture
 
 DEFAULT_JOINT_TOPIC = "/joint_states"
 DEFAULT_STILL_DEG_S = 1.0  # deg/s: a robot holding a pose; an encoder's flicker stays well below

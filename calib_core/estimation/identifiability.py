@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .profile import Profile
+from ..model.profile import Profile
 
 # A unit column whose part outside the span of the kept columns is shorter than this is a
 # combination of them: exact structural dependence shows up near 1e-12; on a real robot, readings

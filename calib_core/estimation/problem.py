@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dataset import Dataset
-from .kinematics import forward, op_ids, op_signs
-from .measurement import dimension, intrinsic_params, predict, whitening
-from .profile import Profile, Tie
+from ..dataset import Dataset
+from ..model.kinematics import forward, op_ids, op_signs
+from ..model.profile import Profile, Tie
+from ..sensors.measurement import dimension, intrinsic_params, predict, whitening
 
 
 @dataclass

@@ -21,15 +21,15 @@ from datetime import UTC, datetime
 import numpy as np
 from scipy.stats import chi2
 
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.profile import Mode, Profile, Sensor
+from ..units import LENGTH_IN_M
 from .calibration import Calibration, Outlier, parameter_estimate
-from .dataset import Dataset
-from .errors import InputError
 from .identifiability import Dependency, find_dependencies, report, strong_correlations, weak_parameters
 from .problem import Problem
-from .profile import Mode, Profile, Sensor
 from .registration import register, registration_params
 from .solver import Robust, SolveResult, block_norms_sq, levenberg_marquardt, nelder_mead
-from .units import LENGTH_IN_M
 from .validation import Figures, figures, holdout_split, kfold_splits
 
 METHODS = ("lm", "nelder-mead")

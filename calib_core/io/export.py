@@ -26,12 +26,12 @@ import numpy as np
 import yaml
 from lxml import etree
 
-from .calibration import Calibration
-from .kinematics import axis_angle
-from .profile import Frame, Profile
-from .units import length_factor
-from .urdf import rpy_angles, to_urdf, urdf_numbers
-from .urdf_import import UrdfRobot, profile_urdf
+from ..estimation.calibration import Calibration
+from ..model.kinematics import axis_angle
+from ..model.profile import Frame, Profile
+from ..model.urdf_import import UrdfRobot, profile_urdf
+from ..units import length_factor
+from .urdf_export import rpy_angles, to_urdf, urdf_numbers
 
 DIGITS = 10  # decimals of the YAML's values: far below any calibration, exact enough to 1e-9 m
 UNCHANGED = 1e-12  # a parameter (internal units) that moved less than this is unchanged

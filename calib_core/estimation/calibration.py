@@ -10,16 +10,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import InputError
-from .profile import Profile
+from ..errors import InputError
+from ..files import write_atomic
+from ..model.profile import Profile
 from .validation import Figures
 
 FORMAT = "calib-calibration/1"
@@ -182,20 +181,6 @@ def parameter_estimate(
         std=None if std is None else abs(profile.to_display(i, std)),
         note=note,
     )
-
-
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _finite(obj: Any) -> Any:

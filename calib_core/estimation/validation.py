@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .dataset import Dataset
+from ..dataset import Dataset
 
 
 @dataclass

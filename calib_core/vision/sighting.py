@@ -13,13 +13,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.kinematics import sensor_points, target_points
+from ..model.profile import Profile
+from ..sensors.measurement import predict
+from ..units import length_factor
 from .ballfinder import find_sphere
-from .kinematics import sensor_points, target_points
-from .measurement import predict
-from .profile import Profile
 from .sandal_board import detect_board
 from .stereo import StereoHead
-from .units import length_factor
 
 
 @dataclass

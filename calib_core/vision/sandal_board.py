@@ -23,9 +23,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .kinematics import forward
-from .measurement import predict
-from .profile import Profile
+from ..model.kinematics import forward
+from ..model.profile import Profile
+from ..sensors.measurement import predict
 
 # Grey levels of the scene before the camera effects.
 BLACK, WHITE, PLATE, ROOM = 35.0, 215.0, 120.0, 25.0

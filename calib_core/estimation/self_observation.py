@@ -15,13 +15,13 @@ from datetime import UTC, datetime
 
 import numpy as np
 
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.profile import Mode, Profile
 from .calibrate import box, observed_mode, outlier_limit, outliers_of, robust_sigma
 from .calibration import Calibration, parameter_estimate
-from .dataset import Dataset
-from .errors import InputError
 from .identifiability import find_dependencies, report
 from .problem import Problem
-from .profile import Mode, Profile
 from .solver import SolveResult, block_norms_sq, levenberg_marquardt
 from .validation import Figures, figures
 

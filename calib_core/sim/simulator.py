@@ -19,14 +19,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .dataset import Dataset
-from .errors import InputError
-from .kinematics import forward, sensor_points, target_points
-from .measurement import optical_rotation, predict, project_to_image
-from .profile import Profile
-from .sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, render_board_image
-from .stereo import StereoHead, depth_from_pair, no_depth_band_px, render_pair, sphere_views
-from .vision import Sighting, sight_board, sight_fixture
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.kinematics import forward, sensor_points, target_points
+from ..model.profile import Profile
+from ..sensors.measurement import optical_rotation, predict, project_to_image
+from ..vision.sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, render_board_image
+from ..vision.sighting import Sighting, sight_board, sight_fixture
+from ..vision.stereo import StereoHead, depth_from_pair, no_depth_band_px, render_pair, sphere_views
 
 # The share of the sphere's outline the arm and hand must leave free in each camera of a stereo head.
 # On 240 rendered first-day frames the BallFinder found the sphere in 8 of 31 views with less than

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dataset import Dataset
-from .errors import InputError
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.profile import Profile
 from .problem import Problem
-from .profile import Profile
 
 
 def registration_params(profile: Profile) -> list[int]:

@@ -25,9 +25,9 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from .kinematics import forward
-from .profile import Profile
-from .units import length_factor
+from ..model.kinematics import forward
+from ..model.profile import Profile
+from ..units import length_factor
 
 # object_id values: what each pixel shows.
 NONE, SPHERE, HAND, ARM, TABLE, FLOOR, WALL = range(7)

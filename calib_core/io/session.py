@@ -23,10 +23,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .calibration import write_atomic
-from .dataset import Dataset, read_dataset, to_csv
-from .errors import InputError
-from .profile import BUILTIN_PROFILES, Profile, load_profile
+from ..dataset import Dataset
+from ..errors import InputError
+from ..files import write_atomic
+from ..model.loader import BUILTIN_PROFILES, load_profile
+from ..model.profile import Profile
+from .csv_format import read_dataset, to_csv
 
 FORMAT = "calib-session/1"
 

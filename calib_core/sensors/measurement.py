@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .profile import Sensor
+from ..model.profile import Sensor
 
 
 def dimension(sensor: Sensor) -> int:

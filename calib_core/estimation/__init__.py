@@ -1,0 +1,1 @@
+"""From observations to a calibration: the problem, the solver, identifiability, validation, the result."""

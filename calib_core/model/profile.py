@@ -1,0 +1,275 @@
+"""Robot profiles: a robot described as data (a YAML file), compiled to flat arrays for the kinematics.
+
+A profile declares a tree of frames hanging from a base frame. Each frame is reached from its parent
+by a short list of elementary transforms ("ops": a translation along or a rotation about an axis)
+whose values are named calibration parameters, plus the joint reading for the op a joint drives.
+Modified DH, standard DH and URDF-style joints are sugar for such op lists:
+
+    mdh:  Trans_x(a) Rot_x(alpha) Trans_z(d) Rot_z(theta + q)            (Craig; Robonaut)
+    dh:   Rot_z(offset + q) Trans_z(d) Trans_x(a) Rot_x(alpha)           (distal; Motoman)
+    urdf: Trans(x, y, z) Rot_z(yaw) Rot_y(pitch) Rot_x(roll) Rot_axis(offset + q)   (NAO)
+    ops:  any list such as [{ry: 0, param: CamPitch}, {tx: 0, param: LTransX}]
+    registration: true   Trans(x, y, z) Rot_z(yaw) Rot_y(pitch) Rot_x(roll): the unknown pose of an
+          external measuring device (a laser tracker), estimated with every calibration (Motoman)
+
+Parameters are named `<frame>.<field>` (`shoulder_roll.theta`) unless the frame renames them
+(`names: {offset: LHipYawPitch}`) or an op names its own (`param: CamPitch`). Targets (points on the
+robot the sensors see: a calibrated point, a checkerboard grid, a list of fixed marker points, or
+the frame's origin), sensors (a 3-D point sensor or a pinhole camera), the CSV data format and the
+calibration modes (free parameters, ties, priors) complete the profile. Joints shared by several
+chains, several sensors and targets need nothing special: they are frames of the one tree.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A calibration parameter. `nominal` is in internal units (length unit of the profile, rad, px)."""
+
+    name: str
+    kind: str  # "length", "angle", "px" or "scalar"
+    nominal: float
+
+
+@dataclass(frozen=True)
+class Op:
+    """An elementary transform: translate along / rotate about `vector` by p[param] + q[joint]."""
+
+    kind: str  # "t" or "r"
+    vector: np.ndarray
+    axis: int | None  # 0, 1, 2 when `vector` is a principal axis (a fast path), else None
+    param: int
+    joint: int  # -1: no joint drives this op
+
+
+@dataclass(frozen=True)
+class Frame:
+    name: str
+    parent: int  # -1: the base frame
+    ops: tuple[Op, ...]
+    joint: int  # the joint that drives this frame, or -1
+    registration: bool = False  # the pose of an external device, first estimated from the data
+
+
+@dataclass(frozen=True)
+class Joint:
+    name: str
+    lower: float  # rad
+    upper: float  # rad
+    velocity: float  # rad/s
+    resolution: float = 0.0  # rad: the encoder's step; its rounding is noise on every reading
+
+
+@dataclass(frozen=True)
+class Target:
+    """A point (or a grid of points) fixed to a frame that a sensor can see."""
+
+    name: str
+    frame: int
+    point_params: tuple[int, int, int] | None  # a single point whose position is calibrated
+    grid: np.ndarray | None  # (K, 3) fixed points in the target frame (a checkerboard's vertices)
+    grid_shape: tuple[int, int] | None  # (rows, cols)
+    radius: float | None  # a sphere's radius, profile length unit
+    points: np.ndarray | None = None  # (K, 3) fixed points (markers; the origin), picked by vertex id
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A sensor fixed to a frame: `point3d` measures 3-D points, `pinhole` projects them to pixels."""
+
+    name: str
+    frame: int
+    model: str
+    convention: str  # "x-forward" (robot: x forward, y left, z up) or "z-forward" (OpenCV)
+    intrinsics: tuple[int, int, int, int] | None  # parameter indices of fx, fy, cx, cy
+    distortion: tuple[int, ...] | None  # parameter indices of k1, k2, p1, p2, k3 (and k4, k5, k6)
+    image: tuple[int, int] | None  # width, height in px
+    R_frame_optical: np.ndarray  # the OpenCV optical frame's axes in the sensor frame
+    range: tuple[float, float] | None  # visible distances, profile length unit
+    baseline: float | None  # stereo baseline, profile length unit
+    noise: dict[str, float]  # the measurement noise model the calibration weighs observations by
+
+
+@dataclass(frozen=True)
+class Tie:
+    follower: int
+    leader: int
+    sign: float
+
+
+@dataclass(frozen=True)
+class Mode:
+    name: str
+    description: str
+    free: tuple[int, ...]  # estimated parameters, leaders only (followers come through ties)
+    ties: tuple[Tie, ...]
+    priors: dict[int, float]  # parameter index -> standard deviation (internal units)
+    bounds: dict[int, float] = field(default_factory=dict)  # index -> largest |change| from nominal
+
+
+@dataclass(frozen=True)
+class DataFormat:
+    """How a CSV row maps to an observation (specs/robonaut-a.md, specs/nao.md)."""
+
+    frame_column: str | None  # None: every row is a configuration of its own
+    joint_columns: dict[str, str]  # joint name -> column
+    joint_unit: str
+    sensor: int
+    target: int | None  # the target of every row, or None when a column picks it
+    target_column: str | None
+    target_values: dict[str, int]
+    point_columns: tuple[str, ...] | None  # the observed point in the target frame
+    point_unit: str | None
+    vertex_column: str | None
+    measurement_columns: tuple[str, ...]
+    measurement_unit: str
+    prediction_columns: tuple[str, ...]
+    target_default: int | None = None  # the target of rows when the target column is absent
+
+
+@dataclass
+class Profile:
+    name: str
+    title: str
+    source: str
+    length_unit: str
+    base: str
+    parameters: list[Parameter]
+    frames: list[Frame]
+    joints: list[Joint]
+    targets: list[Target]
+    sensors: list[Sensor]
+    modes: dict[str, Mode]
+    data: DataFormat
+    simulation: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self._param_index = {p.name: i for i, p in enumerate(self.parameters)}
+        self._frame_index = {f.name: i for i, f in enumerate(self.frames)}
+        self._joint_index = {j.name: i for i, j in enumerate(self.joints)}
+
+    # --- look-ups -------------------------------------------------------------------------------
+    @property
+    def parameter_names(self) -> list[str]:
+        return [p.name for p in self.parameters]
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [j.name for j in self.joints]
+
+    def param(self, name: str) -> int:
+        try:
+            return self._param_index[name]
+        except KeyError:
+            raise InputError(f"unknown parameter '{name}' for robot '{self.name}'") from None
+
+    def frame(self, name: str) -> int:
+        return self._frame_index[name]
+
+    def joint(self, name: str) -> int:
+        return self._joint_index[name]
+
+    def target(self, name: str) -> int:
+        return [t.name for t in self.targets].index(name)
+
+    def mode(self, name: str) -> Mode:
+        if name not in self.modes:
+            known = ", ".join(self.modes)
+            raise InputError(f"unknown mode '{name}' for robot '{self.name}' (known: {known})")
+        return self.modes[name]
+
+    def nominal(self) -> np.ndarray:
+        return np.array([p.nominal for p in self.parameters])
+
+    def chain(self, frame: int) -> list[int]:
+        """The frames from the base to `frame`, base side first."""
+        out = []
+        while frame >= 0:
+            out.append(frame)
+            frame = self.frames[frame].parent
+        return out[::-1]
+
+    def label(self, index: int) -> str:
+        """The paper's notation: `shoulder_roll.d` reads d(shoulder_roll); `CamYaw` stays CamYaw."""
+        name = self.parameters[index].name
+        frame, dot, fieldname = name.rpartition(".")
+        return f"{fieldname}({frame})" if dot else name
+
+    # --- units at the edges ---------------------------------------------------------------------
+    def unit(self, index: int) -> str:
+        kind = self.parameters[index].kind
+        return {"length": self.length_unit, "angle": "deg", "px": "px", "scalar": ""}[kind]
+
+    def to_display(self, index: int, value: float) -> float:
+        """Internal value -> the unit shown to people and written to files (deg for angles)."""
+        return math.degrees(value) if self.parameters[index].kind == "angle" else float(value)
+
+    def from_display(self, index: int, value: float) -> float:
+        return math.radians(value) if self.parameters[index].kind == "angle" else float(value)
+
+    def params_from_display(self, values: dict[str, float], start: np.ndarray | None = None) -> np.ndarray:
+        p = self.nominal() if start is None else start.copy()
+        for name, value in values.items():
+            i = self.param(name)
+            p[i] = self.from_display(i, value)
+        return p
+
+    def params_to_display(self, p: np.ndarray) -> dict[str, float]:
+        return {q.name: self.to_display(i, p[i]) for i, q in enumerate(self.parameters)}
+
+    def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper joint limits in rad."""
+        return np.array([j.lower for j in self.joints]), np.array([j.upper for j in self.joints])
+
+    def true_params(self) -> np.ndarray:
+        """The simulator's hidden true robot (the profile's `simulation.truth`), internal units."""
+        return self.params_from_display(self.simulation.get("truth", {}))
+
+    def with_noise(self, noise: dict[str, Any]) -> Profile:
+        """The same robot with the data sensor's observations weighed by `noise` (a noise model as in
+        the YAML's `sensors[].noise`): for data measured with another precision than the profile
+        assumes, such as the simulated detectors' (`simulation.detected_noise`)."""
+        i = self.data.sensor
+        sensors = list(self.sensors)
+        sensors[i] = replace(sensors[i], noise=noise_model(noise, sensors[i], f"noise of sensor '{sensors[i].name}'"))
+        return replace(self, sensors=sensors)
+
+
+NOISE_MODELS = ("isotropic", "stereo")
+
+
+def noise_model(noise: dict[str, Any], sensor: Sensor, where: str) -> dict[str, Any]:
+    """A checked copy of a sensor's noise model; InputError naming `where` and the field if it is wrong.
+
+    isotropic: `sigma` in the measurement's unit (px, or the length unit). stereo: a point3d sensor
+    with intrinsics and a baseline; `pixel` (lateral) and `disparity` noise in px."""
+    out: dict[str, Any] = {str(k): v for k, v in noise.items()}
+    kind = out.get("model", "isotropic")
+    if kind not in NOISE_MODELS:
+        raise InputError(f"{where}.model: unknown noise model '{kind}' ({', '.join(NOISE_MODELS)})")
+    if kind == "stereo" and (
+        sensor.model != "point3d" or sensor.intrinsics is None or sensor.baseline is None or sensor.range is None
+    ):
+        raise InputError(f"{where}: the stereo noise model needs a point3d sensor with intrinsics, a baseline, a range")
+    wanted = {"isotropic": ("sigma",), "stereo": ("pixel", "disparity")}[kind]
+    for k, v in out.items():
+        if k == "model":
+            continue
+        if k not in wanted:
+            raise InputError(f"{where}.{k}: not a field of the {kind} noise model ({', '.join(wanted)})")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
+            raise InputError(f"{where}.{k}: expected a positive number, got {v!r}")
+        out[k] = float(v)
+    missing = [k for k in wanted if k not in out]
+    if missing:
+        raise InputError(f"{where}.{missing[0]}: the {kind} noise model needs it")
+    return out

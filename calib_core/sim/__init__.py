@@ -1,0 +1,1 @@
+"""The simulated robot: hidden true parameters, realistic noise, rendered images."""

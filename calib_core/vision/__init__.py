@@ -1,0 +1,1 @@
+"""Detectors on real-looking images (BallFinder on stereo depth, the sandal board) and their renderers."""
