@@ -27,6 +27,7 @@ from calib_core import InputError
 from calib_core.io.export import calibrated_urdf, offsets_yaml
 
 from .desk import Desk
+from .importers import import_csv
 from .store import FrameInfo
 
 VERSION = "0.4.0"
@@ -129,14 +130,14 @@ def sessions(request: Request) -> list[dict[str, Any]]:
             "created": s.created,
             "source": s.source,
         }
-        for s in desk(request).store.sessions()
+        for s in desk(request).store.sessions.list()
     ]
 
 
 @router.get("/sessions/{session_id}")
 def session(request: Request, session_id: str) -> dict[str, Any]:
     d = desk(request)
-    s = d.store.session(session_id)
+    s = d.store.sessions.get(session_id)
     return {
         "id": s.id,
         "robot": s.robot,
@@ -146,7 +147,7 @@ def session(request: Request, session_id: str) -> dict[str, Any]:
         "source": s.source,
         "measured": s.measured,
         "truth": s.truth,
-        "frames": [_frame_json(d, s.robot, f) for f in d.store.frames(session_id)],
+        "frames": [_frame_json(d, s.robot, f) for f in d.store.sessions.frames(session_id)],
     }
 
 
@@ -159,12 +160,12 @@ class NewSession(BaseModel):
 def create_session(request: Request, body: NewSession) -> dict[str, str]:
     d = desk(request)
     d.profile(body.robot)
-    return {"id": d.store.create_session(body.robot, body.name, source="capture")}
+    return {"id": d.store.sessions.create(body.robot, body.name, source="capture")}
 
 
 @router.delete("/sessions/{session_id}")
 def delete_session(request: Request, session_id: str) -> dict[str, str]:
-    desk(request).store.delete_session(session_id)
+    desk(request).store.sessions.delete(session_id)
     return {"deleted": session_id}
 
 
@@ -185,14 +186,14 @@ async def import_session(
     d = desk(request)
     d.profile(robot)
     filename = Path(data.filename or "data.csv").name
-    session_id = await asyncio.to_thread(d.store.import_csv, robot, name, text, filename)
+    session_id = await asyncio.to_thread(import_csv, d.store, robot, name, text, filename)
     return {"id": session_id}
 
 
 @router.get("/sessions/{session_id}/calibrations")
 def session_calibrations(request: Request, session_id: str) -> list[dict[str, Any]]:
     d = desk(request)
-    d.store.session(session_id)
+    d.store.sessions.get(session_id)
     return [
         {
             "id": c.id,
@@ -202,7 +203,7 @@ def session_calibrations(request: Request, session_id: str) -> list[dict[str, An
             "holdout": c.holdout,
             "figures": c.figures,
         }
-        for c in d.store.calibrations(session_id=session_id)
+        for c in d.store.calibrations.list(session_id=session_id)
     ]
 
 
@@ -268,8 +269,8 @@ def job_action(request: Request, job_id: str, action: Literal["cancel", "pause",
 @router.get("/calibrations/{cal_id}")
 def calibration(request: Request, cal_id: str) -> dict[str, Any]:
     d = desk(request)
-    info = d.store.calibration_info(cal_id)
-    body = d.store.calibration(cal_id).to_dict()
+    info = d.store.calibrations.info(cal_id)
+    body = d.store.calibrations.load(cal_id).to_dict()
     return {**body, "id": cal_id, "session": info.session_id, "base": info.base_id, "holdout": info.holdout}
 
 
@@ -297,7 +298,7 @@ def apply(request: Request, cal_id: str, body: ApplyRequest | None = None) -> di
 )
 def export(request: Request, cal_id: str, format: Literal["json", "yaml", "urdf"] = "json") -> Response:
     d = desk(request)
-    cal = d.store.calibration(cal_id)
+    cal = d.store.calibrations.load(cal_id)
     profile = d.profile(cal.robot)
     if format == "json":
         text, media = json.dumps(cal.to_dict(), indent=2) + "\n", "application/json"
@@ -352,11 +353,11 @@ def robot_calibration(request: Request, robot: str | None = None) -> dict[str, A
     d = desk(request)
     robot = robot or d.connected
     d.profile(robot)
-    cal_id = d.store.active(robot)
+    cal_id = d.store.calibrations.active(robot)
     if cal_id is None:
         return {"id": None, "robot": robot, "model": "nominal"}
-    info = d.store.calibration_info(cal_id)
-    history = d.store.history(robot)
+    info = d.store.calibrations.info(cal_id)
+    history = d.store.calibrations.history(robot)
     return {
         "id": cal_id,
         "robot": robot,
@@ -373,7 +374,7 @@ def robot_history(request: Request, robot: str | None = None) -> list[dict[str, 
     d = desk(request)
     robot = robot or d.connected
     d.profile(robot)
-    return d.store.history(robot)
+    return d.store.calibrations.history(robot)
 
 
 class ConnectRequest(BaseModel):
@@ -443,7 +444,7 @@ def wander(request: Request, body: WanderRequest) -> dict[str, Any]:
 def capture(request: Request, session_id: str) -> dict[str, Any]:
     d = desk(request)
     frame = d.capture(session_id)
-    return {"frame": _frame_json(d, d.store.session(session_id).robot, frame)}
+    return {"frame": _frame_json(d, d.store.sessions.get(session_id).robot, frame)}
 
 
 class ObserveRequest(BaseModel):
@@ -454,7 +455,7 @@ class ObserveRequest(BaseModel):
 @router.post("/sessions/{session_id}/observe")
 def observe(request: Request, session_id: str, body: ObserveRequest) -> dict[str, Any]:
     d = desk(request)
-    d.store.session(session_id)
+    d.store.sessions.get(session_id)
     d.observe(session_id if body.on else None, autocapture=body.autocapture)
     return {"observing": d.observing()}
 
@@ -487,8 +488,8 @@ def start_replay(request: Request, session_id: str, body: ReplayRequest, respons
 @router.post("/sessions/{session_id}/frames/{index}/goto", status_code=202)
 def goto(request: Request, session_id: str, index: FrameIndex) -> dict[str, Any]:
     d = desk(request)
-    s = d.store.session(session_id)
-    frame = d.store.frame(session_id, index)
+    s = d.store.sessions.get(session_id)
+    frame = d.store.sessions.frame(session_id, index)
     driver = d.driver(s.robot)
     driver.check(frame.joints_rad)
     driver.set_target(frame.target)

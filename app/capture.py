@@ -36,7 +36,7 @@ _SETTLE_POLL_S = 0.01
 def save_look(store: Store, session_id: str, look: Look, index: int | None = None) -> FrameInfo:
     """Store what one look gave as a frame (replacing the frame `index` if it exists)."""
     s = look.sighting
-    index = store.add_frame(
+    index = store.sessions.add_frame(
         session_id,
         index=index,
         joints_rad=look.readings_rad,
@@ -49,7 +49,7 @@ def save_look(store: Store, session_id: str, look: Look, index: int | None = Non
         images=look.images,
         detail=s.detail,
     )
-    return store.frame(session_id, index)
+    return store.sessions.frame(session_id, index)
 
 
 def capture_frame(store: Store, driver: RobotDriver, session_id: str, index: int | None = None) -> FrameInfo:
@@ -131,7 +131,7 @@ def replay(
         raise InputError(
             f"replay refused before moving: configuration {refused[0]['index']}: {refused[0]['problem']}{more}"
         )
-    existing = {f.index for f in store.frames(session_id)} if indices is not None else set()
+    existing = {f.index for f in store.sessions.frames(session_id)} if indices is not None else set()
     counts = {"measured": 0, "not found": 0, "skipped": 0}
     k = 0
     try:
@@ -141,7 +141,7 @@ def replay(
             if row["action"] == "skip":
                 status, reason = "skipped", row["problem"]
                 if index is None or index not in existing:
-                    index = store.add_frame(
+                    index = store.sessions.add_frame(
                         session_id, index=index, joints_rad=q[k], target=int(t[k]), status=status, reason=reason
                     )
             else:
@@ -197,7 +197,7 @@ class AutoCapture:
         self.session_id = session_id
         self.min_gap_rad = min_gap_rad
         self.settle_s = settle_s
-        frames = store.frames(session_id)
+        frames = store.sessions.frames(session_id)
         self._last: np.ndarray | None = max(frames, key=lambda f: f.index).joints_rad if frames else None
         self._looked: np.ndarray | None = None
         self.last_look: Look | None = None  # the latest look poll() made (for a live view)
@@ -223,7 +223,7 @@ class AutoCapture:
 
 
 def _check_robot(store: Store, driver: RobotDriver, session_id: str) -> None:
-    robot = store.session(session_id).robot
+    robot = store.sessions.get(session_id).robot
     if robot != driver.profile.name:
         raise InputError(f"session '{session_id}' is of robot {robot}, not {driver.profile.name}")
 

@@ -25,6 +25,7 @@ from calib_core.model.loader import BUILTIN_PROFILES
 from . import safety, security
 from .capture import AutoCapture, capture_frame, dry_run, replay
 from .drivers import LimitError, Look, RobotDriver, SimulatedDriver, reads_points
+from .importers import ensure_samples
 from .jobs import JobContext, JobManager
 from .review import Review
 from .scene import ReviewScene
@@ -73,9 +74,8 @@ class Desk:
     # --- life ---------------------------------------------------------------------------------
     def start(self) -> None:
         self.store = Store(self.data_dir)
-        self.store.fail_interrupted_jobs()
         if self.sample_dir is not None and self.sample_dir.is_dir():
-            self.store.ensure_samples(self.sample_dir)
+            ensure_samples(self.store, self.sample_dir)
         self.jobs = JobManager(self.store, workers=self.workers, scrub=self.scrub)
         for name in BUILTIN_PROFILES:
             profile = self.profile(name)
@@ -159,10 +159,10 @@ class Desk:
     def active_params(self, robot: str) -> tuple[str | None, np.ndarray]:
         """The robot's active calibration id and its parameters (the nominal model when none)."""
         profile = self.profile(robot)
-        cal_id = self.store.active(robot)
+        cal_id = self.store.calibrations.active(robot)
         if cal_id is None:
             return None, profile.nominal()
-        return cal_id, self.store.calibration(cal_id).params(profile)
+        return cal_id, self.store.calibrations.load(cal_id).params(profile)
 
     def _push_active(self, robot: str) -> None:
         cal_id, p = self.active_params(robot)
@@ -172,7 +172,7 @@ class Desk:
         """Make a calibration its robot's active one: recorded first, then pushed to the driver. One that
         is worse than the active one or moves a parameter beyond its sane bound (app/safety.py) raises
         ConfirmationRequired unless `confirm`."""
-        info = self.store.calibration_info(cal_id)
+        info = self.store.calibrations.info(cal_id)
         if not confirm:
             reasons = self.apply_concerns(cal_id)
             if reasons:
@@ -181,24 +181,24 @@ class Desk:
                     + (f" (and {len(reasons) - 1} more)" if len(reasons) > 1 else ""),
                     reasons,
                 )
-        active, previous = self.store.apply(info.robot, cal_id, note)
+        active, previous = self.store.calibrations.apply(info.robot, cal_id, note)
         if info.robot in self.drivers:
             self._push_active(info.robot)
         return {"active": active, "previous": previous, "robot": info.robot}
 
     def apply_concerns(self, cal_id: str) -> list[str]:
         """Why applying this calibration needs a confirmation (empty: it does not)."""
-        info = self.store.calibration_info(cal_id)
+        info = self.store.calibrations.info(cal_id)
         profile = self.profile(info.robot)
         active_id, active_p = self.active_params(info.robot)
         if active_id == cal_id:
             return []
         active = "the nominal model" if active_id is None else f"the active calibration {active_id}"
-        cal = self.store.calibration(cal_id)
+        cal = self.store.calibrations.load(cal_id)
         new_p = cal.params(profile)
         reasons = []
-        if info.session_id is not None and info.session_id in {s.id for s in self.store.sessions()}:
-            data = self.store.dataset(info.session_id, profile)
+        if info.session_id is not None and info.session_id in {s.id for s in self.store.sessions.list()}:
+            data = self.store.sessions.dataset(info.session_id, profile)
             heldout = np.isin(data.frame_ids, cal.frames.get("holdout", []))
             where = f"the held-out frames of session {info.session_id}"
             train = ~heldout
@@ -216,7 +216,7 @@ class Desk:
 
     # --- capture ------------------------------------------------------------------------------
     def capture(self, session_id: str) -> FrameInfo:
-        session = self.store.session(session_id)
+        session = self.store.sessions.get(session_id)
         return capture_frame(self.store, self.driver(session.robot), session_id)
 
     def replay_plan(
@@ -240,7 +240,7 @@ class Desk:
         )
         if not resume:
             return q, targets, indices
-        have = np.array([f.joints_rad for f in self.store.frames(session_id)]).reshape(-1, q.shape[1])
+        have = np.array([f.joints_rad for f in self.store.sessions.frames(session_id)]).reshape(-1, q.shape[1])
         near = np.abs(q[:, None, :] - have[None, :, :]) <= np.radians(RESUME_TOLERANCE_DEG)
         todo = ~np.all(near, axis=2).any(axis=1)
         if not todo.any():
@@ -253,7 +253,7 @@ class Desk:
         self, session_id: str, *, from_session: str | None, count: int | None, remeasure: bool, resume: bool
     ) -> None:
         """What can be wrong with a replay request before any planning: the session, its robot, the options."""
-        robot = self.store.session(session_id).robot
+        robot = self.store.sessions.get(session_id).robot
         self.driver(robot)  # a robot with real data only has nothing to replay on
         if resume and remeasure:
             raise InputError("resume goes on with a replay that adds frames; start a re-measure again instead")
@@ -263,13 +263,13 @@ class Desk:
     def _plan(
         self, session_id: str, *, from_session: str | None, count: int | None, remeasure: bool, seed: int
     ) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
-        session = self.store.session(session_id)
+        session = self.store.sessions.get(session_id)
         profile = self.profile(session.robot)
         if remeasure or from_session:
-            source = self.store.session(session_id if remeasure else str(from_session))
+            source = self.store.sessions.get(session_id if remeasure else str(from_session))
             if source.robot != session.robot:
                 raise InputError(f"session '{source.id}' is of robot {source.robot}, not {session.robot}")
-            frames = self.store.frames(source.id)
+            frames = self.store.sessions.frames(source.id)
             if not frames:
                 raise InputError(f"session '{source.id}' has no frames to replay")
             q = np.array([f.joints_rad for f in frames])
@@ -286,7 +286,7 @@ class Desk:
         return q[keep], targets[keep], None
 
     def dry_run(self, session_id: str, **plan: Any) -> dict[str, Any]:
-        robot = self.store.session(session_id).robot
+        robot = self.store.sessions.get(session_id).robot
         q, targets, _ = self.replay_plan(session_id, **plan)
         _, believed = self.active_params(robot)
         rows = dry_run(self.driver(robot), q, targets, believed)
@@ -296,7 +296,7 @@ class Desk:
         """Queue a replay job. A plan from frames (another session's, or a re-measure) is made here, so its
         mistakes answer at once; N new configurations are planned in the job (NAO: tens of ms each), so the
         request returns at once and the job shows "planning" meanwhile."""
-        robot = self.store.session(session_id).robot
+        robot = self.store.sessions.get(session_id).robot
         driver = self.driver(robot)
         if plan.get("remeasure") or plan.get("from_session"):
             ready = self.replay_plan(session_id, **plan)
@@ -330,7 +330,7 @@ class Desk:
             self._observe = None
         if session_id is None:
             return
-        robot = self.store.session(session_id).robot
+        robot = self.store.sessions.get(session_id).robot
         self.connect(robot)
         self._observe = _Observer(self, session_id, autocapture)
         self._observe.start()
@@ -345,22 +345,22 @@ class Desk:
             return self.active_params(robot)
         if ref is None:
             return None, profile.nominal()
-        cal = self.store.calibration(ref)
+        cal = self.store.calibrations.load(ref)
         if cal.robot != robot:
             raise InputError(f"calibration '{ref}' is for robot {cal.robot}, not {robot}")
         return ref, cal.params(profile)
 
     def review(self, session_id: str, old: str | None, new: str | None) -> dict[str, Any]:
         """Load a session into the review scene with an old and a new calibration."""
-        session = self.store.session(session_id)
+        session = self.store.sessions.get(session_id)
         profile = self.profile(session.robot)
         old_id, old_p = self._params(session.robot, old)
         new_id, new_p = (None, None) if new is None else self._params(session.robot, new)
         heldout: set[int] = set()
         if new_id is not None:
-            heldout = set(self.store.calibration(new_id).frames.get("holdout", []))
-        frames = self.store.frames(session_id)
-        data = self.store.dataset(session_id, profile) if session.measured else None
+            heldout = set(self.store.calibrations.load(new_id).frames.get("holdout", []))
+        frames = self.store.sessions.frames(session_id)
+        data = self.store.sessions.dataset(session_id, profile) if session.measured else None
         if data is not None and registration_params(profile):
             old_p = self._registered(profile, data, old_p, old_id, session_id, heldout)
             new_p = None if new_p is None else self._registered(profile, data, new_p, new_id, session_id, heldout)
@@ -380,7 +380,7 @@ class Desk:
         """An external tracker's pose belongs to its set-up, that is to a session: parameters from elsewhere
         (the nominal model, another session's calibration) see this session's tracker through a registration
         fitted on its frames (those the new calibration was fitted on, when it held some out)."""
-        if cal_id is not None and self.store.calibration_info(cal_id).session_id == session_id:
+        if cal_id is not None and self.store.calibrations.info(cal_id).session_id == session_id:
             return p
         train = ~np.isin(data.frame_ids, sorted(heldout))
         return register(profile, data.select(train) if train.any() else data, p)
@@ -402,7 +402,7 @@ class Desk:
     def marks(self, index: int) -> dict[str, Any]:
         review = self._current_review()
         marks = review.marks(index)
-        frame = self.store.frame(self._review_key["session"], index)
+        frame = self.store.sessions.frame(self._review_key["session"], index)
         path = frame.images.get(marks["role"]) if marks.get("role") else None
         return {**marks, "image": None if path is None else f"/api/files/{path}"}
 
@@ -438,7 +438,7 @@ class _Observer:
     def __init__(self, desk: Desk, session_id: str, autocapture: bool) -> None:
         self.desk = desk
         self.session_id = session_id
-        robot = desk.store.session(session_id).robot
+        robot = desk.store.sessions.get(session_id).robot
         self.driver = desk.driver(robot)
         self.auto = AutoCapture(desk.store, self.driver, session_id) if autocapture else None
         self._stop = threading.Event()
@@ -494,10 +494,10 @@ class _Observer:
         cal_id, p = self.desk.active_params(profile.name)
         if not registration_params(profile):
             return p, True
-        frames = self.desk.store.frames(self.session_id)
+        frames = self.desk.store.sessions.frames(self.session_id)
         key = (cal_id, tuple(f.index for f in frames if f.status == "measured"))
         if self._registration is None or self._registration[0] != key:
-            data = self.desk.store.dataset(self.session_id, profile)
+            data = self.desk.store.sessions.dataset(self.session_id, profile)
             fitted = register(profile, data, p) if data.n_configurations >= MIN_REGISTRATION_FRAMES else None
             self._registration = (key, fitted)
         fitted = self._registration[1]

@@ -37,12 +37,14 @@ from functools import partial
 from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
-from calib_core import Calibration, InputError, calibrate, load_profile
+from calib_core import Calibration, InputError, calibrate
 from calib_core.estimation.calibrate import METHODS
 from calib_core.estimation.solver import Cancelled
 from calib_core.estimation.validation import holdout_split
 
-from .store import StoreWriteError, jsonable
+from .errors import NotFound
+from .store import StoreWriteError
+from .store.db import jsonable
 
 if TYPE_CHECKING:
     from .store import Store
@@ -101,7 +103,7 @@ def run_in_worker(fn: Callable[[Any, WorkerLink], Any], payload: Any, link: Work
 
 def calibration_worker(payload: dict, link: WorkerLink) -> dict:
     """Solve one calibration from plain data; the result as its calib-calibration/1 dictionary."""
-    profile = load_profile(payload["robot"])
+    profile = payload["profile"]
     base = Calibration.from_dict(payload["base"]) if payload["base"] is not None else None
     cal = calibrate(
         profile,
@@ -179,6 +181,7 @@ class _Job:
     started: float = 0.0
     pid: int | None = None
     kill_reason: str | None = None  # set when the server kills the worker on purpose
+    resent: bool = False  # handed to a new worker once, its first having died before it started the job
 
 
 @dataclass
@@ -219,7 +222,7 @@ class JobManager:
         self._messages = self._mp.Queue()
         self._cancel_flags = self._mp.dict()
         self._slots = [_Slot(self._new_executor()) for _ in range(workers)]
-        self.store.fail_interrupted_jobs()
+        self.store.jobs.fail_interrupted()
         self._pump = threading.Thread(target=self._pump_messages, name="jobs-progress", daemon=True)
         self._pump.start()
 
@@ -228,15 +231,15 @@ class JobManager:
         self, session_id: str, mode: str, base_id: str | None, holdout: float, *, folds: int = 0, method: str = "lm"
     ) -> str:
         """Validate, then queue a calibration of the session's measured frames; the job's result is the
-        stored calibration's id. Unknown session or base calibration: KeyError; anything else wrong: InputError."""
+        stored calibration's id. Unknown session or base calibration: NotFound; anything else wrong: InputError."""
         payload = self.calibration_payload(session_id, mode, base_id, holdout, folds=folds, method=method)
 
         def finish(result: dict, job_id: str) -> str:
             cal = Calibration.from_dict(result)
             try:
-                cal_id = self.store.add_calibration(cal, session_id=session_id, base_id=base_id, holdout=holdout)
-            except KeyError:  # the session was deleted meanwhile: the result stays, without its session
-                cal_id = self.store.add_calibration(cal, session_id=None, base_id=base_id, holdout=holdout)
+                cal_id = self.store.calibrations.add(cal, session_id=session_id, base_id=base_id, holdout=holdout)
+            except NotFound:  # the session was deleted meanwhile: the result stays, without its session
+                cal_id = self.store.calibrations.add(cal, session_id=None, base_id=base_id, holdout=holdout)
             with self._changed:
                 job = self._jobs[job_id]
                 job.snap["cost"] = list(cal.solver.get("cost_history", job.snap["cost"]))
@@ -250,7 +253,7 @@ class JobManager:
             return cal_id
 
         detail = {
-            "robot": payload["robot"],
+            "robot": payload["profile"].name,
             "mode": mode,
             "base": base_id,
             "holdout": holdout,
@@ -266,8 +269,8 @@ class JobManager:
         self, session_id: str, mode: str, base_id: str | None, holdout: float, *, folds: int = 0, method: str = "lm"
     ) -> dict:
         """Check a calibration request and gather the plain data its worker needs."""
-        session = self.store.session(session_id)
-        profile = load_profile(session.robot)
+        session = self.store.sessions.get(session_id)
+        profile = self.store.sessions.profile(session.robot)
         m = profile.mode(mode)
         if method not in METHODS:
             raise InputError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
@@ -280,13 +283,13 @@ class JobManager:
         base = None
         if base_id is not None:
             try:
-                info = self.store.calibration_info(base_id)
-            except KeyError:
-                raise KeyError(f"unknown base calibration '{base_id}'") from None
+                info = self.store.calibrations.info(base_id)
+            except NotFound:
+                raise NotFound.unknown("base calibration", base_id) from None
             if info.robot != profile.name:
                 raise InputError(f"base calibration '{base_id}' is for robot '{info.robot}', not '{profile.name}'")
-            base = self.store.calibration(base_id).to_dict()
-        data = self.store.dataset(session_id, profile)
+            base = self.store.calibrations.load(base_id).to_dict()
+        data = self.store.sessions.dataset(session_id, profile)
         if data.n_configurations == 0:
             raise InputError(f"session '{session_id}' has no measured frames to calibrate on")
         train = data.select(holdout_split(data, holdout)[0]) if holdout > 0 else data
@@ -300,7 +303,7 @@ class JobManager:
         if folds > train.n_configurations:
             raise InputError(f"{folds} folds need at least {folds} training frames, not {train.n_configurations}")
         return {
-            "robot": profile.name,
+            "profile": profile,
             "session": session_id,
             "mode": mode,
             "base": base,
@@ -342,11 +345,11 @@ class JobManager:
             job = self._jobs.get(job_id)
             if job is not None:
                 return _copy(job.snap)
-        return self.store.job(job_id)
+        return self.store.jobs.get(job_id)
 
     def list(self, session_id: str | None = None) -> list[dict]:
         """Every job this store knows (this run's live, earlier runs' as stored), newest first."""
-        stored = {j["id"]: j for j in self.store.jobs(session_id)}
+        stored = {j["id"]: j for j in self.store.jobs.list(session_id)}
         with self._lock:
             for job_id, job in self._jobs.items():
                 if session_id is None or job.snap["session"] == session_id:
@@ -360,7 +363,7 @@ class JobManager:
             if job is not None:
                 self._changed.wait_for(lambda: job.snap["version"] > version, timeout=timeout_s)
                 return _copy(job.snap)
-        return self.store.job(job_id)
+        return self.store.jobs.get(job_id)
 
     def worker_pid(self, job_id: str) -> int | None:
         """The process a running calibration job runs in (None before it starts)."""
@@ -421,7 +424,7 @@ class JobManager:
         with self._lock:
             job = self._jobs.get(job_id)
         if job is None:
-            raise KeyError(f"unknown job '{job_id}'")
+            raise NotFound.unknown("job", job_id)
         return job
 
     def _create(self, kind: str, session_id: str | None, detail: dict | None, *, process: bool) -> _Job:
@@ -484,7 +487,7 @@ class JobManager:
             with self._lock:
                 snap = _copy(job.snap)
             try:
-                self.store.save_job(snap)
+                self.store.jobs.save(snap)
             except Exception:
                 log.exception("job %s: its snapshot could not be stored", snap["id"])
 
@@ -578,6 +581,17 @@ class JobManager:
             outcome, value, trace = "cancelled", None, ""
         except BrokenProcessPool:
             broken = True
+            if job.pid is None and not (job.kill_reason or job.cancel_requested or job.resent or self._closed):
+                # The worker died before it took the job (killed while idle, and its pool did not know yet
+                # when the job was handed to it): the job goes to the slot's new worker, once.
+                job.resent = True
+                with self._lock:
+                    if slot.generation == generation:
+                        self._rebuild(slot)
+                    slot.job_id = None
+                    self._pending.appendleft(job_id)
+                self._dispatch()
+                return
             if job.kill_reason == "cancelled":
                 outcome, value, trace = "cancelled", None, ""
             else:

@@ -32,6 +32,8 @@ from calib_core.model.profile import Sensor
 from calib_core.sensors.measurement import distortion_coefficients, predict, project_to_image, radial_terms
 from calib_core.units import length_factor
 
+from .errors import NotFound
+
 HISTOGRAM_BINS = 20
 UNDISTORT_ITERATIONS = 20
 
@@ -152,7 +154,7 @@ class Review:
             return self._row[int(index)]
         except KeyError:
             known = f"frames {self.indices[0]}..{self.indices[-1]}" if len(self.indices) else "no frames"
-            raise IndexError(f"frame {index} is not in this review ({known})") from None
+            raise NotFound(f"frame {index} is not in this review ({known})") from None
 
     def table(self) -> list[dict[str, Any]]:
         """Per frame: {index, status, target, err_old, err_new, heldout}; errors None when not measured."""

@@ -190,7 +190,7 @@ class ReviewScene:
         with self._lock:
             if self.review is None:
                 raise ValueError("no review is loaded: load(review) first")
-            geometry = self.review.frame_geometry(index)  # IndexError naming the frames for a bad index
+            geometry = self.review.frame_geometry(index)  # NotFound naming the frames for a bad index
             with self.server.atomic():
                 for side in self.review.sides:
                     self._set_joints(self._copies[side], geometry.joints_rad)

@@ -22,6 +22,7 @@ from . import security
 from .api import MAX_UPLOAD_BYTES, VERSION, router
 from .desk import PACKAGE_DIR, SAMPLE_DIR, Desk
 from .drivers import RobotFault
+from .errors import NotFound
 from .safety import ConfirmationRequired
 from .store import StoreWriteError
 
@@ -99,14 +100,9 @@ def _error_handlers(app: FastAPI, scrub: Callable[[str], str]) -> None:
     async def input_error(request: Request, exc: InputError) -> JSONResponse:
         return detail(422, str(exc))
 
-    @app.exception_handler(KeyError)
-    async def not_found(request: Request, exc: KeyError) -> JSONResponse:
-        what = exc.args[0] if exc.args else "it"
-        return detail(404, f"{what} not found")
-
-    @app.exception_handler(IndexError)
-    async def out_of_range(request: Request, exc: IndexError) -> JSONResponse:
-        return detail(404, str(exc) or "index out of range")
+    @app.exception_handler(NotFound)
+    async def not_found(request: Request, exc: NotFound) -> JSONResponse:
+        return detail(404, str(exc))
 
     @app.exception_handler(RequestValidationError)
     async def invalid(request: Request, exc: RequestValidationError) -> JSONResponse:

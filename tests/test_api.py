@@ -137,6 +137,33 @@ def test_bad_requests_answer_4xx_with_a_sentence(
     assert "Traceback" not in detail
 
 
+def test_unknown_ids_answer_404_with_the_sentence_of_the_store(client: TestClient) -> None:
+    """NotFound (raised by the store, the job manager and the review) is what answers 404."""
+    for path, sentence in [
+        ("/api/sessions/s-nothere", "unknown session 's-nothere' not found"),
+        ("/api/sessions/nao/frames/99999/goto", "session 'nao' has no frame 99999 not found"),
+        ("/api/jobs/j-nothere", "unknown job 'j-nothere' not found"),
+        ("/api/calibrations/c-nothere", "unknown calibration 'c-nothere' not found"),
+    ]:
+        r = client.post(path) if path.endswith("goto") else client.get(path)
+        assert (r.status_code, r.json()) == (404, {"detail": sentence}), path
+
+
+def test_a_stray_key_error_is_a_bug_not_not_found(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A KeyError from a bug answers 500, one line naming its type, no traceback (and no 404 that hides it)."""
+    desk = client.app.state.desk
+
+    def bug() -> list:
+        return {}["frames"]
+
+    monkeypatch.setattr(desk.store.sessions, "list", bug)
+    raw = TestClient(client.app, raise_server_exceptions=False)  # the running app, seen as a browser sees it
+    r = raw.get("/api/sessions")
+    assert r.status_code == 500
+    assert r.json() == {"detail": "internal error (KeyError); the server log has the details"}
+    assert "Traceback" not in r.text and ".py" not in r.text
+
+
 def test_a_move_beyond_a_limit_names_the_joint(client: TestClient) -> None:
     r = client.post("/api/robot/move", json={"robot": "robonaut-a", "joints": {"elbow_pitch": 500.0}})
     assert r.status_code == 422
@@ -440,7 +467,7 @@ def test_the_simulated_motoman_replays_and_calibrates_to_its_tracker_noise(clien
     assert all(np.all(q >= lo + margin - 1e-12) and np.all(q <= hi - margin + 1e-12) for q in commanded)
 
     # The session's data in the Motoman's CSV format: one row per reading, the arm in reflector_arm.
-    data = desk.store.dataset(sid, profile)
+    data = desk.store.sessions.dataset(sid, profile)
     text = to_csv(profile, data)
     header = text.splitlines()[0].split(",")
     assert {"E_deg", "S1_deg", "T2_deg", "reflector_arm", "x_m", "y_m", "z_m"} <= set(header)

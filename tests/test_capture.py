@@ -73,18 +73,18 @@ def _wait(jobs: JobManager, job_id: str, until=lambda s: s["state"] in FINISHED,
 
 
 def test_capture_frame_stores_what_the_robot_sees(store, nao, nao_driver) -> None:
-    sid = store.create_session("nao", "observe", source="capture")
+    sid = store.sessions.create("nao", "observe", source="capture")
     frame = capture_frame(store, nao_driver, sid)
     assert frame.index == 1 and frame.status == "measured"
     assert np.array_equal(frame.joints_rad, nao_driver.read_joints())
     assert frame.target == nao_driver.status().target
     assert set(frame.images) == {"image"} and (store.data_dir / frame.images["image"]).is_file()
-    assert store.dataset(sid, nao).measured.shape == (24, 2)
+    assert store.sessions.dataset(sid, nao).measured.shape == (24, 2)
     assert capture_frame(store, nao_driver, sid).index == 2
 
 
 def test_capture_frame_refuses_a_moving_robot_and_another_robots_session(store, nao, rn, nao_driver) -> None:
-    sid = store.create_session("nao", "moving", source="capture")
+    sid = store.sessions.create("nao", "moving", source="capture")
     slow = SimulatedDriver(nao, seed=3, time_scale=0.05)
     try:
         q = slow.true_joints_rad()
@@ -94,10 +94,10 @@ def test_capture_frame_refuses_a_moving_robot_and_another_robots_session(store, 
             capture_frame(store, slow, sid)
     finally:
         slow.close()
-    other = store.create_session("robonaut-a", "arm", source="capture")
+    other = store.sessions.create("robonaut-a", "arm", source="capture")
     with pytest.raises(InputError, match="robonaut-a, not nao"):
         capture_frame(store, nao_driver, other)
-    assert store.frames(sid) == [] and store.frames(other) == []
+    assert store.sessions.frames(sid) == [] and store.sessions.frames(other) == []
 
 
 def test_dry_run_flags_limits_and_views_before_anything_moves(rn) -> None:
@@ -141,12 +141,12 @@ def test_replay_captures_frames_with_their_statuses(store, jobs, nao, nao_plan, 
     hidden = q[0].copy()
     plan_q = np.array([q[0], q[1], hidden, q[2]])
     plan_t = np.array([targets[0], targets[1], 1 - targets[0], targets[2]])
-    sid = store.create_session("nao", "replay", source="capture")
+    sid = store.sessions.create("nao", "replay", source="capture")
     job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, nao_driver, sid, plan_q, plan_t), session_id=sid)
     snap = _wait(jobs, job)
     assert snap["state"] == "done", snap["error"]
     assert snap["result"] == sid and snap["progress"] == 1.0
-    frames = store.frames(sid)
+    frames = store.sessions.frames(sid)
     assert [f.index for f in frames] == [1, 2, 3, 4]
     assert frames[2].status == "skipped" and frames[2].reason.endswith("not predicted in view")
     assert frames[2].images == {}
@@ -166,7 +166,7 @@ def test_replay_refuses_a_configuration_beyond_a_limit_before_moving(store, jobs
     q, targets = nao_plan
     bad = q[1].copy()
     bad[nao.joint("LKneePitch")] = 125 * DEG
-    sid = store.create_session("nao", "refused", source="capture")
+    sid = store.sessions.create("nao", "refused", source="capture")
     before = nao_driver.true_joints_rad()
     job = jobs.submit_thread(
         "replay",
@@ -179,13 +179,13 @@ def test_replay_refuses_a_configuration_beyond_a_limit_before_moving(store, jobs
         "replay refused before moving: configuration 2: LKneePitch 125.0 deg is beyond its upper limit "
         "121.0 deg (margin 1.0 deg)"
     )
-    assert store.frames(sid) == []
+    assert store.sessions.frames(sid) == []
     assert np.array_equal(nao_driver.true_joints_rad(), before)
 
 
 def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao, nao_plan) -> None:
     q, targets = nao_plan
-    sid = store.create_session("nao", "cancelled", source="capture")
+    sid = store.sessions.create("nao", "cancelled", source="capture")
     with SimulatedDriver(nao, seed=3, time_scale=1.0) as d:  # moves of a few tenths of a second
         job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q, targets), session_id=sid)
         _wait(jobs, job, until=lambda s: s["detail"].get("done", 0) >= 1)
@@ -201,14 +201,14 @@ def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao
         halted = d.true_joints_rad()
         time.sleep(0.1)
         assert np.array_equal(d.true_joints_rad(), halted)
-    frames = store.frames(sid)
+    frames = store.sessions.frames(sid)
     assert 1 <= len(frames) == snap["detail"]["done"] < len(q)
     assert all(f.status in ("measured", "not found") for f in frames)
 
 
 def test_pause_holds_the_replay_and_resume_finishes_it(store, jobs, nao, nao_plan) -> None:
     q, targets = nao_plan[0][:4], nao_plan[1][:4]
-    sid = store.create_session("nao", "paused", source="capture")
+    sid = store.sessions.create("nao", "paused", source="capture")
     with SimulatedDriver(nao, seed=3, time_scale=2.0) as d:
         job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q, targets), session_id=sid)
         _wait(jobs, job, until=lambda s: s["detail"].get("done", 0) >= 1)
@@ -218,26 +218,26 @@ def test_pause_holds_the_replay_and_resume_finishes_it(store, jobs, nao, nao_pla
         while (d.status().moving or not d.settled(0.3)) and time.monotonic() < deadline:
             time.sleep(0.01)
         time.sleep(0.3)
-        held = len(store.frames(sid))
+        held = len(store.sessions.frames(sid))
         pose = d.true_joints_rad()
         time.sleep(0.4)
-        assert len(store.frames(sid)) == held < len(q)
+        assert len(store.sessions.frames(sid)) == held < len(q)
         assert np.array_equal(d.true_joints_rad(), pose)
         assert jobs.get(job)["state"] == "running" and jobs.get(job)["paused"]
         jobs.resume(job)
         snap = _wait(jobs, job)
     assert snap["state"] == "done"
-    assert [f.index for f in store.frames(sid)] == [1, 2, 3, 4]
+    assert [f.index for f in store.sessions.frames(sid)] == [1, 2, 3, 4]
 
 
 def test_remeasure_replaces_frames_in_place_and_keeps_skipped_ones(store, jobs, nao, nao_plan, nao_driver) -> None:
     q, targets = nao_plan
-    sid = store.create_session("nao", "remeasure", source="capture")
+    sid = store.sessions.create("nao", "remeasure", source="capture")
     for k in range(3):
         nao_driver.set_target(int(targets[k]))
         assert nao_driver.move_to(q[k])
         capture_frame(store, nao_driver, sid, index=10 + k)
-    old = {f.index: f for f in store.frames(sid)}
+    old = {f.index: f for f in store.sessions.frames(sid)}
     frames = list(old.values())
     plan_t = np.array([f.target for f in frames])
     plan_t[1] = 1 - plan_t[1]  # frame 11 now predicted out of view: skipped, the old record stays
@@ -250,7 +250,7 @@ def test_remeasure_replaces_frames_in_place_and_keeps_skipped_ones(store, jobs, 
     )
     snap = _wait(jobs, job)
     assert snap["state"] == "done", snap["error"]
-    new = {f.index: f for f in store.frames(sid)}
+    new = {f.index: f for f in store.sessions.frames(sid)}
     assert sorted(new) == [10, 11, 12]
     assert (new[11].captured, new[11].status, new[11].images) == (old[11].captured, old[11].status, old[11].images)
     for i in (10, 12):
@@ -259,7 +259,7 @@ def test_remeasure_replaces_frames_in_place_and_keeps_skipped_ones(store, jobs, 
 
 
 def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao_driver) -> None:
-    sid = store.create_session("nao", "auto", source="capture")
+    sid = store.sessions.create("nao", "auto", source="capture")
     d = nao_driver  # time_scale 20: settling 0.3 s takes 15 ms
     auto = AutoCapture(store, d, sid, min_gap_rad=3 * DEG)
     target = d.status().target
@@ -300,6 +300,6 @@ def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao
     assert auto.last_look is not None and auto.last_look.sighting.status == "not found"
     seen = auto.last_look
     assert auto.poll() is None and auto.last_look is seen
-    assert [f.index for f in store.frames(sid)] == [first.index, second.index]
+    assert [f.index for f in store.sessions.frames(sid)] == [first.index, second.index]
     # A new AutoCapture continues from the session's last frame.
     assert AutoCapture(store, d, sid, min_gap_rad=3 * DEG).poll() is None

@@ -247,8 +247,8 @@ def test_a_read_only_database_fails_import_capture_apply_and_calibration_and_wri
     csv = (SAMPLES / "robonaut-a-day1" / "data.csv").read_bytes()
     upload = {"data": ("day1.csv", csv, "text/csv")}
     before = _state(client, data_dir)
-    with store._lock:  # the store's own connection: every write it tries is refused by SQLite
-        store._db.execute("PRAGMA query_only = ON")
+    with store.db.lock:  # the store's own connection: every write it tries is refused by SQLite
+        store.db._db.execute("PRAGMA query_only = ON")
     try:
         reason = "the database is read-only"
         _refused(client.post("/api/sessions/import", data={"robot": "robonaut-a", "name": "ro"}, files=upload), reason)
@@ -261,8 +261,8 @@ def test_a_read_only_database_fails_import_capture_apply_and_calibration_and_wri
         assert (job["state"], job["error"]) == ("failed", f"the data directory cannot be written ({reason})")
         assert _state(client, data_dir) == before
     finally:
-        with store._lock:
-            store._db.execute("PRAGMA query_only = OFF")
+        with store.db.lock:
+            store.db._db.execute("PRAGMA query_only = OFF")
     r = client.post(f"/api/calibrations/{daily}/apply", json={"confirm": True})
     assert (
         r.status_code == 200 and client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == daily
@@ -274,17 +274,17 @@ def test_a_full_database_fails_an_import_and_keeps_no_part_of_it(client: TestCli
     csv = (SAMPLES / "robonaut-a-day2" / "data.csv").read_bytes()
     upload = {"data": ("day2.csv", csv, "text/csv")}
     before = _state(client, data_dir)
-    with store._lock:  # the database may not grow by a page: SQLite answers SQLITE_FULL, as on a full disk
-        pages = store._db.execute("PRAGMA page_count").fetchone()[0]
-        limit = store._db.execute("PRAGMA max_page_count").fetchone()[0]
-        store._db.execute(f"PRAGMA max_page_count = {pages}")
+    with store.db.lock:  # the database may not grow by a page: SQLite answers SQLITE_FULL, as on a full disk
+        pages = store.db._db.execute("PRAGMA page_count").fetchone()[0]
+        limit = store.db._db.execute("PRAGMA max_page_count").fetchone()[0]
+        store.db._db.execute(f"PRAGMA max_page_count = {pages}")
     try:
         r = client.post("/api/sessions/import", data={"robot": "robonaut-a", "name": "full"}, files=upload)
         _refused(r, "no space left on device")
         assert _state(client, data_dir) == before
     finally:
-        with store._lock:
-            store._db.execute(f"PRAGMA max_page_count = {limit}")
+        with store.db.lock:
+            store.db._db.execute(f"PRAGMA max_page_count = {limit}")
     r = client.post("/api/sessions/import", data={"robot": "robonaut-a", "name": "full"}, files=upload)
     n_csv = read_dataset(load_profile("robonaut-a"), SAMPLES / "robonaut-a-day2" / "data.csv").n_configurations
     assert r.status_code == 201 and client.get(f"/api/sessions/{r.json()['id']}").json()["measured"] == n_csv
@@ -499,14 +499,14 @@ def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
     print(f"\nSIGKILL rounds (seed {seed}): {rounds}")
 
     # After the sweep (leftovers of any age), files and rows match one to one.
-    monkeypatch.setattr("app.store.SWEEP_AGE_S", 0.0)
+    monkeypatch.setattr("app.store.files.SWEEP_AGE_S", 0.0)
     store = Store(data)
     cal_files = {f"calibrations/{p.name}" for p in (data / "calibrations").iterdir()}
-    assert cal_files == {store.calibration_info(c.id).path for c in store.calibrations()}
-    for c in store.calibrations():
-        store.calibration(c.id)  # loads whole
-    for s in store.sessions():
-        referenced = {rel for f in store.frames(s.id) for rel in f.images.values()}
+    assert cal_files == {store.calibrations.info(c.id).path for c in store.calibrations.list()}
+    for c in store.calibrations.list():
+        store.calibrations.load(c.id)  # loads whole
+    for s in store.sessions.list():
+        referenced = {rel for f in store.sessions.frames(s.id) for rel in f.images.values()}
         images = data / "sessions" / s.id / "images"
         on_disk = {f"sessions/{s.id}/images/{p.name}" for p in images.iterdir()} if images.is_dir() else set()
         assert on_disk == referenced, s.id

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from app.errors import NotFound
+from app.importers import ensure_samples
 from app.jobs import CRASHED, FINISHED, JobContext, JobManager, WorkerLink, calibration_worker
 from app.store import INTERRUPTED, Store
 from calib_core import InputError
@@ -38,7 +40,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Store:
     for name in ("robonaut-a-day1", "nao"):
         shutil.copytree(SAMPLES / name, samples / name)
     store = Store(tmp_path_factory.mktemp("data"))
-    store.ensure_samples(samples)
+    ensure_samples(store, samples)
     return store
 
 
@@ -84,34 +86,34 @@ def test_a_calibration_job_recovers_the_samples_truth(jobs: JobManager, store: S
     assert all(p <= 0.95 for _, p in seen)
     assert len(snap["cost"]) > 2 and snap["cost"][-1] < snap["cost"][0] / 100
 
-    cal = store.calibration(snap["result"])
-    info = store.calibration_info(snap["result"])
+    cal = store.calibrations.load(snap["result"])
+    info = store.calibrations.info(snap["result"])
     assert (info.session_id, info.holdout, info.mode, cal.source) == ("robonaut-a-day1", 0.3, "full", "robonaut-a-day1")
-    measured = [f.index for f in store.frames("robonaut-a-day1") if f.status == "measured"]
+    measured = [f.index for f in store.sessions.frames("robonaut-a-day1") if f.status == "measured"]
     train, held = cal.frames["train"], cal.frames["holdout"]
     assert sorted(train + held) == measured and not set(train) & set(held) and len(held) == round(0.3 * len(measured))
     after, before = cal.figures["after"].rms, cal.figures["before"].rms
     assert after < before / 50 and cal.figures["holdout_after"].rms < cal.figures["holdout_before"].rms / 20
     assert snap["detail"]["after_rms"] == pytest.approx(after)
 
-    truth = store.session("robonaut-a-day1").truth
+    truth = store.sessions.get("robonaut-a-day1").truth
     offsets = [p for p in cal.parameters if p.name.endswith(".theta") and p.estimated and p.note is None]
     assert len(offsets) >= 8
     for p in offsets:
         assert abs(p.value - truth[p.name]) < 4 * p.std + 0.05, p.name
     # ... where the nominal model was far off: the job really estimated them.
     assert sum(abs(p.nominal - truth[p.name]) > 10 * p.std for p in offsets) >= len(offsets) // 2
-    assert store.job(job_id)["state"] == "done" and store.job(job_id)["result"] == snap["result"]
+    assert store.jobs.get(job_id)["state"] == "done" and store.jobs.get(job_id)["result"] == snap["result"]
 
 
 def test_a_base_calibration_is_the_starting_point(jobs: JobManager, store: Store) -> None:
     full = wait(jobs, jobs.submit_calibration("robonaut-a-day1", "full", None, 0.0))
     daily = wait(jobs, jobs.submit_calibration("robonaut-a-day1", "daily", full["result"], 0.0))
     assert daily["state"] == "done", daily["error"]
-    cal = store.calibration(daily["result"])
-    assert store.calibration_info(daily["result"]).base_id == full["result"]
+    cal = store.calibrations.load(daily["result"])
+    assert store.calibrations.info(daily["result"]).base_id == full["result"]
     # Starting from the full calibration, a daily one starts (and stays) near its after-error.
-    assert cal.figures["before"].rms < 2 * store.calibration(full["result"]).figures["after"].rms
+    assert cal.figures["before"].rms < 2 * store.calibrations.load(full["result"]).figures["after"].rms
 
 
 @pytest.mark.parametrize(
@@ -135,19 +137,19 @@ def test_a_bad_request_is_refused_before_a_job_exists(jobs: JobManager, args: tu
 
 def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(jobs: JobManager, store: Store) -> None:
     before = len(jobs.list())
-    with pytest.raises(KeyError):
+    with pytest.raises(NotFound):
         jobs.submit_calibration("s-nothere", "full", None, 0.0)
-    with pytest.raises(KeyError, match="unknown base calibration 'c-nothere'"):
+    with pytest.raises(NotFound, match="unknown base calibration 'c-nothere'"):
         jobs.submit_calibration("robonaut-a-day1", "full", "c-nothere", 0.0)
     assert len(jobs.list()) == before
     nao_cal = wait(jobs, jobs.submit_calibration("nao", "full", None, 0.0))["result"]
     with pytest.raises(InputError, match="is for robot 'nao', not 'robonaut-a'"):
         jobs.submit_calibration("robonaut-a-day1", "full", nao_cal, 0.0)
-    sid = store.create_session("robonaut-a", "three frames", source="capture")
+    sid = store.sessions.create("robonaut-a", "three frames", source="capture")
     with pytest.raises(InputError, match="no measured frames"):
         jobs.submit_calibration(sid, "full", None, 0.0)
     for k in range(3):
-        store.add_frame(
+        store.sessions.add_frame(
             sid, index=None, joints_rad=np.full(10, 0.1 * k), target=0, status="measured", measured=np.ones((1, 3))
         )
     with pytest.raises(InputError, match=r"3 measured frames cannot determine the \d+ parameters of mode 'full'"):
@@ -155,7 +157,7 @@ def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(jobs: JobMa
 
 
 def test_cancel_a_running_and_a_queued_job(jobs: JobManager, store: Store) -> None:
-    n_cals = len(store.calibrations())
+    n_cals = len(store.calibrations.list())
     running = slow_job(jobs)
     queued = jobs.submit_calibration("robonaut-a-day1", "full", None, 0.0)
     wait_running(jobs, running)
@@ -167,12 +169,12 @@ def test_cancel_a_running_and_a_queued_job(jobs: JobManager, store: Store) -> No
     snap = wait(jobs, running, timeout_s=10)
     assert snap["state"] == "cancelled" and snap["result"] is None
     assert time.monotonic() - start < 0.5  # the solver saw the flag; no kill was needed
-    assert len(store.calibrations()) == n_cals
-    assert store.job(running)["state"] == "cancelled" and store.job(queued)["state"] == "cancelled"
+    assert len(store.calibrations.list()) == n_cals
+    assert store.jobs.get(running)["state"] == "cancelled" and store.jobs.get(queued)["state"] == "cancelled"
     jobs.cancel(running)  # a finished job: nothing to do
     with pytest.raises(InputError, match="cannot be paused"):
         jobs.pause(running)
-    with pytest.raises(KeyError):
+    with pytest.raises(NotFound):
         jobs.cancel("j-nothere")
 
 
@@ -259,7 +261,7 @@ def test_a_thread_job_reports_pauses_resumes_and_cancels(jobs: JobManager) -> No
 
 
 def store_state(jobs: JobManager, job_id: str) -> dict:
-    return jobs.store.job(job_id)
+    return jobs.store.jobs.get(job_id)
 
 
 def test_thread_job_results_and_failures(jobs: JobManager) -> None:
@@ -281,7 +283,7 @@ def test_thread_job_results_and_failures(jobs: JobManager) -> None:
     )
     assert wait(jobs, jobs.submit_thread("replay", bug, session_id=None))["error"] == "internal error: KeyError: 'nope'"
     assert wait(jobs, jobs.submit_thread("replay", stopped, session_id=None))["state"] == "cancelled"
-    with pytest.raises(KeyError):
+    with pytest.raises(NotFound):
         jobs.get("j-nothere")
 
 
@@ -296,11 +298,11 @@ def test_a_restart_shows_interrupted_jobs_as_failed(jobs: JobManager, store: Sto
     wait(jobs, running, ("running",))
     try:
         restarted = Store(store.data_dir)  # what a new server process sees after a kill
-        assert restarted.fail_interrupted_jobs() >= 1
-        snap = restarted.job(running)
+        assert restarted.jobs.fail_interrupted() >= 1
+        snap = restarted.jobs.get(running)
         assert (snap["state"], snap["error"]) == ("failed", INTERRUPTED)
         assert json.loads(json.dumps(snap)) == snap
-        done = [j for j in restarted.jobs() if j["state"] == "done"]
+        done = [j for j in restarted.jobs.list() if j["state"] == "done"]
         assert done and all(j["error"] is None for j in done)
     finally:
         release.set()

@@ -4,7 +4,7 @@ never a partial session.
 Each input meets the surface a user hands it to: CSVs the dashboard's import endpoint (HTTP 422 with
 the line), images and depth maps `calib detect-board` / `calib detect-sphere` (exit 2 with the file),
 robot profiles `load_profile`, calibration files `Calibration.load`, session folders `read_session`
-and `Store.import_session_folder` (InputError naming session.json). The CSV parser itself is fuzzed
+and `app.importers.import_session_folder` (InputError naming session.json). The CSV parser itself is fuzzed
 in test_dataset.py; here the same mutations travel through HTTP and the store.
 """
 
@@ -28,6 +28,7 @@ from hypothesis import strategies as st
 from test_dataset import mutate, mutation, small_csv
 
 from app.cli import main as calib
+from app.importers import import_session_folder
 from app.server import create_app
 from app.store import Store
 from calib_core import Calibration, InputError, calibrate, load_profile, read_dataset
@@ -323,18 +324,18 @@ def test_a_mutated_session_folder_imports_whole_or_leaves_nothing(
     shutil.copytree(small_session, folder)
     meta = json.loads((folder / "session.json").read_text(encoding="utf-8"))
     (folder / "session.json").write_text(json.dumps(edit_tree(meta, edits)), encoding="utf-8")
-    before_sessions, before_files = store.sessions(), files(store.data_dir)
+    before_sessions, before_files = store.sessions.list(), files(store.data_dir)
     try:
-        sid = store.import_session_folder(folder)
+        sid = import_session_folder(store, folder)
     except InputError as exc:
         assert "session" in str(exc) or str(folder) in str(exc), exc
-        assert store.sessions() == before_sessions
+        assert store.sessions.list() == before_sessions
         assert files(store.data_dir) == before_files, "a failed import left files behind"
         return
-    frames = store.frames(sid)
+    frames = store.sessions.frames(sid)
     assert frames and all(np.all(np.isfinite(f.joints_rad)) for f in frames)
     assert all(math.isfinite(v) for v in frames[0].joints_rad)
-    store.delete_session(sid)
+    store.sessions.delete(sid)
 
 
 # --- what the fuzzing found, pinned --------------------------------------------------------------------
@@ -374,7 +375,7 @@ def test_session_json_regressions(tmp_path: Path, small_session: Path, store: St
     with pytest.raises(InputError, match=message) as exc:
         read_session(folder)
     assert exc.value.file == str(folder / "session.json")
-    before_sessions, before_files = store.sessions(), files(store.data_dir)
+    before_sessions, before_files = store.sessions.list(), files(store.data_dir)
     with pytest.raises(InputError, match=message):
-        store.import_session_folder(folder)
-    assert store.sessions() == before_sessions and files(store.data_dir) == before_files
+        import_session_folder(store, folder)
+    assert store.sessions.list() == before_sessions and files(store.data_dir) == before_files

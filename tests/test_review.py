@@ -16,6 +16,7 @@ import pytest
 import yourdfpy
 from sim_frames import Frame, measured_frames, unmeasured_frames
 
+from app.errors import NotFound
 from app.review import Review
 from calib_core import Problem, SimulatedRobot, Simulation, load_profile
 from calib_core.model.kinematics import forward
@@ -186,5 +187,5 @@ def test_a_session_with_nothing_measured(robonaut) -> None:
 def test_unknown_frame_is_a_clear_error(robonaut) -> None:
     _, _, _, review = robonaut
     for call in (review.frame_geometry, review.marks, review.row):
-        with pytest.raises(IndexError, match=r"frame 999 is not in this review \(frames 1\.\.42\)"):
+        with pytest.raises(NotFound, match=r"frame 999 is not in this review \(frames 1\.\.42\)"):
             call(999)

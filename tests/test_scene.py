@@ -13,6 +13,7 @@ import viser
 import yourdfpy
 from sim_frames import measured_frames, unmeasured_frames
 
+from app.errors import NotFound
 from app.review import Review
 from app.scene import ReviewScene
 from calib_core import SimulatedRobot, load_profile
@@ -139,7 +140,7 @@ def test_selecting_a_frame_that_is_not_there_is_a_clear_error(server: viser.Vise
         scene.select(1)
     scene.load(robonaut)
     scene.select(2)
-    with pytest.raises(IndexError, match=r"frame 0 is not in this review \(frames 1\.\.13\)"):
+    with pytest.raises(NotFound, match=r"frame 0 is not in this review \(frames 1\.\.13\)"):
         scene.select(0)
     assert scene.state()["index"] == 2
 

@@ -222,7 +222,7 @@ def test_no_error_names_a_path_or_shows_a_traceback(local: TestClient) -> None:
         time.sleep(0.1)
     assert j["state"] == "done", j
     cal_id = j["result"]
-    (desk.data_dir / desk.store.calibration_info(cal_id).path).write_text('{"format": "calib-calibration/1", "rob')
+    (desk.data_dir / desk.store.calibrations.info(cal_id).path).write_text('{"format": "calib-calibration/1", "rob')
     bad = [
         local.get(f"/api/calibrations/{cal_id}"),
         local.get(f"/api/calibrations/{cal_id}/export", params={"format": "urdf"}),

@@ -14,7 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
-from app.store import INTERRUPTED, SWEEP_AGE_S, FrameInfo, Store
+from app.errors import NotFound
+from app.importers import ensure_samples, import_csv, import_session_folder
+from app.store import INTERRUPTED, FrameInfo, Store
+from app.store.files import SWEEP_AGE_S
 from calib_core import Calibration, InputError, calibrate, load_profile, parse_dataset, read_dataset, to_csv
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
@@ -33,7 +36,7 @@ def samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def sample_store(tmp_path_factory: pytest.TempPathFactory, samples: Path) -> Store:
     store = Store(tmp_path_factory.mktemp("data"))
-    assert sorted(store.ensure_samples(samples)) == sorted(SAMPLE_NAMES)
+    assert sorted(ensure_samples(store, samples)) == sorted(SAMPLE_NAMES)
     return store
 
 
@@ -42,7 +45,7 @@ def _files(root: Path) -> set[str]:
 
 
 def _robonaut_frame(store: Store, sid: str, index: int | None, x_cm: float, **images: np.ndarray) -> int:
-    return store.add_frame(
+    return store.sessions.add_frame(
         sid,
         index=index,
         joints_rad=np.linspace(-0.5, 0.5, 10),
@@ -59,16 +62,19 @@ def _robonaut_frame(store: Store, sid: str, index: int | None, x_cm: float, **im
 
 def test_a_frame_round_trips_with_its_images_and_detail(tmp_path: Path) -> None:
     store = Store(tmp_path)
-    sid = store.create_session("robonaut-a", "bench", source="capture", description="d")
+    sid = store.sessions.create("robonaut-a", "bench", source="capture", description="d")
     assert sid.startswith("s-") and len(sid) == 10
     rng = np.random.default_rng(0)
     left = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
     left = cv2.GaussianBlur(left, (9, 9), 3)  # smooth, so JPEG q90 keeps it close
     grey = np.full((48, 64), 120, np.uint8)
     assert _robonaut_frame(store, sid, None, 1.5, left=left, right=grey) == 1
-    assert store.add_frame(sid, index=None, joints_rad=np.zeros(10), target=0, status="not found", reason="gone") == 2
+    assert (
+        store.sessions.add_frame(sid, index=None, joints_rad=np.zeros(10), target=0, status="not found", reason="gone")
+        == 2
+    )
 
-    f = store.frame(sid, 1)
+    f = store.sessions.frame(sid, 1)
     assert f.status == "measured" and f.reason == "ok" and f.target == 0
     np.testing.assert_array_equal(f.joints_rad, np.linspace(-0.5, 0.5, 10))
     assert f.detail == {"votes": 300, "fit_rms": 0.001, "center": [0.1, 0.2, 0.9]}
@@ -76,23 +82,23 @@ def test_a_frame_round_trips_with_its_images_and_detail(tmp_path: Path) -> None:
     back = cv2.imread(str(tmp_path / f.images["left"]), cv2.IMREAD_UNCHANGED)
     assert back.shape == left.shape and np.abs(back.astype(int) - left).mean() < 3
     assert cv2.imread(str(tmp_path / f.images["right"]), cv2.IMREAD_UNCHANGED).shape == grey.shape
-    info = store.session(sid)
+    info = store.sessions.get(sid)
     assert (info.frames, info.measured, info.source, info.description) == (2, 1, "capture", "d")
-    assert [g.index for g in store.frames(sid)] == [1, 2]
+    assert [g.index for g in store.sessions.frames(sid)] == [1, 2]
 
-    data = store.dataset(sid, load_profile("robonaut-a"))
+    data = store.sessions.dataset(sid, load_profile("robonaut-a"))
     assert data.frame_ids.tolist() == [1] and data.measured.tolist() == [[1.5, 90.0, 5.0]]
-    with pytest.raises(KeyError):
-        store.frame(sid, 3)
-    with pytest.raises(KeyError):
-        store.session("s-nothere")
+    with pytest.raises(NotFound):
+        store.sessions.frame(sid, 3)
+    with pytest.raises(NotFound):
+        store.sessions.get("s-nothere")
     with pytest.raises(InputError, match="robot 'robonaut-a', not 'nao'"):
-        store.dataset(sid, load_profile("nao"))
+        store.sessions.dataset(sid, load_profile("nao"))
 
 
 def test_a_bad_frame_is_refused_and_writes_nothing(tmp_path: Path) -> None:
     store = Store(tmp_path)
-    sid = store.create_session("robonaut-a", "bench", source="capture")
+    sid = store.sessions.create("robonaut-a", "bench", source="capture")
     before = _files(tmp_path)
     img = {"left": np.zeros((8, 8, 3), np.uint8)}
     bad = [
@@ -106,27 +112,27 @@ def test_a_bad_frame_is_refused_and_writes_nothing(tmp_path: Path) -> None:
     ]
     for kwargs, message in bad:
         with pytest.raises(InputError, match=message):
-            store.add_frame(sid, index=None, target=0, **kwargs)
-    assert store.frames(sid) == [] and _files(tmp_path) == before
-    with pytest.raises(KeyError):
-        store.add_frame("s-nothere", index=None, joints_rad=np.zeros(10), target=0, status="pending")
+            store.sessions.add_frame(sid, index=None, target=0, **kwargs)
+    assert store.sessions.frames(sid) == [] and _files(tmp_path) == before
+    with pytest.raises(NotFound):
+        store.sessions.add_frame("s-nothere", index=None, joints_rad=np.zeros(10), target=0, status="pending")
     with pytest.raises(InputError, match="unknown robot"):
-        store.create_session("r2d2", "x", source="capture")
+        store.sessions.create("r2d2", "x", source="capture")
     with pytest.raises(InputError, match="session id"):
-        store.create_session("nao", "x", source="capture", session_id="../escape")
+        store.sessions.create("nao", "x", source="capture", session_id="../escape")
 
 
 @pytest.mark.parametrize("name", SAMPLE_NAMES)
 def test_a_sample_session_gives_the_dataset_of_its_csv(sample_store: Store, samples: Path, name: str) -> None:
     meta = json.loads((samples / name / "session.json").read_text())
     profile = load_profile(meta["robot"])
-    info = sample_store.session(name)
+    info = sample_store.sessions.get(name)
     assert (info.robot, info.name, info.source) == (meta["robot"], meta["name"], "sample")
     assert info.truth == json.loads((samples / name / "truth.json").read_text())
     assert info.frames == len(meta["frames"])
     assert info.measured == sum(f["status"] == "measured" for f in meta["frames"])
 
-    got = sample_store.dataset(name, profile)
+    got = sample_store.sessions.dataset(name, profile)
     want = read_dataset(profile, samples / name / "data.csv")
     for key in ("frame_ids", "cfg", "target", "vertex"):
         np.testing.assert_array_equal(getattr(got, key), getattr(want, key), err_msg=key)
@@ -140,7 +146,7 @@ def test_a_sample_session_gives_the_dataset_of_its_csv(sample_store: Store, samp
     again = parse_dataset(profile, to_csv(profile, got))
     np.testing.assert_allclose(again.measured, want.measured, atol=1e-6)
 
-    frames = sample_store.frames(name)
+    frames = sample_store.sessions.frames(name)
     for record, frame in zip(meta["frames"], frames, strict=True):
         assert (frame.index, frame.status, frame.reason) == (record["frame"], record["status"], record["reason"])
         assert set(frame.images) == set(record["images"])
@@ -156,11 +162,11 @@ def test_samples_come_only_into_a_fresh_store(tmp_path: Path, samples: Path) -> 
     shutil.copytree(samples / "robonaut-a-day1", only / "robonaut-a-day1")
     (only / "not-a-session").mkdir()
     store = Store(tmp_path / "data")
-    assert store.ensure_samples(only) == ["robonaut-a-day1"]
-    store.delete_session("robonaut-a-day1")
+    assert ensure_samples(store, only) == ["robonaut-a-day1"]
+    store.sessions.delete("robonaut-a-day1")
     assert not (tmp_path / "data" / "sessions" / "robonaut-a-day1").exists()
-    assert Store(tmp_path / "data").ensure_samples(only) == []
-    assert store.sessions() == []
+    assert ensure_samples(Store(tmp_path / "data"), only) == []
+    assert store.sessions.list() == []
 
 
 def test_a_broken_sample_is_skipped_and_leaves_nothing(tmp_path: Path, samples: Path) -> None:
@@ -168,8 +174,8 @@ def test_a_broken_sample_is_skipped_and_leaves_nothing(tmp_path: Path, samples: 
     shutil.copytree(samples / "robonaut-a-day1", only / "broken")
     (only / "broken" / "images" / "0003_left.jpg").unlink()
     store = Store(tmp_path / "data")
-    assert store.ensure_samples(only) == []
-    assert store.sessions() == [] and _files(tmp_path / "data" / "sessions") == set()
+    assert ensure_samples(store, only) == []
+    assert store.sessions.list() == [] and _files(tmp_path / "data" / "sessions") == set()
     assert list((tmp_path / "data" / "sessions").iterdir()) == []
 
 
@@ -181,31 +187,32 @@ def test_an_import_failing_inside_its_transaction_leaves_nothing(
     def fail(*args: object) -> None:
         raise OSError("disk full")
 
-    monkeypatch.setattr(Store, "_insert_observations", staticmethod(fail))
+    monkeypatch.setattr("app.store.sessions._insert_observations", fail)
     with pytest.raises(OSError, match="disk full"):
-        store.import_session_folder(samples / "robonaut-a-day1")
+        import_session_folder(store, samples / "robonaut-a-day1")
     with pytest.raises(OSError, match="disk full"):
-        store.import_csv("nao", "x", (samples / "nao" / "data.csv").read_text(), "nao.csv")
-    assert store.sessions() == [] and list((tmp_path / "sessions").iterdir()) == []
+        import_csv(store, "nao", "x", (samples / "nao" / "data.csv").read_text(), "nao.csv")
+    assert store.sessions.list() == [] and list((tmp_path / "sessions").iterdir()) == []
 
 
 KILLED_WRITER = """
 import sys, numpy as np
 from pathlib import Path
+from app.importers import import_csv
 from app.store import Store
 store = Store(Path(sys.argv[1]))
 csv_text = Path(sys.argv[2]).read_text()
-sid = store.create_session("robonaut-a", "killed", source="capture")
+sid = store.sessions.create("robonaut-a", "killed", source="capture")
 print("ready", flush=True)
 for i in range(100000):
     img = np.full((120, 160, 3), i % 256, np.uint8)
-    store.add_frame(sid, index=None, joints_rad=np.zeros(10), target=0, status="measured",
+    store.sessions.add_frame(sid, index=None, joints_rad=np.zeros(10), target=0, status="measured",
                     measured=np.array([[float(i), 1.0, 2.0]]), images={"left": img, "right": img[:, :, 0]})
     if i % 5 == 0:
-        store.add_frame(sid, index=1, joints_rad=np.zeros(10), target=0, status="not found", reason=str(i),
+        store.sessions.add_frame(sid, index=1, joints_rad=np.zeros(10), target=0, status="not found", reason=str(i),
                         images={"left": img})
     if i % 10 == 0:
-        store.import_csv("robonaut-a", f"csv {i}", csv_text, "day1.csv")
+        import_csv(store, "robonaut-a", f"csv {i}", csv_text, "day1.csv")
 """
 
 
@@ -223,18 +230,18 @@ def test_a_killed_writer_leaves_a_consistent_store(tmp_path: Path, samples: Path
     store = Store(tmp_path)
     profile = load_profile("robonaut-a")
     n_csv = read_dataset(profile, csv_path).n_configurations
-    sessions = store.sessions()
+    sessions = store.sessions.list()
     capture = next(s for s in sessions if s.source == "capture")
     assert capture.frames > 5  # it got somewhere before the kill
     for s in sessions:
         if s.source == "import":  # an import is all there or not there at all
             assert (s.frames, s.measured) == (n_csv, n_csv)
-    frames = store.frames(capture.id)
+    frames = store.sessions.frames(capture.id)
     for f in frames:
         for rel in f.images.values():
             assert cv2.imread(str(tmp_path / rel)) is not None, rel
     measured = [f for f in frames if f.status == "measured"]
-    data = store.dataset(capture.id, profile)
+    data = store.sessions.dataset(capture.id, profile)
     assert data.frame_ids.tolist() == [f.index for f in measured]
     assert frames[0].status == "not found" and set(frames[0].images) == {"left"}
 
@@ -243,12 +250,12 @@ def test_import_csv_round_trips(tmp_path: Path, samples: Path) -> None:
     store = Store(tmp_path)
     profile = load_profile("nao")
     text = (samples / "nao" / "data.csv").read_text()
-    sid = store.import_csv("nao", "uploaded", text, "nao.csv")
-    info = store.session(sid)
+    sid = import_csv(store, "nao", "uploaded", text, "nao.csv")
+    info = store.sessions.get(sid)
     want = parse_dataset(profile, text)
     n = want.n_configurations
     assert (info.source, info.name, info.frames, info.measured) == ("import", "uploaded", n, n)
-    got = store.dataset(sid, profile)
+    got = store.sessions.dataset(sid, profile)
     assert to_csv(profile, got) == to_csv(profile, want)
     np.testing.assert_array_equal(np.isnan(got.joints), np.isnan(want.joints))
 
@@ -271,38 +278,38 @@ def test_a_bad_csv_names_line_and_column_and_leaves_no_session(
     store = Store(tmp_path)
     before = _files(tmp_path)
     with pytest.raises(InputError) as err:
-        store.import_csv("robonaut-a", "bad", text, "bad.csv")
+        import_csv(store, "robonaut-a", "bad", text, "bad.csv")
     assert (err.value.file, err.value.line, err.value.column) == ("bad.csv", line, column)
     assert f"line {line}" in str(err.value) and f"column '{column}'" in str(err.value)
-    assert store.sessions() == [] and _files(tmp_path) == before
+    assert store.sessions.list() == [] and _files(tmp_path) == before
 
 
 def test_remeasure_replaces_a_frame_whole_or_not_at_all(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     store = Store(tmp_path)
-    sid = store.create_session("robonaut-a", "bench", source="capture")
+    sid = store.sessions.create("robonaut-a", "bench", source="capture")
     dark, bright = np.full((16, 16), 20, np.uint8), np.full((16, 16), 230, np.uint8)
     _robonaut_frame(store, sid, 5, 1.0, left=dark)
-    first = store.frame(sid, 5)
+    first = store.sessions.frame(sid, 5)
     assert first.images == {"left": f"sessions/{sid}/images/0005_left.jpg"}
 
     _robonaut_frame(store, sid, 5, 2.0, left=bright)
-    second = store.frame(sid, 5)
-    assert [f.index for f in store.frames(sid)] == [5]
+    second = store.sessions.frame(sid, 5)
+    assert [f.index for f in store.sessions.frames(sid)] == [5]
     assert second.images["left"] != first.images["left"] and not (tmp_path / first.images["left"]).exists()
     assert cv2.imread(str(tmp_path / second.images["left"]), cv2.IMREAD_GRAYSCALE).mean() > 200
-    assert store.dataset(sid, load_profile("robonaut-a")).measured.tolist() == [[2.0, 90.0, 5.0]]
+    assert store.sessions.dataset(sid, load_profile("robonaut-a")).measured.tolist() == [[2.0, 90.0, 5.0]]
 
     # A failure inside the transaction (after the new image was written) keeps the old frame whole.
     def fail(*args: object) -> None:
         raise OSError("disk full")
 
-    monkeypatch.setattr(Store, "_insert_observations", staticmethod(fail))
+    monkeypatch.setattr("app.store.sessions._insert_observations", fail)
     files = _files(tmp_path)
     with pytest.raises(OSError, match="disk full"):
         _robonaut_frame(store, sid, 5, 3.0, left=dark)
     monkeypatch.undo()
-    assert _same_frame(store.frame(sid, 5), second)
-    assert store.dataset(sid, load_profile("robonaut-a")).measured.tolist() == [[2.0, 90.0, 5.0]]
+    assert _same_frame(store.sessions.frame(sid, 5), second)
+    assert store.sessions.dataset(sid, load_profile("robonaut-a")).measured.tolist() == [[2.0, 90.0, 5.0]]
     assert _files(tmp_path) == files
 
 
@@ -315,7 +322,7 @@ def _same_frame(a: FrameInfo, b: FrameInfo) -> bool:
 
 def test_a_restart_sweeps_what_a_crash_left(tmp_path: Path) -> None:
     store = Store(tmp_path)
-    sid = store.create_session("robonaut-a", "bench", source="capture")
+    sid = store.sessions.create("robonaut-a", "bench", source="capture")
     _robonaut_frame(store, sid, 1, 1.0, left=np.zeros((8, 8), np.uint8))
     kept = _files(tmp_path)
     # What a kill between a file write and its row leaves: temporary files, unreferenced files and folders.
@@ -331,7 +338,7 @@ def test_a_restart_sweeps_what_a_crash_left(tmp_path: Path) -> None:
     store.close()
     again = Store(tmp_path)
     assert _files(tmp_path) == kept | {"calibrations/.c-00000001.json.tmp"}
-    assert [f.index for f in again.frames(sid)] == [1]
+    assert [f.index for f in again.sessions.frames(sid)] == [1]
 
 
 def _calibration(samples: Path, name: str, mode: str) -> Calibration:
@@ -341,24 +348,24 @@ def _calibration(samples: Path, name: str, mode: str) -> Calibration:
 
 def test_calibrations_and_the_apply_history(tmp_path: Path, samples: Path) -> None:
     store = Store(tmp_path)
-    sid = store.import_session_folder(samples / "robonaut-a-day1")
+    sid = import_session_folder(store, samples / "robonaut-a-day1")
     full = _calibration(samples, "robonaut-a-day1", "full")
-    a = store.add_calibration(full, session_id=sid, base_id=None, holdout=0.0)
-    b = store.add_calibration(full, session_id=sid, base_id=a, holdout=0.2)
+    a = store.calibrations.add(full, session_id=sid, base_id=None, holdout=0.0)
+    b = store.calibrations.add(full, session_id=sid, base_id=a, holdout=0.2)
     assert a.startswith("c-") and (tmp_path / "calibrations" / f"{a}.json").is_file()
-    assert store.calibration(a).values() == full.values()
-    info = store.calibration_info(b)
+    assert store.calibrations.load(a).values() == full.values()
+    info = store.calibrations.info(b)
     assert (info.session_id, info.base_id, info.holdout, info.mode, info.robot) == (sid, a, 0.2, "full", "robonaut-a")
     assert info.figures["after"]["rms"] == pytest.approx(full.figures["after"].rms)
-    assert [c.id for c in store.calibrations(session_id=sid)] == [b, a]
-    assert store.calibrations(robot="nao") == []
+    assert [c.id for c in store.calibrations.list(session_id=sid)] == [b, a]
+    assert store.calibrations.list(robot="nao") == []
 
-    assert store.active("robonaut-a") is None
-    assert store.apply("robonaut-a", a, "first") == (a, None)
-    assert store.apply("robonaut-a", b) == (b, a)
-    assert store.apply("robonaut-a", a, "rollback") == (a, b)
-    assert store.active("robonaut-a") == a and store.active("nao") is None
-    history = store.history("robonaut-a")
+    assert store.calibrations.active("robonaut-a") is None
+    assert store.calibrations.apply("robonaut-a", a, "first") == (a, None)
+    assert store.calibrations.apply("robonaut-a", b) == (b, a)
+    assert store.calibrations.apply("robonaut-a", a, "rollback") == (a, b)
+    assert store.calibrations.active("robonaut-a") == a and store.calibrations.active("nao") is None
+    history = store.calibrations.history("robonaut-a")
     assert [(h["calibration"], h["previous"], h["note"]) for h in history] == [
         (a, b, "rollback"),
         (b, a, ""),
@@ -368,24 +375,24 @@ def test_calibrations_and_the_apply_history(tmp_path: Path, samples: Path) -> No
     assert history[0]["figures"]["after"]["rms"] == pytest.approx(full.figures["after"].rms)
 
     with pytest.raises(InputError, match="is for robot 'robonaut-a', not 'nao'"):
-        store.apply("nao", a)
-    with pytest.raises(KeyError):
-        store.apply("robonaut-a", "c-nothere")
-    with pytest.raises(KeyError):
-        store.add_calibration(full, session_id="s-nothere", base_id=None, holdout=0.0)
+        store.calibrations.apply("nao", a)
+    with pytest.raises(NotFound):
+        store.calibrations.apply("robonaut-a", "c-nothere")
+    with pytest.raises(NotFound):
+        store.calibrations.add(full, session_id="s-nothere", base_id=None, holdout=0.0)
     assert len(list((tmp_path / "calibrations").iterdir())) == 2  # the refused one left no file
-    assert store.active("robonaut-a") == a and len(store.history("robonaut-a")) == 3
+    assert store.calibrations.active("robonaut-a") == a and len(store.calibrations.history("robonaut-a")) == 3
 
     # The history survives a restart, and a deleted session leaves its calibrations (without a session).
-    store.delete_session(sid)
+    store.sessions.delete(sid)
     again = Store(tmp_path)
-    assert again.active("robonaut-a") == a and again.calibration_info(a).session_id is None
+    assert again.calibrations.active("robonaut-a") == a and again.calibrations.info(a).session_id is None
     assert not (tmp_path / "sessions" / sid).exists()
 
 
 def test_concurrent_writers_and_readers(tmp_path: Path) -> None:
     store = Store(tmp_path)
-    sid = store.create_session("robonaut-a", "bench", source="capture")
+    sid = store.sessions.create("robonaut-a", "bench", source="capture")
     errors: list[BaseException] = []
     n_threads, per_thread = 8, 15
 
@@ -395,15 +402,15 @@ def test_concurrent_writers_and_readers(tmp_path: Path) -> None:
                 img = np.full((8, 8), k * 10 + i, np.uint8) if i % 3 == 0 else None
                 _robonaut_frame(store, sid, None, float(k * 100 + i), **({"left": img} if img is not None else {}))
                 if i % 5 == 0:
-                    store.create_session("nao", f"t{k}-{i}", source="capture")
+                    store.sessions.create("nao", f"t{k}-{i}", source="capture")
         except BaseException as exc:
             errors.append(exc)
 
     def read() -> None:
         try:
             for _ in range(30):
-                store.sessions()
-                store.dataset(sid, load_profile("robonaut-a"))
+                store.sessions.list()
+                store.sessions.dataset(sid, load_profile("robonaut-a"))
         except BaseException as exc:
             errors.append(exc)
 
@@ -414,12 +421,12 @@ def test_concurrent_writers_and_readers(tmp_path: Path) -> None:
     for t in threads:
         t.join()
     assert errors == []
-    frames = store.frames(sid)
+    frames = store.sessions.frames(sid)
     assert [f.index for f in frames] == list(range(1, n_threads * per_thread + 1))
-    xs = sorted(store.dataset(sid, load_profile("robonaut-a")).measured[:, 0])
+    xs = sorted(store.sessions.dataset(sid, load_profile("robonaut-a")).measured[:, 0])
     assert xs == sorted(float(k * 100 + i) for k in range(n_threads) for i in range(per_thread))
     assert sum(len(f.images) for f in frames) == n_threads * 5
-    assert len(store.sessions()) == 1 + n_threads * 3
+    assert len(store.sessions.list()) == 1 + n_threads * 3
 
 
 def test_jobs_persist_and_a_restart_fails_the_interrupted(tmp_path: Path) -> None:
@@ -427,17 +434,97 @@ def test_jobs_persist_and_a_restart_fails_the_interrupted(tmp_path: Path) -> Non
     base = {"progress": 0.5, "result": None, "error": None, "session": None, "detail": {}, "cost": [1.0]}
     for i, state in enumerate(["done", "running", "queued", "cancelled"]):
         t = f"2026-01-01T00:00:0{i}.000+00:00"
-        store.save_job({**base, "id": f"j-{i}", "kind": "replay", "state": state, "created": t, "updated": t})
-    store.save_job({**base, "id": "j-0", "kind": "replay", "state": "done", "created": "x", "updated": "y"})
+        store.jobs.save({**base, "id": f"j-{i}", "kind": "replay", "state": state, "created": t, "updated": t})
+    store.jobs.save({**base, "id": "j-0", "kind": "replay", "state": "done", "created": "x", "updated": "y"})
     again = Store(tmp_path)
-    assert again.fail_interrupted_jobs() == 2
-    jobs = {j["id"]: j for j in again.jobs()}
-    assert [j["id"] for j in again.jobs()][:3] == ["j-3", "j-2", "j-1"]
+    assert again.jobs.fail_interrupted() == 2
+    jobs = {j["id"]: j for j in again.jobs.list()}
+    assert [j["id"] for j in again.jobs.list()][:3] == ["j-3", "j-2", "j-1"]
     assert {k: (j["state"], j["error"]) for k, j in jobs.items()} == {
         "j-0": ("done", None),
         "j-1": ("failed", INTERRUPTED),
         "j-2": ("failed", INTERRUPTED),
         "j-3": ("cancelled", None),
     }
-    assert again.fail_interrupted_jobs() == 0
-    assert again.job("j-1")["cost"] == [1.0]
+    assert again.jobs.fail_interrupted() == 0
+    assert again.jobs.get("j-1")["cost"] == [1.0]
+
+
+# The schema of the first dashboard (version 1, no version recorded), as it was written to disk.
+SCHEMA_V1 = """
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE sessions (
+    id TEXT PRIMARY KEY, robot TEXT NOT NULL, name TEXT NOT NULL, description TEXT NOT NULL,
+    created TEXT NOT NULL, source TEXT NOT NULL, truth TEXT);
+CREATE TABLE frames (
+    session_id TEXT NOT NULL REFERENCES sessions(id) ON DELETE CASCADE,
+    idx INTEGER NOT NULL, joints_rad TEXT NOT NULL, target INTEGER NOT NULL, status TEXT NOT NULL,
+    reason TEXT NOT NULL, images TEXT NOT NULL, detail TEXT NOT NULL, captured TEXT NOT NULL,
+    PRIMARY KEY (session_id, idx));
+CREATE TABLE observations (
+    session_id TEXT NOT NULL, idx INTEGER NOT NULL, seq INTEGER NOT NULL, target INTEGER NOT NULL,
+    vertex INTEGER NOT NULL, px REAL, py REAL, pz REAL, m0 REAL NOT NULL, m1 REAL NOT NULL, m2 REAL,
+    PRIMARY KEY (session_id, idx, seq),
+    FOREIGN KEY (session_id, idx) REFERENCES frames(session_id, idx) ON DELETE CASCADE);
+CREATE TABLE calibrations (
+    id TEXT PRIMARY KEY, session_id TEXT REFERENCES sessions(id) ON DELETE SET NULL,
+    robot TEXT NOT NULL, mode TEXT NOT NULL, created TEXT NOT NULL,
+    base_id TEXT REFERENCES calibrations(id), holdout REAL NOT NULL, path TEXT NOT NULL, figures TEXT NOT NULL);
+CREATE TABLE applies (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT, robot TEXT NOT NULL, time TEXT NOT NULL,
+    calibration_id TEXT NOT NULL REFERENCES calibrations(id), previous_id TEXT, note TEXT NOT NULL);
+CREATE INDEX applies_robot ON applies (robot, seq);
+CREATE TABLE jobs (
+    id TEXT PRIMARY KEY, kind TEXT NOT NULL, state TEXT NOT NULL, session_id TEXT,
+    created TEXT NOT NULL, updated TEXT NOT NULL, snapshot TEXT NOT NULL);
+"""
+
+
+def test_a_store_made_with_the_first_schema_opens_and_keeps_its_data(tmp_path: Path, samples: Path) -> None:
+    """A data directory of the first dashboard, written with its own SQL: opened by today's Store, every row is
+    there, the robots table is added in place and the schema version recorded; the store then works."""
+    import sqlite3
+
+    full = calibrate(load_profile("nao"), read_dataset(load_profile("nao"), samples / "nao" / "data.csv"), "full")
+    (tmp_path / "calibrations").mkdir()
+    full.save(tmp_path / "calibrations" / "c-0ld00001.json")
+    db = sqlite3.connect(tmp_path / "store.sqlite")
+    db.executescript(SCHEMA_V1)
+    t = "2026-01-02T03:04:05.000+00:00"
+    db.execute("INSERT INTO meta VALUES ('samples', ?)", (t,))
+    db.execute("INSERT INTO sessions VALUES ('s-0ld', 'nao', 'old', '', ?, 'capture', NULL)", (t,))
+    q = json.dumps([0.0] * len(load_profile("nao").joints))
+    db.execute("INSERT INTO frames VALUES ('s-0ld', 1, ?, 0, 'measured', '', '{}', '{}', ?)", (q, t))
+    db.execute("INSERT INTO observations VALUES ('s-0ld', 1, 0, 0, 3, NULL, NULL, NULL, 320.5, 240.25, NULL)")
+    db.execute(
+        "INSERT INTO calibrations VALUES ('c-0ld00001', 's-0ld', 'nao', 'full', ?, NULL, 0.0, "
+        "'calibrations/c-0ld00001.json', '{}')",
+        (t,),
+    )
+    db.execute(
+        "INSERT INTO applies (robot, time, calibration_id, previous_id, note) "
+        "VALUES ('nao', ?, 'c-0ld00001', NULL, 'kept')",
+        (t,),
+    )
+    snap = {"id": "j-0ld", "kind": "calibration", "state": "done", "created": t, "updated": t}
+    db.execute("INSERT INTO jobs VALUES ('j-0ld', 'calibration', 'done', 's-0ld', ?, ?, ?)", (t, t, json.dumps(snap)))
+    db.commit()
+    db.close()
+
+    store = Store(tmp_path)
+    assert store.db.version == 2 and store.db.meta("schema") == "2"
+    assert [(s.id, s.robot, s.frames, s.measured) for s in store.sessions.list()] == [("s-0ld", "nao", 1, 1)]
+    data = store.sessions.dataset("s-0ld", load_profile("nao"))
+    assert data.measured.tolist() == [[320.5, 240.25]] and data.vertex.tolist() == [3]
+    assert store.calibrations.load("c-0ld00001").values() == full.values()
+    assert store.calibrations.active("nao") == "c-0ld00001"
+    assert [h["note"] for h in store.calibrations.history("nao")] == ["kept"]
+    assert store.jobs.get("j-0ld")["state"] == "done"
+    assert ensure_samples(store, samples) == []  # the samples were imported by the old store already
+    # The new table is there and empty: a robot of the old store is its built-in profile's instance.
+    assert store.robots.list() == [] and store.robots.profile("nao").name == "nao"
+    assert store.robots.names_with_data() == ["nao"]
+    store.close()
+    again = Store(tmp_path)  # migrated once: opening again changes nothing
+    assert again.db.version == 2 and len(again.sessions.list()) == 1
+    again.close()

@@ -1,0 +1,148 @@
+"""Sessions from outside the desk: a calib-session/1 folder, a CSV in the robot's pinned format, the samples.
+
+Each import is read and checked whole before anything is written; the images go to a staging folder
+that is renamed into place with the rows inserted in one transaction (SessionRepository.add_whole), so a
+failure leaves nothing behind and bad input is an InputError naming file, line and field.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from calib_core import InputError, Profile, parse_dataset
+from calib_core.io.session import read_session
+
+from .store import NewFrame, Observations, Store
+from .store.db import now
+from .store.files import fsync_dir, write_bytes
+from .store.sessions import FRAME_STATUSES
+from .validation import check_role
+
+log = logging.getLogger(__name__)
+
+
+def import_session_folder(store: Store, folder: Path, session_id: str | None = None, *, source: str = "import") -> str:
+    """A calib-session/1 folder (frames, observations, images copied) as one new session; its robot is
+    the one the folder names (a built-in profile, and the desk's robot of that name)."""
+    folder = Path(folder)
+    s = read_session(folder)
+    profile = store.sessions.profile(s.robot)
+    sid = store.sessions.new_id(session_id)
+    data = s.data
+    by_frame: dict[int, Observations] = {}
+    for c, fid in enumerate(data.frame_ids):
+        rows = data.cfg == c
+        by_frame[int(fid)] = Observations(data.target[rows], data.vertex[rows], data.point[rows], data.measured[rows])
+    records = {fr.frame: fr for fr in s.frames}
+    if len(records) != len(s.frames):
+        raise InputError("session.json lists a frame number twice", file=str(folder / "session.json"))
+    missing = sorted(set(by_frame) - set(records))
+    if missing:
+        raise InputError(f"data.csv has frame {missing[0]}, which session.json does not list", file=str(folder))
+    frames = []
+    for fr in s.frames:
+        where = f"{folder / 'session.json'}"
+        if fr.status not in FRAME_STATUSES:
+            raise InputError(f"frame {fr.frame}: unknown status '{fr.status}'", file=where)
+        q = np.zeros(len(profile.joints))
+        for jname, deg in fr.joints_deg.items():
+            if jname not in profile.joint_names:
+                raise InputError(f"frame {fr.frame}: unknown joint '{jname}'", file=where)
+            q[profile.joint(jname)] = math.radians(float(deg))
+        obs = by_frame.get(fr.frame)
+        status = fr.status
+        if obs is not None:
+            c = int(np.flatnonzero(data.frame_ids == fr.frame)[0])
+            known = ~np.isnan(data.joints[c])
+            q[known] = data.joints[c, known]  # the CSV's readings are the ones the observations used
+            status = "measured"
+        elif status == "measured":
+            raise InputError(f"frame {fr.frame} is 'measured' but data.csv has no row of it", file=where)
+        frames.append(NewFrame(fr.frame, q, 0, status, fr.reason, {}, fr.detail, obs))
+    for frame, target in zip(frames, _frame_targets(profile, frames), strict=True):
+        frame.target = target
+
+    staging = Path(tempfile.mkdtemp(dir=store.data_dir / "sessions", prefix=f".{sid}."))
+    try:
+        for fr, frame in zip(s.frames, frames, strict=True):
+            for role, rel in fr.images.items():
+                src = folder / rel
+                if not src.resolve().is_relative_to(folder.resolve()) or not src.is_file():
+                    raise InputError(f"frame {fr.frame}: no image '{rel}' in the session folder", file=str(folder))
+                name = f"{fr.frame:04d}_{check_role(role)}.jpg"
+                raw = src.read_bytes()
+                if not raw.startswith(b"\xff\xd8"):
+                    raise InputError(f"frame {fr.frame}: image '{rel}' is not a JPEG file", file=str(folder))
+                write_bytes(staging / "images" / name, raw, atomic=False)
+                frame.images[role] = f"sessions/{sid}/images/{name}"
+        (staging / "images").mkdir(exist_ok=True)
+        fsync_dir(staging / "images")
+        store.sessions.add_whole(
+            sid, s.robot, s.name, description=s.description, source=source, truth=s.truth, frames=frames, staged=staging
+        )
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return sid
+
+
+def import_csv(store: Store, robot: str, name: str, text: str, filename: str) -> str:
+    """A session from a CSV in the robot's pinned format; InputError (naming line and column) leaves
+    nothing behind, since the rows are inserted only once the whole file has been read."""
+    profile = store.sessions.profile(robot)
+    data = parse_dataset(profile, text, filename)
+    sid = store.sessions.new_id(None)
+    frames = []
+    for c, fid in enumerate(data.frame_ids):
+        rows = data.cfg == c
+        obs = Observations(data.target[rows], data.vertex[rows], data.point[rows], data.measured[rows])
+        q = np.nan_to_num(data.joints[c])
+        frames.append(NewFrame(int(fid), q, int(obs.target[0]), "measured", "", {}, {}, obs))
+    store.sessions.add_whole(
+        sid, robot, name, description=f"imported from {filename}", source="import", truth=None, frames=frames
+    )
+    return sid
+
+
+def ensure_samples(store: Store, folder: Path) -> list[str]:
+    """On a fresh store, import every session folder under `folder` (id = folder name).
+
+    Runs once per store: a sample the operator deleted does not come back. A sample that cannot
+    be read is logged and skipped, so a bad sample never stops the server. Returns the new ids.
+    """
+    if store.db.meta("samples") is not None or not Path(folder).is_dir():
+        return []
+    imported = []
+    for sub in sorted(Path(folder).iterdir()):
+        if not (sub / "session.json").is_file() or store.sessions.exists(sub.name):
+            continue
+        try:
+            imported.append(import_session_folder(store, sub, sub.name, source="sample"))
+        except (InputError, OSError) as exc:
+            log.warning("sample session %s not imported: %s", sub.name, exc)
+    store.db.set_meta("samples", now())
+    return imported
+
+
+def _frame_targets(profile: Profile, frames: list[NewFrame]) -> list[int]:
+    """Each frame's target: that of its observations; for a frame without any (the detector found
+    nothing), that of the measured frame with the nearest joint readings (session folders do not
+    record it)."""
+    if len(profile.targets) == 1:
+        return [0] * len(frames)
+    known = [(f.joints_rad, int(f.observations.target[0])) for f in frames if f.observations is not None]
+    out = []
+    for f in frames:
+        if f.observations is not None:
+            out.append(int(f.observations.target[0]))
+        elif known:
+            out.append(min(known, key=lambda qt: float(np.sum((qt[0] - f.joints_rad) ** 2)))[1])
+        else:
+            out.append(profile.data.target or 0)
+    return out

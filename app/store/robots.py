@@ -1,0 +1,186 @@
+"""The robots the desk has had: one row per instance (name, profile, driver kind and options, origin).
+
+A robot on the desk is an instance of a profile (a model): five NAOs are `nao-1` ... `nao-5`, each with
+profile `nao`. Sessions, calibrations and applies name the instance. A profile is a built-in one by name,
+or a profile file: one added through the API is kept under DATA/robots/<name>/ (with the URDF it names),
+so the robot is there after a restart. A built-in robot the desk has no row of yet (a store made before
+instances, or one opened without a desk) is the instance of its profile, named after it.
+"""
+
+from __future__ import annotations
+
+import json
+import secrets
+import shutil
+import sqlite3
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from calib_core import InputError, Profile
+from calib_core.model.loader import BUILTIN_PROFILES
+
+from ..errors import NotFound
+from ..profiles import instance_profile
+from ..validation import check_id
+from .db import Database, now
+from .files import fsync_dir, write_bytes
+
+ORIGINS = ("builtin", "config", "api")  # the desk's defaults, its configuration file, POST /api/robots
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class RobotRecord:
+    name: str
+    profile: str  # a built-in profile's name, or a profile file (relative: under the data directory)
+    driver: str | None  # the driver kind (app/drivers/registry.py), None: real data only
+    options: dict[str, Any] = field(default_factory=dict)
+    origin: str = "api"
+    added: str = ""
+
+
+@dataclass(frozen=True)
+class ProfileFiles:
+    """A profile file and the URDF it names, as bytes, to be kept under DATA/robots/<name>/."""
+
+    profile_name: str
+    profile: bytes
+    urdf: tuple[str, bytes] | None = None
+
+
+class RobotRepository:
+    def __init__(self, db: Database, data_dir: Path) -> None:
+        self.db = db
+        self.data_dir = data_dir
+        self._profiles: dict[str, Profile] = {}
+
+    def list(self) -> list[RobotRecord]:
+        return [_record(r) for r in self.db.all("SELECT * FROM robots ORDER BY added, name")]
+
+    def get(self, name: str) -> RobotRecord:
+        row = self.db.one("SELECT * FROM robots WHERE name = ?", (name,))
+        if row is None:
+            if name in BUILTIN_PROFILES:
+                return RobotRecord(name, name, None, origin="builtin")
+            raise NotFound.unknown("robot", name)
+        return _record(row)
+
+    def profile(self, name: str) -> Profile:
+        """The robot's profile, named after the robot. An unknown robot is bad input (422)."""
+        if name not in self._profiles:
+            try:
+                record = self.get(name)
+            except NotFound:
+                known = sorted({r.name for r in self.list()} | set(BUILTIN_PROFILES))
+                raise InputError(f"unknown robot '{name}' (known: {', '.join(known)})") from None
+            self._profiles[name] = instance_profile(record.profile, name, self.data_dir)
+        return self._profiles[name]
+
+    def names_with_data(self) -> list[str]:
+        """Robots that sessions, calibrations or applies name, in the order they first appear."""
+        rows = self.db.all(
+            "SELECT robot FROM sessions UNION SELECT robot FROM calibrations UNION SELECT robot FROM applies"
+        )
+        return sorted({r["robot"] for r in rows})
+
+    def has_data(self, name: str) -> bool:
+        return name in self.names_with_data()
+
+    def put(self, record: RobotRecord) -> None:
+        """Record a robot the desk starts with (its defaults or its configuration file)."""
+        with self.db.tx() as db:
+            _upsert(db, record)
+        self._profiles.pop(record.name, None)
+
+    def add(self, record: RobotRecord, files: ProfileFiles | None, prepare: Callable[[Profile], T]) -> T:
+        """A new robot (`record.profile` a built-in name, or `files`): its files put in place, its profile
+        loaded and `prepare(profile)` run (the desk makes its driver there), then its row inserted. Any
+        failure leaves nothing behind; returns what `prepare` returned."""
+        check_id("robot name", record.name)
+        if self.db.exists("robots", record.name, "name") or record.name in self.names_with_data():
+            raise InputError(f"a robot '{record.name}' exists already (or its sessions do): choose another name")
+        folder = self.data_dir / "robots" / record.name
+        with self.db.lock:
+            try:
+                if files is not None:
+                    staged = self._stage(record.name, files)
+                    if folder.exists():
+                        shutil.rmtree(folder)  # a leftover of an add whose row never committed
+                    staged.rename(folder)
+                    fsync_dir(folder.parent)
+                    record = replace(record, profile=f"robots/{record.name}/{files.profile_name}")
+                result = prepare(instance_profile(record.profile, record.name, self.data_dir))
+                with self.db.tx() as db:
+                    _upsert(db, replace(record, origin="api"))
+            except BaseException:
+                if files is not None:
+                    shutil.rmtree(folder, ignore_errors=True)
+                raise
+        self._profiles.pop(record.name, None)
+        return result
+
+    def remove(self, name: str) -> None:
+        """Forget a robot added through the API that has no data (its files go too)."""
+        record = self.get(name)
+        if record.origin != "api":
+            raise InputError(f"robot '{name}' comes from the desk's configuration: change that to remove it")
+        if self.has_data(name):
+            raise InputError(f"robot '{name}' has sessions or calibrations: they keep it on the desk")
+        with self.db.tx() as db:
+            db.execute("DELETE FROM robots WHERE name = ?", (name,))
+        self._profiles.pop(name, None)
+        shutil.rmtree(self.data_dir / "robots" / name, ignore_errors=True)
+
+    def _stage(self, name: str, files: ProfileFiles) -> Path:
+        """The files in a staging folder beside the robots' folders; the profile's `urdf:` names the URDF
+        beside it, and a URDF given with a profile that names none is refused."""
+        root = self.data_dir / "robots"
+        root.mkdir(exist_ok=True)
+        staged = root / f".{name}.{secrets.token_hex(3)}"
+        staged.mkdir()
+        try:
+            text = _point_at_urdf(files.profile_name, files.profile, None if files.urdf is None else files.urdf[0])
+            if files.urdf is not None:
+                write_bytes(staged / files.urdf[0], files.urdf[1], atomic=False)
+            write_bytes(staged / files.profile_name, text, atomic=False)
+            fsync_dir(staged)
+        except BaseException:
+            shutil.rmtree(staged, ignore_errors=True)
+            raise
+        return staged
+
+
+def _point_at_urdf(profile_name: str, text: bytes, urdf_name: str | None) -> bytes:
+    """The profile with its `urdf:` naming `urdf_name`, the URDF given with it, in its own folder. A profile
+    that names a URDF not given with it, or none when one is given, is refused: a profile kept by the
+    desk reads no file outside its folder."""
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text  # the loader names the line
+    ref = doc.get("urdf") if isinstance(doc, dict) else None
+    if urdf_name is None:
+        if ref is not None:
+            raise InputError(f"urdf: {ref} is not given with the profile (give the URDF file too)", file=profile_name)
+        return text
+    if not isinstance(ref, str) or not ref.strip():
+        raise InputError(f"urdf: the profile names no URDF file, but {urdf_name} is given with it", file=profile_name)
+    if ref == urdf_name:
+        return text
+    return yaml.safe_dump({**doc, "urdf": urdf_name}, sort_keys=False, allow_unicode=True).encode()
+
+
+def _upsert(db: sqlite3.Connection, r: RobotRecord) -> None:
+    db.execute(
+        "INSERT INTO robots VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT(name) DO UPDATE SET profile = excluded.profile, "
+        "driver = excluded.driver, options = excluded.options, origin = excluded.origin",
+        (r.name, r.profile, r.driver, json.dumps(r.options), r.origin, r.added or now()),
+    )
+
+
+def _record(r: sqlite3.Row) -> RobotRecord:
+    return RobotRecord(r["name"], r["profile"], r["driver"], json.loads(r["options"]), r["origin"], r["added"])
