@@ -169,6 +169,11 @@ def _parser() -> argparse.ArgumentParser:
         "--sim-speed", type=float, default=1.0, help="the simulated robots' speed, times their joint velocity limits"
     )
     sv.add_argument(
+        "--desk",
+        metavar="CONFIG.yaml",
+        help="the desk configuration: which robots (name, profile, driver); default: the built-in robots, simulated",
+    )
+    sv.add_argument(
         "--new-token",
         action="store_true",
         help="bound off loopback: replace the access token (printed once) with a new one",
@@ -490,6 +495,7 @@ def _save(path: str, write) -> None:
 
 
 def _serve(args: argparse.Namespace) -> int:
+    from .desk_config import load_desk_config
     from .server import serve  # the web stack loads only for this subcommand
 
     if not 0 < args.port < 65536:
@@ -497,11 +503,13 @@ def _serve(args: argparse.Namespace) -> int:
     viser_port = args.port + 1 if args.viser_port is None else args.viser_port
     if not 0.1 <= args.sim_speed <= 100:
         raise InputError(f"--sim-speed {args.sim_speed} must be between 0.1 and 100")
+    config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
     serve(
         args.host,
         args.port,
         Path(args.data_dir),
         viser_port=viser_port,
+        config=config,
         time_scale=args.sim_speed,
         new_token=args.new_token,
     )

@@ -19,21 +19,30 @@ PROFILE_DIR = Path(str(resources.files("calib_core.model") / "profiles"))
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
 
 
+def is_builtin(ref: str) -> bool:
+    """A built-in profile's name (robonaut-a, nao, motoman), not a file."""
+    return ref in BUILTIN_PROFILES
+
+
 def load_model(ref: str, base: Path) -> Profile:
     """A built-in profile by name, or a profile file (a relative path is relative to `base`)."""
-    return load_profile(ref if ref in BUILTIN_PROFILES else base / ref)
+    return load_profile(ref if is_builtin(ref) else base / ref)
+
+
+def as_instance(model: Profile, name: str) -> Profile:
+    """The model as robot `name`'s profile."""
+    return model if model.name == name else replace(model, name=name)
 
 
 def instance_profile(ref: str, name: str, base: Path) -> Profile:
     """The profile `ref` (load_model) as robot `name`'s."""
-    model = load_model(ref, base)
-    return model if model.name == name else replace(model, name=name)
+    return as_instance(load_model(ref, base), name)
 
 
 def builtin_urdf(ref: str) -> Path | None:
     """The URDF shipped with a built-in profile (the scene shows it), None for any other profile."""
     path = PROFILE_DIR / f"{ref}.urdf"
-    return path if ref in BUILTIN_PROFILES and path.is_file() else None
+    return path if is_builtin(ref) and path.is_file() else None
 
 
 def file_name(given: str | None, default: str) -> str:

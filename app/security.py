@@ -16,9 +16,10 @@ error texts without paths, and the viser server's share tunnel closed.
   on loopback too: a page on another site cannot drive the robot through the operator's browser. On
   loopback, `calib serve` also answers only to loopback host names (a DNS-rebinding page's Host is its
   own name).
-- Request bodies are capped before they are read: the CSV import at MAX_UPLOAD_BYTES plus the form's
-  overhead, anything else at MAX_BODY_BYTES; a declared Content-Length above the cap is refused at once,
-  and a body streamed without one is cut off when it passes the cap (413 either way).
+- Request bodies are capped before they are read: an upload (a CSV to import, a robot's profile with its
+  URDF) at MAX_UPLOAD_BYTES plus the form's overhead, anything else at MAX_BODY_BYTES; a declared
+  Content-Length above the cap is refused at once, and a body streamed without one is cut off when it
+  passes the cap (413 either way).
 """
 
 from __future__ import annotations
@@ -44,8 +45,9 @@ OPEN_PATHS = frozenset({"/api/health"})
 SAFE_METHODS = frozenset({"GET", "HEAD"})
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_BODY_BYTES = 1024 * 1024
+MAX_UPLOAD_BYTES = 20 * 1024 * 1024
 FORM_OVERHEAD_BYTES = 64 * 1024
-UPLOAD_PATHS = frozenset({"/api/sessions/import"})
+UPLOAD_PATHS = frozenset({"/api/sessions/import", "/api/robots"})
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -133,7 +135,7 @@ class Guard:
         *,
         tokens: TokenFile | None,
         trusted_hosts: Iterable[str] | None = None,
-        max_upload_bytes: int,
+        max_upload_bytes: int = MAX_UPLOAD_BYTES,
     ) -> None:
         self.app = app
         self.tokens = tokens

@@ -19,10 +19,12 @@ from fastapi.staticfiles import StaticFiles
 from calib_core import InputError
 
 from . import security
-from .api import MAX_UPLOAD_BYTES, VERSION, router
 from .desk import PACKAGE_DIR, SAMPLE_DIR, Desk
+from .desk_config import DeskConfig
 from .drivers import RobotFault
 from .errors import NotFound
+from .routers import api
+from .routers.robots import VERSION
 from .safety import ConfirmationRequired
 from .store import StoreWriteError
 
@@ -33,6 +35,7 @@ log = logging.getLogger("calib.server")
 def create_app(
     data_dir: Path,
     *,
+    config: DeskConfig | None = None,
     sample_dir: Path | None = SAMPLE_DIR,
     host: str = "127.0.0.1",
     viser_host: str | None = None,
@@ -42,9 +45,10 @@ def create_app(
     trusted_hosts: Iterable[str] | None = None,
     new_token: bool = False,
 ) -> FastAPI:
-    """`host`: the address the server is bound to; off loopback every /api request but /api/health needs
-    the access token (app/security.py); `app.state.new_token` is the token made at this start (shown
-    once), None when one was stored before. `trusted_hosts`: the Host names answered (None: any)."""
+    """`config`: the robots (None: the built-in ones). `host`: the address the server is bound to; off loopback
+    every /api request but /api/health needs the access token (app/security.py); `app.state.new_token` is the
+    token made at this start (shown once), None when one was stored before. `trusted_hosts`: the Host names
+    answered (None: any)."""
     tokens = None
     token = None
     if not security.is_loopback(host):
@@ -52,11 +56,13 @@ def create_app(
         token = tokens.renew() if new_token else tokens.ensure()
     desk = Desk(
         data_dir,
+        config=config,
         sample_dir=sample_dir,
         viser_host=host if viser_host is None else viser_host,
         viser_port=viser_port,
         time_scale=time_scale,
         workers=workers,
+        loopback=security.is_loopback(host),
     )
 
     @asynccontextmanager
@@ -70,9 +76,9 @@ def create_app(
 
     app = FastAPI(title="robot-selfcal dashboard", version=VERSION, lifespan=lifespan)
     app.state.new_token = token
-    app.include_router(router)
+    app.include_router(api)
     _error_handlers(app, desk.scrub)
-    app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts, max_upload_bytes=MAX_UPLOAD_BYTES)
+    app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
 
@@ -119,13 +125,21 @@ def _error_handlers(app: FastAPI, scrub: Callable[[str], str]) -> None:
 
 
 def serve(
-    host: str, port: int, data_dir: Path, *, viser_port: int, time_scale: float = 1.0, new_token: bool = False
+    host: str,
+    port: int,
+    data_dir: Path,
+    *,
+    viser_port: int,
+    config: DeskConfig | None = None,
+    time_scale: float = 1.0,
+    new_token: bool = False,
 ) -> None:
     import uvicorn
 
     loopback = security.is_loopback(host)
     app = create_app(
         data_dir,
+        config=config,
         host=host,
         viser_port=viser_port,
         time_scale=time_scale,

@@ -35,12 +35,6 @@ def check_role(role: str) -> str:
     return role
 
 
-def check_frame_index(index: int) -> int:
-    if isinstance(index, bool) or not FRAME_MIN <= int(index) <= FRAME_MAX:
-        raise InputError(f"frame {index} is not a frame number")
-    return int(index)
-
-
 def check_joints_rad(profile: Profile, joints_rad: np.ndarray) -> np.ndarray:
     """One finite reading (rad) per joint of the profile, in its order."""
     q = np.asarray(joints_rad, dtype=float).ravel()

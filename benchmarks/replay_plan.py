@@ -18,6 +18,7 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from app.server import create_app
+from app.services.replay import ReplayPlan
 
 
 def main() -> None:
@@ -29,11 +30,11 @@ def main() -> None:
         desk = client.app.state.desk
         sid = client.post("/api/sessions", json={"robot": args.robot, "name": "plan"}).json()["id"]
         url = f"/api/sessions/{sid}/replay"
-        desk.replay_plan(sid, from_session=None, count=1, remeasure=False)  # warm-up
+        desk.replay.configurations(sid, ReplayPlan(count=1))  # warm-up
         print(f"{args.robot}: planning N new configurations (ms; per configuration in brackets)")
         for count in args.counts:
             t0 = time.perf_counter()
-            q, _, _ = desk.replay_plan(sid, from_session=None, count=count, remeasure=False, seed=count)
+            q, _, _ = desk.replay.configurations(sid, ReplayPlan(count=count, seed=count))
             plan_ms = 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
             r = client.post(url, json={"count": count, "seed": count, "dry_run": True})

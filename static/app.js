@@ -5,7 +5,7 @@
 const $ = (sel) => document.querySelector(sel);
 const state = {
   robots: {},          // name -> /api/robots entry
-  robot: null,         // the selected robot: the connected one, or one with real data only (not simulated)
+  robot: null,         // the selected robot: the connected one, or one with real data only (not drivable)
   session: null,       // the selected session (full /api/sessions/{id} answer)
   calibrations: [],    // of the selected session
   review: null,        // the last /api/review answer
@@ -100,11 +100,10 @@ async function init() {
   scene.src = `${location.protocol}//${location.hostname}:${health.viser_port}/`;
   for (const r of await api("GET", "/robots")) state.robots[r.name] = r;
   const sel = $("#robot-select");
-  for (const [name, r] of Object.entries(state.robots)) {
-    sel.append(el("option", { value: name }, r.simulated ? name : `${name} (real data only)`));
-  }
-  const status = await api("GET", "/robot");
-  state.robot = status.robot;
+  for (const r of Object.values(state.robots)) addRobotOption(r);
+  // The connected robot; a desk without a drivable robot has none: the first one is shown.
+  const status = await api("GET", "/robot").catch(() => null);
+  state.robot = status ? status.robot : Object.keys(state.robots)[0];
   sel.value = state.robot;
   sel.addEventListener("change", () => act(() => connect(sel.value)));
   wire();
@@ -116,11 +115,15 @@ async function init() {
   document.body.dataset.ready = "1";
 }
 
-// A robot with real data only (no simulation) has sessions imported from CSV, calibrations and reviews,
+function addRobotOption(r) {
+  $("#robot-select").append(el("option", { value: r.name }, r.drivable ? r.name : `${r.name} (real data only)`));
+}
+
+// A robot with real data only (no driver) has sessions imported from CSV, calibrations and reviews,
 // but nothing to connect to or move: its capture and motion controls are disabled.
 // The 3-D scene shows the connected robot: a session and review of another robot are closed.
 async function connect(robot) {
-  if (state.robots[robot].simulated) await api("POST", "/robot/connect", { robot });
+  if (state.robots[robot].drivable) await api("POST", "/robot/connect", { robot });
   state.robot = robot;
   if (state.session && state.session.robot !== robot) closeSession();
   buildJoints();
@@ -146,7 +149,7 @@ const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "
   "#replay-pause", "#replay-resume", "#replay-abort", "#goto", "#new-session button"];
 
 function showDrivable() {
-  const drivable = state.robots[state.robot].simulated;
+  const drivable = state.robots[state.robot].drivable;
   for (const sel of MOTION_CONTROLS) $(sel).disabled = !drivable;
   document.body.dataset.drivable = drivable ? "1" : "0";
   if (!drivable) {
@@ -163,6 +166,7 @@ function wire() {
   });
   $("#new-session").addEventListener("submit", (e) => act(() => newSession(e)));
   $("#import-session").addEventListener("submit", (e) => act(() => importSession(e)));
+  $("#add-robot").addEventListener("submit", (e) => act(() => addRobot(e)));
   $("#holdout").addEventListener("input", () => ($("#holdout-out").textContent = `${Math.round($("#holdout").value * 100)}%`));
   $("#calibrate-start").addEventListener("click", () => act(startCalibration));
   $("#calibrate-cancel").addEventListener("click", () => state.job && act(() => api("POST", `/jobs/${state.job.id}/cancel`)));
@@ -252,6 +256,22 @@ async function loadCalibrations() {
 }
 
 const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
+
+// A robot added to the running desk: a profile file (with its URDF when it says `urdf: ...`) or a built-in
+// profile's name (another NAO), and a driver or none (real data only).
+async function addRobot(e) {
+  e.preventDefault();
+  const form = new FormData(e.target);
+  for (const key of ["profile_file", "urdf_file"]) if (!form.get(key) || !form.get(key).size) form.delete(key);
+  for (const key of ["profile", "driver"]) if (!form.get(key)) form.delete(key);
+  const robot = await api("POST", "/robots", form);
+  state.robots[robot.name] = robot;
+  addRobotOption(robot);
+  e.target.reset();
+  $("#robot-select").value = robot.name;
+  await connect(robot.name);
+  toast(`Robot ${robot.name} (${robot.model}) is on the desk.`, "info");
+}
 
 async function newSession(e) {
   e.preventDefault();
@@ -611,7 +631,7 @@ function buildJoints() {
   t.replaceChildren();
   for (const j of state.robots[state.robot].joints) {
     const slider = el("input", { type: "range", min: j.lower_deg, max: j.upper_deg, step: 0.1, "data-joint": j.name });
-    slider.disabled = !state.robots[state.robot].simulated;
+    slider.disabled = !state.robots[state.robot].drivable;
     slider.addEventListener("change", () => act(() => api("POST", "/robot/move", { joints: { [j.name]: +slider.value } })));
     t.append(el("tr", {}, el("td", {}, j.name), el("td", {}, slider), el("td", { "data-reading": j.name }, "—")));
   }

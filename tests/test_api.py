@@ -19,7 +19,7 @@ import yaml
 import yourdfpy
 from fastapi.testclient import TestClient
 
-from app.desk import simulated
+from app.drivers.simulated import can_simulate
 from app.server import create_app
 from calib_core import load_profile, parse_dataset, to_csv
 
@@ -329,8 +329,8 @@ MOTOMAN_CSV = Path(__file__).resolve().parent.parent.parent / "shared" / "datase
 
 def test_only_a_profile_with_a_simulation_section_gets_a_simulated_robot() -> None:
     motoman = load_profile("motoman")
-    assert simulated(motoman) and simulated(load_profile("nao")) and simulated(load_profile("robonaut-a"))
-    assert not simulated(dataclasses.replace(motoman, simulation={}))
+    assert can_simulate(motoman) and can_simulate(load_profile("nao")) and can_simulate(load_profile("robonaut-a"))
+    assert not can_simulate(dataclasses.replace(motoman, simulation={}))
 
 
 @pytest.mark.skipif(not MOTOMAN_CSV.is_file(), reason="the Motoman data set is not beside the project")
@@ -339,9 +339,11 @@ def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_b
 ) -> None:
     """The Motoman's real tracker data on a desk that has no robot to drive for it: what a desk makes of a
     profile without a simulation section (Desk.start makes no driver for it)."""
-    monkeypatch.delitem(client.app.state.desk.drivers, "motoman")
+    motoman = client.app.state.desk.robots.get("motoman")
+    monkeypatch.setattr(motoman, "driver", None)
+    monkeypatch.setattr(motoman, "driver_kind", None)
     robots = {r["name"]: r for r in client.get("/api/robots").json()}
-    assert robots["motoman"]["simulated"] is False
+    assert robots["motoman"]["simulated"] is False and robots["motoman"]["drivable"] is False
     assert robots["robonaut-a"]["simulated"] and robots["nao"]["simulated"]
     assert robots["motoman"]["sensor"] == {"kind": "point3d", "unit": "m", "image": None}
 
@@ -427,7 +429,7 @@ def test_the_simulated_motoman_replays_and_calibrates_to_its_tracker_noise(clien
     desk = client.app.state.desk
     profile = load_profile("motoman")
     assert client.post("/api/robot/connect", json={"robot": "motoman"}).status_code == 200
-    driver = desk.drivers["motoman"]
+    driver = desk.robots.driver("motoman")
     commanded: list[np.ndarray] = []
     move_to = driver.move_to
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from app.capture import AutoCapture, capture_frame, dry_run, replay
-from app.drivers import SimulatedDriver
+from app.drivers.simulated import SimulatedDriver
 from app.jobs import FINISHED, JobManager
 from app.store import Store
 from calib_core import InputError, SimulatedRobot, load_profile

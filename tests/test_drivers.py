@@ -11,7 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from app.drivers import LimitError, SimulatedDriver, check_limits
+from app.drivers import LimitError, check_limits
+from app.drivers.simulated import SimulatedDriver
 from calib_core import InputError, SimulatedRobot, load_profile
 from calib_core.vision.sighting import predicted_points
 

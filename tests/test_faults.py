@@ -30,6 +30,7 @@ from fastapi.testclient import TestClient
 
 from app.jobs import CRASHED
 from app.server import create_app
+from app.services.replay import ReplayPlan
 from app.store import INTERRUPTED, Store
 from calib_core import load_profile, read_dataset
 
@@ -77,19 +78,19 @@ def _frames(client: TestClient, session_id: str) -> list[dict]:
 
 
 def _plan_rad(client: TestClient, session_id: str, count: int, seed: int) -> np.ndarray:
-    q, _, _ = client.app.state.desk.replay_plan(session_id, from_session=None, count=count, remeasure=False, seed=seed)
+    q, _, _ = client.app.state.desk.replay.configurations(session_id, ReplayPlan(count=count, seed=seed))
     return q
 
 
 def _each_configuration_once(client: TestClient, frames: list[dict], q_plan: np.ndarray) -> bool:
-    names = client.app.state.desk.profile("nao").joint_names
+    names = client.app.state.desk.robots.get("nao").profile.joint_names
     q_frames = np.radians([[f["joints"][n] for n in names] for f in frames])
     near = np.all(np.abs(q_plan[:, None, :] - q_frames[None, :, :]) <= np.radians(0.1), axis=2)
     return bool((near.sum(axis=1) == 1).all() and (near.sum(axis=0) == 1).all())
 
 
 def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan(client: TestClient) -> None:
-    driver = client.app.state.desk.drivers["nao"]
+    driver = client.app.state.desk.robots.driver("nao")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "disconnect"}).json()["id"]
     plan = {"count": 4, "seed": 1}
     q_plan = _plan_rad(client, sid, 4, 1)
@@ -124,7 +125,7 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
 
 
 def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestClient) -> None:
-    driver = client.app.state.desk.drivers["nao"]
+    driver = client.app.state.desk.robots.driver("nao")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "stall"}).json()["id"]
     plan = {"count": 2, "seed": 5}
     q_plan = _plan_rad(client, sid, 2, 5)

@@ -16,7 +16,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app import safety
-from app.drivers import LimitError, SimulatedDriver
+from app.drivers import LimitError
+from app.drivers.simulated import SimulatedDriver
 from app.server import create_app
 from calib_core import load_profile
 
@@ -68,9 +69,10 @@ class Recording:
 def test_every_path_that_moves_checks_the_configuration_first(client: TestClient) -> None:
     """API move, goto and replay call the driver's check with the very configuration before move_to."""
     desk = client.app.state.desk
-    sim = desk.drivers["nao"]
+    nao = desk.robots.get("nao")
+    sim = nao.driver
     rec = Recording(sim)
-    desk.drivers["nao"] = rec
+    nao.driver = rec
     try:
         joint = rec.profile.joints[0]
         mid_deg = math.degrees((joint.lower + joint.upper) / 2)
@@ -82,7 +84,7 @@ def test_every_path_that_moves_checks_the_configuration_first(client: TestClient
         client.post("/api/robot/stop")
         finished(client, job)
     finally:
-        desk.drivers["nao"] = sim
+        nao.driver = sim
     moves = [k for k, (call, _) in enumerate(rec.calls) if call == "move_to"]
     assert len(moves) >= 3
     for k in moves:

@@ -17,8 +17,15 @@ import viser
 import websockets
 from fastapi.testclient import TestClient
 
-from app.api import MAX_UPLOAD_BYTES
-from app.security import LOOPBACK_NAMES, TOKEN_FILE, Scrubber, TokenFile, close_viser_share, is_loopback
+from app.security import (
+    LOOPBACK_NAMES,
+    MAX_UPLOAD_BYTES,
+    TOKEN_FILE,
+    Scrubber,
+    TokenFile,
+    close_viser_share,
+    is_loopback,
+)
 from app.server import create_app
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"

@@ -24,12 +24,11 @@ from calib_core import InputError, Profile
 from calib_core.model.loader import BUILTIN_PROFILES
 
 from ..errors import NotFound
-from ..profiles import instance_profile
+from ..profiles import instance_profile, load_model
 from ..validation import check_id
 from .db import Database, now
 from .files import fsync_dir, write_bytes
 
-ORIGINS = ("builtin", "config", "api")  # the desk's defaults, its configuration file, POST /api/robots
 T = TypeVar("T")
 
 
@@ -39,7 +38,7 @@ class RobotRecord:
     profile: str  # a built-in profile's name, or a profile file (relative: under the data directory)
     driver: str | None  # the driver kind (app/drivers/registry.py), None: real data only
     options: dict[str, Any] = field(default_factory=dict)
-    origin: str = "api"
+    origin: str = "api"  # "builtin" (the desk's defaults), "config" (its configuration file), "api" (added)
     added: str = ""
 
 
@@ -97,9 +96,9 @@ class RobotRepository:
         self._profiles.pop(record.name, None)
 
     def add(self, record: RobotRecord, files: ProfileFiles | None, prepare: Callable[[Profile], T]) -> T:
-        """A new robot (`record.profile` a built-in name, or `files`): its files put in place, its profile
-        loaded and `prepare(profile)` run (the desk makes its driver there), then its row inserted. Any
-        failure leaves nothing behind; returns what `prepare` returned."""
+        """A new robot (`record.profile` a built-in name, or `files`): its files put in place, its profile (the
+        model, not yet named after the robot) loaded and `prepare(model)` run (the desk makes its driver
+        there), then its row inserted. Any failure leaves nothing behind; returns what `prepare` returned."""
         check_id("robot name", record.name)
         if self.db.exists("robots", record.name, "name") or record.name in self.names_with_data():
             raise InputError(f"a robot '{record.name}' exists already (or its sessions do): choose another name")
@@ -113,7 +112,7 @@ class RobotRepository:
                     staged.rename(folder)
                     fsync_dir(folder.parent)
                     record = replace(record, profile=f"robots/{record.name}/{files.profile_name}")
-                result = prepare(instance_profile(record.profile, record.name, self.data_dir))
+                result = prepare(load_model(record.profile, self.data_dir))
                 with self.db.tx() as db:
                     _upsert(db, replace(record, origin="api"))
             except BaseException:

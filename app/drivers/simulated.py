@@ -1,9 +1,8 @@
-"""Robot drivers: the one interface the dashboard drives a robot through, and the simulated robot behind it.
+"""The simulated robot behind the RobotDriver interface (driver kind `simulated`).
 
-Joint values are rad in the profile's joint order. Limits are checked with a safety margin before anything
-moves (a configuration closer to a limit than the margin is refused, naming the joint and the limit in deg),
-and every move runs each joint at most at its velocity limit, all joints arriving together. A real robot
-plugs in behind `RobotDriver`.
+Options (desk configuration file, `driver: {kind: simulated, ...}`): `seed` (the robot's hidden truth and
+noise, default 1) and `day` (1: as the profile's truth; later days drift the joint offsets as
+`calib simulate --day` does). The desk's `--sim-speed` is its time scale.
 """
 
 from __future__ import annotations
@@ -11,9 +10,9 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any
 
 import numpy as np
 
@@ -22,42 +21,46 @@ from calib_core.model.profile import Profile, Sensor
 from calib_core.sim.simulator import SimulatedRobot
 from calib_core.vision.sighting import Sighting
 
-DEFAULT_MARGIN_DEG = 1.0
+from . import DEFAULT_MARGIN_DEG, LimitError, Look, RobotFault, RobotStatus, check_limits
+from .registry import DriverContext
+
 MOVE_SLACK_S = 5.0  # real seconds a move may overrun its planned duration before the robot counts as not responding
 _WAIT_POLL_S = 0.01  # how often a waiting move_to asks its caller whether to stop
 _WANDER_POOL = 24  # visible configurations the wander picks from
 _WANDER_PAUSE_S = (0.5, 2.0)  # robot time between wander moves
+OPTIONS = {"seed": 1, "day": 1}  # and their defaults
 
 
-class LimitError(InputError):
-    """A configuration beyond a joint limit (less the safety margin). `beyond`: past the limit itself, not
-    only inside the margin."""
-
-    def __init__(self, joint: str, value_deg: float, limit_deg: float, side: str, margin_deg: float) -> None:
-        self.joint = joint
-        self.value_deg = value_deg
-        self.limit_deg = limit_deg
-        self.side = side  # "lower" or "upper"
-        self.margin_deg = margin_deg
-        self.beyond = not (value_deg >= limit_deg if side == "lower" else value_deg <= limit_deg)
-        if math.isnan(value_deg):
-            message = f"{joint} is not a number"
-        elif self.beyond:
-            message = (
-                f"{joint} {value_deg:.1f} deg is beyond its {side} limit {limit_deg:.1f} deg "
-                f"(margin {margin_deg:.1f} deg)"
-            )
-        else:
-            message = (
-                f"{joint} {value_deg:.1f} deg is within the {margin_deg:.1f} deg safety margin of its {side} "
-                f"limit {limit_deg:.1f} deg"
-            )
-        super().__init__(message)
+def can_simulate(profile: Profile) -> bool:
+    """Whether the simulator can stand in for the robot: the profile has a simulation section and its data
+    sensor is one the simulator renders (a stereo head or a camera; calib_core.simulator's capture) or reads
+    directly (a point sensor without images, like the Motoman's laser tracker; reads_points)."""
+    sensor = profile.sensors[profile.data.sensor]
+    renders = sensor.model == "pinhole" or (sensor.model == "point3d" and sensor.baseline is not None)
+    return bool(profile.simulation) and (renders or reads_points(sensor))
 
 
-class RobotFault(RuntimeError):
-    """The robot failed, not the operator: its link was lost, or a move did not arrive in time. The
-    robot is stopped; what was captured before stays."""
+def check(profile: Profile, options: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The options with their defaults; InputError (`where`: the field) for a profile the simulator cannot
+    stand in for, an unknown option or a value out of range."""
+    if not can_simulate(profile):
+        raise InputError(
+            f"{where}: {profile.name} cannot be simulated (its profile has no simulation section for its sensor)"
+        )
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise InputError(f"{where}.{unknown[0]}: no such option of the simulated driver (options: seed, day)")
+    out = {**OPTIONS, **options}
+    for key, lowest in (("seed", 0), ("day", 1)):
+        value = out[key]
+        if isinstance(value, bool) or not isinstance(value, int) or not lowest <= value <= 2**31:
+            raise InputError(f"{where}.{key}: expected a whole number from {lowest}, got {value!r}")
+    return out
+
+
+def create(profile: Profile, options: Mapping[str, Any], context: DriverContext) -> SimulatedDriver:
+    """A simulated robot from checked options (check)."""
+    return SimulatedDriver(profile, seed=options["seed"], day=options["day"], time_scale=context.time_scale)
 
 
 def reads_points(sensor: Sensor) -> bool:
@@ -71,84 +74,6 @@ def readable_targets(profile: Profile) -> list[int]:
     reflector on either arm, its `reflector_arm` column), else every single-point target."""
     named = sorted(set(profile.data.target_values.values()))
     return named or [t for t, target in enumerate(profile.targets) if target.grid is None and target.points is None]
-
-
-def check_limits(profile: Profile, q_rad: np.ndarray, margin_rad: float) -> None:
-    """Raise LimitError for the first joint of q (rad) beyond its limits less the margin. A joint whose range
-    is narrower than twice the margin (a joint fixed at one angle) must sit inside its range."""
-    q = np.asarray(q_rad, dtype=float)
-    if q.shape != (len(profile.joints),):
-        raise ValueError(f"expected {len(profile.joints)} joint values for {profile.name}, got shape {q.shape}")
-    margin_deg = math.degrees(margin_rad)
-    for joint, value in zip(profile.joints, q, strict=True):
-        m = min(margin_rad, (joint.upper - joint.lower) / 2)
-        if math.isnan(value) or value < joint.lower + m - 1e-12:
-            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.lower), "lower", margin_deg)
-        if value > joint.upper - m + 1e-12:
-            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.upper), "upper", margin_deg)
-
-
-@dataclass
-class RobotStatus:
-    robot: str
-    connected: bool
-    moving: bool
-    joints_rad: np.ndarray  # the encoder readings (quantised)
-    target: int
-    calibration_id: str | None
-    message: str
-    stamp: float = 0.0  # time.monotonic() of the joint state
-    wandering: bool = False
-
-
-@dataclass
-class Look:
-    readings_rad: np.ndarray
-    target: int
-    sighting: Sighting
-    images: dict[str, np.ndarray]
-
-
-class RobotDriver(Protocol):
-    profile: Profile
-
-    def status(self) -> RobotStatus: ...
-
-    def read_joints(self) -> np.ndarray:
-        """Rad: what the encoders report (quantised)."""
-        ...
-
-    def look(self, believed: np.ndarray | None = None) -> Look:
-        """The images now and the detector's Sighting, seeded by the active calibration (or `believed`); a
-        sensor without images (a tracker) gives its reading and no images."""
-        ...
-
-    def check(self, q_rad: np.ndarray) -> None:
-        """Raise LimitError if q is beyond the joint limits less the safety margin."""
-        ...
-
-    def move_to(self, q_rad: np.ndarray, *, wait: bool = True, should_stop: Callable[[], bool] | None = None) -> bool:
-        """Check, then move (velocity limits, linear interpolation, all joints arriving together). True on
-        arrival, False if stopped; without `wait` True once the move has started."""
-        ...
-
-    def stop(self) -> None:
-        """Halt motion at once (from any thread)."""
-        ...
-
-    def settled(self, for_s: float = 0.3) -> bool:
-        """Not moving for at least for_s."""
-        ...
-
-    def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None: ...
-
-    def believed_params(self) -> np.ndarray:
-        """The parameters the robot works with: the active calibration's, or the nominal model."""
-        ...
-
-    def set_target(self, target: int) -> None:
-        """Which fixture or board is in view (NAO: the left or the right foot's board)."""
-        ...
 
 
 @dataclass

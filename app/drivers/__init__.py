@@ -1,0 +1,146 @@
+"""Robot drivers: the one interface the desk drives a robot through.
+
+Joint values are rad in the profile's joint order. Limits are checked with a safety margin before anything
+moves (a configuration closer to a limit than the margin is refused, naming the joint and the limit in deg),
+and every move runs each joint at most at its velocity limit, all joints arriving together.
+
+A kind of driver is a module of this package registered by name in registry.py (`simulated`: the robot
+simulated by calib_core, simulated.py); the desk makes one driver per robot that has one, from its
+configuration, and closes it when the desk stops or the robot is removed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from calib_core.errors import InputError
+from calib_core.model.profile import Profile
+from calib_core.vision.sighting import Sighting
+
+DEFAULT_MARGIN_DEG = 1.0
+
+
+class LimitError(InputError):
+    """A configuration beyond a joint limit (less the safety margin). `beyond`: past the limit itself, not
+    only inside the margin."""
+
+    def __init__(self, joint: str, value_deg: float, limit_deg: float, side: str, margin_deg: float) -> None:
+        self.joint = joint
+        self.value_deg = value_deg
+        self.limit_deg = limit_deg
+        self.side = side  # "lower" or "upper"
+        self.margin_deg = margin_deg
+        self.beyond = not (value_deg >= limit_deg if side == "lower" else value_deg <= limit_deg)
+        if math.isnan(value_deg):
+            message = f"{joint} is not a number"
+        elif self.beyond:
+            message = (
+                f"{joint} {value_deg:.1f} deg is beyond its {side} limit {limit_deg:.1f} deg "
+                f"(margin {margin_deg:.1f} deg)"
+            )
+        else:
+            message = (
+                f"{joint} {value_deg:.1f} deg is within the {margin_deg:.1f} deg safety margin of its {side} "
+                f"limit {limit_deg:.1f} deg"
+            )
+        super().__init__(message)
+
+
+class RobotFault(RuntimeError):
+    """The robot failed, not the operator: its link was lost, or a move did not arrive in time. The
+    robot is stopped; what was captured before stays."""
+
+
+def check_limits(profile: Profile, q_rad: np.ndarray, margin_rad: float) -> None:
+    """Raise LimitError for the first joint of q (rad) beyond its limits less the margin. A joint whose range
+    is narrower than twice the margin (a joint fixed at one angle) must sit inside its range."""
+    q = np.asarray(q_rad, dtype=float)
+    if q.shape != (len(profile.joints),):
+        raise ValueError(f"expected {len(profile.joints)} joint values for {profile.name}, got shape {q.shape}")
+    margin_deg = math.degrees(margin_rad)
+    for joint, value in zip(profile.joints, q, strict=True):
+        m = min(margin_rad, (joint.upper - joint.lower) / 2)
+        if math.isnan(value) or value < joint.lower + m - 1e-12:
+            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.lower), "lower", margin_deg)
+        if value > joint.upper - m + 1e-12:
+            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.upper), "upper", margin_deg)
+
+
+@dataclass
+class RobotStatus:
+    robot: str
+    connected: bool
+    moving: bool
+    joints_rad: np.ndarray  # the encoder readings (quantised)
+    target: int
+    calibration_id: str | None
+    message: str
+    stamp: float = 0.0  # time.monotonic() of the joint state
+    wandering: bool = False
+
+
+@dataclass
+class Look:
+    readings_rad: np.ndarray
+    target: int
+    sighting: Sighting
+    images: dict[str, np.ndarray]
+
+
+class RobotDriver(Protocol):
+    profile: Profile
+
+    def status(self) -> RobotStatus: ...
+
+    def read_joints(self) -> np.ndarray:
+        """Rad: what the encoders report (quantised)."""
+        ...
+
+    def look(self, believed: np.ndarray | None = None) -> Look:
+        """The images now and the detector's Sighting, seeded by the active calibration (or `believed`); a
+        sensor without images (a tracker) gives its reading and no images."""
+        ...
+
+    def check(self, q_rad: np.ndarray) -> None:
+        """Raise LimitError if q is beyond the joint limits less the safety margin."""
+        ...
+
+    def move_to(self, q_rad: np.ndarray, *, wait: bool = True, should_stop: Callable[[], bool] | None = None) -> bool:
+        """Check, then move (velocity limits, linear interpolation, all joints arriving together). True on
+        arrival, False if stopped; without `wait` True once the move has started."""
+        ...
+
+    def stop(self) -> None:
+        """Halt motion at once (from any thread)."""
+        ...
+
+    def settled(self, for_s: float = 0.3) -> bool:
+        """Not moving for at least for_s."""
+        ...
+
+    def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None: ...
+
+    def believed_params(self) -> np.ndarray:
+        """The parameters the robot works with: the active calibration's, or the nominal model."""
+        ...
+
+    def set_target(self, target: int) -> None:
+        """Which fixture or board is in view (NAO: the left or the right foot's board)."""
+        ...
+
+    def close(self) -> None:
+        """Stop, then let go of the robot (threads, connections); called when the desk stops or the robot is
+        removed. The driver then reports itself disconnected."""
+        ...
+
+
+@runtime_checkable
+class Wandering(Protocol):
+    """A driver that can move the robot around by itself (the simulated one): someone else driving it."""
+
+    def wander(self, on: bool) -> None: ...

@@ -1,0 +1,150 @@
+"""GET /api/health; the robots on the desk: list, add (a profile uploaded or named), remove."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, HTTPException, UploadFile
+from pydantic import BaseModel
+
+from calib_core import InputError
+
+from ..drivers.registry import KINDS, DriverSpec
+from ..profiles import file_name, is_builtin
+from ..robots import Robot
+from ..store import ProfileFiles
+from .deps import DeskDep, RobotsDep, read_upload
+
+VERSION = "0.4.0"
+router = APIRouter()
+
+
+class Health(BaseModel):
+    status: str
+    version: str
+    viser_port: int
+
+
+@router.get("/health")
+def health(desk: DeskDep) -> Health:
+    return Health(status="ok", version=VERSION, viser_port=desk.viser_port_number)
+
+
+class JointOut(BaseModel):
+    name: str
+    lower_deg: float
+    upper_deg: float
+    velocity_deg_s: float
+
+
+class ModeOut(BaseModel):
+    name: str
+    description: str
+
+
+class SensorOut(BaseModel):
+    kind: str  # "pinhole" | "point3d"
+    unit: str  # of its measurements
+    image: list[int] | None  # width, height in px (None: no image, a laser tracker)
+
+
+class RobotOut(BaseModel):
+    """A robot on the desk: an instance of a profile (`model`), with a driver or none (real data only)."""
+
+    name: str
+    title: str
+    model: str  # the profile's own name (nao for nao-1 ... nao-5)
+    driver: str | None  # the driver's kind, None: real data only
+    drivable: bool  # has a driver that can move it (connect, move, observe, capture, replay)
+    simulated: bool  # its driver is the simulated robot
+    origin: str  # "builtin" (the desk's defaults), "config" (its configuration file), "api" (added here)
+    joints: list[JointOut]
+    modes: list[ModeOut]
+    targets: list[str]
+    sensor: SensorOut
+
+
+def robot_out(robot: Robot) -> RobotOut:
+    p = robot.profile
+    sensor = p.sensors[p.data.sensor]
+    return RobotOut(
+        name=robot.name,
+        title=p.title,
+        model=robot.model,
+        driver=robot.driver_kind,
+        drivable=robot.drivable,
+        simulated=robot.simulated,
+        origin=robot.origin,
+        joints=[
+            JointOut(
+                name=j.name,
+                lower_deg=math.degrees(j.lower),
+                upper_deg=math.degrees(j.upper),
+                velocity_deg_s=math.degrees(j.velocity),
+            )
+            for j in p.joints
+        ],
+        modes=[ModeOut(name=m.name, description=m.description) for m in p.modes.values()],
+        targets=[t.name for t in p.targets],
+        sensor=SensorOut(
+            kind=sensor.model,
+            unit="px" if sensor.model == "pinhole" else p.length_unit,
+            image=list(sensor.image) if sensor.image else None,
+        ),
+    )
+
+
+@router.get("/robots")
+def robots(robots: RobotsDep) -> list[RobotOut]:
+    """Every robot on the desk: the drivable ones can be connected, moved, observed and replayed; the others
+    (real data only) have sessions imported from CSV, calibrations and reviews."""
+    return [robot_out(r) for r in robots.all()]
+
+
+@router.post("/robots", status_code=201)
+async def add_robot(
+    desk: DeskDep,
+    name: Annotated[str, Form(min_length=1, max_length=64)],
+    profile: Annotated[str | None, Form(max_length=4096)] = None,
+    profile_file: Annotated[UploadFile | None, File()] = None,
+    urdf_file: Annotated[UploadFile | None, File()] = None,
+    driver: Annotated[str | None, Form(max_length=64)] = None,
+) -> RobotOut:
+    """Add a robot to the running desk, kept after a restart: `name`, and its profile either uploaded
+    (`profile_file`, with `urdf_file` when the profile says `urdf: ...`) or named in `profile` (a built-in
+    profile, or on a desk bound to loopback a profile file on this machine). `driver`: a driver kind
+    (`simulated`), none for real data only. A broken profile answers 422 naming its file and field."""
+    files = None
+    if profile_file is not None:
+        if profile:
+            raise InputError("give the profile either as a file (profile_file) or by name (profile), not both")
+        urdf = None
+        if urdf_file is not None:
+            urdf = (file_name(urdf_file.filename, "robot.urdf"), await read_upload(urdf_file))
+        files = ProfileFiles(file_name(profile_file.filename, "profile.yaml"), await read_upload(profile_file), urdf)
+    elif urdf_file is not None:
+        raise InputError("a URDF goes with its profile: upload the profile (profile_file) too")
+    elif profile and not is_builtin(profile) and not desk.loopback:
+        raise HTTPException(
+            403, "a profile file on the server can be named only on a desk bound to loopback: upload it"
+        )
+    spec = None
+    if driver:
+        if driver not in KINDS:
+            raise InputError(f"driver: unknown driver kind '{driver}' (known: {', '.join(KINDS)})")
+        spec = DriverSpec(driver)
+    robot = await asyncio.to_thread(desk.add_robot, name, profile=profile or None, files=files, driver=spec)
+    return robot_out(robot)
+
+
+class Deleted(BaseModel):
+    deleted: str
+
+
+@router.delete("/robots/{name}")
+def remove_robot(desk: DeskDep, name: str) -> Deleted:
+    """Take a robot added here off the desk (one with sessions or calibrations stays: they name it)."""
+    desk.remove_robot(name)
+    return Deleted(deleted=name)

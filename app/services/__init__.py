@@ -1,0 +1,1 @@
+"""What the desk does with its robots beyond storing: apply a calibration (the gate), replay, observe, review."""

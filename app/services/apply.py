@@ -1,0 +1,68 @@
+"""Apply: make a calibration its robot's active one, through the gate of app/safety.py.
+
+A calibration belongs to the robot whose session it was made from (an instance: `nao-2`, not every NAO),
+and is applied to that robot only: recorded in its apply history first, then pushed to its driver. One
+that is worse than the active calibration or moves a parameter beyond its sane bound needs the operator's
+confirmation (ConfirmationRequired, 409) unless `confirm`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from calib_core.estimation.registration import register
+
+from .. import safety
+from ..robots import Robots
+from ..store import Store
+
+
+class ApplyService:
+    def __init__(self, store: Store, robots: Robots) -> None:
+        self.store = store
+        self.robots = robots
+
+    def apply(self, cal_id: str, note: str = "", *, confirm: bool = False) -> dict[str, Any]:
+        info = self.store.calibrations.info(cal_id)
+        self.robots.get(info.robot)
+        if not confirm:
+            reasons = self.concerns(cal_id)
+            if reasons:
+                raise safety.ConfirmationRequired(
+                    f"applying {cal_id} to {info.robot} needs confirmation: {reasons[0]}"
+                    + (f" (and {len(reasons) - 1} more)" if len(reasons) > 1 else ""),
+                    reasons,
+                )
+        active, previous = self.store.calibrations.apply(info.robot, cal_id, note)
+        self.robots.push_active(info.robot)
+        return {"active": active, "previous": previous, "robot": info.robot}
+
+    def concerns(self, cal_id: str) -> list[str]:
+        """Why applying this calibration needs a confirmation (empty: it does not)."""
+        info = self.store.calibrations.info(cal_id)
+        profile = self.robots.get(info.robot).profile
+        active_id, active_p = self.robots.active_params(info.robot)
+        if active_id == cal_id:
+            return []
+        active = "the nominal model" if active_id is None else f"the active calibration {active_id}"
+        cal = self.store.calibrations.load(cal_id)
+        new_p = cal.params(profile)
+        reasons = []
+        if info.session_id is not None and self.store.sessions.exists(info.session_id):
+            data = self.store.sessions.dataset(info.session_id, profile)
+            heldout = np.isin(data.frame_ids, cal.frames.get("holdout", []))
+            where = f"the held-out frames of session {info.session_id}"
+            train = ~heldout
+            if not heldout.any():
+                heldout[:] = True
+                where = f"the frames of session {info.session_id}"
+            # An external tracker (if any) stood where this session's data say: the active parameters see it
+            # through a registration fitted on the frames the candidate was fitted on.
+            active_here = register(profile, data.select(train if train.any() else heldout), active_p)
+            worse = safety.worse_than_active(profile, data.select(heldout), new_p, active_here, active, where)
+            if worse is not None:
+                reasons.append(worse)
+        reasons += safety.parameter_jumps(profile, new_p, active_p, active, from_nominal=active_id is None)
+        return safety.concerns(reasons)

@@ -1,0 +1,109 @@
+"""Observe (the paper's GenVisCalData): watch the robot while someone else drives it.
+
+At a few Hz, look through the cameras when the robot stands still and show the detection beside the
+prediction of the active calibration; with autocapture, keep the good settled frames (app/capture.py's
+AutoCapture). One robot is observed at a time: the scene shows one robot.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from calib_core.estimation.registration import register, registration_params
+
+from ..capture import AutoCapture
+from ..drivers import Look, RobotDriver
+from ..robots import Robots
+from ..scene import ReviewScene
+from ..store import Store
+
+OBSERVE_PERIOD_S = 0.5
+MIN_REGISTRATION_FRAMES = 3  # measured frames an external tracker's pose is fitted on (3 points not on one line)
+
+
+class Observer:
+    """The live loop of one observed session."""
+
+    def __init__(
+        self,
+        store: Store,
+        robots: Robots,
+        scene: ReviewScene,
+        session_id: str,
+        autocapture: bool,
+        scrub: Callable[[str], str],
+    ) -> None:
+        self.store = store
+        self.robots = robots
+        self.scene = scene
+        self.session_id = session_id
+        self.robot = store.sessions.get(session_id).robot
+        self.driver: RobotDriver = robots.driver(self.robot)
+        self.auto = AutoCapture(store, self.driver, session_id) if autocapture else None
+        self._scrub = scrub
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="observe", daemon=True)
+        self._last: dict[str, Any] = {"session": session_id, "autocapture": autocapture, "captured": 0}
+        self._registration: tuple[tuple, np.ndarray | None] | None = None  # (frames and calibration, fitted p)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.scene.hide_live()
+
+    def snapshot(self) -> dict[str, Any]:
+        return dict(self._last)
+
+    def _run(self) -> None:
+        while not self._stop.wait(OBSERVE_PERIOD_S):
+            try:
+                self._tick()
+            except Exception as exc:  # a failed look must not end observing; it is shown instead
+                self._last["message"] = self._scrub(f"{type(exc).__name__}: {exc}")
+
+    def _tick(self) -> None:
+        look = None
+        if self.auto is not None:
+            before = self.auto.last_look
+            frame = self.auto.poll()
+            if frame is not None:
+                self._last["captured"] += 1
+                self._last["last_frame"] = frame.index
+            if self.auto.last_look is not before:
+                look = self.auto.last_look  # one render per tick: reuse the look autocapture made
+        if look is None:
+            if not self.driver.settled(0.2):
+                self._last["detection"] = "moving"
+                return
+            look = self.driver.look()
+        self._last["detection"] = look.sighting.status
+        self._last["reason"] = look.sighting.reason
+        p, registered = self._live_params()
+        if not registered:  # where the tracker stands is unknown: its reading has no place in the scene yet
+            look = Look(look.readings_rad, look.target, replace(look.sighting, measured=None), look.images)
+            self._last["reason"] = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
+        self.scene.show_live(self.driver.profile, look, p)
+
+    def _live_params(self) -> tuple[np.ndarray, bool]:
+        """The active calibration, seeing an external tracker (if any) through a registration fitted on this
+        session's measured frames; False when the session has too few of them to place the tracker."""
+        profile = self.driver.profile
+        cal_id, p = self.robots.active_params(self.robot)
+        if not registration_params(profile):
+            return p, True
+        frames = self.store.sessions.frames(self.session_id)
+        key = (cal_id, tuple(f.index for f in frames if f.status == "measured"))
+        if self._registration is None or self._registration[0] != key:
+            data = self.store.sessions.dataset(self.session_id, profile)
+            fitted = register(profile, data, p) if data.n_configurations >= MIN_REGISTRATION_FRAMES else None
+            self._registration = (key, fitted)
+        fitted = self._registration[1]
+        return (p, False) if fitted is None else (fitted, True)

@@ -1,0 +1,135 @@
+"""Replay (SumVisCal / RoboVisCal): drive a robot through configurations and capture a frame at each.
+
+The configurations are another session's, a session's own (re-measure), or N new ones planned with the
+robot's active calibration. A plan from frames is made when the request comes, so its mistakes answer at
+once; N new configurations are planned in the job (NAO: tens of ms each), so the request returns at once
+and the job shows "planning" meanwhile. The dry run (app/capture.py) checks every configuration before
+anything moves; `resume` goes on with a replay a fault or an abort stopped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calib_core import InputError, SimulatedRobot
+
+from ..capture import dry_run, replay
+from ..drivers import LimitError, RobotDriver
+from ..jobs import JobContext, JobManager
+from ..robots import Robots
+from ..store import Store
+
+# A resumed replay leaves out a configuration the session holds a frame at within this on every joint: a
+# frame's joints are the encoder readings at the commanded configuration (0.1 deg resolution, servo error).
+RESUME_TOLERANCE_DEG = 0.5
+MAX_PLANNED = 2000  # new configurations one replay may plan
+
+
+@dataclass(frozen=True)
+class ReplayPlan:
+    """What to drive through: another session's frames, the session's own (remeasure), or `count` new
+    configurations (planned with `seed`); `resume` leaves out those the session holds a frame at."""
+
+    from_session: str | None = None
+    count: int | None = None
+    remeasure: bool = False
+    seed: int = 0
+    resume: bool = False
+
+    @property
+    def from_frames(self) -> bool:
+        return self.remeasure or bool(self.from_session)
+
+
+class ReplayService:
+    def __init__(self, store: Store, robots: Robots, jobs: JobManager) -> None:
+        self.store = store
+        self.robots = robots
+        self.jobs = jobs
+
+    def configurations(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
+        """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
+        count = self._check(session_id, plan)
+        q, targets, indices = self._plan(session_id, plan, count)
+        if not plan.resume:
+            return q, targets, indices
+        have = np.array([f.joints_rad for f in self.store.sessions.frames(session_id)]).reshape(-1, q.shape[1])
+        near = np.abs(q[:, None, :] - have[None, :, :]) <= np.radians(RESUME_TOLERANCE_DEG)
+        todo = ~np.all(near, axis=2).any(axis=1)
+        if not todo.any():
+            raise InputError(
+                f"nothing to resume: session '{session_id}' has a frame at each of the {len(q)} configurations"
+            )
+        return q[todo], targets[todo], None
+
+    def dry_run(self, session_id: str, plan: ReplayPlan) -> dict[str, Any]:
+        robot = self.store.sessions.get(session_id).robot
+        q, targets, _ = self.configurations(session_id, plan)
+        _, believed = self.robots.active_params(robot)
+        rows = dry_run(self.robots.driver(robot), q, targets, believed)
+        return {"ok": all(r["ok"] for r in rows), "configurations": rows}
+
+    def start(self, session_id: str, plan: ReplayPlan) -> str:
+        """Queue the replay job; its id."""
+        driver = self.robots.driver(self.store.sessions.get(session_id).robot)
+        ready = self.configurations(session_id, plan) if plan.from_frames else None
+        if ready is None:
+            self._check(session_id, plan)
+
+        def run(ctx: JobContext) -> str | None:
+            if ready is None:
+                ctx.progress(0.0, phase="planning")
+                q, targets, indices = self.configurations(session_id, plan)
+                ctx.checkpoint()
+                ctx.progress(0.0, phase="driving")
+            else:
+                q, targets, indices = ready
+            return replay(ctx, self.store, driver, session_id, q, targets, indices)
+
+        return self.jobs.submit_thread("replay", run, session_id=session_id)
+
+    def _check(self, session_id: str, plan: ReplayPlan) -> int:
+        """What can be wrong with a request before any planning: the session, its robot, the options. Returns
+        the count of new configurations to plan (0 for a plan from frames)."""
+        robot = self.store.sessions.get(session_id).robot
+        self.robots.driver(robot)  # a robot with real data only has nothing to replay on
+        if plan.resume and plan.remeasure:
+            raise InputError("resume goes on with a replay that adds frames; start a re-measure again instead")
+        if plan.from_frames:
+            return 0
+        if plan.count is None or not 1 <= plan.count <= MAX_PLANNED:
+            raise InputError(f"give from_session, remeasure, or a count of configurations between 1 and {MAX_PLANNED}")
+        return plan.count
+
+    def _plan(self, session_id: str, plan: ReplayPlan, count: int) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
+        session = self.store.sessions.get(session_id)
+        robot = self.robots.get(session.robot)
+        if plan.from_frames:
+            source = self.store.sessions.get(session_id if plan.remeasure else str(plan.from_session))
+            if source.robot != session.robot:
+                raise InputError(f"session '{source.id}' is of robot {source.robot}, not {session.robot}")
+            frames = self.store.sessions.frames(source.id)
+            if not frames:
+                raise InputError(f"session '{source.id}' has no frames to replay")
+            q = np.array([f.joints_rad for f in frames])
+            targets = np.array([f.target for f in frames])
+            return q, targets, [f.index for f in frames] if plan.remeasure else None
+        # Configurations the robot believes it sees the fixture in: planned with its active model. Twice
+        # as many as asked, since those inside a joint's safety margin are left out.
+        _, believed = self.robots.active_params(session.robot)
+        planner = SimulatedRobot.from_profile(robot.profile, seed=plan.seed, truth=believed)
+        q, targets = planner.configurations(2 * count + 10)
+        driver = self.robots.driver(session.robot)
+        keep = [k for k in range(len(q)) if _within_limits(driver, q[k])][:count]
+        return q[keep], targets[keep], None
+
+
+def _within_limits(driver: RobotDriver, q_rad: np.ndarray) -> bool:
+    try:
+        driver.check(q_rad)
+    except LimitError:
+        return False
+    return True

@@ -1,0 +1,105 @@
+"""Review: a session's frames as an old and a new calibration see them, in the scene and as figures.
+
+The review loaded last is the one the frame slider and the 2-D marks address; loading a session of
+another robot replaces what the scene showed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from calib_core import Dataset, InputError, Profile
+from calib_core.estimation.registration import register, registration_params
+
+from ..review import Review
+from ..robots import Robots
+from ..scene import ReviewScene
+from ..store import Store
+
+
+class ReviewService:
+    def __init__(self, store: Store, robots: Robots, scene: ReviewScene) -> None:
+        self.store = store
+        self.robots = robots
+        self.scene = scene
+        self.lock = threading.Lock()  # the scene's review, and the robot it shows
+        self._review: Review | None = None
+        self._key: dict[str, Any] = {}
+
+    def build(self, session_id: str, old: str | None, new: str | None) -> tuple[Review, dict[str, Any]]:
+        """A session's review with an old and a new calibration ("active": the robot's active one; None: the
+        nominal model), and its key (session, old, new); `show` puts it in the scene."""
+        session = self.store.sessions.get(session_id)
+        profile = self.robots.get(session.robot).profile
+        old_id, old_p = self._params(session.robot, profile, old)
+        new_id, new_p = (None, None) if new is None else self._params(session.robot, profile, new)
+        heldout: set[int] = set()
+        if new_id is not None:
+            heldout = set(self.store.calibrations.load(new_id).frames.get("holdout", []))
+        frames = self.store.sessions.frames(session_id)
+        data = self.store.sessions.dataset(session_id, profile) if session.measured else None
+        if data is not None and registration_params(profile):
+            old_p = self._registered(profile, data, old_p, old_id, session_id, heldout)
+            new_p = None if new_p is None else self._registered(profile, data, new_p, new_id, session_id, heldout)
+        review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout)
+        return review, {"session": session_id, "old": old_id, "new": new_id, "robot": session.robot}
+
+    def show(self, review: Review, key: dict[str, Any]) -> dict[str, Any]:
+        """Show a review in the scene (another robot's replaces everything the scene showed): its table and
+        summary."""
+        with self.lock:
+            self.scene.load(review)
+            self._review = review
+            self._key = key
+        return {**key, "table": review.table(), "summary": review.summary()}
+
+    def close(self) -> None:
+        """Forget the review (the scene shows another robot)."""
+        self._review = None
+        self._key = {}
+
+    def select(self, index: int, *, show_all: bool = False, overlay: bool = False) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        with self.lock:
+            self._current()
+            self.scene.set_overlay(overlay)
+            self.scene.show_all(show_all)
+            self.scene.select(index)
+        return {"index": index, "all": show_all, "overlay": overlay, "server_ms": (time.perf_counter() - t0) * 1e3}
+
+    def marks(self, index: int) -> dict[str, Any]:
+        review = self._current()
+        marks = review.marks(index)
+        frame = self.store.sessions.frame(self._key["session"], index)
+        path = frame.images.get(marks["role"]) if marks.get("role") else None
+        return {**marks, "image": None if path is None else f"/api/files/{path}"}
+
+    def _current(self) -> Review:
+        if self._review is None:
+            raise InputError("no session is loaded for review (POST /api/review first)")
+        return self._review
+
+    def _params(self, robot: str, profile: Profile, ref: str | None) -> tuple[str | None, np.ndarray]:
+        if ref == "active":
+            return self.robots.active_params(robot)
+        if ref is None:
+            return None, profile.nominal()
+        info = self.store.calibrations.info(ref)
+        if info.robot != robot:
+            raise InputError(f"calibration '{ref}' is for robot {info.robot}, not {robot}")
+        return ref, self.store.calibrations.load(ref).params(profile)
+
+    def _registered(
+        self, profile: Profile, data: Dataset, p: np.ndarray, cal_id: str | None, session_id: str, heldout: set[int]
+    ) -> np.ndarray:
+        """An external tracker's pose belongs to its set-up, that is to a session: parameters from elsewhere
+        (the nominal model, another session's calibration) see this session's tracker through a registration
+        fitted on its frames (those the new calibration was fitted on, when it held some out)."""
+        if cal_id is not None and self.store.calibrations.info(cal_id).session_id == session_id:
+            return p
+        train = ~np.isin(data.frame_ids, sorted(heldout))
+        return register(profile, data.select(train) if train.any() else data, p)
