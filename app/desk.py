@@ -64,7 +64,7 @@ class Desk:
         self.robots = Robots(self.store, DriverContext(time_scale=self.time_scale, base_dir=self.config.base_dir))
         self.robots.start(self.config)
         if self.sample_dir is not None and self.sample_dir.is_dir():
-            ensure_samples(self.store, self.sample_dir)
+            ensure_samples(self.store, self.sample_dir, self.robots.names())
         self.jobs = JobManager(self.store, workers=self.workers, scrub=self.scrub)
         drivable = [r.name for r in self.robots.all() if r.drivable]
         self.connected = self.config.connected or (drivable[0] if drivable else None)

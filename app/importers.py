@@ -11,6 +11,7 @@ import logging
 import math
 import shutil
 import tempfile
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +28,20 @@ from .validation import check_role
 log = logging.getLogger(__name__)
 
 
-def import_session_folder(store: Store, folder: Path, session_id: str | None = None, *, source: str = "import") -> str:
+def import_session_folder(
+    store: Store,
+    folder: Path,
+    session_id: str | None = None,
+    *,
+    source: str = "import",
+    robots: Collection[str] | None = None,
+) -> str:
     """A calib-session/1 folder (frames, observations, images copied) as one new session; its robot is
-    the one the folder names (a built-in profile, and the desk's robot of that name)."""
+    the one the folder names (a built-in profile), which must be one of `robots` (None: any)."""
     folder = Path(folder)
     s = read_session(folder)
+    if robots is not None and s.robot not in robots:
+        raise InputError(f"robot '{s.robot}' is not on the desk", file=str(folder / "session.json"))
     profile = store.sessions.profile(s.robot)
     sid = store.sessions.new_id(session_id)
     data = s.data
@@ -110,11 +120,13 @@ def import_csv(store: Store, robot: str, name: str, text: str, filename: str) ->
     return sid
 
 
-def ensure_samples(store: Store, folder: Path) -> list[str]:
-    """On a fresh store, import every session folder under `folder` (id = folder name).
+def ensure_samples(store: Store, folder: Path, robots: Collection[str] | None = None) -> list[str]:
+    """On a fresh store, import every session folder under `folder` (id = folder name) of one of `robots`
+    (None: any).
 
     Runs once per store: a sample the operator deleted does not come back. A sample that cannot
-    be read is logged and skipped, so a bad sample never stops the server. Returns the new ids.
+    be read, or of a robot not on the desk, is logged and skipped, so a bad sample never stops the
+    server. Returns the new ids.
     """
     if store.db.meta("samples") is not None or not Path(folder).is_dir():
         return []
@@ -123,7 +135,7 @@ def ensure_samples(store: Store, folder: Path) -> list[str]:
         if not (sub / "session.json").is_file() or store.sessions.exists(sub.name):
             continue
         try:
-            imported.append(import_session_folder(store, sub, sub.name, source="sample"))
+            imported.append(import_session_folder(store, sub, sub.name, source="sample", robots=robots))
         except (InputError, OSError) as exc:
             log.warning("sample session %s not imported: %s", sub.name, exc)
     store.db.set_meta("samples", now())

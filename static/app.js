@@ -14,6 +14,7 @@ const state = {
   newCal: null,        // the calibration under review (id)
   job: null,           // {id, source} of the job whose progress is shown
   sort: { key: "err_new", dir: -1 },
+  events: false,       // the robot's state is streamed (robotEvents)
 };
 
 // --- HTTP ------------------------------------------------------------------------------------
@@ -108,7 +109,7 @@ async function init() {
   sel.addEventListener("change", () => act(() => connect(sel.value)));
   wire();
   await loadSessions();
-  robotEvents();
+  if (Object.values(state.robots).some((r) => r.drivable)) robotEvents();
   buildJoints();
   showDrivable();
   await refreshActive();
@@ -270,6 +271,7 @@ async function addRobot(e) {
   e.target.reset();
   $("#robot-select").value = robot.name;
   await connect(robot.name);
+  if (robot.drivable && !state.events) robotEvents();
   toast(`Robot ${robot.name} (${robot.model}) is on the desk.`, "info");
 }
 
@@ -637,7 +639,9 @@ function buildJoints() {
   }
 }
 
+// The connected robot's state, streamed while the desk has a robot to drive.
 function robotEvents() {
+  state.events = true;
   const es = new EventSource("/api/robot/events");
   es.onmessage = (ev) => {
     const r = JSON.parse(ev.data);

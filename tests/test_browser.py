@@ -125,6 +125,19 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         frames = server.get(f"/api/sessions/{sid}").json()["frames"]
         assert [f["index"] for f in frames] == [1, 2, 3, 4]
         assert sum(f["status"] == "measured" for f in frames[1:]) >= 1
+
+        # Another NAO added to the running desk from the page: listed, connected and drivable at once.
+        page.click("#add-robot-toggle")
+        page.fill("#add-robot input[name=name]", "nao-2")
+        page.fill("#add-robot input[name=profile]", "nao")
+        page.select_option("#add-robot select[name=driver]", "simulated")
+        page.click("#add-robot button[type=submit]")
+        page.wait_for_function("document.querySelector('#robot-select').value === 'nao-2'")
+        page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao-2: ')")
+        assert page.is_enabled("#capture") and page.is_enabled("#new-session button")
+        added = {r["name"]: r for r in server.get("/api/robots").json()}["nao-2"]
+        assert (added["model"], added["drivable"], added["simulated"]) == ("nao", True, True)
+        assert server.get("/api/robot").json()["robot"] == "nao-2"
         browser.close()
 
 

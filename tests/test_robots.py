@@ -163,9 +163,10 @@ def _import_nao(client: TestClient, robot: str) -> str:
 
 def test_two_robots_of_one_profile_keep_their_own_calibrations(naos: tuple[Path, DeskConfig]) -> None:
     data_dir, config = naos
-    with TestClient(create_app(data_dir, config=config, sample_dir=None, time_scale=50.0)) as client:
+    with TestClient(create_app(data_dir, config=config, sample_dir=SAMPLES, time_scale=50.0)) as client:
         robots = {r["name"]: r for r in client.get("/api/robots").json()}
         assert set(robots) == {"nao-1", "nao-2"}
+        assert client.get("/api/sessions").json() == []  # the samples are of robots not on this desk
         assert all(r["model"] == "nao" and r["drivable"] and r["simulated"] for r in robots.values())
         assert client.get("/api/robot").json()["robot"] == "nao-2"  # the configuration's connected robot
         sessions = {robot: _import_nao(client, robot) for robot in ("nao-1", "nao-2")}
