@@ -190,7 +190,7 @@ class Robots:
     def _instance(self, name: str, model: Profile, ref: str | None, spec: DriverSpec | None, origin: str) -> Robot:
         """The robot `name` of profile `model` (`ref`: its built-in name, if it is one) with its driver."""
         profile = as_instance(model, name)
-        driver = None if spec is None else drivers.create(drivers.check(spec, profile), profile, self.context)
+        driver = None if spec is None else drivers.create(spec, profile, self.context)
         return Robot(
             name=name,
             model=model.name,

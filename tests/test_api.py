@@ -338,7 +338,7 @@ def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_b
     client: TestClient, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The Motoman's real tracker data on a desk that has no robot to drive for it: what a desk makes of a
-    profile without a simulation section (Desk.start makes no driver for it)."""
+    robot without a driver (a profile without a simulation section, or a desk configured so)."""
     motoman = client.app.state.desk.robots.get("motoman")
     monkeypatch.setattr(motoman, "driver", None)
     monkeypatch.setattr(motoman, "driver_kind", None)

@@ -277,6 +277,7 @@ BROKEN = [
         ["driver: broken cannot be simulated"],
     ),
     ({"profile_file": ("p.yaml", b"name: [unclosed")}, ["p.yaml", "not valid YAML"]),
+    ({"profile_file": ("arm.yaml", PROFILE.encode()), "urdf_file": ("arm.yaml", b"")}, ["both named arm.yaml"]),
     ({"profile": "nao", "driver": "ros3"}, ["driver: unknown driver kind 'ros3' (known: simulated)"]),
     ({"profile": "r2d2"}, ["r2d2", "does not exist"]),
     ({}, ["give the robot's profile"]),

@@ -59,6 +59,7 @@ def check(spec: DriverSpec, profile: Profile, where: str = "driver") -> DriverSp
 
 
 def create(spec: DriverSpec, profile: Profile, context: DriverContext) -> RobotDriver:
+    """The robot's driver, its options checked first (InputError naming `driver.<option>`)."""
     module = kind(spec.kind)
     options: Mapping[str, Any] = module.check(profile, spec.options, "driver")
     return module.create(profile, options, context)

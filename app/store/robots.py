@@ -137,6 +137,8 @@ class RobotRepository:
     def _stage(self, name: str, files: ProfileFiles) -> Path:
         """The files in a staging folder beside the robots' folders; the profile's `urdf:` names the URDF
         beside it, and a URDF given with a profile that names none is refused."""
+        if files.urdf is not None and files.urdf[0] == files.profile_name:
+            raise InputError(f"the profile and its URDF are both named {files.profile_name}: rename one")
         root = self.data_dir / "robots"
         root.mkdir(exist_ok=True)
         staged = root / f".{name}.{secrets.token_hex(3)}"
