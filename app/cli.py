@@ -261,22 +261,17 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _self_observe(args: argparse.Namespace) -> int:
-    from calib_core.estimation.self_observation import calibrate_sensors, to_calibration
-    from calib_core.io.ctu_motoman import camera_datasets, camera_profile
+    from calib_core.io.ctu_motoman import camera_dataset
 
     if not 0.0 <= args.holdout <= 0.9:
         raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
     profile = load_profile(args.robot)
-    mode = profile.mode(args.mode)
-    cams = camera_datasets(profile, args.data, set(args.source) or None)
-    parts = {name: (camera_profile(profile, name), data) for name, data in cams.items() if data.n_observations}
+    profile.mode(args.mode)
+    data = camera_dataset(profile, args.data, set(args.source) or None)
     _check_writable(args.out)
-    fit = calibrate_sensors(parts, mode, profile.nominal(), holdout=args.holdout, seed=args.seed)
-    cal = to_calibration(profile, fit, args.mode, profile.nominal(), str(Path(args.data) / "camera_observations.csv"))
+    cal = calibrate(profile, data, args.mode, holdout=args.holdout, seed=args.seed)
     _save(args.out, lambda: cal.save(args.out))
     print(cal.summary())
-    for name in parts:
-        print(f"  {name}: after {fit.after[name]}")
     print(f"  written: {args.out}")
     return 0
 
@@ -452,7 +447,7 @@ def _print_json(obj: dict, one_line: bool) -> None:
 
 def _gross_error(profile: Profile) -> float:
     """A failed detection's size: 20 cm for a 3-D point, 40 px for a pixel."""
-    if profile.sensors[profile.data.sensor].model == "pinhole":
+    if profile.sensors[profile.data.sensor].unit == "px":
         return 40.0
     return 0.2 * length_factor("m", profile.length_unit)
 

@@ -412,8 +412,7 @@ def simulated(profile: Profile) -> bool:
     sensor is one the simulator renders (a stereo head or a camera; calib_core.simulator's capture) or reads
     directly (a point sensor without images, like the Motoman's laser tracker; drivers.reads_points)."""
     sensor = profile.sensors[profile.data.sensor]
-    renders = sensor.model == "pinhole" or (sensor.model == "point3d" and sensor.baseline is not None)
-    return bool(profile.simulation) and (renders or reads_points(sensor))
+    return bool(profile.simulation) and (sensor.reading in ("stereo", "image") or reads_points(sensor))
 
 
 def server_paths(data_dir: Path) -> list[Path]:

@@ -63,7 +63,7 @@ class RobotFault(RuntimeError):
 def reads_points(sensor: Sensor) -> bool:
     """A sensor that reports 3-D points with no image to detect them in (a laser tracker): the simulated robot
     reads it directly, with its noise, instead of rendering and detecting."""
-    return sensor.model == "point3d" and sensor.baseline is None and sensor.intrinsics is None
+    return sensor.reading == "direct" and sensor.dim == 3
 
 
 def readable_targets(profile: Profile) -> list[int]:

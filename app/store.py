@@ -38,7 +38,6 @@ import cv2
 import numpy as np
 
 from calib_core import Calibration, Dataset, InputError, Profile, load_profile, parse_dataset, to_csv
-from calib_core.io.csv_format import joints_needed
 from calib_core.io.session import read_session
 from calib_core.model.loader import BUILTIN_PROFILES
 
@@ -341,7 +340,7 @@ class Store:
                 "WHERE o.session_id = ? AND f.status = 'measured' ORDER BY o.idx, o.seq",
                 (session_id,),
             ).fetchall()
-        dim = 3 if profile.sensors[profile.data.sensor].model == "point3d" else 2
+        dim = profile.sensors[profile.data.sensor].dim
         frame_ids = np.array([r["idx"] for r in frames], dtype=int)
         position = {int(f): k for k, f in enumerate(frame_ids)}
         cfg = np.array([position[r["idx"]] for r in obs], dtype=int)
@@ -351,8 +350,8 @@ class Store:
         )
         joints = np.array([json.loads(r["joints_rad"]) for r in frames], dtype=float).reshape(-1, len(profile.joints))
         needed = np.zeros((len(profile.targets), len(profile.joints)), bool)
-        for t, joints_of_t in joints_needed(profile).items():
-            needed[t, sorted(joints_of_t)] = True
+        for t in range(len(profile.targets)):
+            needed[t, sorted(profile.joints_between(t, profile.data.sensor))] = True
         keep = np.zeros(joints.shape, bool)
         np.logical_or.at(keep, cfg, needed[target])
         data = Dataset(
@@ -364,6 +363,7 @@ class Store:
             point=values[:, :3],
             vertex=np.array([r["vertex"] for r in obs], dtype=int),
             measured=values[:, 3 : 3 + dim],
+            sensor=np.full(len(obs), profile.data.sensor),
             source=f"session {session_id}",
         )
         table = list(csv.reader(io.StringIO(to_csv(profile, data))))
@@ -855,7 +855,7 @@ def _target(profile: Profile, target: int) -> int:
 def _observations(
     profile: Profile, target: int, measured: np.ndarray, points: np.ndarray | None, vertices: np.ndarray | None
 ) -> _Observations:
-    dim = 3 if profile.sensors[profile.data.sensor].model == "point3d" else 2
+    dim = profile.sensors[profile.data.sensor].dim
     m = np.asarray(measured, dtype=float)
     if m.ndim != 2 or m.shape[1] != dim:
         raise InputError(f"{profile.name} measurements are rows of {dim} numbers, not shape {m.shape}")

@@ -49,7 +49,7 @@ def mean_dist(profile: Profile, data: Dataset, p: np.ndarray) -> float:
 
 def solve_ms(profile: Profile, data: Dataset, mode: str, base: Calibration | None, repeats: int = 7) -> float:
     """Median solver time over repeats (the first run warms caches up and is dropped)."""
-    times = [calibrate(profile, data, mode, base).solver["solve_seconds"] for _ in range(repeats + 1)]
+    times = [calibrate(profile, data, mode, base).solver.solve_seconds for _ in range(repeats + 1)]
     return 1e3 * statistics.median(times[1:])
 
 
@@ -57,9 +57,9 @@ def parameter_errors(profile: Profile, cal: Calibration, truth: np.ndarray) -> s
     """Largest |estimate - truth| over estimated parameters that no held-fixed one is entangled with,
     in deg and in the length unit, and the largest error in reported standard deviations."""
     entangled = set()
-    for h in cal.identifiability["held_fixed"]:
-        entangled.add(h["parameter"])
-        entangled |= {p.name for p in cal.parameters if p.label in h["message"]}
+    for h in cal.identifiability.held_fixed:
+        entangled.add(h.parameter)
+        entangled |= {p.name for p in cal.parameters if p.label in h.message}
     worst = {"deg": 0.0, profile.length_unit: 0.0}
     worst_sigma = 0.0
     for p in cal.parameters:

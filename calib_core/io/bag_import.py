@@ -47,8 +47,8 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from ..errors import InputError
-from ..model.profile import Profile, Sensor
-from ..sensors.measurement import in_front, predict
+from ..model.profile import Profile
+from ..sensors import Pinhole, Sensor
 from ..sim.simulator import Capture, SimulatedRobot, dataset_from_captures
 from ..vision.sighting import Sighting, predicted_points, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair
@@ -369,9 +369,9 @@ def decode_image(msg: Any, msgtype: str, topic: str, bag: str) -> np.ndarray | N
 
 def _image_roles(profile: Profile) -> tuple[Sensor, list[str]]:
     sensor = profile.sensors[profile.data.sensor]
-    if sensor.model == "point3d" and sensor.baseline is not None and sensor.intrinsics is not None:
+    if sensor.reading == "stereo":
         return sensor, ["left", "right"]
-    if sensor.model == "pinhole" and sensor.image is not None:
+    if sensor.reading == "image" and isinstance(sensor, Pinhole) and sensor.image is not None:
         return sensor, ["image"]
     raise InputError(
         f"robot '{profile.name}': its sensor '{sensor.name}' is neither a stereo head nor a camera with an "
@@ -383,7 +383,7 @@ def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> lis
     """The boards to look for in configuration q, best first: those the believed kinematics predict fully
     in view (the simulator's test, nearest the image centre first), then those partly in view."""
     sensor = profile.sensors[profile.data.sensor]
-    assert sensor.image is not None
+    assert isinstance(sensor, Pinhole) and sensor.image is not None  # _image_roles checked it
     width, height = sensor.image
     boards = [t for t, target in enumerate(profile.targets) if target.grid is not None]
     if not boards:
@@ -393,10 +393,10 @@ def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> lis
     scored = []
     for t, full in zip(boards, seen, strict=True):
         x = predicted_points(profile, believed, q, t)
-        ahead = in_front(sensor, x)
-        if not ahead.any():
+        uv = sensor.project(believed, x)
+        uv = uv[np.isfinite(uv[:, 0])]
+        if not len(uv):
             continue
-        uv = predict(sensor, believed, x[ahead])[0]
         inside = int(np.sum((uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)))
         off_centre = float(np.hypot(*(uv.mean(axis=0) - [width / 2, height / 2])))
         if inside:

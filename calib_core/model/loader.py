@@ -17,8 +17,9 @@ import numpy as np
 import yaml
 
 from ..errors import InputError
+from ..sensors import SENSOR_MODELS, Sensor
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
-from .profile import DataFormat, Frame, Joint, Mode, Op, Parameter, Profile, Sensor, Target, Tie
+from .profile import DataFormat, Frame, Joint, Mode, Op, Parameter, Profile, Target, Tie
 from .urdf_import import compile_urdf_profile
 
 BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
@@ -136,7 +137,7 @@ class _Compiler:
             raise self.fail("profile", "needs at least one sensor and one target")
         self.target_index = {t.name: i for i, t in enumerate(targets)}
         self.sensor_index = {s.name: i for i, s in enumerate(sensors)}
-        data = self.compile_data(self.get(doc, "data", "profile"), joints)
+        data = self.compile_data(self.get(doc, "data", "profile"), sensors)
         modes = {
             str(k): self.compile_mode(str(k), v, f"modes.{k}") for k, v in self.get(doc, "modes", "profile").items()
         }
@@ -330,100 +331,100 @@ class _Compiler:
         if fname not in self.frame_index:
             raise self.fail(f"{where}.frame", f"unknown frame '{fname}'")
         model = str(self.get(spec, "model", where))
-        if model not in ("point3d", "pinhole"):
-            raise self.fail(f"{where}.model", f"unknown sensor model '{model}' (point3d, pinhole)")
-        convention = str(spec.get("convention", "z-forward"))
-        if convention not in ("x-forward", "z-forward"):
-            raise self.fail(f"{where}.convention", "must be x-forward or z-forward")
-        intr = None
-        if "intrinsics" in spec:
-            intr = self.add_params(sname, "px", spec["intrinsics"], ("fx", "fy", "cx", "cy"), f"{where}.intrinsics")
-        elif model == "pinhole":
-            raise self.fail(where, "a pinhole sensor needs intrinsics")
-        dist = None
-        if "distortion" in spec:
-            # OpenCV's order: k1 k2 p1 p2 k3, and k4 k5 k6 of the rational model when any is given.
-            rational = isinstance(spec["distortion"], dict) and any(k in spec["distortion"] for k in ("k4", "k5", "k6"))
-            keys = ("k1", "k2", "p1", "p2", "k3") + (("k4", "k5", "k6") if rational else ())
-            dist = self.add_params(sname, "scalar", spec["distortion"], keys, f"{where}.distortion", default=0.0)
-        # The optical frame's axes in the sensor frame; x-forward: x_cv = -y, y_cv = -z, z_cv = x.
-        R_opt = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]) if convention == "x-forward" else np.eye(3)
-        if "optical" in spec:
-            o = spec["optical"]
-            z = self.vector(self.get(o, "z", f"{where}.optical"), f"{where}.optical.z")
-            x = self.vector(self.get(o, "x", f"{where}.optical"), f"{where}.optical.x")
-            if abs(z @ x) > 1e-9 or abs(np.linalg.norm(z) - 1) > 1e-9 or abs(np.linalg.norm(x) - 1) > 1e-9:
-                raise self.fail(f"{where}.optical", "x and z must be orthogonal unit vectors")
-            R_opt = np.stack([x, np.cross(z, x), z], axis=1)
-        noise = {str(k): v for k, v in (spec.get("noise") or {}).items()}
-        kind = noise.get("model", "isotropic")
-        if kind not in ("isotropic", "stereo"):
-            raise self.fail(f"{where}.noise.model", f"unknown noise model '{kind}' (isotropic, stereo)")
-        if kind == "stereo" and (model != "point3d" or "intrinsics" not in spec or "baseline" not in spec):
-            raise self.fail(
-                f"{where}.noise",
-                "the stereo noise model needs a point3d sensor with intrinsics and a baseline",
-            )
-        for k, v in noise.items():
-            if k != "model":
-                noise[k] = self.number(v, f"{where}.noise.{k}")
-        image = spec.get("image")
-        rng = spec.get("range")
-        baseline = spec.get("baseline")
-        return Sensor(
-            sname,
-            self.frame_index[fname],
-            model,
-            convention,
-            intr,
-            dist,
-            None if image is None else (int(image[0]), int(image[1])),
-            R_opt,
-            None if rng is None else (self.number(rng[0], f"{where}.range"), self.number(rng[1], f"{where}.range")),
-            None if baseline is None else self.number(baseline, f"{where}.baseline"),
-            noise,
-        )
+        if model not in SENSOR_MODELS:
+            raise self.fail(f"{where}.model", f"unknown sensor model '{model}' ({', '.join(SENSOR_MODELS)})")
+        try:
+            return SENSOR_MODELS[model].from_spec(spec, self, sname, self.frame_index[fname], where)
+        except InputError as exc:  # a noise model's check names the field, not the file
+            raise InputError(exc.message, file=self.source) from None
 
-    def compile_data(self, spec: dict, joints: list[Joint]) -> DataFormat:
+    def compile_data(self, spec: dict, sensors: list[Sensor]) -> DataFormat:
         where = "data"
         jcols = {str(k): str(v) for k, v in self.get(spec, "joints", where).items()}
         for jn in jcols:
             if jn not in self.joint_index:
                 raise self.fail(f"{where}.joints", f"'{jn}' is not a joint")
-        sensor = str(self.get(spec, "sensor", where))
-        if sensor not in self.sensor_index:
-            raise self.fail(f"{where}.sensor", f"unknown sensor '{sensor}'")
+        joint_unit = str(spec.get("joint_unit", "deg"))
+        if joint_unit not in ANGLE_IN_RAD:
+            raise self.fail(f"{where}.joint_unit", f"unknown unit '{joint_unit}' ({', '.join(ANGLE_IN_RAD)})")
+        sensor = self.index_of(self.get(spec, "sensor", where), self.sensor_index, f"{where}.sensor", "sensor")
+        svalues = {
+            str(k): self.index_of(v, self.sensor_index, f"{where}.sensors.{k}", "sensor")
+            for k, v in (spec.get("sensors") or {}).items()
+        }
+        if svalues and not spec.get("sensor_column"):
+            raise self.fail(where, "names sensors by value but has no sensor_column")
         target = spec.get("target")
-        if target is not None and target not in self.target_index:
-            raise self.fail(f"{where}.target", f"unknown target '{target}'")
-        tvalues = {}
-        for k, v in (spec.get("targets") or {}).items():
-            if v not in self.target_index:
-                raise self.fail(f"{where}.targets.{k}", f"unknown target '{v}'")
-            tvalues[str(k)] = self.target_index[v]
+        if target is not None:
+            target = self.index_of(target, self.target_index, f"{where}.target", "target")
+        tvalues = {
+            str(k): self.index_of(v, self.target_index, f"{where}.targets.{k}", "target")
+            for k, v in (spec.get("targets") or {}).items()
+        }
         if target is None and not spec.get("target_column"):
             raise self.fail(where, "needs a target or a target_column")
         default = spec.get("target_default")
         if default is not None and str(default) not in tvalues:
             raise self.fail(f"{where}.target_default", f"'{default}' is not one of the targets' values")
         meas = self.get(spec, "measurement", where)
+        columns = self.columns(self.get(meas, "columns", f"{where}.measurement"), f"{where}.measurement.columns")
+        named = [sensors[i] for i in sorted({sensor, *svalues.values()})]
+        for s in named:
+            if len(columns) != s.dim:
+                numbers = "1 number" if s.dim == 1 else f"{s.dim} numbers"
+                raise self.fail(
+                    f"{where}.measurement.columns",
+                    f"a {s.kind} sensor ('{s.name}') measures {numbers}, not {len(columns)}",
+                )
+        units = {s.unit for s in named}
+        if len(units) > 1:
+            raise self.fail(f"{where}.sensors", f"the sensors of one CSV format must measure in one unit, not {units}")
+        unit = str(meas.get("unit", units.pop()))
+        if (unit != "px" and unit not in LENGTH_IN_M) or (unit == "px") != (sensors[sensor].unit == "px"):
+            raise self.fail(
+                f"{where}.measurement.unit", f"'{unit}' is not a unit of {sensors[sensor].name}'s measurements"
+            )
         point = spec.get("point")
+        point_columns, point_unit = None, None
+        if point is not None:
+            point_columns = self.columns(self.get(point, "columns", f"{where}.point"), f"{where}.point.columns", 3)
+            point_unit = str(point.get("unit", self.length_unit))
+            if point_unit not in LENGTH_IN_M:
+                raise self.fail(f"{where}.point.unit", f"unknown unit '{point_unit}' ({', '.join(LENGTH_IN_M)})")
+        frame_column = spec.get("frame_column", "frame")
         return DataFormat(
-            frame_column=None if spec.get("frame_column", "frame") is None else str(spec.get("frame_column", "frame")),
+            frame_column=None if frame_column is None else str(frame_column),
             joint_columns=jcols,
-            joint_unit=str(spec.get("joint_unit", "deg")),
-            sensor=self.sensor_index[sensor],
-            target=None if target is None else self.target_index[target],
+            joint_unit=joint_unit,
+            sensor=sensor,
+            target=target,
             target_column=spec.get("target_column"),
             target_values=tvalues,
-            point_columns=None if point is None else tuple(point["columns"]),
-            point_unit=None if point is None else str(point.get("unit", self.length_unit)),
+            point_columns=point_columns,
+            point_unit=point_unit,
             vertex_column=spec.get("vertex_column"),
-            measurement_columns=tuple(self.get(meas, "columns", f"{where}.measurement")),
-            measurement_unit=str(meas.get("unit", self.length_unit)),
-            prediction_columns=tuple(self.get(spec, "prediction_columns", where)),
+            measurement_columns=columns,
+            measurement_unit=unit,
+            prediction_columns=self.columns(
+                self.get(spec, "prediction_columns", where), f"{where}.prediction_columns", len(columns)
+            ),
             target_default=None if default is None else tvalues[str(default)],
+            sensor_column=spec.get("sensor_column"),
+            sensor_values=svalues,
         )
+
+    def index_of(self, name: Any, index: dict[str, int], where: str, what: str) -> int:
+        if str(name) not in index:
+            raise self.fail(where, f"unknown {what} '{name}'")
+        return index[str(name)]
+
+    def columns(self, value: Any, where: str, count: int | None = None) -> tuple[str, ...]:
+        """A list of column names (of `count` names when given)."""
+        if not isinstance(value, list) or not value or not all(isinstance(c, str) and c for c in value):
+            raise self.fail(where, f"expected a list of column names, got {value!r}")
+        if count is not None and len(value) != count:
+            raise self.fail(where, f"expected {count} column names, got {len(value)}")
+        return tuple(value)
 
     def compile_mode(self, name: str, spec: dict, where: str) -> Mode:
         names = list(self.index)

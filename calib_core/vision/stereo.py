@@ -27,6 +27,7 @@ from scipy.ndimage import gaussian_filter
 
 from ..model.kinematics import forward
 from ..model.profile import Profile
+from ..sensors import Point3D
 from ..units import length_factor
 
 # object_id values: what each pixel shows.
@@ -73,8 +74,9 @@ class StereoHead:
     def from_profile(cls, profile: Profile, p: np.ndarray, sensor: str = "eye") -> StereoHead:
         """The head of the profile's sensor `sensor` with the intrinsics in p (internal units)."""
         s = next((s for s in profile.sensors if s.name == sensor), None)
-        if s is None or s.intrinsics is None or s.baseline is None or s.image is None:
+        if not isinstance(s, Point3D) or s.reading != "stereo" or s.image is None:
             raise ValueError(f"robot '{profile.name}' has no stereo head '{sensor}' (intrinsics, image, baseline)")
+        assert s.intrinsics is not None and s.baseline is not None  # a stereo reading has them
         fx, fy, cx, cy = (float(p[i]) for i in s.intrinsics)
         width, height = s.image
         return cls(
