@@ -6,16 +6,19 @@ from __future__ import annotations
 
 from .base import Reading, Sensor, SensorModel, SpecReader, check_noise
 from .pinhole import Pinhole
+from .plane import Plane
 from .point3d import Point3D
 
-SENSOR_MODELS: dict[str, type[Point3D | Pinhole]] = {
+SENSOR_MODELS: dict[str, type[Point3D | Pinhole | Plane]] = {
     Point3D.kind: Point3D,
     Pinhole.kind: Pinhole,
+    Plane.kind: Plane,
 }
 
 __all__ = [
     "SENSOR_MODELS",
     "Pinhole",
+    "Plane",
     "Point3D",
     "Reading",
     "Sensor",

@@ -27,6 +27,7 @@ from ..sensors import Sensor
 from ..vision.sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, render_board_image
 from ..vision.sighting import Sighting, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair, no_depth_band_px, render_pair, sphere_views
+from .contact import contacts
 
 # The share of the sphere's outline the arm and hand must leave free in each camera of a stereo head.
 # On 240 rendered first-day frames the BallFinder found the sphere in 8 of 31 views with less than
@@ -369,7 +370,11 @@ class SimulatedRobot:
         )
 
     def simulate(self, n: int | None = None, **kwargs) -> Simulation:
-        """Random visible configurations, observed."""
+        """Random visible configurations, observed (for plane constraints: configurations in
+        contact with each plane, `n` per plane)."""
+        if self.profile.simulation.get("sampling", {}).get("kind") == "contact":
+            q, targets, sensors = contacts(self, n or 30)
+            return self.measure(q, targets, sensors=sensors, **kwargs)
         q, targets = self.configurations(n)
         return self.measure(q, targets, **kwargs)
 
