@@ -108,7 +108,7 @@ def robonaut(with_nm: bool) -> list[Row]:
             f"{floor:.3f} {unit}",
             ho / floor,
             ms,
-            full.solver["iterations"],
+            full.solver.iterations,
             parameter_errors(prof, full, truth1),
             nelder_mead(prof, s67.data, "full", None, ms) if with_nm else "-",
         )
@@ -129,7 +129,7 @@ def robonaut(with_nm: bool) -> list[Row]:
             f"{rms(prof, s150.data, truth2):.3f} {unit} (on the 150)",
             d["after"].rms / rms(prof, s150.data, truth2),
             ms,
-            daily.solver["iterations"],
+            daily.solver.iterations,
             parameter_errors(prof, daily, truth2),
             nelder_mead(prof, s150.data, "daily", full, ms) if with_nm else "-",
         )
@@ -148,7 +148,7 @@ def robonaut(with_nm: bool) -> list[Row]:
             f"{floor_c:.3f} {unit}",
             h["holdout_after"].rms / floor_c,
             solve_ms(prof, s150.data.select(np.isin(s150.data.frame_ids, half.frames["train"])), "daily", full),
-            half.solver["iterations"],
+            half.solver.iterations,
             parameter_errors(prof, half, truth2),
         )
     )
@@ -176,7 +176,7 @@ def nao(with_nm: bool) -> list[Row]:
             f"{floor:.3f} px",
             ho / floor,
             ms,
-            cal.solver["iterations"],
+            cal.solver.iterations,
             parameter_errors(prof, cal, sim.true_params),
             nelder_mead(prof, sim.data, "full", None, ms) if with_nm else "-",
         )

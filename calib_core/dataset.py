@@ -46,7 +46,7 @@ class Dataset:
     @property
     def sensors(self) -> list[int]:
         """The sensors that made observations, in the profile's order."""
-        return sorted(set(self.sensor.tolist()))
+        return np.unique(self.sensor).tolist()
 
     def select(self, configurations: np.ndarray) -> Dataset:
         """The observations of the given configuration indices (a bool mask or index array)."""

@@ -29,7 +29,7 @@ class SensorBlock:
 
     sensor: Sensor
     index: int  # the sensor's index in the profile
-    obs: np.ndarray  # observation indices, ascending
+    obs: np.ndarray | slice  # its observations: indices, ascending (a slice when they are one run)
     rows: slice  # its rows in the residual vector: len(obs) * dim
     W: np.ndarray | float  # whitening of its observations by the noise model: (n, dim, dim) or a scalar
     B_direct: np.ndarray  # (k, n_free): d(the sensor's direct parameters)/dx
@@ -46,7 +46,7 @@ class _Group:
 
     block: SensorBlock
     obs: np.ndarray  # observation indices
-    pos: np.ndarray  # their positions in the block
+    pos: np.ndarray | slice  # their positions in the block (a slice when they are one run)
     target: int
     ops: list[int]  # recorded op ids with a non-zero sign
     B_ops: np.ndarray  # (K, n_free): d(op value)/dx
@@ -105,7 +105,8 @@ class Problem:
             obs = np.flatnonzero(data.sensor == s)
             direct = list(sensor.direct_params())
             B_direct = A[direct] if direct else np.zeros((0, len(self.free)))
-            self.blocks.append(SensorBlock(sensor, s, obs, slice(start, start + len(obs) * sensor.dim), 1.0, B_direct))
+            rows = slice(start, start + len(obs) * sensor.dim)
+            self.blocks.append(SensorBlock(sensor, s, _run(obs), rows, 1.0, B_direct))
             start += len(obs) * sensor.dim
         self.n_data_rows = start
         self.frames = sorted(
@@ -126,11 +127,12 @@ class Problem:
     def _groups(self, block: SensorBlock) -> list[_Group]:
         data, profile = self.data, self.profile
         out = []
+        in_block = np.arange(data.n_observations)[block.obs]
         position = np.empty(data.n_observations, int)
-        position[block.obs] = np.arange(len(block.obs))
-        for t in np.unique(data.target[block.obs]):
+        position[in_block] = np.arange(len(in_block))
+        for t in np.unique(data.target[in_block]):
             target = profile.targets[t]
-            obs = block.obs[data.target[block.obs] == t]
+            obs = in_block[data.target[in_block] == t]
             cfgs, counts = np.unique(data.cfg[obs], return_counts=True)
             runs = bool(np.all(np.diff(data.cfg[obs]) >= 0) and np.all(counts == counts[0]))
             signs = op_signs(profile, target.frame, block.sensor.frame)
@@ -139,7 +141,7 @@ class Problem:
                 _Group(
                     block=block,
                     obs=obs,
-                    pos=position[obs],
+                    pos=_run(position[obs]),
                     target=int(t),
                     ops=ops,
                     B_ops=self.A[[self._op[i].param for i in ops]] if ops else np.zeros((0, len(self.free))),
@@ -198,8 +200,11 @@ class Problem:
         assert J is not None
         r = self._with_priors(self._whitened(pred), p)
         for b in self.blocks:
-            J3 = J[b.rows].reshape(-1, b.dim, len(self.free)) * (self.included[b.obs, None, None] / b.scale)
-            J[b.rows] = (b.W @ J3 if isinstance(b.W, np.ndarray) else J3 * b.W).reshape(-1, len(self.free))
+            J3 = J[b.rows].reshape(-1, b.dim, len(self.free))  # a view: weighed in place
+            if isinstance(b.W, np.ndarray):
+                J3[:] = b.W @ (J3 * (self.included[b.obs] / b.scale)[:, None, None])
+            else:
+                J3 *= (self.included[b.obs] * (b.W / b.scale))[:, None, None]
         if self.priors:
             Jp = np.zeros((len(self.priors), len(self.free)))
             for k, (i, s) in enumerate(self.priors.items()):
@@ -297,3 +302,10 @@ class Problem:
                 Jg += dh_direct @ g.block.B_direct
             J[g.block.rows].reshape(-1, dim, len(self.free))[g.pos] = Jg
         return pred, J
+
+
+def _run(index: np.ndarray) -> np.ndarray | slice:
+    """A slice for ascending consecutive indices (a view, not a copy, when indexing), else the indices."""
+    if len(index) and index[-1] - index[0] == len(index) - 1 and np.all(np.diff(index) == 1):
+        return slice(int(index[0]), int(index[-1]) + 1)
+    return index

@@ -30,7 +30,7 @@ class Poses:
 
 def op_ids(profile: Profile) -> list[tuple[int, int]]:
     """(frame, position) of every op, in a fixed order; an op's id is its index in this list."""
-    return [(f, k) for f, frame in enumerate(profile.frames) for k in range(len(frame.ops))]
+    return profile.op_ids
 
 
 _EYE = np.eye(3)

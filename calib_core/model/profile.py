@@ -142,6 +142,8 @@ class Profile:
         self._param_index = {p.name: i for i, p in enumerate(self.parameters)}
         self._frame_index = {f.name: i for i, f in enumerate(self.frames)}
         self._joint_index = {j.name: i for i, j in enumerate(self.joints)}
+        # (frame, position) of every op in a fixed order: an op's id is its index here (kinematics).
+        self.op_ids = [(f, k) for f, frame in enumerate(self.frames) for k in range(len(frame.ops))]
 
     # --- look-ups -------------------------------------------------------------------------------
     @property
