@@ -35,6 +35,7 @@ from calib_core import (
 )
 from calib_core.dataset import Dataset
 from calib_core.estimation.registration import register, registration_params
+from calib_core.estimation.validation import check_share
 from calib_core.io.csv_format import select_rows
 from calib_core.io.session import FrameRecord, write_session
 from calib_core.model.profile import Profile
@@ -208,8 +209,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _solve(args: argparse.Namespace) -> int:
-    if not 0.0 <= args.holdout <= 0.9:
-        raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
+    check_share(args.holdout, "--holdout")
     if args.folds < 0 or args.folds == 1:
         raise InputError(f"--folds {args.folds} must be 0 (none) or at least 2")
     profile = load_profile(args.robot)
@@ -263,8 +263,7 @@ def _predict(args: argparse.Namespace) -> int:
 def _self_observe(args: argparse.Namespace) -> int:
     from calib_core.io.ctu_motoman import camera_dataset
 
-    if not 0.0 <= args.holdout <= 0.9:
-        raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
+    check_share(args.holdout, "--holdout")
     profile = load_profile(args.robot)
     profile.mode(args.mode)
     data = camera_dataset(profile, args.data, set(args.source) or None)

@@ -92,10 +92,13 @@ def sensor_figures(
     return figures(d, np.zeros_like(d), unit, np.concatenate(pooled_k)), each
 
 
+MAX_HOLDOUT = 0.9  # a held-out share leaves at least a tenth of the configurations to fit on
+
+
 def check_share(share: float, what: str = "held-out share") -> None:
-    """The one rule for a held-out share: a fraction in [0, 1)."""
-    if not 0.0 <= share < 1.0:
-        raise InputError(f"{what} {share} must be in [0, 1)")
+    """The one rule for a held-out share (library, command line, API): between 0 and MAX_HOLDOUT."""
+    if not 0.0 <= share <= MAX_HOLDOUT:
+        raise InputError(f"{what} {share} must be between 0 and {MAX_HOLDOUT}")
 
 
 REPEAT_TOLERANCE_RAD = 0.01  # readings this close on every joint: the same commanded configuration
