@@ -24,7 +24,7 @@ from calib_core.estimation.problem import Problem
 from calib_core.estimation.registration import register, registration_params, rigid_fit
 from calib_core.estimation.validation import holdout_split
 from calib_core.io.csv_format import parse_dataset, to_csv
-from calib_core.io.ctu_motoman import camera_dataset, leica_subset
+from calib_core.io.ctu_motoman import camera_dataset, leica_subset, recording
 from calib_core.model.kinematics import forward
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "motoman"
@@ -363,6 +363,28 @@ def test_mixed_sensors_have_an_exact_jacobian(mm) -> None:
 
 
 @needs_data
+def test_a_real_recording_of_three_sensors_calibrates_per_mode(mm) -> None:
+    """The left arm's 6x6x6 cube as one session: per pose the tracker's reading and both cameras'
+    pixels. Each mode fits the sensors it names (the tracker's modes the tracker alone, exactly as on
+    the tracker file); `tracker-cameras` fits all three, each weighed by its own scatter."""
+    data = recording(mm, DATA, "leica_left_hand_6x6x6_dataset.mat")
+    assert data.sensors == [0, 1, 2] and data.n_configurations == 216
+    assert int(np.sum(data.sensor == 0)) == 208  # the poses the tracker read
+    alone = calibrate(mm, leica_subset(mm, DATA, "feb2019-left-cube"), "offsets")
+    in_session = calibrate(mm, data, "offsets")
+    assert in_session.sensor_figures == {}  # the tracker's observations only
+    assert in_session.figures["after"].rms == pytest.approx(alone.figures["after"].rms, rel=1e-9)
+    both = calibrate(mm, data, "tracker-cameras", holdout=0.3)
+    assert both.converged
+    f = both.sensor_figures
+    assert f["tracker"]["holdout_after"].rms < 0.7 * f["tracker"]["holdout_before"].rms
+    for cam in ("camera1", "camera2"):
+        assert f[cam]["holdout_after"].rms < 0.1 * f[cam]["holdout_before"].rms
+    with pytest.raises(InputError, match="fits observations of tracker"):
+        calibrate(mm, data.of_sensor(1), "offsets")
+
+
+@needs_data
 def test_real_camera_pixels_calibrate_and_the_tracker_agrees(mm) -> None:
     """The CTU pixels (four source files, for speed): the camera-only calibration explains them far
     better than nominal, and the tracker it never saw finds the left arm's cube no worse."""
@@ -400,11 +422,18 @@ def test_a_parameter_beyond_its_bound_stops_there_with_a_warning(mm) -> None:
 def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(mm) -> None:
     truth = perturbed_truth(mm, 10)
     data = synthetic_tracker(mm, truth, 60, seed=7)
+    offsets = mm.mode("offsets")
+    arm_only = replace(offsets, name="arm", free=tuple(i for i in offsets.free if i not in registration_params(mm)))
+    mm = replace(mm, modes={**mm.modes, "arm": arm_only})
     with pytest.raises(InputError, match="does not estimate the registration of 'tracker'"):
-        calibrate(mm, data, "cameras")
+        calibrate(mm, data, "arm")
     first = calibrate(mm, data, "registration")
-    again = calibrate(mm, data, "cameras", first)  # the registration comes from the base
+    again = calibrate(mm, data, "arm", first)  # the registration comes from the base
     assert again.figures["before"].rms < 0.01  # m: the base's registration puts the model in place
+    with pytest.raises(
+        InputError, match="mode 'cameras' fits observations of camera1, camera2; these data hold tracker"
+    ):
+        calibrate(mm, data, "cameras")
 
 
 @needs_data

@@ -75,6 +75,7 @@ def calibrate(
         raise InputError(f"unknown method '{method}' ({', '.join(METHODS)})")
     check_share(holdout)
     p_base = base.params(profile) if base is not None else profile.nominal()
+    data = sensors_of(profile, data, m)
     if holdout > 0:
         train_idx, test_idx = holdout_split(data, holdout, seed)
     else:
@@ -117,6 +118,18 @@ def calibrate(
         solver.folds, solver.cv_seconds = folds, time.perf_counter() - start
     frames = {"train": [int(f) for f in train.frame_ids], "holdout": [int(data.frame_ids[i]) for i in test_idx]}
     return _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
+
+
+def sensors_of(profile: Profile, data: Dataset, mode: Mode) -> Dataset:
+    """The observations of the sensors a mode fits (all of them unless the mode names its sensors)."""
+    if mode.sensors is None or set(data.sensors) <= set(mode.sensors):
+        return data
+    keep = np.isin(data.sensor, mode.sensors)
+    if not keep.any():
+        names = ", ".join(profile.sensors[s].name for s in mode.sensors)
+        have = ", ".join(profile.sensors[s].name for s in data.sensors)
+        raise InputError(f"mode '{mode.name}' fits observations of {names}; these data hold {have}", file=data.source)
+    return data.observations(keep)
 
 
 def observed_mode(profile: Profile, data: Dataset, mode: Mode) -> Mode:

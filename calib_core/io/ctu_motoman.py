@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import Dataset
+from ..dataset import Dataset, merge
 from ..errors import InputError
 from ..model.profile import Profile
 from .csv_format import read_dataset, select_rows
@@ -40,7 +40,7 @@ def leica_subset(profile: Profile, folder: str | Path, name: str) -> Dataset:
 
 def camera_dataset(profile: Profile, folder: str | Path, sources: set[str] | None = None) -> Dataset:
     """Every ArUco face centre each camera ("camera1", "camera2") saw, with the pose's joints: one
-    configuration per pose (frame id = its row in camera_poses.csv order of first sighting, from 1).
+    configuration per pose (frame id = the pose's row in camera_poses.csv, from 1).
 
     `sources` keeps only those source files (e.g. the poses a tracker also measured). Every problem
     in the files is an InputError naming the file, line and column."""
@@ -79,8 +79,8 @@ def camera_dataset(profile: Profile, folder: str | Path, sources: set[str] | Non
     target, vertex = arr[:, 2].astype(int), arr[:, 3].astype(int)
     return Dataset(
         robot=profile.name,
-        frame_ids=np.arange(1, len(pose_index) + 1),
-        joints=np.array([poses[k] for k in pose_index]),
+        frame_ids=np.array([poses[k][0] for k in pose_index]),
+        joints=np.array([poses[k][1] for k in pose_index]),
         cfg=arr[:, 0].astype(int),
         target=target,
         point=np.array([profile.targets[t].points[v] for t, v in zip(target, vertex, strict=True)]),
@@ -91,16 +91,38 @@ def camera_dataset(profile: Profile, folder: str | Path, sources: set[str] | Non
     )
 
 
-def _poses(profile: Profile, path: Path) -> dict[tuple[str, str], np.ndarray]:
-    """(source file, pose id) -> the joint readings (rad) of camera_poses.csv."""
+def _poses(profile: Profile, path: Path) -> dict[tuple[str, str], tuple[int, np.ndarray]]:
+    """(source file, pose id) -> the pose's row in camera_poses.csv (from 1) and its joint readings (rad)."""
     joint_cols = {profile.joint(j): c for j, c in profile.data.joint_columns.items()}
     poses = {}
     for row, number in _rows(path, ["source_file", "pose_id", *joint_cols.values()]):
         q = np.zeros(len(profile.joints))
         for j, c in joint_cols.items():
             q[j] = math.radians(number(c))
-        poses[(row["source_file"], row["pose_id"])] = q
+        poses[(row["source_file"], row["pose_id"])] = (len(poses) + 1, q)
     return poses
+
+
+def recording(profile: Profile, folder: str | Path, source: str) -> Dataset:
+    """One recording of the Feb 2019 session (a source file: one tracker set-up, one arm) as one
+    dataset of three sensors: per pose, the tracker's reading of the reflector (where it has one)
+    and both cameras' face centres; frame id = the pose's row in camera_poses.csv."""
+    folder = Path(folder)
+    poses = _poses(profile, folder / "camera_poses.csv")
+    tracker = read_dataset(profile, folder / "leica_feb2019.csv")
+    column = {h: i for i, h in enumerate(tracker.header)}
+    if "pose_id" not in column or "source_file" not in column:
+        raise InputError("needs the columns source_file and pose_id", file=str(folder / "leica_feb2019.csv"))
+    tracker = select_rows(tracker, {"source_file": source})
+    frame_of = []
+    for c in range(tracker.n_configurations):
+        row = tracker.rows[int(np.flatnonzero(tracker.cfg == c)[0])]
+        key = (source, row[column["pose_id"]].strip())
+        if key not in poses:
+            raise InputError(f"pose {key[1]} of {source} is not in camera_poses.csv", file=tracker.source)
+        frame_of.append(poses[key][0])
+    tracker = replace(tracker, frame_ids=np.array(frame_of), header=[], rows=[], lines=None)
+    return merge([tracker, camera_dataset(profile, folder, {source})])
 
 
 class _Numbers:

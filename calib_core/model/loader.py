@@ -455,7 +455,15 @@ class _Compiler:
         free = list(dict.fromkeys(i for i in free if i not in followers))
         priors = self.per_parameter(spec, "priors", names, where)
         bounds = self.per_parameter(spec, "bounds", names, where)
-        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds)
+        sensors = None
+        if "sensors" in spec:
+            listed = spec["sensors"]
+            if not isinstance(listed, list) or not listed:
+                raise self.fail(f"{where}.sensors", f"expected a list of sensor names, got {listed!r}")
+            sensors = tuple(
+                self.index_of(n, self.sensor_index, f"{where}.sensors[{k}]", "sensor") for k, n in enumerate(listed)
+            )
+        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds, sensors)
 
     def per_parameter(self, spec: dict, key: str, names: list[str], where: str) -> dict[int, float]:
         """{name or glob pattern: positive number in the profile's units} -> {index: internal units}."""

@@ -98,6 +98,7 @@ class Mode:
     ties: tuple[Tie, ...]
     priors: dict[int, float]  # parameter index -> standard deviation (internal units)
     bounds: dict[int, float] = field(default_factory=dict)  # index -> largest |change| from nominal
+    sensors: tuple[int, ...] | None = None  # the sensors whose observations it fits (None: every one)
 
 
 @dataclass(frozen=True)
