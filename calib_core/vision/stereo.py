@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from ..errors import InputError
 from ..model.kinematics import forward
 from ..model.profile import Profile
 from ..sensors import Point3D
@@ -329,8 +330,13 @@ def _body(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> _
     def axes(R_chest: np.ndarray) -> np.ndarray:
         return np.einsum("nji,njk->nik", R_cam, R_chest)
 
-    target = next(t for t in profile.targets if t.name == "fixture")
-    assert target.point_params is not None and target.radius is not None
+    target = next((t for t in profile.targets if t.name == "fixture"), None)
+    missing = [n for n in _ARM_FRAMES if n not in {f.name for f in profile.frames}]
+    if target is None or target.point_params is None or target.radius is None or missing:
+        raise InputError(
+            f"robot '{profile.name}': the stereo renderer draws an arm of the frames {', '.join(_ARM_FRAMES)} "
+            "holding a sphere target 'fixture' (a calibrated point with a radius), as Robonaut's"
+        )
     R_hand, t_hand = poses.R[target.frame], poses.t[target.frame] * k
     centre_hand_m = p[list(target.point_params)] * k
     links = []
