@@ -81,21 +81,9 @@ def calibrate(
     else:
         train_idx, test_idx = np.arange(data.n_configurations), np.array([], int)
     train = data.select(train_idx)
-    rows = sum(profile.sensors[s].dim * int(np.sum(train.sensor == s)) for s in train.sensors)
-    if rows < len(m.free):
-        raise InputError(
-            f"{train.n_observations} observations cannot determine the {len(m.free)} parameters of mode '{mode}'",
-            file=data.source,
-        )
     m = observed_mode(profile, train, m)
-    reg = set(registration_params(profile, train.sensors))
-    if reg and not reg & set(m.free) and base is None:
-        devices = ", ".join(profile.sensors[s].name for s in train.sensors if registration_params(profile, [s]))
-        raise InputError(
-            f"mode '{mode}' does not estimate the registration of '{devices}' (where it stands), which these data "
-            "need: choose a mode that does, or start from a calibration of the same set-up (--base)"
-        )
-    if reg & set(m.free):
+    _check_can_fit(profile, train, m, base)
+    if set(registration_params(profile, train.sensors)) & set(m.free):
         # A tracker set-up of its own: "before" is the old model with only the registration fitted.
         p_base = register(profile, train, p_base)
     fit = fit_parameters(
@@ -118,6 +106,24 @@ def calibrate(
         solver.folds, solver.cv_seconds = folds, time.perf_counter() - start
     frames = {"train": [int(f) for f in train.frame_ids], "holdout": [int(data.frame_ids[i]) for i in test_idx]}
     return _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
+
+
+def _check_can_fit(profile: Profile, train: Dataset, mode: Mode, base: Calibration | None) -> None:
+    """Enough observations for the mode, and a tracker's pose either estimated or known from a base."""
+    rows = sum(profile.sensors[s].dim * int(np.sum(train.sensor == s)) for s in train.sensors)
+    if rows < len(mode.free):
+        raise InputError(
+            f"{train.n_observations} observations cannot determine the {len(mode.free)} parameters of mode "
+            f"'{mode.name}'",
+            file=train.source,
+        )
+    reg = set(registration_params(profile, train.sensors))
+    if reg and not reg & set(mode.free) and base is None:
+        devices = ", ".join(profile.sensors[s].name for s in train.sensors if registration_params(profile, [s]))
+        raise InputError(
+            f"mode '{mode.name}' does not estimate the registration of '{devices}' (where it stands), which these "
+            "data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
+        )
 
 
 def sensors_of(profile: Profile, data: Dataset, mode: Mode) -> Dataset:

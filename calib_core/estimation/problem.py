@@ -98,17 +98,8 @@ class Problem:
             (i, op.param) for i, op in enumerate(self._op) if op.joint < 0 and op.param not in affected_set
         ]
         self.record = {i for i, op in enumerate(self._op) if op.param in affected_set}
-        self.blocks: list[SensorBlock] = []
-        start = 0
-        for s in data.sensors:
-            sensor = profile.sensors[s]
-            obs = np.flatnonzero(data.sensor == s)
-            direct = list(sensor.direct_params())
-            B_direct = A[direct] if direct else np.zeros((0, len(self.free)))
-            rows = slice(start, start + len(obs) * sensor.dim)
-            self.blocks.append(SensorBlock(sensor, s, _run(obs), rows, 1.0, B_direct))
-            start += len(obs) * sensor.dim
-        self.n_data_rows = start
+        self.blocks = self._blocks()
+        self.n_data_rows = self.blocks[-1].rows.stop if self.blocks else 0
         self.frames = sorted(
             {profile.targets[t].frame for t in np.unique(data.target)} | {b.sensor.frame for b in self.blocks}
         )
@@ -123,6 +114,20 @@ class Problem:
         elif noise_model is not False:
             for b, W in zip(self.blocks, noise_model, strict=True):
                 b.W = W
+
+    def _blocks(self) -> list[SensorBlock]:
+        """One block per sensor of the data, in the profile's order, its rows after the previous one's."""
+        out: list[SensorBlock] = []
+        start = 0
+        for s in self.data.sensors:
+            sensor = self.profile.sensors[s]
+            obs = np.flatnonzero(self.data.sensor == s)
+            direct = list(sensor.direct_params())
+            B_direct = self.A[direct] if direct else np.zeros((0, len(self.free)))
+            rows = slice(start, start + len(obs) * sensor.dim)
+            out.append(SensorBlock(sensor, s, _run(obs), rows, 1.0, B_direct))
+            start = rows.stop
+        return out
 
     def _groups(self, block: SensorBlock) -> list[_Group]:
         data, profile = self.data, self.profile

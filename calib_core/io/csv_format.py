@@ -119,9 +119,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(fmt.measurement_unit, profile.length_unit)
     point_factor = length_factor(fmt.point_unit, profile.length_unit) if fmt.point_unit else 1.0
 
-    frame_index: dict[int, int] = {}
-    frame_first_line: dict[int, int] = {}
-    joints_rows: list[np.ndarray] = []
+    frames = _Frames()
     obs: dict[str, list] = {k: [] for k in ("cfg", "target", "sensor", "point", "vertex", "measured", "line")}
     for ln, fields in body:
         if len(fields) != len(header):
@@ -139,24 +137,14 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
             j = profile.joint(jname)
             if j in needed:
                 q[j] = row.number(c) * joint_factor
-        if fid in frame_index:
-            prev = joints_rows[frame_index[fid]]
-            both = ~np.isnan(prev) & ~np.isnan(q)
-            if np.any(np.abs(prev[both] - q[both]) > 1e-9):
-                raise row.fail(f"frame {fid} has other joint angles than on line {frame_first_line[fid]}")
-            fill = np.isnan(prev)
-            prev[fill] = q[fill]
-        else:
-            frame_index[fid] = len(joints_rows)
-            frame_first_line[fid] = ln
-            joints_rows.append(q)
+        cfg = frames.add(fid, q, row)
         vertex = _vertex(row, fmt, profile, ti)
         if fmt.point_columns:
             point = [row.number(c) * point_factor for c in fmt.point_columns]
         else:
             fixed = profile.targets[ti].points
             point = [np.nan] * 3 if fixed is None else fixed[max(vertex, 0)]
-        obs["cfg"].append(frame_index[fid])
+        obs["cfg"].append(cfg)
         obs["target"].append(ti)
         obs["sensor"].append(si)
         obs["point"].append(point)
@@ -165,8 +153,8 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         obs["line"].append(ln)
     return Dataset(
         robot=profile.name,
-        frame_ids=np.array(list(frame_index), dtype=int),
-        joints=np.array(joints_rows),
+        frame_ids=np.array(list(frames.index), dtype=int),
+        joints=np.array(frames.joints),
         cfg=np.array(obs["cfg"], dtype=int),
         target=np.array(obs["target"], dtype=int),
         point=np.array(obs["point"], dtype=float),
@@ -178,6 +166,30 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         header=header,
         rows=[fields for _, fields in body],
     )
+
+
+class _Frames:
+    """The configurations of a file: rows with one frame id share one, and must agree on every joint
+    both read (a joint one row does not need is NaN there and filled from another)."""
+
+    def __init__(self) -> None:
+        self.index: dict[int, int] = {}  # frame id -> configuration
+        self.first_line: dict[int, int] = {}
+        self.joints: list[np.ndarray] = []
+
+    def add(self, fid: int, q: np.ndarray, row: _Row) -> int:
+        if fid not in self.index:
+            self.index[fid] = len(self.joints)
+            self.first_line[fid] = row.line
+            self.joints.append(q)
+            return self.index[fid]
+        prev = self.joints[self.index[fid]]
+        both = ~np.isnan(prev) & ~np.isnan(q)
+        if np.any(np.abs(prev[both] - q[both]) > 1e-9):
+            raise row.fail(f"frame {fid} has other joint angles than on line {self.first_line[fid]}")
+        fill = np.isnan(prev)
+        prev[fill] = q[fill]
+        return self.index[fid]
 
 
 def _frame_id(row: _Row, fmt: DataFormat, default: int) -> int:

@@ -366,31 +366,8 @@ class _Compiler:
         default = spec.get("target_default")
         if default is not None and str(default) not in tvalues:
             raise self.fail(f"{where}.target_default", f"'{default}' is not one of the targets' values")
-        meas = self.get(spec, "measurement", where)
-        columns = self.columns(self.get(meas, "columns", f"{where}.measurement"), f"{where}.measurement.columns")
-        named = [sensors[i] for i in sorted({sensor, *svalues.values()})]
-        for s in named:
-            if len(columns) != s.dim:
-                numbers = "1 number" if s.dim == 1 else f"{s.dim} numbers"
-                raise self.fail(
-                    f"{where}.measurement.columns",
-                    f"a {s.kind} sensor ('{s.name}') measures {numbers}, not {len(columns)}",
-                )
-        units = {s.unit for s in named}
-        if len(units) > 1:
-            raise self.fail(f"{where}.sensors", f"the sensors of one CSV format must measure in one unit, not {units}")
-        unit = str(meas.get("unit", units.pop()))
-        if (unit != "px" and unit not in LENGTH_IN_M) or (unit == "px") != (sensors[sensor].unit == "px"):
-            raise self.fail(
-                f"{where}.measurement.unit", f"'{unit}' is not a unit of {sensors[sensor].name}'s measurements"
-            )
-        point = spec.get("point")
-        point_columns, point_unit = None, None
-        if point is not None:
-            point_columns = self.columns(self.get(point, "columns", f"{where}.point"), f"{where}.point.columns", 3)
-            point_unit = str(point.get("unit", self.length_unit))
-            if point_unit not in LENGTH_IN_M:
-                raise self.fail(f"{where}.point.unit", f"unknown unit '{point_unit}' ({', '.join(LENGTH_IN_M)})")
+        columns, unit = self.compile_measurement(spec, [sensors[i] for i in sorted({sensor, *svalues.values()})])
+        point_columns, point_unit = self.compile_point(spec)
         frame_column = spec.get("frame_column", "frame")
         return DataFormat(
             frame_column=None if frame_column is None else str(frame_column),
@@ -412,6 +389,36 @@ class _Compiler:
             sensor_column=spec.get("sensor_column"),
             sensor_values=svalues,
         )
+
+    def compile_measurement(self, spec: dict, named: list[Sensor]) -> tuple[tuple[str, ...], str]:
+        """The measurement columns and their unit, checked against every sensor the format names."""
+        where = "data.measurement"
+        meas = self.get(spec, "measurement", "data")
+        columns = self.columns(self.get(meas, "columns", where), f"{where}.columns")
+        for s in named:
+            if len(columns) != s.dim:
+                numbers = "1 number" if s.dim == 1 else f"{s.dim} numbers"
+                raise self.fail(
+                    f"{where}.columns", f"a {s.kind} sensor ('{s.name}') measures {numbers}, not {len(columns)}"
+                )
+        units = {s.unit for s in named}
+        if len(units) > 1:
+            raise self.fail("data.sensors", f"the sensors of one CSV format must measure in one unit, not {units}")
+        unit = str(meas.get("unit", next(iter(units))))
+        if (unit != "px" and unit not in LENGTH_IN_M) or (unit == "px") != (named[0].unit == "px"):
+            raise self.fail(f"{where}.unit", f"'{unit}' is not a unit of {named[0].name}'s measurements")
+        return columns, unit
+
+    def compile_point(self, spec: dict) -> tuple[tuple[str, ...] | None, str | None]:
+        """The columns of the observed point in the target frame, and their length unit (or none)."""
+        point = spec.get("point")
+        if point is None:
+            return None, None
+        columns = self.columns(self.get(point, "columns", "data.point"), "data.point.columns", 3)
+        unit = str(point.get("unit", self.length_unit))
+        if unit not in LENGTH_IN_M:
+            raise self.fail("data.point.unit", f"unknown unit '{unit}' ({', '.join(LENGTH_IN_M)})")
+        return columns, unit
 
     def index_of(self, name: Any, index: dict[str, int], where: str, what: str) -> int:
         if str(name) not in index:
