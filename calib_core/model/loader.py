@@ -26,6 +26,9 @@ BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
 
 AXES = {"x": 0, "y": 1, "z": 2}
 
+# An elementary transform before it is an Op: (t|r, vector, field or parameter name, value, jointed).
+Step = tuple[str, np.ndarray, str, float, bool]
+
 
 def load_profile(name_or_path: str | Path) -> Profile:
     """A built-in profile by name (`robonaut-a`, `nao`) or a profile YAML file by path."""
@@ -205,78 +208,77 @@ class _Compiler:
             raise self.fail(where, "needs exactly one of mdh, dh, urdf, ops, registration")
         kind = kinds[0]
         body = spec[kind]
-        steps: list[tuple[str, np.ndarray, str, float, bool]] = []  # (t|r, vector, field, value, jointed)
-        e = np.eye(3)
         if kind == "registration":
-            if body is not True:
-                raise self.fail(f"{where}.registration", "must be true")
-            if joint >= 0:
-                raise self.fail(where, "a registration frame cannot be driven by a joint")
-            steps = [("t", e[k], "xyz"[k], 0.0, False) for k in range(3)]
-            steps += [("r", e[2], "yaw", 0.0, False), ("r", e[1], "pitch", 0.0, False), ("r", e[0], "roll", 0.0, False)]
+            steps = self.registration_steps(body, joint, where)
         elif kind in ("mdh", "dh"):
-            vals = {
-                k: self.number(self.get(body, k, f"{where}.{kind}", 0.0), f"{where}.{kind}.{k}")
-                for k in ("a", "alpha", "d")
-            }
-            angle_key = "theta" if kind == "mdh" else "offset"
-            vals[angle_key] = self.number(
-                body.get(angle_key, body.get("theta", body.get("offset", 0.0))),
-                f"{where}.{kind}.{angle_key}",
-            )
-            a = ("t", e[0], "a", vals["a"], False)
-            alpha = ("r", e[0], "alpha", vals["alpha"] * self.to_rad, False)
-            d = ("t", e[2], "d", vals["d"], False)
-            th = ("r", e[2], angle_key, vals[angle_key] * self.to_rad, True)
-            steps = [a, alpha, d, th] if kind == "mdh" else [th, d, a, alpha]
+            steps = self.dh_steps(kind, body, where)
         elif kind == "urdf":
-            xyz = self.vector(body.get("xyz", [0, 0, 0]), f"{where}.urdf.xyz")
-            rpy = self.vector(body.get("rpy", [0, 0, 0]), f"{where}.urdf.rpy") * self.to_rad
-            steps = [("t", e[k], "xyz"[k], xyz[k], False) for k in range(3)]
-            steps += [
-                ("r", e[2], "yaw", rpy[2], False),
-                ("r", e[1], "pitch", rpy[1], False),
-                ("r", e[0], "roll", rpy[0], False),
-            ]
-            if joint >= 0 or "axis" in body:
-                axis = self.vector(self.get(body, "axis", f"{where}.urdf"), f"{where}.urdf.axis")
-                norm = np.linalg.norm(axis)
-                if norm < 1e-9:
-                    raise self.fail(f"{where}.urdf.axis", "must not be zero")
-                offset = self.number(body.get("offset", 0.0), f"{where}.urdf.offset") * self.to_rad
-                steps.append(("r", axis / norm, "offset", offset, True))
+            steps = self.urdf_steps(body, joint, where)
         else:
-            if not isinstance(body, list):
-                raise self.fail(f"{where}.ops", "expected a list")
-            for k, op in enumerate(body):
-                w = f"{where}.ops[{k}]"
-                key = [x for x in op if x in ("tx", "ty", "tz", "rx", "ry", "rz")] if isinstance(op, dict) else []
-                if len(key) != 1:
-                    raise self.fail(w, "needs exactly one of tx, ty, tz, rx, ry, rz")
-                op_kind, axis_name = key[0][0], key[0][1]
-                value = self.number(op[key[0]], f"{w}.{key[0]}")
-                if op_kind == "r":
-                    value *= self.to_rad
-                pname = str(op["param"]) if "param" in op else f"{fname}.{key[0]}{k}"
-                steps.append((op_kind, e[AXES[axis_name]], pname, value, bool(op.get("joint", False))))
+            steps = self.op_list_steps(body, fname, where)
         ops = []
         for op_kind, vector, fieldname, value, jointed in steps:
             pname = fieldname if kind == "ops" else renames.get(fieldname, f"{fname}.{fieldname}")
             pi = self.add_param(pname, "angle" if op_kind == "r" else "length", value, where)
             nonzero = np.flatnonzero(vector)
             principal = len(nonzero) == 1 and vector[nonzero[0]] == 1.0
-            ops.append(
-                Op(
-                    op_kind,
-                    vector,
-                    int(nonzero[0]) if principal else None,
-                    pi,
-                    joint if jointed else -1,
-                )
-            )
+            ops.append(Op(op_kind, vector, int(nonzero[0]) if principal else None, pi, joint if jointed else -1))
         if joint >= 0 and not any(op.joint >= 0 for op in ops):
             raise self.fail(where, "names a joint but no op is driven by it")
         return ops
+
+    def registration_steps(self, body: Any, joint: int, where: str) -> list[Step]:
+        if body is not True:
+            raise self.fail(f"{where}.registration", "must be true")
+        if joint >= 0:
+            raise self.fail(where, "a registration frame cannot be driven by a joint")
+        return _pose_steps(np.zeros(3), np.zeros(3))
+
+    def dh_steps(self, kind: str, body: Any, where: str) -> list[Step]:
+        vals = {
+            k: self.number(self.get(body, k, f"{where}.{kind}", 0.0), f"{where}.{kind}.{k}")
+            for k in ("a", "alpha", "d")
+        }
+        angle_key = "theta" if kind == "mdh" else "offset"
+        vals[angle_key] = self.number(
+            body.get(angle_key, body.get("theta", body.get("offset", 0.0))), f"{where}.{kind}.{angle_key}"
+        )
+        e = np.eye(3)
+        a = ("t", e[0], "a", vals["a"], False)
+        alpha = ("r", e[0], "alpha", vals["alpha"] * self.to_rad, False)
+        d = ("t", e[2], "d", vals["d"], False)
+        th = ("r", e[2], angle_key, vals[angle_key] * self.to_rad, True)
+        return [a, alpha, d, th] if kind == "mdh" else [th, d, a, alpha]
+
+    def urdf_steps(self, body: Any, joint: int, where: str) -> list[Step]:
+        xyz = self.vector(body.get("xyz", [0, 0, 0]), f"{where}.urdf.xyz")
+        rpy = self.vector(body.get("rpy", [0, 0, 0]), f"{where}.urdf.rpy") * self.to_rad
+        steps = _pose_steps(xyz, rpy)
+        if joint >= 0 or "axis" in body:
+            axis = self.vector(self.get(body, "axis", f"{where}.urdf"), f"{where}.urdf.axis")
+            norm = np.linalg.norm(axis)
+            if norm < 1e-9:
+                raise self.fail(f"{where}.urdf.axis", "must not be zero")
+            offset = self.number(body.get("offset", 0.0), f"{where}.urdf.offset") * self.to_rad
+            steps.append(("r", axis / norm, "offset", offset, True))
+        return steps
+
+    def op_list_steps(self, body: Any, fname: str, where: str) -> list[Step]:
+        if not isinstance(body, list):
+            raise self.fail(f"{where}.ops", "expected a list")
+        steps = []
+        for k, op in enumerate(body):
+            w = f"{where}.ops[{k}]"
+            key = [x for x in op if x in ("tx", "ty", "tz", "rx", "ry", "rz")] if isinstance(op, dict) else []
+            if len(key) != 1:
+                raise self.fail(w, "needs exactly one of tx, ty, tz, rx, ry, rz")
+            op_kind, axis_name = key[0][0], key[0][1]
+            value = self.number(op[key[0]], f"{w}.{key[0]}")
+            if op_kind == "r":
+                value *= self.to_rad
+            pname = str(op["param"]) if "param" in op else f"{fname}.{key[0]}{k}"
+            steps.append((op_kind, np.eye(3)[AXES[axis_name]], pname, value, bool(op.get("joint", False))))
+        return steps
 
     def compile_target(self, spec: dict, where: str) -> Target:
         tname = str(self.get(spec, "name", where))
@@ -485,3 +487,10 @@ class _Compiler:
             for i in (self.index[h] for h in hits):
                 out[i] = v * (self.to_rad if self.params[i].kind == "angle" else 1.0)
         return out
+
+
+def _pose_steps(xyz: np.ndarray, rpy: np.ndarray) -> list[Step]:
+    """Trans(x, y, z) Rot_z(yaw) Rot_y(pitch) Rot_x(roll): a URDF origin, a registration's pose."""
+    e = np.eye(3)
+    steps: list[Step] = [("t", e[k], "xyz"[k], float(xyz[k]), False) for k in range(3)]
+    return steps + [("r", e[2 - k], ("yaw", "pitch", "roll")[k], float(rpy[2 - k]), False) for k in range(3)]
