@@ -35,6 +35,7 @@ from calib_core import (
 )
 from calib_core.dataset import Dataset
 from calib_core.estimation.registration import register, registration_params
+from calib_core.estimation.validation import check_share
 from calib_core.io.csv_format import select_rows
 from calib_core.io.session import FrameRecord, write_session
 from calib_core.model.profile import Profile
@@ -213,8 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _solve(args: argparse.Namespace) -> int:
-    if not 0.0 <= args.holdout <= 0.9:
-        raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
+    check_share(args.holdout, "--holdout")
     if args.folds < 0 or args.folds == 1:
         raise InputError(f"--folds {args.folds} must be 0 (none) or at least 2")
     profile = load_profile(args.robot)
@@ -266,22 +266,16 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _self_observe(args: argparse.Namespace) -> int:
-    from calib_core.estimation.self_observation import calibrate_sensors, to_calibration
-    from calib_core.io.ctu_motoman import camera_datasets, camera_profile
+    from calib_core.io.ctu_motoman import camera_dataset
 
-    if not 0.0 <= args.holdout <= 0.9:
-        raise InputError(f"--holdout {args.holdout} must be between 0 and 0.9")
+    check_share(args.holdout, "--holdout")
     profile = load_profile(args.robot)
-    mode = profile.mode(args.mode)
-    cams = camera_datasets(profile, args.data, set(args.source) or None)
-    parts = {name: (camera_profile(profile, name), data) for name, data in cams.items() if data.n_observations}
+    profile.mode(args.mode)
+    data = camera_dataset(profile, args.data, set(args.source) or None)
     _check_writable(args.out)
-    fit = calibrate_sensors(parts, mode, profile.nominal(), holdout=args.holdout, seed=args.seed)
-    cal = to_calibration(profile, fit, args.mode, profile.nominal(), str(Path(args.data) / "camera_observations.csv"))
+    cal = calibrate(profile, data, args.mode, holdout=args.holdout, seed=args.seed)
     _save(args.out, lambda: cal.save(args.out))
     print(cal.summary())
-    for name in parts:
-        print(f"  {name}: after {fit.after[name]}")
     print(f"  written: {args.out}")
     return 0
 
@@ -457,7 +451,7 @@ def _print_json(obj: dict, one_line: bool) -> None:
 
 def _gross_error(profile: Profile) -> float:
     """A failed detection's size: 20 cm for a 3-D point, 40 px for a pixel."""
-    if profile.sensors[profile.data.sensor].model == "pinhole":
+    if profile.sensors[profile.data.sensor].unit == "px":
         return 40.0
     return 0.2 * length_factor("m", profile.length_unit)
 

@@ -242,10 +242,10 @@ class JobManager:
                 cal_id = self.store.calibrations.add(cal, session_id=None, base_id=base_id, holdout=holdout)
             with self._changed:
                 job = self._jobs[job_id]
-                job.snap["cost"] = list(cal.solver.get("cost_history", job.snap["cost"]))
+                job.snap["cost"] = list(cal.solver.cost_history or job.snap["cost"])
                 after = cal.figures["after"]
                 job.snap["detail"].update(
-                    iterations=cal.solver.get("iterations"),
+                    iterations=cal.solver.iterations,
                     before_rms=cal.figures["before"].rms,
                     after_rms=after.rms,
                     unit=after.unit,

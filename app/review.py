@@ -28,14 +28,12 @@ import numpy as np
 from calib_core import Dataset, Profile
 from calib_core.io.urdf_export import to_urdf
 from calib_core.model.kinematics import forward
-from calib_core.model.profile import Sensor
-from calib_core.sensors.measurement import distortion_coefficients, predict, project_to_image, radial_terms
+from calib_core.sensors import Pinhole, Sensor
 from calib_core.units import length_factor
 
 from .errors import NotFound
 
 HISTOGRAM_BINS = 20
-UNDISTORT_ITERATIONS = 20
 
 
 class FrameLike(Protocol):
@@ -101,7 +99,7 @@ class Review:
         self.bounds_m = bounds_m
         self._row = {int(i): r for r, i in enumerate(indices)}
         self.sensor = profile.sensors[profile.data.sensor]
-        self.unit = "px" if self.sensor.model == "pinhole" else profile.length_unit
+        self.unit = self.sensor.unit
         self.urdf = {side: to_urdf(profile, s.p) for side, s in sides.items()}
 
     @classmethod
@@ -179,10 +177,10 @@ class Review:
         "image" of a camera)."""
         r = self.row(index)
         s = slice(self.start[r], self.start[r + 1])
-        width, height = self.sensor.image or (None, None)
+        width, height = getattr(self.sensor, "image", None) or (None, None)
         return {
             "index": int(index),
-            "role": "image" if self.sensor.model == "pinhole" else "left",
+            "role": "image" if self.sensor.reading == "image" else "left",
             "width": width,
             "height": height,
             "measured": _pixels(self.measured_px[s]),
@@ -246,7 +244,7 @@ def live_geometry(
     target frame (NaN: the target's calibrated point) and what was measured of them (None: nothing)."""
     q = np.nan_to_num(np.asarray(q_rad, float))[None]
     k = len(points)
-    dim = 2 if profile.sensors[profile.data.sensor].model == "pinhole" else 3
+    dim = profile.sensors[profile.data.sensor].dim
     meas = np.full((k, dim), np.nan) if measured is None else np.asarray(measured, float)
     s = _side(profile, p, q, np.zeros(k, int), np.full(k, target), np.asarray(points, float), meas, 1)
     return FrameGeometry(0, "live", q[0], {"old": s.predicted_m}, {"old": s.measured_m})
@@ -261,7 +259,7 @@ def _observations(
     """Every frame's observed points: the dataset's for measured frames (their joint readings fill
     the frame's), the whole target, unmeasured (NaN), for the others, so a frame whose detector
     found nothing still shows where its target was predicted. Returns (row, target, point, measured)."""
-    dim = 2 if profile.sensors[profile.data.sensor].model == "pinhole" else 3
+    dim = profile.sensors[profile.data.sensor].dim
     row_of = {int(i): r for r, i in enumerate(indices)}
     rows, target, point, measured = [], [], [], []
     seen = np.zeros(len(indices), bool)
@@ -319,9 +317,9 @@ def _side(
     R_base_sensor = poses.R[sensor.frame][rows]
     t_base_sensor = poses.t[sensor.frame][rows]
     x = ((P - t_base_sensor)[:, None, :] @ R_base_sensor)[:, 0, :]  # in the sensor frame
-    predicted = predict(sensor, p, x)[0] if len(x) else np.zeros((0, measured.shape[1]))
-    if sensor.model == "pinhole":
-        ray = _rays(sensor, p, measured)  # sensor frame
+    predicted = sensor.predict(p, x)[0] if len(x) else np.zeros((0, measured.shape[1]))
+    if isinstance(sensor, Pinhole):
+        ray = sensor.view_rays(p, measured)  # sensor frame
         ray_base = (R_base_sensor @ ray[:, :, None])[:, :, 0]
         with np.errstate(invalid="ignore", divide="ignore"):
             depth = np.einsum("ij,ij->i", normal, P - t_base_sensor) / np.einsum("ij,ij->i", normal, ray_base)
@@ -348,44 +346,19 @@ def _side(
 
 def _image(sensor: Sensor, p: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Pixels (M, 2) of sensor-frame points x in the sensor's (left) image; NaN behind the camera
-    or when the sensor has no intrinsics."""
-    if sensor.intrinsics is None or len(x) == 0:
-        return np.full((len(x), 2), np.nan)
-    ahead = (x @ sensor.R_frame_optical)[:, 2] > 0
-    safe = np.where(ahead[:, None], x, sensor.R_frame_optical[:, 2])
-    return np.where(ahead[:, None], project_to_image(sensor, p, safe), np.nan)
+    or when the sensor makes no image."""
+    uv = sensor.project(p, x)
+    return np.full((len(x), 2), np.nan) if uv is None else uv
 
 
 def _image_of_measurements(sensor: Sensor, p: np.ndarray, measured: np.ndarray) -> np.ndarray:
     """Measured pixels: a camera's directly, a 3-D sensor's projected into its left image."""
-    if sensor.model == "pinhole":
+    if sensor.unit == "px":
         return measured.copy()
     got = np.isfinite(measured[:, 0])
     out = np.full((len(measured), 2), np.nan)
     out[got] = _image(sensor, p, measured[got])
     return out
-
-
-def _rays(sensor: Sensor, p: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Directions (M, 3) in the sensor frame of the view rays through pixels uv (pinhole inverse;
-    lens distortion undone by fixed-point iteration, as OpenCV's undistortPoints does)."""
-    assert sensor.intrinsics is not None
-    fx, fy, cx, cy = (p[i] for i in sensor.intrinsics)
-    ad, bd = (uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy
-    a, b = ad, bd
-    if sensor.distortion is not None:
-        k = distortion_coefficients(sensor, p)
-        p1, p2 = k[2], k[3]
-        for _ in range(UNDISTORT_ITERATIONS):
-            r2 = a * a + b * b
-            num, den = radial_terms(k, r2)
-            radial = num / den
-            a, b = (
-                (ad - 2 * p1 * a * b - p2 * (r2 + 2 * a * a)) / radial,
-                (bd - p1 * (r2 + 2 * b * b) - 2 * p2 * a * b) / radial,
-            )
-    optical = np.stack([a, b, np.ones_like(a)], axis=1)
-    return optical @ sensor.R_frame_optical.T
 
 
 def frame_bounds_m(

@@ -107,7 +107,7 @@ def worse_than_active(
         return None
     new_e, old_e = mean_error(profile, data, new_p), mean_error(profile, data, active_p)
     if not math.isfinite(new_e) or new_e > old_e * (1 + WORSE_BY):
-        unit = "px" if profile.sensors[profile.data.sensor].model == "pinhole" else profile.length_unit
+        unit = profile.sensors[profile.data.sensor].unit
         return (
             f"on {where} its mean error is {new_e:.3f} {unit}, {active}'s {old_e:.3f} {unit} "
             f"(worse by more than {WORSE_BY:.0%})"

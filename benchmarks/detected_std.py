@@ -39,10 +39,10 @@ def one_run(seed: int) -> dict[str, tuple[dict[str, tuple[float, float]], float]
     out = {}
     for name, noise in WEIGHTINGS.items():
         cal = calibrate(rn if noise is None else rn.with_noise(noise), images.data, "full")
-        out[name] = (_estimates(cal), cal.solver["sigma"])
+        out[name] = (_estimates(cal), cal.solver.sigma)
     exact = SimulatedRobot.from_profile(rn, seed=60_000 + seed).simulate(67)
     cal = calibrate(rn, exact.data, "full")
-    out["exact, stereo model"] = (_estimates(cal), cal.solver["sigma"])
+    out["exact, stereo model"] = (_estimates(cal), cal.solver.sigma)
     return out
 
 

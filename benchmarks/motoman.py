@@ -28,10 +28,9 @@ from calib_core.estimation.calibrate import observed_mode
 from calib_core.estimation.identifiability import find_dependencies
 from calib_core.estimation.problem import Problem
 from calib_core.estimation.registration import register
-from calib_core.estimation.self_observation import calibrate_sensors
 from calib_core.estimation.solver import levenberg_marquardt
 from calib_core.estimation.validation import holdout_split
-from calib_core.io.ctu_motoman import LEICA_SUBSETS, camera_datasets, camera_profile, leica_subset
+from calib_core.io.ctu_motoman import LEICA_SUBSETS, camera_dataset, leica_subset
 from calib_core.model.profile import Profile
 
 # The data set README's held-out figures (mm): M0, M1, M2 as mean / RMS / max, and M2r RMS.
@@ -97,40 +96,38 @@ def tracker_holdout(profile: Profile, folder: Path, splits: int) -> None:
 
 def self_observation(profile: Profile, folder: Path) -> None:
     print("\n## 2. Self-observation: calibrated from the camera pixels alone, judged by the tracker\n")
-    cams = camera_datasets(profile, folder)
-    parts = {name: (camera_profile(profile, name), data) for name, data in cams.items()}
+    data = camera_dataset(profile, folder)
     names = profile.parameter_names
     start = time.perf_counter()
-    fit = calibrate_sensors(parts, profile.mode("cameras"), profile.nominal(), holdout=0.3)
+    cal = calibrate(profile, data, "cameras", holdout=0.3)
     seconds = time.perf_counter() - start
-    for name, (_, data) in parts.items():
+    fitted = cal.params(profile)
+    for s, f in cal.sensor_figures.items():
+        n_obs = int(np.sum(data.sensor == names_of(profile).index(s)))
         print(
-            f"- {name}: {data.n_observations} face centres in {data.n_configurations} poses, 30% of the poses "
-            f"held out; training before {fit.before[name]}; after {fit.after[name]}; "
-            f"held out before {fit.holdout_before[name]}; after {fit.holdout_after[name]}"
+            f"- {s}: {n_obs} face centres, 30% of the {data.n_configurations} poses held out; training before "
+            f"{f['before']}; after {f['after']}; held out before {f['holdout_before']}; after {f['holdout_after']}"
         )
     offsets = [f"{j}{a}.offset" for a in (1, 2) for j in "LURB"]
+    estimate = {e.name: e for e in cal.parameters}
     print(
         "- joint offsets found (deg, ± standard deviation): "
-        + ", ".join(
-            f"{n} {math.degrees(fit.p[names.index(n)] - profile.nominal()[names.index(n)]):+.3f} "
-            f"± {math.degrees(fit.std[names.index(n)]):.3f}"
-            for n in offsets
-        )
+        + ", ".join(f"{n} {estimate[n].value - estimate[n].nominal:+.3f} ± {estimate[n].std:.3f}" for n in offsets)
     )
-    held = ", ".join(profile.parameters[i].name for i in fit.held) or "none"
-    print(f"- {len(fit.free)} parameters in {seconds:.1f} s ({fit.result.iterations} iterations); held: {held}")
+    held = ", ".join(h.parameter for h in cal.identifiability.held_fixed) or "none"
+    free = len(cal.identifiability.free)
+    print(f"- {free} parameters in {seconds:.1f} s ({cal.solver.iterations} iterations); held: {held}")
     intrinsics = [f"camera{c}.{k}" for c in (1, 2) for k in ("fx", "fy", "cx", "cy")]
     print(
         "- intrinsics (px), nominal -> fitted: "
-        + ", ".join(f"{n} {profile.nominal()[names.index(n)]:.0f} -> {fit.p[names.index(n)]:.0f}" for n in intrinsics)
+        + ", ".join(f"{n} {profile.nominal()[names.index(n)]:.0f} -> {fitted[names.index(n)]:.0f}" for n in intrinsics)
     )
     registration = list(profile.mode("registration").free)
     print("\n| subset | model | registration only: mean / RMS / max | registration + reflector row |")
     print("|---|---|---|---|")
     for name in ("feb2019-A-right", "feb2019-left-cube", "feb2019-B-right-cube"):
         data = leica_subset(profile, folder, name)
-        for label, p in (("nominal", profile.nominal()), ("cameras", fit.p)):
+        for label, p in (("nominal", profile.nominal()), ("cameras", fitted)):
             q = register(profile, data, p)
             only = stats(errors_mm(profile, data, q))
             arm = data.target[0] + 1  # LR1 or LR2
@@ -166,6 +163,10 @@ def identifiability(profile: Profile, folder: Path) -> None:
             f"  - mode `full` itself: held: {'; '.join(held) or 'none'}; "
             f"weakly determined (only in combination): {'; '.join(weak) or 'none'}"
         )
+
+
+def names_of(profile: Profile) -> list[str]:
+    return [s.name for s in profile.sensors]
 
 
 def _fmt(s: tuple[float, float, float]) -> str:

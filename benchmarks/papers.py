@@ -49,7 +49,7 @@ def mean_dist(profile: Profile, data: Dataset, p: np.ndarray) -> float:
 
 def solve_ms(profile: Profile, data: Dataset, mode: str, base: Calibration | None, repeats: int = 7) -> float:
     """Median solver time over repeats (the first run warms caches up and is dropped)."""
-    times = [calibrate(profile, data, mode, base).solver["solve_seconds"] for _ in range(repeats + 1)]
+    times = [calibrate(profile, data, mode, base).solver.solve_seconds for _ in range(repeats + 1)]
     return 1e3 * statistics.median(times[1:])
 
 
@@ -57,9 +57,9 @@ def parameter_errors(profile: Profile, cal: Calibration, truth: np.ndarray) -> s
     """Largest |estimate - truth| over estimated parameters that no held-fixed one is entangled with,
     in deg and in the length unit, and the largest error in reported standard deviations."""
     entangled = set()
-    for h in cal.identifiability["held_fixed"]:
-        entangled.add(h["parameter"])
-        entangled |= {p.name for p in cal.parameters if p.label in h["message"]}
+    for h in cal.identifiability.held_fixed:
+        entangled.add(h.parameter)
+        entangled |= {p.name for p in cal.parameters if p.label in h.message}
     worst = {"deg": 0.0, profile.length_unit: 0.0}
     worst_sigma = 0.0
     for p in cal.parameters:
@@ -108,7 +108,7 @@ def robonaut(with_nm: bool) -> list[Row]:
             f"{floor:.3f} {unit}",
             ho / floor,
             ms,
-            full.solver["iterations"],
+            full.solver.iterations,
             parameter_errors(prof, full, truth1),
             nelder_mead(prof, s67.data, "full", None, ms) if with_nm else "-",
         )
@@ -129,7 +129,7 @@ def robonaut(with_nm: bool) -> list[Row]:
             f"{rms(prof, s150.data, truth2):.3f} {unit} (on the 150)",
             d["after"].rms / rms(prof, s150.data, truth2),
             ms,
-            daily.solver["iterations"],
+            daily.solver.iterations,
             parameter_errors(prof, daily, truth2),
             nelder_mead(prof, s150.data, "daily", full, ms) if with_nm else "-",
         )
@@ -148,7 +148,7 @@ def robonaut(with_nm: bool) -> list[Row]:
             f"{floor_c:.3f} {unit}",
             h["holdout_after"].rms / floor_c,
             solve_ms(prof, s150.data.select(np.isin(s150.data.frame_ids, half.frames["train"])), "daily", full),
-            half.solver["iterations"],
+            half.solver.iterations,
             parameter_errors(prof, half, truth2),
         )
     )
@@ -176,7 +176,7 @@ def nao(with_nm: bool) -> list[Row]:
             f"{floor:.3f} px",
             ho / floor,
             ms,
-            cal.solver["iterations"],
+            cal.solver.iterations,
             parameter_errors(prof, cal, sim.true_params),
             nelder_mead(prof, sim.data, "full", None, ms) if with_nm else "-",
         )

@@ -23,13 +23,15 @@ _EXPORTS = {
     "Dataset": "dataset",
     "InputError": "errors",
     "Problem": "estimation.problem",
+    "SENSOR_MODELS": "sensors",
+    "Sensor": "sensors",
     "Profile": "model.profile",
     "SimulatedRobot": "sim.simulator",
     "Simulation": "sim.simulator",
     "calibrate": "estimation.calibrate",
-    "calibrate_sensors": "estimation.self_observation",
     "fit_parameters": "estimation.calibrate",
     "load_profile": "model.loader",
+    "merge": "dataset",
     "parse_dataset": "io.csv_format",
     "read_dataset": "io.csv_format",
     "register": "estimation.registration",
@@ -38,17 +40,19 @@ _EXPORTS = {
     "write_atomic": "files",
 }
 __all__ = [
+    "SENSOR_MODELS",
     "Calibration",
     "Dataset",
     "InputError",
     "Problem",
     "Profile",
+    "Sensor",
     "SimulatedRobot",
     "Simulation",
     "calibrate",
-    "calibrate_sensors",
     "fit_parameters",
     "load_profile",
+    "merge",
     "parse_dataset",
     "read_dataset",
     "register",
@@ -67,15 +71,15 @@ def __getattr__(name: str) -> Any:
 
 
 if TYPE_CHECKING:
-    from .dataset import Dataset
+    from .dataset import Dataset, merge
     from .errors import InputError
     from .estimation.calibrate import calibrate, fit_parameters
     from .estimation.calibration import Calibration
     from .estimation.problem import Problem
     from .estimation.registration import register
-    from .estimation.self_observation import calibrate_sensors
     from .files import write_atomic
     from .io.csv_format import parse_dataset, read_dataset, select_rows, to_csv
     from .model.loader import load_profile
     from .model.profile import Profile
+    from .sensors import SENSOR_MODELS, Sensor
     from .sim.simulator import SimulatedRobot, Simulation

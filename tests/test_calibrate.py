@@ -32,6 +32,7 @@ def concat(a: Dataset, b: Dataset) -> Dataset:
         point=np.concatenate([a.point, b.point]),
         vertex=np.concatenate([a.vertex, b.vertex]),
         measured=np.concatenate([a.measured, b.measured]),
+        sensor=np.concatenate([a.sensor, b.sensor]),
         source="concatenated",
     )
 
@@ -50,8 +51,8 @@ def gauge_equivalent_truth(profile, cal: Calibration, truth: np.ndarray, data: D
     calibration's base value: the values an unbiased calibration should find for the others."""
     p = truth.copy()
     base = {e.name: profile.from_display(profile.param(e.name), e.base) for e in cal.parameters}
-    for held in cal.identifiability["held_fixed"]:
-        name = held["parameter"]
+    for held in cal.identifiability.held_fixed:
+        name = held.parameter
         i = profile.param(name)
         delta = base[name] - p[i]
         if delta == 0.0:
@@ -257,7 +258,7 @@ def test_holdout_and_cv_figures_are_consistent(rn, duplicated, split_cal) -> Non
     assert f["holdout_after"].rms < 2.0 * floor
     assert f["cv_after"].rms < 2.0 * floor
     assert f["cv_after"].rms > 0.8 * f["after"].rms
-    assert split_cal.solver["folds"] == 4
+    assert split_cal.solver.folds == 4
 
 
 def test_kfold_splits_keep_repeated_configurations_together(duplicated) -> None:
@@ -278,7 +279,7 @@ def test_calibration_save_load_round_trip(rn, rn_sim, rn_full, tmp_path) -> None
     assert back.parameters == rn_full.parameters
     np.testing.assert_array_equal(back.params(rn), rn_full.params(rn))
     assert back.figures == rn_full.figures
-    assert back.identifiability["held_fixed"] == rn_full.identifiability["held_fixed"]
+    assert back.identifiability.held_fixed == rn_full.identifiability.held_fixed
     assert back.outliers == rn_full.outliers
     assert back.warnings == rn_full.warnings
     assert back.frames == rn_full.frames
@@ -319,7 +320,7 @@ def test_nao_full_recovers_the_21_parameters(nao, nao_sims, nao_full) -> None:
     sim = nao_sims[0]
     estimated = {e.name: e for e in nao_full.parameters if e.estimated}
     assert sorted(estimated) == sorted(NAO_21)
-    assert nao_full.identifiability["held_fixed"] == []
+    assert nao_full.identifiability.held_fixed == []
     z = {}
     for name, est in estimated.items():
         i = nao.param(name)

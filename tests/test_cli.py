@@ -236,6 +236,24 @@ def test_solve_daily_on_a_later_day_with_a_held_out_half(robonaut: dict) -> None
             assert p["value"] == pytest.approx(full[p["name"]]["value"], abs=1e-9), p["name"]
 
 
+def test_a_solve_that_hits_the_iteration_limit_says_it_did_not_converge(tmp_path: Path) -> None:
+    """A daily calibration of the first sample day from the nominal model (8 deg off) stops at the
+    iteration limit: the summary, the warning and the file say it did not converge."""
+    out = tmp_path / "daily.json"
+    data = ROOT / "sample_sessions" / "robonaut-a-day1" / "data.csv"
+    proc = ok(
+        calib("solve", "--robot", "robonaut-a", "--mode", "daily", "--data", str(data), "--out", str(out), cwd=tmp_path)
+    )
+    assert "DID NOT CONVERGE: maximum iterations reached" in proc.stdout
+    assert "warning: the solver did not converge" in proc.stdout
+    cal = json.loads(out.read_text(encoding="utf-8"))
+    assert cal["converged"] is False and cal["solver"]["converged"] is False
+    assert cal["solver"]["status"] == "max_iterations" and cal["solver"]["iterations"] == 100
+    assert {"severity": "warning", "code": "not-converged"}.items() <= next(
+        d for d in cal["diagnostics"] if d["code"] == "not-converged"
+    ).items()
+
+
 def test_predict_with_the_calibration_is_close_to_the_measurements(robonaut: dict) -> None:
     proc = ok(robonaut["predict"])
     assert "pred.csv" in proc.stdout

@@ -89,5 +89,5 @@ def test_a_declared_noise_model_is_checked() -> None:
     ):
         with pytest.raises(InputError, match=field):
             rn.with_noise(noise)
-    with pytest.raises(InputError, match="point3d"):
+    with pytest.raises(InputError, match="a pinhole sensor takes the isotropic noise model"):
         load_profile("nao").with_noise({"model": "stereo", "pixel": 0.3, "disparity": 0.02})

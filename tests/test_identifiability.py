@@ -23,11 +23,11 @@ def rn_case(rn):
 
 def test_robonaut_full_holds_d_neck_yaw(rn, rn_case) -> None:
     _, cal = rn_case
-    held = {h["parameter"]: h["message"] for h in cal.identifiability["held_fixed"]}
+    held = {h.parameter: h.message for h in cal.identifiability.held_fixed}
     assert "neck_yaw.d" in held, held
     assert "d(neck_yaw)" in held["neck_yaw.d"] and "d(shoulder_roll)" in held["neck_yaw.d"]
-    assert "neck_yaw.d" not in cal.identifiability["free"]
-    assert "shoulder_roll.d" in cal.identifiability["free"]
+    assert "neck_yaw.d" not in cal.identifiability.free
+    assert "shoulder_roll.d" in cal.identifiability.free
     est = {e.name: e for e in cal.parameters}
     ny = est["neck_yaw.d"]
     assert not ny.estimated and ny.std is None
@@ -120,12 +120,10 @@ def test_head_pitch_and_cam_pitch_are_strongly_correlated(nao, nao_head_case) ->
 def test_nao_full_head_reports_head_offsets_against_camera_rotations(nao_head_case) -> None:
     _, cal = nao_head_case
     head, cam = {"HeadYaw", "HeadPitch"}, {"CamYaw", "CamPitch", "CamRoll"}
-    held = {h["parameter"] for h in cal.identifiability["held_fixed"]}
-    correlated = any(
-        ({c["a"], c["b"]} & head) and ({c["a"], c["b"]} & cam) for c in cal.identifiability["correlations"]
-    )
+    held = {h.parameter for h in cal.identifiability.held_fixed}
+    correlated = any(({c.a, c.b} & head) and ({c.a, c.b} & cam) for c in cal.identifiability.correlations)
     warned = any(any(h in w for h in head) and any(c in w for c in cam) for w in cal.warnings)
-    assert held & head or correlated or warned, (held, cal.identifiability["correlations"], cal.warnings)
+    assert held & head or correlated or warned, (held, cal.identifiability.correlations, cal.warnings)
 
 
 # --- Monte Carlo: reported standard deviations against the spread of the estimates ------------------------
@@ -157,7 +155,7 @@ def test_robonaut_reported_std_matches_monte_carlo(rn) -> None:
     for seed in range(400):
         sim = SimulatedRobot.from_profile(rn, seed=10_000 + seed).simulate(67)  # new configurations and noise
         cal = calibrate(rn, sim.data, "full")
-        held.add(tuple(sorted(h["parameter"] for h in cal.identifiability["held_fixed"])))
+        held.add(tuple(sorted(h.parameter for h in cal.identifiability.held_fixed)))
         runs.append(_estimates(cal))
     assert len(held) == 1  # the same directions are held in every run
     ratios = _std_ratios(runs)
@@ -200,7 +198,7 @@ def test_nao_reported_std_matches_monte_carlo(nao, nao_bases) -> None:
             sim = robot.measure(_varied_stances(robot, q, targets, rng), targets)
             assert sim.data.n_configurations == 144
             cal = calibrate(nao, sim.data, "full")
-            assert cal.identifiability["held_fixed"] == []
+            assert cal.identifiability.held_fixed == []
             runs.append(_estimates(cal))
     ratios = _std_ratios(runs)
     assert len(ratios) == 21

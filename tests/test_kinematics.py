@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 # --- Robonaut (specs/robonaut-a.md) -----------------------------------------------------------------
+from jacobian_check import check_jacobian, perturbed
 from spec_tables import RN_ARM, RN_JOINTS, RN_NECK, RN_TABLE_I, RN_TABLE_II
 
 from calib_core import Problem, SimulatedRobot, load_profile, parse_dataset, to_csv
-from calib_core.sensors.measurement import predict as sensor_predict
 
 RN_PE = np.array([10.0, 0.0, 0.0])  # nominal fixture centre in the hand frame, cm
 
@@ -249,39 +249,6 @@ def test_nao_prediction_is_sensitive_to_every_parameter(nao, nao_sim) -> None:
 # --- exact Jacobians against central differences ------------------------------------------------------
 
 
-def _perturbed(profile, rng: np.random.Generator) -> np.ndarray:
-    """Nominal parameters moved at random (so that zero values and zero-angle paths are exercised)."""
-    p = profile.nominal().copy()
-    for i, prm in enumerate(profile.parameters):
-        scale = {"angle": math.radians(3.0), "length": 2.0, "px": 5.0, "scalar": 0.01}[prm.kind]
-        p[i] += rng.uniform(-scale, scale)
-    return p
-
-
-def _check_jacobian(problem: Problem, names: list[str], rel: float = 1e-6) -> int:
-    """Every column of the exact Jacobian against central differences; returns the non-zero columns."""
-    x0 = problem.x0.copy()
-    _, J = problem.residuals_jacobian(x0)
-    nonzero = 0
-    bad = []
-    for k in range(len(x0)):
-        h = 1e-5 * max(1.0, abs(x0[k]))
-        e = np.zeros_like(x0)
-        e[k] = h
-        fd = (problem.residuals(x0 + e) - problem.residuals(x0 - e)) / (2 * h)
-        scale = np.linalg.norm(fd)
-        err = np.linalg.norm(J[:, k] - fd)
-        if scale == 0.0:
-            if np.linalg.norm(J[:, k]) != 0.0:
-                bad.append((names[k], "FD column is zero but J is not", float(np.linalg.norm(J[:, k]))))
-            continue
-        nonzero += 1
-        if err > rel * scale:
-            bad.append((names[k], float(err / scale)))
-    assert not bad, bad
-    return nonzero
-
-
 def _random_robonaut_data(profile, n: int, seed: int):
     text, _ = _robonaut_csv(n, seed)
     data = parse_dataset(profile, text, "random.csv")
@@ -293,8 +260,8 @@ def test_robonaut_jacobian_all_parameters(robonaut) -> None:
     rng = np.random.default_rng(11)
     data = _random_robonaut_data(robonaut, 25, seed=3)
     free = list(range(len(robonaut.parameters)))
-    problem = Problem(robonaut, data, free, _perturbed(robonaut, rng), noise_model=False)
-    nonzero = _check_jacobian(problem, robonaut.parameter_names)
+    problem = Problem(robonaut, data, free, perturbed(robonaut, rng), noise_model=False)
+    nonzero = check_jacobian(problem, robonaut.parameter_names)
     # Every kinematic parameter (10 joints x 4 DH values + P_e) moves the point; only the
     # intrinsics of a point3d sensor do not.
     assert nonzero == 43
@@ -305,7 +272,7 @@ def test_robonaut_jacobian_full_mode_with_ties_and_noise_model(robonaut) -> None
     rng = np.random.default_rng(12)
     data = SimulatedRobot.from_profile(robonaut, seed=4).simulate(30).data
     mode = robonaut.mode("full")
-    p0 = _perturbed(robonaut, rng)
+    p0 = perturbed(robonaut, rng)
     for tie in mode.ties:
         p0[tie.follower] = tie.sign * p0[tie.leader]
     problem = Problem(robonaut, data, list(mode.free), p0, mode.ties, noise_model=True)
@@ -314,7 +281,7 @@ def test_robonaut_jacobian_full_mode_with_ties_and_noise_model(robonaut) -> None
     for tie in mode.ties:
         assert p[tie.follower] == pytest.approx(tie.sign * p[tie.leader], abs=1e-12)
     names = [robonaut.parameters[i].name for i in mode.free]
-    assert _check_jacobian(problem, names) == len(mode.free)
+    assert check_jacobian(problem, names) == len(mode.free)
 
 
 def _random_nao_data(profile, sim, seed: int):
@@ -329,9 +296,9 @@ def test_nao_jacobian_all_parameters(nao, nao_sim) -> None:
     rng = np.random.default_rng(13)
     data = _random_nao_data(nao, nao_sim, seed=6)
     free = list(range(len(nao.parameters)))
-    problem = Problem(nao, data, free, _perturbed(nao, rng), noise_model=False)
+    problem = Problem(nao, data, free, perturbed(nao, rng), noise_model=False)
     assert (problem.sensor_points(problem.params(problem.x0))[:, 0] > 100).all()  # in front of the camera
-    nonzero = _check_jacobian(problem, nao.parameter_names)
+    nonzero = check_jacobian(problem, nao.parameter_names)
     assert nonzero == len(nao.parameters)
 
 
@@ -372,10 +339,10 @@ def test_nao_jacobian_with_distortion(nao, nao_sim, nao_distorted) -> None:
     rng = np.random.default_rng(14)
     data = _random_nao_data(nao_distorted, nao_sim, seed=7)
     free = list(range(len(nao_distorted.parameters)))
-    p0 = _perturbed(nao_distorted, rng)
+    p0 = perturbed(nao_distorted, rng)
     problem = Problem(nao_distorted, data, free, p0, noise_model=False)
     names = nao_distorted.parameter_names
-    assert _check_jacobian(problem, names) == len(names)
+    assert check_jacobian(problem, names) == len(names)
     # The intrinsics and distortion columns in particular (the loop above covers them; make sure
     # they are there and are not trivially zero).
     _, J = problem.residuals_jacobian(problem.x0)
@@ -390,7 +357,7 @@ def test_distortion_matches_opencv(nao_distorted) -> None:
     n = 500
     x = rng.uniform(200, 1500, n)
     pts = np.stack([x, x * rng.uniform(-0.55, 0.55, n), x * rng.uniform(-0.4, 0.4, n)], axis=1)  # x forward
-    uv, _, _ = sensor_predict(sensor, p, pts)
+    uv, _, _ = sensor.predict(p, pts)
     values = nao_distorted.params_to_display(p)
     fx, fy, cx, cy = (values[f"lower_camera.{k}"] for k in ("fx", "fy", "cx", "cy"))
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
@@ -409,6 +376,6 @@ def test_pinhole_without_distortion_is_eq1(nao) -> None:
     sensor = nao.sensors[nao.data.sensor]
     rng = np.random.default_rng(16)
     pts = np.stack([rng.uniform(100, 900, 50), rng.uniform(-300, 300, 50), rng.uniform(-300, 300, 50)], axis=1)
-    uv, _, _ = sensor_predict(sensor, nao.nominal(), pts)
+    uv, _, _ = sensor.predict(nao.nominal(), pts)
     expected = np.stack([324 - 562.5 * pts[:, 1] / pts[:, 0], 189 - 562.5 * pts[:, 2] / pts[:, 0]], axis=1)
     np.testing.assert_allclose(uv, expected, rtol=0, atol=1e-9)

@@ -12,19 +12,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from jacobian_check import check_jacobian
 
 from app.cli import main
 from calib_core import calibrate, load_profile
-from calib_core.dataset import Dataset
+from calib_core.dataset import Dataset, merge
 from calib_core.errors import InputError
 from calib_core.estimation.calibrate import observed_mode
 from calib_core.estimation.identifiability import find_dependencies
 from calib_core.estimation.problem import Problem
 from calib_core.estimation.registration import register, registration_params, rigid_fit
-from calib_core.estimation.self_observation import calibrate_sensors
 from calib_core.estimation.validation import holdout_split
 from calib_core.io.csv_format import parse_dataset, to_csv
-from calib_core.io.ctu_motoman import camera_datasets, camera_profile, leica_subset
+from calib_core.io.ctu_motoman import camera_dataset, leica_subset, recording
 from calib_core.model.kinematics import forward
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "motoman"
@@ -102,6 +102,7 @@ def synthetic_tracker(mm, truth: np.ndarray, n: int, seed: int, noise_m: float =
         point=np.zeros((n, 3)),
         vertex=np.full(n, -1),
         measured=np.zeros((n, 3)),
+        sensor=np.full(n, mm.data.sensor),
     )
     rng = np.random.default_rng(seed + 100)
     exact = Problem(mm, data, [], truth).predict(truth)
@@ -256,12 +257,10 @@ def test_identifiability_names_what_the_tracker_cannot_separate(mm) -> None:
     assert "yaw(tracker)" in text and "offset(LR1)" in text
 
 
-def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
-    """Two cameras seeing the marker faces of both arms, pixels made from a hidden truth."""
-    rng = np.random.default_rng(11)
-    truth = mm.nominal().copy()
-    free = mm.mode("cameras").free
-    for i in free:
+def camera_truth(mm, rng: np.random.Generator, truth: np.ndarray | None = None) -> np.ndarray:
+    """`truth` (default nominal) with mm-sized, sub-degree and 10 px errors on the cameras mode's parameters."""
+    truth = mm.nominal().copy() if truth is None else truth.copy()
+    for i in mm.mode("cameras").free:
         kind = mm.parameters[i].kind
         if kind == "length":
             truth[i] += rng.normal(0, 0.002)
@@ -269,11 +268,14 @@ def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
             truth[i] += rng.normal(0, math.radians(0.2))
         elif kind == "px":
             truth[i] += rng.normal(0, 10.0)
-    n = 150
-    q = random_configurations(mm, n, 12)
-    parts = {}
+    return truth
+
+
+def synthetic_cameras(mm, truth: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Dataset:
+    """Both cameras' pixels (0.5 px noise) of the marker faces in front of them, configurations q."""
+    n = len(q)
+    parts = []
     for cam in ("camera1", "camera2"):
-        prof = camera_profile(mm, cam)
         cfg = np.repeat(np.arange(n), 40)
         target = np.tile(np.repeat([mm.target("markers1"), mm.target("markers2")], 20), n)
         vertex = np.tile(np.arange(20), 2 * n)
@@ -286,25 +288,100 @@ def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
             mm.targets[target[0]].points[vertex],
             vertex,
             np.zeros((40 * n, 2)),
+            np.full(40 * n, [s.name for s in mm.sensors].index(cam)),
         )
-        uv = Problem(prof, data, [], truth).predict(truth)
-        x = Problem(prof, data, [], truth).sensor_points(truth)
+        uv = Problem(mm, data, [], truth).predict(truth)
+        x = Problem(mm, data, [], truth).sensor_points(truth)
         seen = (x[:, 2] > 0.3) & (np.abs(uv - 2500).max(axis=1) < 2500)  # in front, inside a 5000 px image
         data = data.observations(seen)
-        exact = Problem(prof, data, [], truth).predict(truth)
-        parts[cam] = (prof, replace(data, measured=exact + rng.normal(0, 0.5, exact.shape)))
-    fit = calibrate_sensors(parts, mm.mode("cameras"), mm.nominal(), holdout=0.3, seed=2)
-    for cam in parts:
-        assert fit.before[cam].rms > 10 * fit.after[cam].rms
-        assert fit.after[cam].rms < 1.0  # px: the 0.5 px noise
-        assert fit.holdout_after[cam].rms < 1.3 * fit.after[cam].rms
-        assert fit.holdout_after[cam].n > 0.2 * (fit.holdout_after[cam].n + fit.after[cam].n)
+        exact = Problem(mm, data, [], truth).predict(truth)
+        parts.append(replace(data, measured=exact + rng.normal(0, 0.5, exact.shape)))
+    return merge(parts)
+
+
+def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
+    """Two cameras seeing the marker faces of both arms, pixels made from a hidden truth."""
+    rng = np.random.default_rng(11)
+    truth = camera_truth(mm, rng)
+    cal = calibrate(
+        mm, synthetic_cameras(mm, truth, random_configurations(mm, 150, 12), rng), "cameras", holdout=0.3, seed=2
+    )
+    assert set(cal.sensor_figures) == {"camera1", "camera2"}
+    for f in cal.sensor_figures.values():
+        assert f["before"].rms > 10 * f["after"].rms
+        assert f["after"].rms < 1.0  # px: the 0.5 px noise
+        assert f["holdout_after"].rms < 1.3 * f["after"].rms
+        assert f["holdout_after"].n > 0.2 * (f["holdout_after"].n + f["after"].n)
+    p = cal.params(mm)
     offsets = [mm.param(f"{j}{a}.offset") for j in "LURB" for a in (1, 2)]
     for i in offsets:
-        assert abs(fit.p[i] - truth[i]) < math.radians(0.05), mm.parameters[i].name
+        assert abs(p[i] - truth[i]) < math.radians(0.05), mm.parameters[i].name
     # The reported standard deviations are honest: every estimate within 4 of them of the truth.
-    z = [abs(fit.p[i] - truth[i]) / fit.std[i] for i in fit.free]
+    z = [abs(e.value - mm.to_display(i, truth[i])) / e.std for i, e in enumerate(cal.parameters) if e.std]
     assert max(z) < 4.0, max(z)
+
+
+def test_tracker_and_cameras_in_one_calibration(mm) -> None:
+    """One session's three sensors: the tracker's 3-D points (m) and both cameras' pixels of the same
+    poses, each weighed by its own noise, solved together; a hidden truth in the robot, the tracker's
+    pose and the cameras, recovered within the reported standard deviations."""
+    rng = np.random.default_rng(21)
+    free = set(mm.mode("tracker-cameras").free)
+    truth = camera_truth(
+        mm, rng, np.where([i in free for i in range(len(mm.parameters))], perturbed_truth(mm, 8), mm.nominal())
+    )
+    q = random_configurations(mm, 120, 22)
+    tracker = synthetic_tracker(mm, truth, 120, seed=23)
+    tracker = replace(tracker, joints=q, measured=Problem(mm, replace(tracker, joints=q), [], truth).predict(truth))
+    tracker = replace(tracker, measured=tracker.measured + rng.normal(0, 2e-5, tracker.measured.shape))
+    data = merge([tracker, synthetic_cameras(mm, truth, q, rng)])
+    assert data.sensors == [0, 1, 2] and data.n_configurations == 120
+    cal = calibrate(mm, data, "tracker-cameras", holdout=0.25, seed=1)
+    assert cal.converged and set(cal.sensor_figures) == {"tracker", "camera1", "camera2"}
+    assert cal.sensor_figures["tracker"]["holdout_after"].rms < 1e-4  # m: the 20 um noise
+    for name in ("camera1", "camera2"):
+        assert cal.sensor_figures[name]["holdout_after"].rms < 1.0  # px: the 0.5 px noise
+    held = {h.parameter for h in cal.identifiability.held_fixed}
+    offsets = [f"{j}{a}.offset" for j in "LURB" for a in (1, 2)]
+    for e in cal.parameters:
+        if e.name in offsets and e.name not in held:
+            i = mm.param(e.name)
+            assert abs(e.value - mm.to_display(i, truth[i])) < 4 * e.std, (e.name, e.value, e.std)
+
+
+def test_mixed_sensors_have_an_exact_jacobian(mm) -> None:
+    """3-D points and pixels in one problem: every column against central differences."""
+    rng = np.random.default_rng(31)
+    q = random_configurations(mm, 80, 32)
+    tracker = replace(synthetic_tracker(mm, mm.nominal(), 80, seed=33), joints=q)
+    data = merge([tracker, synthetic_cameras(mm, mm.nominal(), q, rng)])
+    data = replace(data, measured=data.measured + rng.normal(0, 0.01, data.measured.shape))
+    assert data.sensors == [0, 1, 2]
+    mode = mm.mode("tracker-cameras")
+    problem = Problem(mm, data, list(mode.free), camera_truth(mm, rng, perturbed_truth(mm, 9)), mode.ties, mode.priors)
+    assert check_jacobian(problem, [mm.parameters[i].name for i in mode.free]) > 40
+
+
+@needs_data
+def test_a_real_recording_of_three_sensors_calibrates_per_mode(mm) -> None:
+    """The left arm's 6x6x6 cube as one session: per pose the tracker's reading and both cameras'
+    pixels. Each mode fits the sensors it names (the tracker's modes the tracker alone, exactly as on
+    the tracker file); `tracker-cameras` fits all three, each weighed by its own scatter."""
+    data = recording(mm, DATA, "leica_left_hand_6x6x6_dataset.mat")
+    assert data.sensors == [0, 1, 2] and data.n_configurations == 216
+    assert int(np.sum(data.sensor == 0)) == 208  # the poses the tracker read
+    alone = calibrate(mm, leica_subset(mm, DATA, "feb2019-left-cube"), "offsets")
+    in_session = calibrate(mm, data, "offsets")
+    assert in_session.sensor_figures == {}  # the tracker's observations only
+    assert in_session.figures["after"].rms == pytest.approx(alone.figures["after"].rms, rel=1e-9)
+    both = calibrate(mm, data, "tracker-cameras", holdout=0.3)
+    assert both.converged
+    f = both.sensor_figures
+    assert f["tracker"]["holdout_after"].rms < 0.7 * f["tracker"]["holdout_before"].rms
+    for cam in ("camera1", "camera2"):
+        assert f[cam]["holdout_after"].rms < 0.1 * f[cam]["holdout_before"].rms
+    with pytest.raises(InputError, match="fits observations of tracker"):
+        calibrate(mm, data.of_sensor(1), "offsets")
 
 
 @needs_data
@@ -317,14 +394,12 @@ def test_real_camera_pixels_calibrate_and_the_tracker_agrees(mm) -> None:
         "no_leica_self_upper1_4x4_dataset.mat",
         "no_leica_wall_table1_5x5_dataset.mat",
     }
-    cams = camera_datasets(mm, DATA, sources)
-    parts = {name: (camera_profile(mm, name), data) for name, data in cams.items()}
-    fit = calibrate_sensors(parts, mm.mode("cameras"), mm.nominal())
-    for cam in parts:
-        assert fit.after[cam].median < 0.4 * fit.before[cam].median
+    cal = calibrate(mm, camera_dataset(mm, DATA, sources), "cameras")
+    for f in cal.sensor_figures.values():
+        assert f["after"].median < 0.4 * f["before"].median
     cube = leica_subset(mm, DATA, "feb2019-left-cube")
     errors = {}
-    for label, p in (("nominal", mm.nominal()), ("cameras", fit.p)):
+    for label, p in (("nominal", mm.nominal()), ("cameras", cal.params(mm))):
         q = register(mm, cube, p)
         errors[label] = np.sqrt(np.mean(np.sum((Problem(mm, cube, [], q).predict(q) - cube.measured) ** 2, axis=1)))
     assert errors["cameras"] < errors["nominal"]
@@ -347,11 +422,18 @@ def test_a_parameter_beyond_its_bound_stops_there_with_a_warning(mm) -> None:
 def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(mm) -> None:
     truth = perturbed_truth(mm, 10)
     data = synthetic_tracker(mm, truth, 60, seed=7)
+    offsets = mm.mode("offsets")
+    arm_only = replace(offsets, name="arm", free=tuple(i for i in offsets.free if i not in registration_params(mm)))
+    mm = replace(mm, modes={**mm.modes, "arm": arm_only})
     with pytest.raises(InputError, match="does not estimate the registration of 'tracker'"):
-        calibrate(mm, data, "cameras")
+        calibrate(mm, data, "arm")
     first = calibrate(mm, data, "registration")
-    again = calibrate(mm, data, "cameras", first)  # the registration comes from the base
+    again = calibrate(mm, data, "arm", first)  # the registration comes from the base
     assert again.figures["before"].rms < 0.01  # m: the base's registration puts the model in place
+    with pytest.raises(
+        InputError, match="mode 'cameras' fits observations of camera1, camera2; these data hold tracker"
+    ):
+        calibrate(mm, data, "cameras")
 
 
 @needs_data
@@ -389,7 +471,7 @@ def test_self_observe_names_the_bad_line_and_writes_nothing(
     (tmp_path / "camera_observations.csv").write_text("\n".join(rows) + "\n")
     out = tmp_path / "x.json"
     with pytest.raises(InputError, match=words) as err:
-        camera_datasets(load_profile("motoman"), tmp_path)
+        camera_dataset(load_profile("motoman"), tmp_path)
     assert f"line {line}" in str(err.value)
     assert main(["self-observe", "--robot", "motoman", "--data", str(tmp_path), "--out", str(out)]) == 2
     assert not out.exists()

@@ -191,6 +191,22 @@ BROKEN = {
         "data.targets.right",
         "right_bord",
     ),
+    "measurement columns not the sensor's dimension": (
+        "robonaut-a",
+        r"measurement: \{columns: \[x, y, z\]",
+        "measurement: {columns: [x, y]",
+        "data.measurement.columns",
+        "a point3d sensor ('eye') measures 3 numbers, not 2",
+    ),
+    "unknown joint unit": ("robonaut-a", r"joint_unit: deg", "joint_unit: degrees", "data.joint_unit", "degrees"),
+    "unknown sensor model": ("nao", r"model: pinhole", "model: fisheye", "sensors[0].model", "fisheye"),
+    "unknown mode sensor": (
+        "motoman",
+        r"sensors: \[tracker\]",
+        "sensors: [laser]",
+        "modes.offsets.sensors[0]",
+        "laser",
+    ),
     "unknown camera frame": (
         "nao",
         r"    frame: lower_camera\n    model: pinhole",

@@ -21,7 +21,6 @@ from app.review import Review
 from calib_core import Problem, SimulatedRobot, Simulation, load_profile
 from calib_core.model.kinematics import forward
 from calib_core.model.profile import Profile
-from calib_core.sensors.measurement import predict, project_to_image
 
 
 def session(name: str, n: int, unmeasured: int = 0, seed: int = 4) -> tuple[Profile, Simulation, list[Frame]]:
@@ -99,7 +98,7 @@ def test_frames_without_a_measurement_have_no_error_but_a_prediction(robonaut) -
 def test_robonaut_marks_project_where_the_truth_projects(robonaut) -> None:
     profile, sim, _, review = robonaut
     sensor = profile.sensors[profile.data.sensor]
-    truth_px = project_to_image(sensor, sim.true_params, sim.exact)
+    truth_px = sensor.project(sim.true_params, sim.exact)
     for k in (0, 7, 23):
         marks = review.marks(k + 1)
         assert marks["role"] == "left" and (marks["width"], marks["height"]) == (640, 480)
@@ -156,7 +155,7 @@ def test_nao_measured_vertices_lie_on_each_sides_predicted_board(nao) -> None:
             assert np.abs((measured - centre) @ normal).max() < 1e-9
             poses = forward(profile, p, frames[k].joints_rad[None], frames=[sensor.frame])
             x = (measured * 1000 - poses.t[sensor.frame][0]) @ poses.R[sensor.frame][0]
-            np.testing.assert_allclose(predict(sensor, p, x)[0], sim.data.measured[24 * k : 24 * (k + 1)], atol=1e-6)
+            np.testing.assert_allclose(sensor.predict(p, x)[0], sim.data.measured[24 * k : 24 * (k + 1)], atol=1e-6)
         # With the truth the measured vertices sit on the predicted ones, up to the pixel noise
         # (0.2 px, about 0.3 mm across the board, a few mm along grazing rays), well below nominal's offset.
         assert np.linalg.norm(g.measured_m["new"] - g.predicted_m["new"], axis=1).max() < 0.005

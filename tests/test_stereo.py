@@ -11,7 +11,6 @@ import pytest
 
 from calib_core import SimulatedRobot, load_profile
 from calib_core.model.profile import Profile, Sensor
-from calib_core.sensors.measurement import project_to_image
 from calib_core.vision.stereo import (
     NONE,
     OBJECT_NAMES,
@@ -132,7 +131,7 @@ def test_sphere_appears_where_the_pinhole_projection_puts_it(scene):
         # Perspective puts the outline's centre off the projected centre, by up to ~1 px in the eye's range.
         for centroid, c in ((left_centroid, c_left), (right_centroid, c_right)):
             x_eye_cm = R @ c * 100
-            np.testing.assert_allclose(centroid, project_to_image(scene.sensor, scene.p, x_eye_cm[None])[0], atol=1.5)
+            np.testing.assert_allclose(centroid, scene.sensor.project(scene.p, x_eye_cm[None])[0], atol=1.5)
         # The right image is the left one shifted by the disparity fx * b / z.
         assert left_centroid[0] - right_centroid[0] == pytest.approx(head.disparity_px(c_left[2]), abs=0.5)
         assert left_centroid[1] == pytest.approx(right_centroid[1], abs=0.2)

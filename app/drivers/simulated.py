@@ -36,8 +36,7 @@ def can_simulate(profile: Profile) -> bool:
     sensor is one the simulator renders (a stereo head or a camera; calib_core.simulator's capture) or reads
     directly (a point sensor without images, like the Motoman's laser tracker; reads_points)."""
     sensor = profile.sensors[profile.data.sensor]
-    renders = sensor.model == "pinhole" or (sensor.model == "point3d" and sensor.baseline is not None)
-    return bool(profile.simulation) and (renders or reads_points(sensor))
+    return bool(profile.simulation) and (sensor.reading in ("stereo", "image") or reads_points(sensor))
 
 
 def check(profile: Profile, options: Mapping[str, Any], where: str) -> dict[str, Any]:
@@ -66,7 +65,7 @@ def create(profile: Profile, options: Mapping[str, Any], context: DriverContext)
 def reads_points(sensor: Sensor) -> bool:
     """A sensor that reports 3-D points with no image to detect them in (a laser tracker): the simulated robot
     reads it directly, with its noise, instead of rendering and detecting."""
-    return sensor.model == "point3d" and sensor.baseline is None and sensor.intrinsics is None
+    return sensor.reading == "direct" and sensor.dim == 3
 
 
 def readable_targets(profile: Profile) -> list[int]:

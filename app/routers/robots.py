@@ -89,9 +89,9 @@ def robot_out(robot: Robot) -> RobotOut:
         modes=[ModeOut(name=m.name, description=m.description) for m in p.modes.values()],
         targets=[t.name for t in p.targets],
         sensor=SensorOut(
-            kind=sensor.model,
-            unit="px" if sensor.model == "pinhole" else p.length_unit,
-            image=list(sensor.image) if sensor.image else None,
+            kind=sensor.kind,
+            unit=sensor.unit,
+            image=list(sensor.image) if getattr(sensor, "image", None) else None,
         ),
     )
 

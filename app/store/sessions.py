@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 
 from calib_core import Dataset, InputError, Profile, to_csv
-from calib_core.io.csv_format import joints_needed
 
 from ..errors import NotFound
 from ..validation import check_id, check_joints_rad, check_role, check_target
@@ -286,7 +285,7 @@ class SessionRepository:
                 "WHERE o.session_id = ? AND f.status = 'measured' ORDER BY o.idx, o.seq",
                 (session_id,),
             ).fetchall()
-        dim = 3 if profile.sensors[profile.data.sensor].model == "point3d" else 2
+        dim = profile.sensors[profile.data.sensor].dim
         frame_ids = np.array([r["idx"] for r in frames], dtype=int)
         position = {int(f): k for k, f in enumerate(frame_ids)}
         cfg = np.array([position[r["idx"]] for r in obs], dtype=int)
@@ -296,8 +295,8 @@ class SessionRepository:
         )
         joints = np.array([json.loads(r["joints_rad"]) for r in frames], dtype=float).reshape(-1, len(profile.joints))
         needed = np.zeros((len(profile.targets), len(profile.joints)), bool)
-        for t, joints_of_t in joints_needed(profile).items():
-            needed[t, sorted(joints_of_t)] = True
+        for t in range(len(profile.targets)):
+            needed[t, sorted(profile.joints_between(t, profile.data.sensor))] = True
         keep = np.zeros(joints.shape, bool)
         np.logical_or.at(keep, cfg, needed[target])
         data = Dataset(
@@ -309,6 +308,7 @@ class SessionRepository:
             point=values[:, :3],
             vertex=np.array([r["vertex"] for r in obs], dtype=int),
             measured=values[:, 3 : 3 + dim],
+            sensor=np.full(len(obs), profile.data.sensor),
             source=f"session {session_id}",
         )
         table = list(csv.reader(io.StringIO(to_csv(profile, data))))
@@ -333,7 +333,7 @@ def observations(
     profile: Profile, target: int, measured: np.ndarray, points: np.ndarray | None, vertices: np.ndarray | None
 ) -> Observations:
     """A frame's measurements (rows of the profile's measurement size) as Observations of one target."""
-    dim = 3 if profile.sensors[profile.data.sensor].model == "point3d" else 2
+    dim = profile.sensors[profile.data.sensor].dim
     m = np.asarray(measured, dtype=float)
     if m.ndim != 2 or m.shape[1] != dim:
         raise InputError(f"{profile.name} measurements are rows of {dim} numbers, not shape {m.shape}")

@@ -1,14 +1,18 @@
-"""Daily and full calibration: from a dataset and a mode to a Calibration.
+"""Daily and full calibration: from a dataset (one sensor or several) and a mode to a Calibration.
 
 The procedure, for the Levenberg-Marquardt method:
 1. At the start values, find the parameter directions the data cannot determine and hold one
    parameter of each at its base value (named in the report), so nothing wanders.
 2. Least squares from the base calibration (or the nominal model) to the basin of the solution.
-3. With the robust loss (default): re-solve with a Cauchy loss scaled to the residuals' robust
+   With several sensors, each is then weighed by its actual scatter (one step of variance-component
+   estimation), so that a declared noise that is too optimistic for one of them does not let it
+   drown the others.
+3. With the robust loss (default): re-solve with a Cauchy loss scaled to each sensor's robust
    spread, then flag observations beyond the 99.99% quantile of that spread as outliers and solve
    once more on the rest (plain least squares, so the covariance is the textbook one).
 4. At the solution: standard deviations and correlations, singular values, condition and O1.
 The held-out share and the k-fold cross-validation repeat steps 1-3 on the training part only.
+Self-observation with several cameras, a tracker with cameras, several planes: the same procedure.
 """
 
 from __future__ import annotations
@@ -23,20 +27,18 @@ from scipy.stats import chi2
 
 from ..dataset import Dataset
 from ..errors import InputError
-from ..model.profile import Mode, Profile, Sensor
-from ..units import LENGTH_IN_M
+from ..model.profile import Mode, Profile
 from .calibration import Calibration, Outlier, parameter_estimate
-from .identifiability import Dependency, find_dependencies, report, strong_correlations, weak_parameters
+from .diagnostics import diagnose
+from .identifiability import Dependency, find_dependencies, identifiability_report, report
+from .outliers import inliers, pooled_robust_sigma, problem_outliers, robust_sigma
 from .problem import Problem
 from .registration import register, registration_params
-from .solver import Robust, SolveResult, block_norms_sq, levenberg_marquardt, nelder_mead
-from .validation import Figures, figures, holdout_split, kfold_splits
+from .reports import SolverReport
+from .solver import Robust, SolveResult, SolveStatus, levenberg_marquardt, nelder_mead
+from .validation import Figures, check_share, holdout_split, kfold_splits, sensor_figures
 
 METHODS = ("lm", "nelder-mead")
-OUTLIER_QUANTILE = 0.9999
-# No robot's nominal model is this far off once the tracker's pose is fitted; rows from two tracker
-# set-ups (or the wrong arm) are.
-REGISTRATION_MISFIT_M = 0.05
 
 
 @dataclass
@@ -47,9 +49,10 @@ class Fit:
     iterations: int
     evaluations: int
     seconds: float
-    status: str
+    status: SolveStatus
     cost_history: list[float]
     sigma: float  # scale of the whitened residuals at the solution
+    sigmas: dict[int, float]  # per sensor (profile index): the scale of its whitened residuals
 
 
 def calibrate(
@@ -70,81 +73,81 @@ def calibrate(
     m = profile.mode(mode)
     if method not in METHODS:
         raise InputError(f"unknown method '{method}' ({', '.join(METHODS)})")
-    if not 0.0 <= holdout < 1.0:
-        raise InputError(f"held-out share {holdout} must be in [0, 1)")
+    check_share(holdout)
     p_base = base.params(profile) if base is not None else profile.nominal()
+    data = sensors_of(profile, data, m)
     if holdout > 0:
         train_idx, test_idx = holdout_split(data, holdout, seed)
     else:
         train_idx, test_idx = np.arange(data.n_configurations), np.array([], int)
     train = data.select(train_idx)
-    if train.n_observations * _dim(profile) < len(m.free):
-        raise InputError(
-            f"{train.n_observations} observations cannot determine the {len(m.free)} parameters of mode '{mode}'",
-            file=data.source,
-        )
     m = observed_mode(profile, train, m)
-    reg = set(registration_params(profile))
-    if reg and not reg & set(m.free) and base is None:
-        raise InputError(
-            f"mode '{mode}' does not estimate the registration of '{profile.sensors[profile.data.sensor].name}' "
-            "(where it stands), which these data need: choose a mode that does, or start from a calibration "
-            "of the same set-up (--base)"
-        )
-    if reg & set(m.free):
+    _check_can_fit(profile, train, m, base)
+    if set(registration_params(profile, train.sensors)) & set(m.free):
         # A tracker set-up of its own: "before" is the old model with only the registration fitted.
         p_base = register(profile, train, p_base)
     fit = fit_parameters(
-        profile,
-        train,
-        m,
-        p_base,
-        method=method,
-        robust=robust,
-        progress=progress,
-        should_stop=should_stop,
+        profile, train, m, p_base, method=method, robust=robust, progress=progress, should_stop=should_stop
     )
-
-    unit = _measure_unit(profile)
-    keep = fit.problem.included
-    figs: dict[str, Figures] = {
-        "before": figures(fit.problem.predict(p_base), train.measured, unit, keep),
-        "after": figures(fit.problem.predict(fit.p), train.measured, unit, keep),
-    }
-    if len(test_idx):
-        test = data.select(test_idx)
-        tp = Problem(profile, test, [], p_base)
-        keep = inliers(profile, test, fit.p, fit.sigma) if robust else None
-        figs["holdout_before"] = figures(tp.predict(p_base), test.measured, unit, keep)
-        figs["holdout_after"] = figures(tp.predict(fit.p), test.measured, unit, keep)
-    solver = {
-        "method": method,
-        "robust": robust,
-        "iterations": fit.iterations,
-        "evaluations": fit.evaluations,
-        "solve_seconds": fit.seconds,
-        "status": fit.status,
-        "cost_history": fit.cost_history,
-        "sigma": fit.sigma,
-    }
+    figs, each = _figures(profile, train, fit, p_base, data.select(test_idx) if len(test_idx) else None, robust)
+    solver = SolverReport(
+        method=method,
+        status=fit.status,
+        iterations=fit.iterations,
+        evaluations=fit.evaluations,
+        solve_seconds=fit.seconds,
+        robust=robust,
+        cost_history=fit.cost_history,
+        sigma=fit.sigma,
+    )
     if folds >= 2:
-        figs["cv_after"], cv_seconds = cross_validate(
-            profile, train, m, p_base, folds, method, robust, seed, should_stop
+        start = time.perf_counter()
+        figs["cv_after"] = cross_validate(profile, train, m, p_base, folds, method, robust, seed, should_stop)
+        solver.folds, solver.cv_seconds = folds, time.perf_counter() - start
+    frames = {"train": [int(f) for f in train.frame_ids], "holdout": [int(data.frame_ids[i]) for i in test_idx]}
+    return _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
+
+
+def _check_can_fit(profile: Profile, train: Dataset, mode: Mode, base: Calibration | None) -> None:
+    """Enough observations for the mode, and a tracker's pose either estimated or known from a base."""
+    rows = sum(profile.sensors[s].dim * int(np.sum(train.sensor == s)) for s in train.sensors)
+    if rows < len(mode.free):
+        raise InputError(
+            f"{train.n_observations} observations cannot determine the {len(mode.free)} parameters of mode "
+            f"'{mode.name}'",
+            file=train.source,
         )
-        solver["folds"] = folds
-        solver["cv_seconds"] = cv_seconds
-    return _result(profile, data, train, mode, method, fit, p_base, figs, solver, test_idx)
+    reg = set(registration_params(profile, train.sensors))
+    if reg and not reg & set(mode.free) and base is None:
+        devices = ", ".join(profile.sensors[s].name for s in train.sensors if registration_params(profile, [s]))
+        raise InputError(
+            f"mode '{mode.name}' does not estimate the registration of '{devices}' (where it stands), which these "
+            "data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
+        )
+
+
+def sensors_of(profile: Profile, data: Dataset, mode: Mode) -> Dataset:
+    """The observations of the sensors a mode fits (all of them unless the mode names its sensors)."""
+    if mode.sensors is None or set(data.sensors) <= set(mode.sensors):
+        return data
+    keep = np.isin(data.sensor, mode.sensors)
+    if not keep.any():
+        names = ", ".join(profile.sensors[s].name for s in mode.sensors)
+        have = ", ".join(profile.sensors[s].name for s in data.sensors)
+        raise InputError(f"mode '{mode.name}' fits observations of {names}; these data hold {have}", file=data.source)
+    return data.observations(keep)
 
 
 def observed_mode(profile: Profile, data: Dataset, mode: Mode) -> Mode:
     """The mode without the parameters no observation depends on: those of chains the data do not
-    use (the other arm of a two-armed robot) and the points of targets never seen."""
-    sensor = profile.sensors[profile.data.sensor]
+    use (the other arm of a two-armed robot), the points of targets never seen and the intrinsics
+    of sensors that saw nothing."""
+    sensors = [profile.sensors[s] for s in data.sensors]
     targets = [profile.targets[t] for t in np.unique(data.target)]
-    frames = set(profile.chain(sensor.frame)).union(*(profile.chain(t.frame) for t in targets))
+    frames = set().union(*(profile.chain(s.frame) for s in sensors), *(profile.chain(t.frame) for t in targets))
     used = {op.param for f in frames for op in profile.frames[f].ops}
     used |= {i for t in targets for i in (t.point_params or ())}
-    used |= set(sensor.intrinsics or ()) | set(sensor.distortion or ())
+    used |= {i for s in sensors for i in s.direct_params()}
     leaders = {t.leader for t in mode.ties if t.follower in used}
     return replace(mode, free=tuple(i for i in mode.free if i in used or i in leaders))
 
@@ -167,91 +170,118 @@ def fit_parameters(
     progress: Callable[[int, float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> Fit:
+    """Steps 1-3 of the module doc on `data`: the estimate, how the solver got there, the scales."""
     start = time.perf_counter()
     problem = Problem(profile, data, list(mode.free), p_base, mode.ties, mode.priors)
-    initial = problem.residuals_jacobian(problem.x0)
+    initial: tuple[np.ndarray, np.ndarray] | None = problem.residuals_jacobian(problem.x0)
     deps = find_dependencies(profile, initial[1][: problem.n_data_rows], problem.free)
     if deps:
         fixed = {d.fixed for d in deps}
         free = [i for i in mode.free if i not in fixed]
-        problem = Problem(profile, data, free, p_base, mode.ties, mode.priors, noise_model=problem.W)
+        problem = Problem(profile, data, free, p_base, mode.ties, mode.priors, noise_model=problem.weights)
         initial = None
-    dim = problem.dim
-    n_rows = problem.n_data_rows
-    lower, upper = box(profile, mode, problem.free)
-    iterations = 0
-    evaluations = 0
-    history: list[float] = []
-
-    def tick(it: int, cost: float) -> None:
-        if progress is not None:
-            progress(iterations + it, cost)
-
-    def run(x0: np.ndarray, loss: Robust | None, start: tuple | None = None) -> SolveResult:
-        nonlocal iterations, evaluations
-        # The robust pass only has to sort inliers from outliers (IRLS converges linearly), so it
-        # stops early; the least-squares passes converge quadratically to full precision.
-        res = levenberg_marquardt(
-            problem.residuals_jacobian,
-            x0,
-            initial=start,
-            robust=loss,
-            ftol=1e-6 if loss else 1e-10,
-            progress=tick,
-            should_stop=should_stop,
-            lower=lower,
-            upper=upper,
-        )
-        iterations += res.iterations
-        evaluations += res.evaluations
-        history.extend(res.cost_history)
-        return res
-
+    passes = _Passes(problem, mode, profile, progress, should_stop)
     if method == "nelder-mead":
-        res = nelder_mead(problem.raw_residuals, problem.x0, dim, n_rows, should_stop=should_stop)
-        iterations, evaluations, history, status = (
-            res.iterations,
-            res.evaluations,
-            res.cost_history,
-            res.status,
-        )
-        x = res.x
+        segments = [(b.rows, b.dim) for b in problem.blocks]
+        passes.absorb(nelder_mead(problem.raw_residuals, problem.x0, segments, should_stop=should_stop))
     else:
-        res = run(problem.x0, None, initial)
-        x = res.x
-        if problem.priors:
-            # A prior's sigma is meant against the residuals' actual scale (a MAP estimate), not
-            # the declared sensor noise: on a real robot the model error outweighs the noise.
-            problem.prior_scale = robust_sigma(problem.residuals(x)[:n_rows], dim)
-            res = run(x, None)
-            x = res.x
-        # Outliers show in the least-squares residuals; only then is the robust pass worth its time.
-        limit = outlier_limit(problem.sensor, dim)
-        if robust and len(problem.free) and outliers_of(problem.residuals(x)[:n_rows], dim, limit).any():
-            sigma = robust_sigma(problem.residuals(x)[:n_rows], dim)
-            problem.prior_scale = sigma
-            res = run(x, Robust(dim, n_rows, sigma * np.sqrt(chi2.ppf(0.95, dim))))
-            x = res.x
-            r = problem.residuals(x)[:n_rows]
-            problem.included = ~outliers_of(r, dim, limit)
-            problem.prior_scale = robust_sigma(r, dim)
-            res = run(x, None)
-            x = res.x
-        status = res.status
+        passes.least_squares(initial, robust)
+    res = passes.last
+    x = res.x
     r = problem.residuals(x)
-    n_in = int(problem.included.sum()) * dim
-    sigma = float(np.sqrt(np.sum(r[:n_rows] ** 2) / max(n_in - len(problem.free), 1)))
+    n_free = len(problem.free)
+    n_in = sum(int(problem.included[b.obs].sum()) * b.dim for b in problem.blocks)
+    sigma = float(np.sqrt(np.sum(r[: problem.n_data_rows] ** 2) / max(n_in - n_free, 1)))
+    sigmas = {}  # per sensor, of the residuals whitened by its noise model alone (as `inliers` computes them)
+    for b in problem.blocks:
+        rows_in = int(problem.included[b.obs].sum()) * b.dim
+        share = n_free * (b.rows.stop - b.rows.start) / max(problem.n_data_rows, 1)
+        sigmas[b.index] = b.scale * float(np.sqrt(np.sum(r[b.rows] ** 2) / max(rows_in - share, 1)))
     return Fit(
         problem,
         problem.params(x),
         deps,
-        iterations,
-        evaluations,
+        passes.iterations,
+        passes.evaluations,
         time.perf_counter() - start,
-        status,
-        history,
+        res.status,
+        passes.history,
         sigma,
+        sigmas,
     )
+
+
+class _Passes:
+    """The solver passes of one fit, their counts and cost history."""
+
+    def __init__(
+        self,
+        problem: Problem,
+        mode: Mode,
+        profile: Profile,
+        progress: Callable[[int, float], None] | None,
+        should_stop: Callable[[], bool] | None,
+    ) -> None:
+        self.problem, self.progress, self.should_stop = problem, progress, should_stop
+        self.lower, self.upper = box(profile, mode, problem.free)
+        self.iterations = self.evaluations = 0
+        self.history: list[float] = []
+        self.last: SolveResult
+
+    def absorb(self, res: SolveResult) -> None:
+        self.iterations += res.iterations
+        self.evaluations += res.evaluations
+        self.history.extend(res.cost_history)
+        self.last = res
+
+    def run(self, x0: np.ndarray, loss: Robust | None, start: tuple | None = None) -> np.ndarray:
+        done = self.iterations
+
+        def tick(it: int, cost: float) -> None:
+            if self.progress is not None:
+                self.progress(done + it, cost)
+
+        # The robust pass only has to sort inliers from outliers (IRLS converges linearly), so it
+        # stops early; the least-squares passes converge quadratically to full precision.
+        self.absorb(
+            levenberg_marquardt(
+                self.problem.residuals_jacobian,
+                x0,
+                initial=start,
+                robust=loss,
+                ftol=1e-6 if loss else 1e-10,
+                progress=tick,
+                should_stop=self.should_stop,
+                lower=self.lower,
+                upper=self.upper,
+            )
+        )
+        return self.last.x
+
+    def least_squares(self, initial: tuple | None, robust: bool) -> None:
+        problem = self.problem
+        x = self.run(problem.x0, None, initial)
+        if len(problem.blocks) > 1:
+            # Each sensor weighed by its actual scatter, not only its declared noise.
+            r = problem.residuals(x)
+            for b in problem.blocks:
+                b.scale = robust_sigma(r[b.rows], b.dim)
+            x = self.run(x, None)
+        if problem.priors:
+            # A prior's sigma is meant against the residuals' actual scale (a MAP estimate), not
+            # the declared sensor noise: on a real robot the model error outweighs the noise.
+            problem.prior_scale = pooled_robust_sigma(problem, problem.residuals(x))
+            x = self.run(x, None)
+        # Outliers show in the least-squares residuals; only then is the robust pass worth its time.
+        if robust and len(problem.free) and problem_outliers(problem, problem.residuals(x)).any():
+            r = problem.residuals(x)
+            problem.prior_scale = pooled_robust_sigma(problem, r)
+            scale = {b.index: robust_sigma(r[b.rows], b.dim) * np.sqrt(chi2.ppf(0.95, b.dim)) for b in problem.blocks}
+            x = self.run(x, Robust([(b.rows, b.dim, scale[b.index]) for b in problem.blocks]))
+            r = problem.residuals(x)
+            problem.included = ~problem_outliers(problem, r)
+            problem.prior_scale = pooled_robust_sigma(problem, r)
+            self.run(x, None)
 
 
 def cross_validate(
@@ -264,31 +294,19 @@ def cross_validate(
     robust: bool,
     seed: int,
     should_stop: Callable[[], bool] | None = None,
-) -> tuple[Figures, float]:
+) -> Figures:
     """Pooled held-out figures: every configuration predicted by a calibration that did not see it."""
-    start = time.perf_counter()
-    preds, meas, keeps = [], [], []
+    parts = []
     for train_idx, test_idx in kfold_splits(data, folds, seed):
         if len(test_idx) == 0 or len(train_idx) == 0:
             continue
         fit = fit_parameters(
-            profile,
-            data.select(train_idx),
-            mode,
-            p_base,
-            method=method,
-            robust=robust,
-            should_stop=should_stop,
+            profile, data.select(train_idx), mode, p_base, method=method, robust=robust, should_stop=should_stop
         )
         test = data.select(test_idx)
-        tp = Problem(profile, test, [], p_base)
-        preds.append(tp.predict(fit.p))
-        meas.append(test.measured)
-        keeps.append(inliers(profile, test, fit.p, fit.sigma) if robust else np.ones(test.n_observations, bool))
-    keep = np.concatenate(keeps)
-    return figures(
-        np.concatenate(preds), np.concatenate(meas), _measure_unit(profile), keep
-    ), time.perf_counter() - start
+        keep = inliers(profile, test, fit.p, fit.sigmas) if robust else None
+        parts.append((test, _predict(profile, test, fit.p), keep))
+    return sensor_figures(profile, parts)[0]
 
 
 def error_clusters(profile: Profile, data: Dataset) -> np.ndarray | None:
@@ -299,8 +317,7 @@ def error_clusters(profile: Profile, data: Dataset) -> np.ndarray | None:
     in three head postures). None when every observation stands alone (one per configuration, no
     repeated target-side readings): then the errors are independent.
     """
-    sensor_frame = profile.sensors[profile.data.sensor].frame
-    sensor_joints = {profile.frames[f].joint for f in profile.chain(sensor_frame)}
+    sensor_joints = {profile.frames[f].joint for s in data.sensors for f in profile.chain(profile.sensors[s].frame)}
     target_joints = set()
     for t in np.unique(data.target):
         target_joints |= {profile.frames[f].joint for f in profile.chain(profile.targets[t].frame)}
@@ -316,152 +333,77 @@ def error_clusters(profile: Profile, data: Dataset) -> np.ndarray | None:
     return label
 
 
-def inliers(profile: Profile, data: Dataset, p: np.ndarray, sigma: float) -> np.ndarray:
-    """Observations that calibration p, with residual scale `sigma`, explains (not failed detections)."""
-    problem = Problem(profile, data, [], p)
-    r = problem.residuals(np.zeros(0))[: problem.n_data_rows]
-    norms = np.sqrt(block_norms_sq(r, problem.dim))
-    return norms <= sigma * outlier_limit(problem.sensor, problem.dim)
+def _figures(
+    profile: Profile, train: Dataset, fit: Fit, p_base: np.ndarray, test: Dataset | None, robust: bool
+) -> tuple[dict[str, Figures], dict[str, dict[str, Figures]]]:
+    """Before/after on the training data, and on the held-out data: pooled, and per sensor."""
+    keep = fit.problem.included
+    figs, each = {}, {}
+    runs = [("before", train, p_base, keep), ("after", train, fit.p, keep)]
+    if test is not None:
+        test_keep = inliers(profile, test, fit.p, fit.sigmas) if robust else None
+        runs += [("holdout_before", test, p_base, test_keep), ("holdout_after", test, fit.p, test_keep)]
+    for name, data, p, k in runs:
+        figs[name], per = sensor_figures(profile, [(data, _predict(profile, data, p), k)])
+        for sensor, f in per.items():
+            each.setdefault(sensor, {})[name] = f
+    return figs, (each if len(each) > 1 else {})
 
 
-def outlier_limit(sensor: Sensor, dim: int) -> float:
-    """How many robust sigmas make an outlier: the sensor's declared `noise.outliers`, else the
-    99.99% quantile. A detector fails now and then (a misread corner); a laser tracker does not, and
-    the heavy tail of a real robot's model error is not an outlier, so its profile sets a wide limit."""
-    return float(sensor.noise.get("outliers", np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dim))))
-
-
-def outliers_of(r: np.ndarray, dim: int, limit: float) -> np.ndarray:
-    """Observations beyond `limit` times the residuals' robust spread."""
-    norms = np.sqrt(block_norms_sq(r, dim))
-    return norms > robust_sigma(r, dim) * limit
-
-
-def robust_sigma(r: np.ndarray, dim: int) -> float:
-    """Scale of whitened residual blocks from their median norm (|r|^2 ~ sigma^2 chi2(dim))."""
-    norms = np.sqrt(block_norms_sq(r, dim))
-    norms = norms[norms > 0]
-    if len(norms) == 0:
-        return 1.0
-    return float(np.median(norms) / np.sqrt(chi2.ppf(0.5, dim)))
-
-
-def _dim(profile: Profile) -> int:
-    return 3 if profile.sensors[profile.data.sensor].model == "point3d" else 2
-
-
-def _measure_unit(profile: Profile) -> str:
-    return "px" if profile.sensors[profile.data.sensor].model == "pinhole" else profile.length_unit
+def _predict(profile: Profile, data: Dataset, p: np.ndarray) -> np.ndarray:
+    return Problem(profile, data, [], p, noise_model=False).predict(p)
 
 
 def _result(
     profile: Profile,
     data: Dataset,
     train: Dataset,
-    mode: str,
-    method: str,
+    mode: Mode,
     fit: Fit,
     p_base: np.ndarray,
     figs: dict[str, Figures],
-    solver: dict,
-    test_idx: np.ndarray,
+    each: dict[str, dict[str, Figures]],
+    solver: SolverReport,
+    frames: dict[str, list[int]],
 ) -> Calibration:
     problem = fit.problem
     r, J = problem.residuals_jacobian(fit.p[problem.free])
     clusters = error_clusters(profile, train)
-    rep = report(J, r, fit.sigma, None if clusters is None else np.repeat(clusters[train.cfg], problem.dim))
-    std_of = {}
-    for k, i in enumerate(problem.free):
-        std_of[i] = float(rep.std[k]) if rep.std is not None else None
-    ties = {t.follower: t for t in profile.mode(mode).ties}
+    rows = None
+    if clusters is not None:
+        rows = np.concatenate([np.repeat(clusters[train.cfg[b.obs]], b.dim) for b in problem.blocks])
+    rep = report(J, r, fit.sigma, rows)
+    std_of = {i: (None if rep.std is None else float(rep.std[k])) for k, i in enumerate(problem.free)}
+    ties = {t.follower: t for t in mode.ties}
     dep_note = {d.fixed: d.describe(profile) for d in fit.dependencies}
-    nominal = profile.nominal()
     params = []
     for i in range(len(profile.parameters)):
-        estimated = i in std_of
-        std = std_of.get(i)
-        note = None
+        estimated, std, note = i in std_of, std_of.get(i), dep_note.get(i)
         tie = ties.get(i)
         if tie is not None and tie.leader in std_of:
-            estimated = True
-            std = std_of[tie.leader]
-            note = f"tied: {'-' if tie.sign < 0 else ''}{profile.label(tie.leader)}"
-        if i in dep_note:
-            note = dep_note[i]
+            estimated, std = True, std_of[tie.leader]
+            note = note or f"tied: {'-' if tie.sign < 0 else ''}{profile.label(tie.leader)}"
         params.append(parameter_estimate(profile, i, fit.p, p_base, estimated=estimated, std=std, note=note))
-    corr = strong_correlations(profile, rep.correlation, problem.free) if rep.correlation is not None else []
-    unit = figs["after"].unit
-    norms = np.linalg.norm(problem.predict(fit.p) - train.measured, axis=1)
-    outliers = [
-        Outlier(
-            int(train.frame_ids[train.cfg[k]]),
-            None if train.lines is None else int(train.lines[k]),
-            float(norms[k]),
-            unit,
-        )
-        for k in np.flatnonzero(~problem.included)
-    ]
-    warnings = [d.describe(profile) for d in fit.dependencies]
-    warnings += weak_parameters(profile, rep, problem.free, frozenset(registration_params(profile)))
-    if outliers:
-        frames = sorted({o.frame for o in outliers})
-        shown = ", ".join(str(f) for f in frames[:10]) + (" ..." if len(frames) > 10 else "")
-        warnings.append(f"{len(outliers)} observations rejected as outliers (frames {shown})")
-    bounded = [
-        profile.label(i)
-        for i in problem.free
-        if i in profile.mode(mode).bounds and abs(fit.p[i] - nominal[i]) >= profile.mode(mode).bounds[i] * (1 - 1e-9)
-    ]
-    if bounded:
-        warnings.append(
-            f"{', '.join(bounded)} stopped at the bound the profile allows: the data push further than a "
-            "physical error would (a wrong nominal value, or data from another set-up?)"
-        )
-    if method == "lm" and solver["status"] == "maximum iterations reached":
-        warnings.append("the solver stopped at its iteration limit: the result may not be converged")
-    if "holdout_after" in figs and figs["holdout_after"].rms > 1.5 * figs["after"].rms:
-        warnings.append(
-            f"held-out RMS {figs['holdout_after'].rms:.3g} {unit} is much worse than training RMS "
-            f"{figs['after'].rms:.3g} {unit}: the calibration may not generalise "
-            "(too few or too similar configurations)"
-        )
-    misfit = REGISTRATION_MISFIT_M / LENGTH_IN_M[profile.length_unit]
-    if set(registration_params(profile)) & set(problem.free) and figs["before"].rms > misfit:
-        warnings.append(
-            f"with only the registration fitted the model is {figs['before'].rms:.3g} {unit} RMS off: are these rows "
-            "from one tracker set-up and the arm the data say? Calibrate each set-up on its own (calib solve --where)"
-        )
-    if figs["after"].rms > figs["before"].rms:
-        warnings.append("the calibration fits the data worse than its starting point")
-    ident = {
-        "singular_values": rep.singular_values,
-        "rank": rep.rank,
-        "free": [profile.parameters[i].name for i in problem.free],
-        "condition": rep.condition,
-        "o1": rep.o1,
-        "held_fixed": [
-            {"parameter": profile.parameters[d.fixed].name, "message": d.describe(profile)} for d in fit.dependencies
-        ],
-        "correlations": [{"a": a, "b": b, "rho": rho} for a, b, rho in corr],
-        "inflation": {profile.parameters[i].name: float(v) for i, v in zip(problem.free, rep.inflation, strict=True)}
-        if rep.inflation is not None
-        else {},
-        "note": "computed on the Jacobian of the noise-weighted residuals with unit-length columns",
-    }
+    pred = problem.predict(fit.p)
+    outliers = []
+    for k in np.flatnonzero(~problem.included):
+        dim = profile.sensors[train.sensor[k]].dim
+        error = float(np.linalg.norm(pred[k, :dim] - train.measured[k, :dim]))
+        line = None if train.lines is None else int(train.lines[k])
+        outliers.append(Outlier(int(train.frame_ids[train.cfg[k]]), line, error, profile.sensors[train.sensor[k]].unit))
+    nuisance = frozenset(registration_params(profile, train.sensors))
     return Calibration(
         robot=profile.name,
-        mode=mode,
-        method=method,
+        mode=mode.name,
+        method=solver.method,
         created=datetime.now(UTC).isoformat(timespec="seconds"),
         source=data.source,
         parameters=params,
         figures=figs,
         solver=solver,
-        identifiability=ident,
+        identifiability=identifiability_report(profile, rep, problem.free, fit.dependencies),
         outliers=outliers,
-        warnings=warnings,
-        frames={
-            "train": [int(f) for f in train.frame_ids],
-            "holdout": [int(data.frame_ids[i]) for i in test_idx],
-        },
+        diagnostics=diagnose(profile, mode, fit, rep, figs, each, solver, outliers, nuisance),
+        frames=frames,
+        sensor_figures=each,
     )

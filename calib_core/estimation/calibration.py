@@ -1,9 +1,10 @@
 """The calibration result: one object that the CLI, the API and the page all show, and its JSON file.
 
 It holds every parameter's value with its unit (estimated ones with their standard deviation), the
-error figures before and after (training, held-out, cross-validated), how the solver stopped, the
-identifiability report, the outliers and every warning. Values are in display units (deg, the
-profile's length unit, px), the units a person reads and a file stores.
+error figures before and after (training, held-out, cross-validated; per sensor when several
+measured), how the solver stopped and whether it converged, the identifiability report, the outliers
+and every diagnostic with its severity. Values are in display units (deg, the profile's length
+unit, px), the units a person reads and a file stores.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from ..errors import InputError
 from ..files import write_atomic
 from ..model.profile import Profile
+from .reports import Diagnostic, IdentifiabilityReport, Severity, SolverReport
 from .validation import Figures
 
 FORMAT = "calib-calibration/1"
@@ -53,13 +55,23 @@ class Calibration:
     created: str
     source: str
     parameters: list[ParameterEstimate]
-    figures: dict[str, Figures]
-    solver: dict[str, Any]
-    identifiability: dict[str, Any]
+    figures: dict[str, Figures]  # before, after, holdout_before, holdout_after, cv_after
+    solver: SolverReport
+    identifiability: IdentifiabilityReport
     outliers: list[Outlier] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
+    diagnostics: list[Diagnostic] = field(default_factory=list)
     frames: dict[str, list[int]] = field(default_factory=dict)
+    sensor_figures: dict[str, dict[str, Figures]] = field(default_factory=dict)  # several sensors: each one's
     format: str = FORMAT
+
+    @property
+    def converged(self) -> bool:
+        return self.solver.converged
+
+    @property
+    def warnings(self) -> list[str]:
+        """The sentences of the diagnostics to read before applying."""
+        return [d.message for d in self.diagnostics if d.severity is Severity.WARNING]
 
     # --- values -----------------------------------------------------------------------------------
     def values(self) -> dict[str, float]:
@@ -76,8 +88,14 @@ class Calibration:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["figures"] = {k: v.to_dict() for k, v in self.figures.items()}
-        d["solve_seconds"] = self.solver.get("solve_seconds")
-        d["iterations"] = self.solver.get("iterations")
+        d["sensor_figures"] = {n: {k: v.to_dict() for k, v in f.items()} for n, f in self.sensor_figures.items()}
+        d["solver"] = self.solver.to_dict()
+        d["identifiability"] = self.identifiability.to_dict()
+        d["diagnostics"] = [x.to_dict() for x in self.diagnostics]
+        d["warnings"] = self.warnings
+        d["converged"] = self.converged
+        d["solve_seconds"] = self.solver.solve_seconds
+        d["iterations"] = self.solver.iterations
         return _finite(d)
 
     def save(self, path: str | Path) -> None:
@@ -108,11 +126,14 @@ class Calibration:
                 source=str(d.get("source", "")),
                 parameters=params,
                 figures={k: Figures(**v) for k, v in d.get("figures", {}).items()},
-                solver=dict(d.get("solver", {})),
-                identifiability=dict(d.get("identifiability", {})),
+                solver=SolverReport.from_dict(d["solver"]),
+                identifiability=IdentifiabilityReport.from_dict(d.get("identifiability", {})),
                 outliers=[Outlier(**o) for o in d.get("outliers", [])],
-                warnings=list(d.get("warnings", [])),
+                diagnostics=_diagnostics(d),
                 frames=dict(d.get("frames", {})),
+                sensor_figures={
+                    n: {k: Figures(**v) for k, v in f.items()} for n, f in d.get("sensor_figures", {}).items()
+                },
             )
         except InputError:
             raise
@@ -149,13 +170,15 @@ class Calibration:
             lines.append(f"  held out before: {f['holdout_before']}")
             lines.append(f"  held out after:  {f['holdout_after']}")
         if "cv_after" in f:
-            lines.append(f"  {self.solver.get('folds')}-fold cross-validated: {f['cv_after']}")
+            lines.append(f"  {self.solver.folds}-fold cross-validated: {f['cv_after']}")
+        for name, sf in self.sensor_figures.items():
+            held = f", held out {sf['holdout_after']}" if "holdout_after" in sf else ""
+            lines.append(f"  {name}: before {sf['before']}; after {sf['after']}{held}")
         s = self.solver
-        lines.append(
-            f"  solver: {s['iterations']} iterations, {s['evaluations']} evaluations, "
-            f"{s['solve_seconds'] * 1e3:.1f} ms ({s['status']})"
-        )
-        lines += [f"  warning: {w}" for w in self.warnings]
+        outcome = s.status.value if s.converged else f"DID NOT CONVERGE: {s.status.value}"
+        work = f"{s.iterations} iterations, {s.evaluations} evaluations, {s.solve_seconds * 1e3:.1f} ms"
+        lines.append(f"  solver: {work} ({outcome})")
+        lines += [f"  {d.severity.value}: {d.message}" for d in self.diagnostics]
         return "\n".join(lines)
 
 
@@ -181,6 +204,13 @@ def parameter_estimate(
         std=None if std is None else abs(profile.to_display(i, std)),
         note=note,
     )
+
+
+def _diagnostics(d: dict[str, Any]) -> list[Diagnostic]:
+    """The file's diagnostics; a file written before they were typed has warning sentences only."""
+    if "diagnostics" in d:
+        return [Diagnostic.from_dict(x) for x in d["diagnostics"]]
+    return [Diagnostic(Severity.WARNING, "warning", str(w)) for w in d.get("warnings", [])]
 
 
 def _finite(obj: Any) -> Any:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..model.profile import Profile
+from .reports import Correlation, HeldParameter, IdentifiabilityReport
 
 # A unit column whose part outside the span of the kept columns is shorter than this is a
 # combination of them: exact structural dependence shows up near 1e-12; on a real robot, readings
@@ -152,13 +153,30 @@ def report(J: np.ndarray, r: np.ndarray, sigma: float, clusters: np.ndarray | No
     return Report(s.tolist(), rank, condition, o1, std=std, correlation=np.nan_to_num(corr), inflation=inflation)
 
 
-def strong_correlations(profile: Profile, corr: np.ndarray, free: list[int]) -> list[tuple[str, str, float]]:
+def strong_correlations(profile: Profile, corr: np.ndarray, free: list[int]) -> list[Correlation]:
     out = []
     for a in range(len(free)):
         for b in range(a + 1, len(free)):
             if abs(corr[a, b]) >= CORRELATION_LISTED:
-                out.append((profile.label(free[a]), profile.label(free[b]), float(corr[a, b])))
-    return sorted(out, key=lambda t: -abs(t[2]))
+                out.append(Correlation(profile.label(free[a]), profile.label(free[b]), float(corr[a, b])))
+    return sorted(out, key=lambda c: -abs(c.rho))
+
+
+def identifiability_report(
+    profile: Profile, rep: Report, free: list[int], dependencies: list[Dependency]
+) -> IdentifiabilityReport:
+    """The report a calibration carries, by parameter name."""
+    names = [profile.parameters[i].name for i in free]
+    return IdentifiabilityReport(
+        free=names,
+        held_fixed=[HeldParameter(profile.parameters[d.fixed].name, d.describe(profile)) for d in dependencies],
+        singular_values=rep.singular_values,
+        rank=rep.rank,
+        condition=rep.condition,
+        o1=rep.o1,
+        correlations=[] if rep.correlation is None else strong_correlations(profile, rep.correlation, free),
+        inflation={} if rep.inflation is None else {n: float(v) for n, v in zip(names, rep.inflation, strict=True)},
+    )
 
 
 def weak_parameters(

@@ -1,32 +1,53 @@
 """The calibration problem: residuals of a dataset as a function of the free parameters, and their
-exact Jacobian.
+exact Jacobian, for any number of sensors.
 
 The free vector x holds the estimated parameters (leaders of ties only). The full parameter vector
 is p = p_fixed + A x, where A has a 1 for each estimated parameter and the tie's sign for each
-follower. Residuals are W (prediction - measurement), one block of `dim` rows per observation, where W is the
-sensor's noise model whitening (so each row has about unit variance), followed by one row per prior
-(times `prior_scale`, the scale of the whitened residuals, so that a prior weighs as a MAP term).
+follower. The residual vector stacks one block per sensor (`SensorBlock`: a tracker's 3-D points,
+a camera's pixels, a plane's distances), each observation `dim` rows of W (prediction - measurement)
+with W the sensor's noise-model whitening (so each row has about unit variance), followed by one row
+per prior (times `prior_scale`, the scale of the whitened residuals, so that a prior weighs as a MAP
+term).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..dataset import Dataset
-from ..model.kinematics import forward, op_ids, op_signs
+from ..model.kinematics import Poses, forward, op_ids, op_signs, to_sensor
 from ..model.profile import Profile, Tie
-from ..sensors.measurement import dimension, intrinsic_params, predict, whitening
+from ..sensors import Sensor
+
+
+@dataclass
+class SensorBlock:
+    """The observations of one sensor and their rows in the residual vector."""
+
+    sensor: Sensor
+    index: int  # the sensor's index in the profile
+    obs: np.ndarray | slice  # its observations: indices, ascending (a slice when they are one run)
+    rows: slice  # its rows in the residual vector: len(obs) * dim
+    W: np.ndarray | float  # whitening of its observations by the noise model: (n, dim, dim) or a scalar
+    B_direct: np.ndarray  # (k, n_free): d(the sensor's direct parameters)/dx
+    scale: float = 1.0  # the scatter of its whitened residuals, as estimated: they are divided by it
+
+    @property
+    def dim(self) -> int:
+        return self.sensor.dim
 
 
 @dataclass
 class _Group:
-    """The observations of one target: the same chain, so one vectorised evaluation."""
+    """The observations of one target by one sensor: the same chain, so one vectorised evaluation."""
 
+    block: SensorBlock
     obs: np.ndarray  # observation indices
+    pos: np.ndarray | slice  # their positions in the block (a slice when they are one run)
     target: int
-    signs: dict[int, float]
     ops: list[int]  # recorded op ids with a non-zero sign
     B_ops: np.ndarray  # (K, n_free): d(op value)/dx
     B_point: np.ndarray | None  # (3, n_free): d(target point)/dx
@@ -46,15 +67,13 @@ class Problem:
         ties: tuple[Tie, ...] = (),
         priors: dict[int, float] | None = None,
         prior_mean: np.ndarray | None = None,
-        noise_model: bool | np.ndarray | float = True,
+        noise_model: bool | Sequence[np.ndarray | float] = True,
     ) -> None:
-        """`noise_model`: True to weigh by the sensor's noise model, False for none, or the
-        whitening of an earlier Problem on the same data (it depends on the data only)."""
+        """`noise_model`: True to weigh by the sensors' noise models, False for none, or the
+        `weights` of an earlier Problem on the same data (they depend on the data only)."""
         self.profile = profile
         self.data = data
         self.free = list(free)
-        self.sensor = profile.sensors[profile.data.sensor]
-        self.dim = dimension(self.sensor)
         n = len(profile.parameters)
         A = np.zeros((n, len(self.free)))
         for k, i in enumerate(self.free):
@@ -72,49 +91,77 @@ class Problem:
         self.prior_scale = 1.0
 
         ids = op_ids(profile)
-        all_ops = [profile.frames[f].ops[k] for f, k in ids]
+        self._op = [profile.frames[f].ops[k] for f, k in ids]
         affected_set = set(affected.tolist())
-        self._op = all_ops
         # Ops that no joint drives and no estimate moves are identities when their value is zero.
         self._constant = [
-            (i, op.param) for i, op in enumerate(all_ops) if op.joint < 0 and op.param not in affected_set
+            (i, op.param) for i, op in enumerate(self._op) if op.joint < 0 and op.param not in affected_set
         ]
-        self.record = {i for i, op in enumerate(all_ops) if op.param in affected_set}
-        self.frames = sorted({profile.targets[t].frame for t in np.unique(data.target)} | {self.sensor.frame})
-        self.intrinsics = intrinsic_params(self.sensor)
-        self.B_intr = A[self.intrinsics] if self.intrinsics else np.zeros((0, len(self.free)))
-        self.groups = []
-        for t in np.unique(data.target):
+        self.record = {i for i, op in enumerate(self._op) if op.param in affected_set}
+        self.blocks = self._blocks()
+        self.n_data_rows = self.blocks[-1].rows.stop if self.blocks else 0
+        self.frames = sorted(
+            {profile.targets[t].frame for t in np.unique(data.target)} | {b.sensor.frame for b in self.blocks}
+        )
+        self.groups = [g for b in self.blocks for g in self._groups(b)]
+        self.included = np.ones(data.n_observations, bool)  # False: an outlier, left out
+        self._q = np.nan_to_num(data.joints)  # joints a row does not need do not matter
+        if noise_model is True:
+            extra = self._reading_covariance(p_base)
+            for b in self.blocks:
+                measured = data.measured[b.obs, : b.dim]
+                b.W = b.sensor.whitening(p_base, measured, None if extra is None else extra[b.index])
+        elif noise_model is not False:
+            for b, W in zip(self.blocks, noise_model, strict=True):
+                b.W = W
+
+    def _blocks(self) -> list[SensorBlock]:
+        """One block per sensor of the data, in the profile's order, its rows after the previous one's."""
+        out: list[SensorBlock] = []
+        start = 0
+        for s in self.data.sensors:
+            sensor = self.profile.sensors[s]
+            obs = np.flatnonzero(self.data.sensor == s)
+            direct = list(sensor.direct_params())
+            B_direct = self.A[direct] if direct else np.zeros((0, len(self.free)))
+            rows = slice(start, start + len(obs) * sensor.dim)
+            out.append(SensorBlock(sensor, s, _run(obs), rows, 1.0, B_direct))
+            start = rows.stop
+        return out
+
+    def _groups(self, block: SensorBlock) -> list[_Group]:
+        data, profile = self.data, self.profile
+        out = []
+        in_block = np.arange(data.n_observations)[block.obs]
+        position = np.empty(data.n_observations, int)
+        position[in_block] = np.arange(len(in_block))
+        for t in np.unique(data.target[in_block]):
             target = profile.targets[t]
-            obs = np.flatnonzero(data.target == t)
+            obs = in_block[data.target[in_block] == t]
             cfgs, counts = np.unique(data.cfg[obs], return_counts=True)
             runs = bool(np.all(np.diff(data.cfg[obs]) >= 0) and np.all(counts == counts[0]))
-            signs = op_signs(profile, target.frame, self.sensor.frame)
+            signs = op_signs(profile, target.frame, block.sensor.frame)
             ops = sorted(i for i in self.record if signs.get(i, 0.0) != 0.0)
-            self.groups.append(
+            out.append(
                 _Group(
+                    block=block,
                     obs=obs,
+                    pos=_run(position[obs]),
                     target=int(t),
-                    signs=signs,
                     ops=ops,
-                    B_ops=A[[all_ops[i].param for i in ops]] if ops else np.zeros((0, len(self.free))),
-                    B_point=A[list(target.point_params)] if target.point_params else None,
-                    rotation=np.array([1.0 if all_ops[i].kind == "r" else 0.0 for i in ops]),
+                    B_ops=self.A[[self._op[i].param for i in ops]] if ops else np.zeros((0, len(self.free))),
+                    B_point=self.A[list(target.point_params)] if target.point_params else None,
+                    rotation=np.array([1.0 if self._op[i].kind == "r" else 0.0 for i in ops]),
                     sign=np.array([signs[i] for i in ops]),
                     per_cfg=int(counts[0]) if runs else 0,
                     cfgs=cfgs,
                 )
             )
-        self.n_data_rows = data.n_observations * self.dim
-        self.included = np.ones(data.n_observations, bool)  # False: an outlier, left out
-        self._q = np.nan_to_num(data.joints)  # joints a row does not need do not matter
-        if noise_model is True:
-            self.W = whitening(self.sensor, p_base, data.measured, self._reading_covariance(p_base))
-        else:
-            self.W = 1.0 if noise_model is False else noise_model
+        return out
 
-    def _reading_covariance(self, p: np.ndarray) -> np.ndarray | None:
-        """(M, dim, dim): what rounding each joint reading to its encoder step adds to a measurement.
+    def _reading_covariance(self, p: np.ndarray) -> dict[int, np.ndarray] | None:
+        """Per sensor, (n, dim, dim): what rounding each joint reading to its encoder step adds to a
+        measurement.
 
         A reading's rounding error is uniform over one step (variance step^2 / 12) and moves the
         prediction like the joint's offset does, so its Jacobian is the offset's column.
@@ -125,30 +172,44 @@ class Problem:
             return None
         probe = Problem(self.profile, self.data, list(steps), p, noise_model=False)
         _, J = probe.residuals_jacobian(probe.x0)
-        Jq = J.reshape(-1, self.dim, len(steps)) * np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
-        return Jq @ Jq.transpose(0, 2, 1)
+        scale = np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
+        out = {}
+        for b in probe.blocks:
+            Jq = J[b.rows].reshape(-1, b.dim, len(steps)) * scale
+            out[b.index] = Jq @ Jq.transpose(0, 2, 1)
+        return out
 
     # --- parameters -----------------------------------------------------------------------------
     def params(self, x: np.ndarray) -> np.ndarray:
         return self.p_fixed + self.A @ x
 
+    @property
+    def weights(self) -> list[np.ndarray | float]:
+        """Each block's whitening, to build another Problem on the same data without recomputing it."""
+        return [b.W for b in self.blocks]
+
     # --- evaluation -----------------------------------------------------------------------------
     def predict(self, p: np.ndarray) -> np.ndarray:
-        """Predicted measurements (M, dim) for full parameters p."""
+        """Predicted measurements (M, width of data.measured) for full parameters p; NaN in the
+        columns an observation's sensor does not have."""
         return self._evaluate(p, jacobian=False)[0]
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         p = self.params(x)
         pred, _ = self._evaluate(p, jacobian=False)
-        return self._with_priors(self._whiten(pred - self.data.measured).ravel(), p)
+        return self._with_priors(self._whitened(pred), p)
 
     def residuals_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = self.params(x)
         pred, J = self._evaluate(p, jacobian=True)
         assert J is not None
-        r = self._with_priors(self._whiten(pred - self.data.measured).ravel(), p)
-        J3 = J.reshape(-1, self.dim, len(self.free)) * self.included[:, None, None]
-        J = (self.W @ J3 if isinstance(self.W, np.ndarray) else J3 * self.W).reshape(J.shape)
+        r = self._with_priors(self._whitened(pred), p)
+        for b in self.blocks:
+            J3 = J[b.rows].reshape(-1, b.dim, len(self.free))  # a view: weighed in place
+            if isinstance(b.W, np.ndarray):
+                J3[:] = b.W @ (J3 * (self.included[b.obs] / b.scale)[:, None, None])
+            else:
+                J3 *= (self.included[b.obs] * (b.W / b.scale))[:, None, None]
         if self.priors:
             Jp = np.zeros((len(self.priors), len(self.free)))
             for k, (i, s) in enumerate(self.priors.items()):
@@ -157,13 +218,24 @@ class Problem:
         return r, J
 
     def raw_residuals(self, x: np.ndarray) -> np.ndarray:
-        """Prediction - measurement (M * dim), unweighted: the distances the papers report."""
+        """Prediction - measurement, unweighted, block after block: the distances the papers report."""
         pred, _ = self._evaluate(self.params(x), jacobian=False)
-        return ((pred - self.data.measured) * self.included[:, None]).ravel()
+        return np.concatenate([self._errors(pred, b).ravel() for b in self.blocks])
 
-    def _whiten(self, e: np.ndarray) -> np.ndarray:
-        e = e * self.included[:, None]
-        return (self.W @ e[:, :, None])[:, :, 0] if isinstance(self.W, np.ndarray) else e * self.W
+    def block_rows(self, r: np.ndarray) -> list[np.ndarray]:
+        """The data rows of a residual vector, one array per block."""
+        return [r[b.rows] for b in self.blocks]
+
+    def _errors(self, pred: np.ndarray, b: SensorBlock) -> np.ndarray:
+        e = pred[b.obs, : b.dim] - self.data.measured[b.obs, : b.dim]
+        return e * self.included[b.obs, None]
+
+    def _whitened(self, pred: np.ndarray) -> np.ndarray:
+        parts = []
+        for b in self.blocks:
+            e = self._errors(pred, b) / b.scale
+            parts.append(((b.W @ e[:, :, None])[:, :, 0] if isinstance(b.W, np.ndarray) else e * b.W).ravel())
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     def _with_priors(self, r: np.ndarray, p: np.ndarray) -> np.ndarray:
         if not self.priors:
@@ -172,8 +244,8 @@ class Problem:
         return np.concatenate([r, prior])
 
     def sensor_points(self, p: np.ndarray) -> np.ndarray:
-        """Each observed point in the sensor frame (M, 3), for visibility checks and rendering."""
-        poses = forward(self.profile, p, self._joints(), frames=self.frames, skip=self._skip(p))
+        """Each observed point in its sensor's frame (M, 3), for visibility checks and rendering."""
+        poses = forward(self.profile, p, self._q, frames=self.frames, skip=self._skip(p))
         out = np.empty((self.data.n_observations, 3))
         for g in self.groups:
             out[g.obs] = self._points(p, poses, g)[1]
@@ -182,25 +254,17 @@ class Problem:
     def _skip(self, p: np.ndarray) -> set[int]:
         return {i for i, k in self._constant if p[k] == 0.0}
 
-    def _joints(self) -> np.ndarray:
-        return self._q
-
-    def _points(self, p: np.ndarray, poses, g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _points(self, p: np.ndarray, poses: Poses, g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Base-frame points P, sensor-frame points x, the sensor rotation and the target rotation."""
         target = self.profile.targets[g.target]
-        cfg = self.data.cfg[g.obs]
         local = self.data.point[g.obs]
         if target.point_params is not None:
             local = np.broadcast_to(p[list(target.point_params)], local.shape)
         elif target.points is not None:  # fixed points (markers, the frame's origin) by vertex id
             local = target.points[np.maximum(self.data.vertex[g.obs], 0)]
-        Rt = poses.R[target.frame][cfg]
-        P = (Rt @ local[:, :, None])[:, :, 0] + poses.t[target.frame][cfg]
-        Rs = poses.R[self.sensor.frame][cfg]
-        x = ((P - poses.t[self.sensor.frame][cfg])[:, None, :] @ Rs)[:, 0, :]
-        return P, x, Rs, Rt
+        return to_sensor(poses, target.frame, g.block.sensor.frame, self.data.cfg[g.obs], local)
 
-    def _twists(self, poses, g: _Group) -> np.ndarray:
+    def _twists(self, poses: Poses, g: _Group) -> np.ndarray:
         """(N, 6, K): per configuration, the (w, v) twist of each of the group's ops, signed."""
         W = np.stack([poses.w[i] for i in g.ops], axis=2)
         pivots = np.stack([poses.o[i] for i in g.ops], axis=2)
@@ -209,25 +273,20 @@ class Problem:
 
     def _evaluate(self, p: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
         poses = forward(
-            self.profile,
-            p,
-            self._joints(),
-            frames=self.frames,
-            record=self.record if jacobian else None,
-            skip=self._skip(p),
+            self.profile, p, self._q, frames=self.frames, record=self.record if jacobian else None, skip=self._skip(p)
         )
-        M = self.data.n_observations
-        pred = np.empty((M, self.dim))
-        J = np.zeros((M, self.dim, len(self.free))) if jacobian else None
+        pred = np.full(self.data.measured.shape, np.nan)
+        J = np.zeros((self.n_data_rows, len(self.free))) if jacobian else None
         for g in self.groups:
+            dim = g.block.dim
             P, x, Rs, Rt = self._points(p, poses, g)
-            h, dh_dx, dh_dint = predict(self.sensor, p, x, derivatives=jacobian)
-            pred[g.obs] = h
-            if not jacobian:
+            h, dh_dx, dh_direct = g.block.sensor.predict(p, x, derivatives=jacobian)
+            pred[g.obs, :dim] = h
+            if J is None:
                 continue
-            assert J is not None and dh_dx is not None and dh_dint is not None
+            assert dh_dx is not None and dh_direct is not None
             G = dh_dx @ Rs.transpose(0, 2, 1)  # d(pred)/d(P in the base frame)
-            Jg = np.zeros((len(g.obs), self.dim, len(self.free)))
+            Jg = np.zeros((len(g.obs), dim, len(self.free)))
             if g.ops:
                 # Each op moves the point by a twist: dP = w x P + v with v = o x w (rotation) or
                 # dP = w (translation). Build the twists per configuration, then one batched product.
@@ -238,13 +297,20 @@ class Problem:
                 H = np.concatenate([G @ skew, G], axis=2)  # d(pred)/d(w, v): w x P = -[P]x w
                 if g.per_cfg:  # observations come in equal runs per configuration: one product each
                     c = g.per_cfg
-                    dpred = (H.reshape(-1, c * self.dim, 6) @ xi[g.cfgs]).reshape(len(P), self.dim, -1)
+                    dpred = (H.reshape(-1, c * dim, 6) @ xi[g.cfgs]).reshape(len(P), dim, -1)
                 else:
                     dpred = H @ xi[self.data.cfg[g.obs]]
                 Jg += dpred @ g.B_ops
             if g.B_point is not None:
                 Jg += (G @ Rt) @ g.B_point
-            if self.intrinsics:
-                Jg += dh_dint @ self.B_intr
-            J[g.obs] = Jg
-        return pred, (None if J is None else J.reshape(M * self.dim, len(self.free)))
+            if len(g.block.B_direct):
+                Jg += dh_direct @ g.block.B_direct
+            J[g.block.rows].reshape(-1, dim, len(self.free))[g.pos] = Jg
+        return pred, J
+
+
+def _run(index: np.ndarray) -> np.ndarray | slice:
+    """A slice for ascending consecutive indices (a view, not a copy, when indexing), else the indices."""
+    if len(index) and index[-1] - index[0] == len(index) - 1 and np.all(np.diff(index) == 1):
+        return slice(int(index[0]), int(index[-1]) + 1)
+    return index

@@ -19,27 +19,34 @@ from ..model.profile import Profile
 from .problem import Problem
 
 
-def registration_params(profile: Profile) -> list[int]:
-    """The six parameters of the data sensor's registration frame, or [] when it has none."""
-    frame = profile.frames[profile.sensors[profile.data.sensor].frame]
-    if not frame.registration:
-        return []
-    return [op.param for op in frame.ops]
+def registration_params(profile: Profile, sensors: list[int] | None = None) -> list[int]:
+    """The parameters of the registration frames the given sensors (default: the data format's)
+    hang from, or [] when none does."""
+    out: list[int] = []
+    for s in [profile.data.sensor] if sensors is None else sensors:
+        frame = profile.frames[profile.sensors[s].frame]
+        if frame.registration:
+            out += [op.param for op in frame.ops if op.param not in out]
+    return out
 
 
 def register(profile: Profile, data: Dataset, p: np.ndarray) -> np.ndarray:
-    """p with the registration set to the least-squares rigid fit of the model to `data`."""
-    params = registration_params(profile)
-    if not params:
-        return p
-    if profile.sensors[profile.data.sensor].model != "point3d":
-        raise InputError("a registration needs a point sensor (a laser tracker)")
+    """p with each registration the data's sensors hang from set to the least-squares rigid fit of
+    the model to that sensor's observations."""
     q = p.copy()
-    q[params] = 0.0  # the device at the base: its "sensor points" are base-frame points
-    base_points = Problem(profile, data, [], q).sensor_points(q)
-    R, t = rigid_fit(data.measured, base_points)
-    yaw, pitch, roll = zyx_angles(R)
-    q[params] = [*t, yaw, pitch, roll]
+    for s in data.sensors:
+        params = registration_params(profile, [s])
+        if not params:
+            continue
+        sensor = profile.sensors[s]
+        if sensor.dim != 3:
+            raise InputError(f"sensor '{sensor.name}' is on a registration frame but does not measure 3-D points")
+        own = data.of_sensor(s)
+        q[params] = 0.0  # the device at the base: its "sensor points" are base-frame points
+        base_points = Problem(profile, own, [], q).sensor_points(q)
+        R, t = rigid_fit(own.measured[:, :3], base_points)
+        yaw, pitch, roll = zyx_angles(R)
+        q[params] = [*t, yaw, pitch, roll]
     return q
 
 

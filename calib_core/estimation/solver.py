@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 import scipy.linalg
@@ -22,6 +23,43 @@ class Cancelled(Exception):
     """A solve stopped because its caller asked it to."""
 
 
+class SolveStatus(Enum):
+    """Why a solver stopped; the value is the sentence shown to people."""
+
+    GRADIENT_VANISHED = "gradient vanished"
+    STEP_TOLERANCE = "step below tolerance"
+    COST_TOLERANCE = "cost change below tolerance"
+    NO_FURTHER_DECREASE = "no step can reduce the cost further"
+    SIMPLEX_TOLERANCE = "simplex below tolerance"
+    MAX_ITERATIONS = "maximum iterations reached"
+    MAX_EVALUATIONS = "maximum evaluations reached"
+
+    @property
+    def converged(self) -> bool:
+        """Whether the solver reached a minimum (to its tolerances), rather than a limit of work."""
+        return self not in (SolveStatus.MAX_ITERATIONS, SolveStatus.MAX_EVALUATIONS)
+
+    @property
+    def code(self) -> str:
+        return self.name.lower()
+
+    @classmethod
+    def from_code(cls, code: str) -> SolveStatus:
+        """From a code (`max_iterations`) or, for calibration files written before codes, the text."""
+        for status in cls:
+            if code in (status.code, status.value):
+                return status
+        legacy = {
+            "converged (no step can reduce the cost further)": cls.NO_FURTHER_DECREASE,
+            "Optimization terminated successfully.": cls.SIMPLEX_TOLERANCE,
+            "Maximum number of function evaluations has been exceeded.": cls.MAX_EVALUATIONS,
+            "Maximum number of iterations has been exceeded.": cls.MAX_ITERATIONS,
+        }
+        if code in legacy:
+            return legacy[code]
+        raise ValueError(f"unknown solver status {code!r}")
+
+
 @dataclass
 class SolveResult:
     x: np.ndarray
@@ -29,28 +67,33 @@ class SolveResult:
     iterations: int
     evaluations: int
     seconds: float
-    status: str
+    status: SolveStatus
     cost_history: list[float] = field(default_factory=list)
 
 
 @dataclass
 class Robust:
-    """Cauchy loss on observation blocks of `dim` rows (the first `n_rows` rows), scale `scale`."""
+    """Cauchy loss on observation blocks: each segment (rows, dim, scale) is a sensor's data rows,
+    observations of `dim` rows each, with its own scale. Rows outside every segment (priors) are
+    plain least squares."""
 
-    dim: int
-    n_rows: int
-    scale: float
+    segments: list[tuple[slice, int, float]]
 
     def weights(self, r: np.ndarray) -> np.ndarray:
-        """Per-row IRLS weights (rows after n_rows, e.g. priors, keep weight 1)."""
-        z = block_norms_sq(r[: self.n_rows], self.dim) / self.scale**2
+        """Per-row IRLS weights."""
         w = np.ones_like(r)
-        w[: self.n_rows] = np.repeat(1.0 / (1.0 + z), self.dim)
+        for rows, dim, scale in self.segments:
+            z = block_norms_sq(r[rows], dim) / scale**2
+            w[rows] = np.repeat(1.0 / (1.0 + z), dim)
         return w
 
     def cost(self, r: np.ndarray) -> float:
-        z = block_norms_sq(r[: self.n_rows], self.dim) / self.scale**2
-        return 0.5 * (self.scale**2 * np.sum(np.log1p(z)) + float(r[self.n_rows :] @ r[self.n_rows :]))
+        plain = np.ones(len(r), bool)
+        total = 0.0
+        for rows, dim, scale in self.segments:
+            total += scale**2 * float(np.sum(np.log1p(block_norms_sq(r[rows], dim) / scale**2)))
+            plain[rows] = False
+        return 0.5 * (total + float(r[plain] @ r[plain]))
 
 
 def block_norms_sq(r: np.ndarray, dim: int) -> np.ndarray:
@@ -91,7 +134,7 @@ def levenberg_marquardt(
     history = [cost]
     lam = 1e-3
     nu = 2.0
-    status = "maximum iterations reached"
+    status = SolveStatus.MAX_ITERATIONS
     iteration = 0
     for iteration in range(1, max_iterations + 1):
         if should_stop is not None and should_stop():
@@ -103,7 +146,7 @@ def levenberg_marquardt(
         diag = np.maximum(np.diag(H), 1e-12 * max(1.0, float(np.max(np.diag(H), initial=0.0))))
         held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))  # at a bound, pushed outward
         if np.max(np.abs(np.where(held, 0.0, g)), initial=0.0) <= 1e-14 * max(1.0, cost):
-            status = "gradient vanished"
+            status = SolveStatus.GRADIENT_VANISHED
             break
         # Near the solution nearly every step is accepted, so the trial point gets its Jacobian
         # at once (a rejected step wastes one; an accepted one saves a residual evaluation).
@@ -130,7 +173,7 @@ def levenberg_marquardt(
             if lam > 1e16:
                 break
         if not accepted:
-            status = "converged (no step can reduce the cost further)"
+            status = SolveStatus.NO_FURTHER_DECREASE
             break
         reduction = cost - cost_new
         x, r, J, cost = x + dx, r_new, J_new, cost_new
@@ -140,10 +183,10 @@ def levenberg_marquardt(
         if progress is not None:
             progress(iteration, cost)
         if np.linalg.norm(dx) <= xtol * (np.linalg.norm(x) + xtol):
-            status = "step below tolerance"
+            status = SolveStatus.STEP_TOLERANCE
             break
         if reduction <= ftol * max(cost, 1e-300):
-            status = "cost change below tolerance"
+            status = SolveStatus.COST_TOLERANCE
             break
     return SolveResult(x, cost, iteration, evaluations, time.perf_counter() - start, status, history)
 
@@ -169,19 +212,19 @@ def _box_step(
 def nelder_mead(
     fun: Callable[[np.ndarray], np.ndarray],
     x0: np.ndarray,
-    dim: int,
-    n_rows: int,
+    segments: list[tuple[slice, int]],
     *,
     max_evaluations: int = 200_000,
     should_stop: Callable[[], bool] | None = None,
 ) -> SolveResult:
-    """The paper's baseline: Nelder-Mead on the sum of observation distances |r_b|."""
+    """The paper's baseline: Nelder-Mead on the sum of observation distances |r_b|; `segments`:
+    each sensor's rows of fun(x) and the rows of one observation."""
     start = time.perf_counter()
     history: list[float] = []
 
     def objective(x: np.ndarray) -> float:
         r = fun(x)
-        value = float(np.sum(np.sqrt(block_norms_sq(r[:n_rows], dim))) + 0.5 * r[n_rows:] @ r[n_rows:])
+        value = float(sum(np.sum(np.sqrt(block_norms_sq(r[rows], dim))) for rows, dim in segments))
         if not history or value < history[-1]:
             history.append(value)
         return value
@@ -216,6 +259,6 @@ def nelder_mead(
         int(res.nit),
         int(res.nfev),
         time.perf_counter() - start,
-        str(res.message),
+        SolveStatus.SIMPLEX_TOLERANCE if res.success else SolveStatus.MAX_EVALUATIONS,
         history,
     )

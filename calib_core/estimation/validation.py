@@ -1,7 +1,8 @@
 """Error figures and data splits: before/after, held-out and k-fold cross-validation.
 
 Errors are Euclidean distances between prediction and measurement per observation (cm for a 3-D
-point, px for a pixel), the figure the papers report. Splits keep whole configurations together, and
+point, px for a pixel, the distance from a plane), the figure the papers report; with several
+sensors, per sensor, and pooled over those that measure in one unit. Splits keep whole configurations together, and
 repeated configurations (the same joint readings) on one side, so a held-out figure never tests a
 configuration that was also trained on.
 """
@@ -13,6 +14,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..dataset import Dataset
+from ..errors import InputError
+from ..model.profile import Profile
 
 
 @dataclass
@@ -55,6 +58,47 @@ def figures(pred: np.ndarray, measured: np.ndarray, unit: str, keep: np.ndarray 
         np.sqrt(np.mean(e**2, axis=0)).tolist(),
         excluded,
     )
+
+
+def sensor_figures(
+    profile: Profile, parts: list[tuple[Dataset, np.ndarray, np.ndarray | None]]
+) -> tuple[Figures, dict[str, Figures]]:
+    """The figures pooled over the sensors that measure in the first sensor's unit, and each
+    sensor's (by name), of (data, prediction, observations kept) parts: the prediction (M, width)
+    as Problem.predict gives it, the kept ones a bool mask or None for all."""
+    errors: dict[int, list[np.ndarray]] = {}
+    kept: dict[int, list[np.ndarray]] = {}
+    for data, pred, keep in parts:
+        k = np.ones(data.n_observations, bool) if keep is None else keep
+        for s in data.sensors:
+            sel = data.sensor == s
+            dim = profile.sensors[s].dim
+            errors.setdefault(s, []).append(pred[sel, :dim] - data.measured[sel, :dim])
+            kept.setdefault(s, []).append(k[sel])
+    each, pooled_e, pooled_k = {}, [], []
+    unit = profile.sensors[min(errors)].unit
+    for s in sorted(errors):
+        sensor = profile.sensors[s]
+        e, k = np.concatenate(errors[s]), np.concatenate(kept[s])
+        each[sensor.name] = figures(e, np.zeros_like(e), sensor.unit, k)
+        if sensor.unit == unit:
+            pooled_e.append(e)
+            pooled_k.append(k)
+    if len(each) == 1:
+        return next(iter(each.values())), each
+    if len({e.shape[1] for e in pooled_e}) > 1:  # several kinds: the distances, no per-axis figures
+        pooled_e = [np.linalg.norm(e, axis=1, keepdims=True) for e in pooled_e]
+    d = np.concatenate(pooled_e)
+    return figures(d, np.zeros_like(d), unit, np.concatenate(pooled_k)), each
+
+
+MAX_HOLDOUT = 0.9  # a held-out share leaves at least a tenth of the configurations to fit on
+
+
+def check_share(share: float, what: str = "held-out share") -> None:
+    """The one rule for a held-out share (library, command line, API): between 0 and MAX_HOLDOUT."""
+    if not 0.0 <= share <= MAX_HOLDOUT:
+        raise InputError(f"{what} {share} must be between 0 and {MAX_HOLDOUT}")
 
 
 REPEAT_TOLERANCE_RAD = 0.01  # readings this close on every joint: the same commanded configuration

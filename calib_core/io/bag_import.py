@@ -47,8 +47,8 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from ..errors import InputError
-from ..model.profile import Profile, Sensor
-from ..sensors.measurement import in_front, predict
+from ..model.profile import Profile
+from ..sensors import Pinhole, Sensor
 from ..sim.simulator import Capture, SimulatedRobot, dataset_from_captures
 from ..vision.sighting import Sighting, predicted_points, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair
@@ -369,9 +369,9 @@ def decode_image(msg: Any, msgtype: str, topic: str, bag: str) -> np.ndarray | N
 
 def _image_roles(profile: Profile) -> tuple[Sensor, list[str]]:
     sensor = profile.sensors[profile.data.sensor]
-    if sensor.model == "point3d" and sensor.baseline is not None and sensor.intrinsics is not None:
+    if sensor.reading == "stereo":
         return sensor, ["left", "right"]
-    if sensor.model == "pinhole" and sensor.image is not None:
+    if sensor.reading == "image" and isinstance(sensor, Pinhole) and sensor.image is not None:
         return sensor, ["image"]
     raise InputError(
         f"robot '{profile.name}': its sensor '{sensor.name}' is neither a stereo head nor a camera with an "
@@ -383,7 +383,7 @@ def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> lis
     """The boards to look for in configuration q, best first: those the believed kinematics predict fully
     in view (the simulator's test, nearest the image centre first), then those partly in view."""
     sensor = profile.sensors[profile.data.sensor]
-    assert sensor.image is not None
+    assert isinstance(sensor, Pinhole) and sensor.image is not None  # _image_roles checked it
     width, height = sensor.image
     boards = [t for t, target in enumerate(profile.targets) if target.grid is not None]
     if not boards:
@@ -393,10 +393,10 @@ def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> lis
     scored = []
     for t, full in zip(boards, seen, strict=True):
         x = predicted_points(profile, believed, q, t)
-        ahead = in_front(sensor, x)
-        if not ahead.any():
+        uv = sensor.project(believed, x)
+        uv = uv[np.isfinite(uv[:, 0])]
+        if not len(uv):
             continue
-        uv = predict(sensor, believed, x[ahead])[0]
         inside = int(np.sum((uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)))
         off_centre = float(np.hypot(*(uv.mean(axis=0) - [width / 2, height / 2])))
         if inside:
@@ -504,6 +504,41 @@ def _read_recording(
     return _Recording(topics, len(joint_times), periods, images)
 
 
+def _frame_images(
+    picked: dict[str, Any],
+    roles: list[str],
+    topics: list[str],
+    period: StillPeriod,
+    size_px: tuple[int, int] | None,
+    profile: Profile,
+    bag: Path,
+) -> tuple[dict[str, np.ndarray], str, dict[str, Any]]:
+    """The images of one still period by role, why they cannot be used ("" if they can), and where
+    in the bag they came from. Images of another size than the camera's are bad input."""
+    detail: dict[str, Any] = {"still_s": [round(period.start_s, 3), round(period.end_s, 3)], "images_s": {}}
+    images: dict[str, np.ndarray] = {}
+    problem = ""
+    for role, topic in zip(roles, topics, strict=True):
+        entry = picked[topic]
+        if entry is None:
+            problem = problem or f"no image on '{topic}' during the still period"
+            continue
+        time_s, msg, msgtype = entry
+        detail["images_s"][role] = round(time_s, 3)
+        image = decode_image(msg, msgtype, topic, str(bag))
+        if image is None:
+            problem = problem or f"the image on '{topic}' cannot be decoded"
+            continue
+        if size_px is None or image.shape != (size_px[1], size_px[0]):
+            raise InputError(
+                f"topic '{topic}': images of {image.shape[1]} x {image.shape[0]} px, but the camera of robot "
+                f"'{profile.name}' (its intrinsics) has {size_px[0]} x {size_px[1]} px",  # type: ignore[index]
+                file=str(bag),
+            )
+        images[role] = image
+    return images, problem, detail
+
+
 def import_bag(
     bag: str | Path,
     profile: Profile,
@@ -546,33 +581,11 @@ def import_bag(
     captures: list[Capture] = []
     frames: list[FrameRecord] = []
     images: dict[int, dict[str, np.ndarray]] = {}
-    without_image = 0
     for k, (period, picked) in enumerate(zip(rec.periods, rec.images, strict=True)):
         frame = k + 1
-        bag_detail: dict[str, Any] = {"still_s": [round(period.start_s, 3), round(period.end_s, 3)], "images_s": {}}
-        frame_images: dict[str, np.ndarray] = {}
-        problem = ""
-        for role, topic in zip(roles, rec.topics, strict=True):
-            entry = picked[topic]
-            if entry is None:
-                problem = problem or f"no image on '{topic}' during the still period"
-                continue
-            time_s, msg, msgtype = entry
-            bag_detail["images_s"][role] = round(time_s, 3)
-            image = decode_image(msg, msgtype, topic, str(bag))
-            if image is None:
-                problem = problem or f"the image on '{topic}' cannot be decoded"
-                continue
-            if size_px is None or image.shape != (size_px[1], size_px[0]):
-                raise InputError(
-                    f"topic '{topic}': images of {image.shape[1]} x {image.shape[0]} px, but the camera of robot "
-                    f"'{profile.name}' (its intrinsics) has {size_px[0]} x {size_px[1]} px",  # type: ignore[index]
-                    file=str(bag),
-                )
-            frame_images[role] = image
+        frame_images, problem, bag_detail = _frame_images(picked, roles, rec.topics, period, size_px, profile, bag)
         q = period.joints_rad
         if problem:
-            without_image += int(problem.startswith("no image"))
             t = profile.data.target if profile.data.target is not None else 0
             sighting = Sighting(t, "not found", problem, None, np.full((1, 3), np.nan), np.array([-1]), {})
         else:
@@ -584,6 +597,7 @@ def import_bag(
         frames.append(
             FrameRecord(frame, joints_deg, sighting.status, sighting.reason, {}, {**sighting.detail, "bag": bag_detail})
         )
+    without_image = sum(c.sighting.reason.startswith("no image") for c in captures)
 
     measured = sum(c.sighting.status == "measured" for c in captures)
     if not measured:

@@ -1,9 +1,10 @@
-"""Datasets: configurations (joint readings) and what the sensor measured in each, read from and
-written to the CSV formats of a profile's `data` section (specs/robonaut-a.md, specs/nao.md).
+"""The CSV formats of a profile's `data` section (specs/robonaut-a.md, specs/nao.md, specs/motoman.md):
+reading a file into a Dataset and writing one back.
 
 One CSV row is one observation. Rows with the same frame id share one configuration; a format
-without a frame column (the Motoman tracker files) makes every row a configuration of its own. Every problem
-with a file is reported as an InputError naming the file, the line and the column.
+without a frame column (the Motoman tracker files) makes every row a configuration of its own. A
+format may name each row's sensor in a column (several cameras, several planes of one kind). Every
+problem with a file is reported as an InputError naming the file, the line and the column.
 """
 
 from __future__ import annotations
@@ -17,8 +18,7 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..errors import InputError
-from ..model.profile import Profile
-from ..sensors.measurement import dimension
+from ..model.profile import DataFormat, Profile
 from ..units import ANGLE_IN_RAD, length_factor
 
 # No joint angle, length or pixel in a calibration dataset comes near this; beyond it, arithmetic
@@ -43,10 +43,39 @@ def read_dataset(profile: Profile, path: str | Path) -> Dataset:
     return parse_dataset(profile, text, name)
 
 
-def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
-    fmt = profile.data
-    sensor = profile.sensors[fmt.sensor]
-    dim = dimension(sensor)
+class _Row:
+    """One data row: its fields by column, read with the file, line and column of every problem."""
+
+    def __init__(self, name: str, line: int, fields: list[str], col: dict[str, int]) -> None:
+        self.name, self.line, self.fields, self.col = name, line, fields, col
+
+    def fail(self, message: str, column: str | None = None) -> InputError:
+        return InputError(message, file=self.name, line=self.line, column=column)
+
+    def text(self, c: str) -> str:
+        return self.fields[self.col[c]].strip()
+
+    def number(self, c: str) -> float:
+        s = self.text(c)
+        try:
+            v = float(s)
+        except ValueError:
+            raise self.fail("is empty" if not s else f"'{s}' is not a number", c) from None
+        if not math.isfinite(v):
+            raise self.fail(f"'{s}' is not a finite number", c)
+        if abs(v) > MAX_MAGNITUDE:
+            raise self.fail(f"'{s}' is implausibly large (beyond {MAX_MAGNITUDE:g})", c)
+        return v
+
+    def choice(self, c: str, values: dict[str, int]) -> int:
+        v = self.text(c)
+        if v not in values:
+            raise self.fail(f"'{v}' is not one of {', '.join(values)}", c)
+        return values[v]
+
+
+def _header(fmt: DataFormat, text: str, name: str) -> tuple[int, list[str], list[tuple[int, list[str]]]]:
+    """The header line, its column names, and the data rows (line number, fields)."""
     try:
         table = list(csv.reader(io.StringIO(text)))
     except csv.Error as exc:
@@ -56,125 +85,131 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         raise InputError("file is empty (a header line and data rows are required)", file=name)
     header_line, header = lines[0]
     header = [h.strip() for h in header]
+    if not lines[1:]:
+        raise InputError("has a header but no data rows", file=name, line=header_line)
+    return header_line, header, lines[1:]
+
+
+def _required(fmt: DataFormat, col: dict[str, int]) -> list[str]:
+    out = [*fmt.measurement_columns, *fmt.joint_columns.values()]
+    optional = [
+        fmt.frame_column,
+        _target_column(fmt, col),
+        fmt.sensor_column,
+        fmt.vertex_column,
+        *(fmt.point_columns or ()),
+    ]
+    return out + [c for c in optional if c]
+
+
+def _target_column(fmt: DataFormat, col: dict[str, int]) -> str | None:
+    """The column that picks each row's target: absent from the file is fine when there is a default."""
+    return fmt.target_column if fmt.target_column in col or fmt.target_default is None else None
+
+
+def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
+    fmt = profile.data
+    header_line, header, body = _header(fmt, text, name)
     col = {h: i for i, h in enumerate(header)}
-    required = [*fmt.measurement_columns, *fmt.joint_columns.values()]
-    if fmt.frame_column:
-        required.append(fmt.frame_column)
-    target_column = fmt.target_column if fmt.target_column in col or fmt.target_default is None else None
-    if target_column:
-        required.append(target_column)
-    if fmt.point_columns:
-        required += list(fmt.point_columns)
-    if fmt.vertex_column:
-        required.append(fmt.vertex_column)
-    for c in required:
+    for c in _required(fmt, col):
         if c not in col:
             raise InputError(f"missing column '{c}' in the header", file=name, line=header_line, column=c)
-    body = lines[1:]
-    if not body:
-        raise InputError("has a header but no data rows", file=name, line=header_line)
-
+    target_column = _target_column(fmt, col)
     joint_factor = ANGLE_IN_RAD[fmt.joint_unit]
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(fmt.measurement_unit, profile.length_unit)
     point_factor = length_factor(fmt.point_unit, profile.length_unit) if fmt.point_unit else 1.0
-    needed = joints_needed(profile)
 
-    frame_index: dict[int, int] = {}
-    frame_first_line: dict[int, int] = {}
-    joints_rows: list[np.ndarray] = []
-    cfg, target, point, vertex, measured, line_no, raw = [], [], [], [], [], [], []
-    n_joints = len(profile.joints)
-    for ln, row in body:
-        if len(row) != len(header):
-            raise InputError(f"has {len(row)} fields but the header has {len(header)}", file=name, line=ln)
-
-        def number(c: str, ln: int = ln, row: list[str] = row) -> float:
-            s = row[col[c]].strip()
-            try:
-                v = float(s)
-            except ValueError:
-                what = "is empty" if not s else f"'{s}' is not a number"
-                raise InputError(what, file=name, line=ln, column=c) from None
-            if not math.isfinite(v):
-                raise InputError(f"'{s}' is not a finite number", file=name, line=ln, column=c)
-            if abs(v) > MAX_MAGNITUDE:
-                raise InputError(f"'{s}' is implausibly large (beyond {MAX_MAGNITUDE:g})", file=name, line=ln, column=c)
-            return v
-
-        if fmt.frame_column:
-            f = number(fmt.frame_column)
-            if f != int(f):
-                raise InputError(f"frame id {f} is not an integer", file=name, line=ln, column=fmt.frame_column)
-            fid = int(f)
-        else:
-            fid = len(measured) + 1
-        if target_column:
-            tv = row[col[target_column]].strip()
-            if tv not in fmt.target_values:
-                known = ", ".join(fmt.target_values)
-                raise InputError(f"'{tv}' is not one of {known}", file=name, line=ln, column=target_column)
-            ti = fmt.target_values[tv]
-        else:
-            ti = fmt.target if fmt.target is not None else fmt.target_default
-            assert ti is not None
-        q = np.full(n_joints, np.nan)
+    frames = _Frames()
+    obs: dict[str, list] = {k: [] for k in ("cfg", "target", "sensor", "point", "vertex", "measured", "line")}
+    for ln, fields in body:
+        if len(fields) != len(header):
+            raise InputError(f"has {len(fields)} fields but the header has {len(header)}", file=name, line=ln)
+        row = _Row(name, ln, fields, col)
+        fid = _frame_id(row, fmt, len(obs["line"]) + 1)
+        ti = row.choice(target_column, fmt.target_values) if target_column else fmt.target
+        if ti is None:
+            ti = fmt.target_default
+        si = row.choice(fmt.sensor_column, fmt.sensor_values) if fmt.sensor_column else fmt.sensor
+        assert ti is not None  # the loader requires a target, a target column or a default
+        q = np.full(len(profile.joints), np.nan)
+        needed = profile.joints_between(ti, si)
         for jname, c in fmt.joint_columns.items():
             j = profile.joint(jname)
-            if j in needed[ti]:
-                q[j] = number(c) * joint_factor
-        if fid in frame_index:
-            prev = joints_rows[frame_index[fid]]
-            both = ~np.isnan(prev) & ~np.isnan(q)
-            if np.any(np.abs(prev[both] - q[both]) > 1e-9):
-                raise InputError(
-                    f"frame {fid} has other joint angles than on line {frame_first_line[fid]}",
-                    file=name,
-                    line=ln,
-                )
-            fill = np.isnan(prev)
-            prev[fill] = q[fill]
-        else:
-            frame_index[fid] = len(joints_rows)
-            frame_first_line[fid] = ln
-            joints_rows.append(q)
+            if j in needed:
+                q[j] = row.number(c) * joint_factor
+        cfg = frames.add(fid, q, row)
+        vertex = _vertex(row, fmt, profile, ti)
         if fmt.point_columns:
-            point.append([number(c) * point_factor for c in fmt.point_columns])
-        if fmt.vertex_column:
-            v = number(fmt.vertex_column)
-            grid = profile.targets[ti].grid if profile.targets[ti].points is None else profile.targets[ti].points
-            if v != int(v) or v < 0 or (grid is not None and v >= len(grid)):
-                raise InputError(
-                    f"vertex {row[col[fmt.vertex_column]].strip()} is not a vertex id",
-                    file=name,
-                    line=ln,
-                    column=fmt.vertex_column,
-                )
-            vertex.append(int(v))
+            point = [row.number(c) * point_factor for c in fmt.point_columns]
         else:
-            vertex.append(-1)
-        if not fmt.point_columns:
             fixed = profile.targets[ti].points
-            point.append([np.nan] * 3 if fixed is None else fixed[max(vertex[-1], 0)])
-        measured.append([number(c) * meas_factor for c in fmt.measurement_columns])
-        cfg.append(frame_index[fid])
-        target.append(ti)
-        line_no.append(ln)
-        raw.append(row)
-    assert len(measured[0]) == dim
+            point = [np.nan] * 3 if fixed is None else fixed[max(vertex, 0)]
+        obs["cfg"].append(cfg)
+        obs["target"].append(ti)
+        obs["sensor"].append(si)
+        obs["point"].append(point)
+        obs["vertex"].append(vertex)
+        obs["measured"].append([row.number(c) * meas_factor for c in fmt.measurement_columns])
+        obs["line"].append(ln)
     return Dataset(
         robot=profile.name,
-        frame_ids=np.array(list(frame_index), dtype=int),
-        joints=np.array(joints_rows),
-        cfg=np.array(cfg, dtype=int),
-        target=np.array(target, dtype=int),
-        point=np.array(point, dtype=float),
-        vertex=np.array(vertex, dtype=int),
-        measured=np.array(measured, dtype=float),
+        frame_ids=np.array(list(frames.index), dtype=int),
+        joints=np.array(frames.joints),
+        cfg=np.array(obs["cfg"], dtype=int),
+        target=np.array(obs["target"], dtype=int),
+        point=np.array(obs["point"], dtype=float),
+        vertex=np.array(obs["vertex"], dtype=int),
+        measured=np.array(obs["measured"], dtype=float),
+        sensor=np.array(obs["sensor"], dtype=int),
         source=name,
-        lines=np.array(line_no, dtype=int),
+        lines=np.array(obs["line"], dtype=int),
         header=header,
-        rows=raw,
+        rows=[fields for _, fields in body],
     )
+
+
+class _Frames:
+    """The configurations of a file: rows with one frame id share one, and must agree on every joint
+    both read (a joint one row does not need is NaN there and filled from another)."""
+
+    def __init__(self) -> None:
+        self.index: dict[int, int] = {}  # frame id -> configuration
+        self.first_line: dict[int, int] = {}
+        self.joints: list[np.ndarray] = []
+
+    def add(self, fid: int, q: np.ndarray, row: _Row) -> int:
+        if fid not in self.index:
+            self.index[fid] = len(self.joints)
+            self.first_line[fid] = row.line
+            self.joints.append(q)
+            return self.index[fid]
+        prev = self.joints[self.index[fid]]
+        both = ~np.isnan(prev) & ~np.isnan(q)
+        if np.any(np.abs(prev[both] - q[both]) > 1e-9):
+            raise row.fail(f"frame {fid} has other joint angles than on line {self.first_line[fid]}")
+        fill = np.isnan(prev)
+        prev[fill] = q[fill]
+        return self.index[fid]
+
+
+def _frame_id(row: _Row, fmt: DataFormat, default: int) -> int:
+    if not fmt.frame_column:
+        return default
+    f = row.number(fmt.frame_column)
+    if f != int(f):
+        raise row.fail(f"frame id {f} is not an integer", fmt.frame_column)
+    return int(f)
+
+
+def _vertex(row: _Row, fmt: DataFormat, profile: Profile, target: int) -> int:
+    if not fmt.vertex_column:
+        return -1
+    v = row.number(fmt.vertex_column)
+    t = profile.targets[target]
+    grid = t.grid if t.points is None else t.points
+    if v != int(v) or v < 0 or (grid is not None and v >= len(grid)):
+        raise row.fail(f"vertex {row.text(fmt.vertex_column)} is not a vertex id", fmt.vertex_column)
+    return int(v)
 
 
 def select_rows(data: Dataset, where: dict[str, str]) -> Dataset:
@@ -191,32 +226,23 @@ def select_rows(data: Dataset, where: dict[str, str]) -> Dataset:
     return data.observations(keep)
 
 
-def joints_needed(profile: Profile) -> dict[int, set[int]]:
-    """For each target, the joints on the chains from the base to it and to the data's sensor."""
-    sensor_frame = profile.sensors[profile.data.sensor].frame
-    out = {}
-    for ti, t in enumerate(profile.targets):
-        frames = set(profile.chain(t.frame)) | set(profile.chain(sensor_frame))
-        out[ti] = {profile.frames[f].joint for f in frames if profile.frames[f].joint >= 0}
-    return out
-
-
 def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None = None) -> str:
     """The dataset in the profile's CSV format (joints in the format's unit), plus extra columns."""
     fmt = profile.data
+    names = {v: k for k, v in fmt.sensor_values.items()} if fmt.sensor_column else {fmt.sensor: ""}
+    stray = sorted(set(data.sensors) - set(names))
+    if stray:
+        raise InputError(
+            f"the {profile.name} CSV format holds observations of {', '.join(profile.sensors[s].name for s in names)}, "
+            f"not of {profile.sensors[stray[0]].name}"
+        )
     joint_factor = ANGLE_IN_RAD[fmt.joint_unit]
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(profile.length_unit, fmt.measurement_unit)
-    header = [fmt.frame_column] if fmt.frame_column else []
-    if fmt.target_column:
-        header.append(fmt.target_column)
-    if fmt.vertex_column:
-        header.append(fmt.vertex_column)
-    header += list(fmt.measurement_columns)
-    if fmt.point_columns:
-        header += list(fmt.point_columns)
-    header += list(fmt.joint_columns.values())
+    point_factor = length_factor(profile.length_unit, fmt.point_unit or profile.length_unit)
+    dim = len(fmt.measurement_columns)
     extra = extra or {}
-    header += list(extra)
+    header = [c for c in (fmt.frame_column, fmt.target_column, fmt.sensor_column, fmt.vertex_column) if c]
+    header += [*fmt.measurement_columns, *(fmt.point_columns or ()), *fmt.joint_columns.values(), *extra]
     tnames = {v: k for k, v in fmt.target_values.items()}
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
@@ -226,12 +252,13 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
         row: list[object] = [int(data.frame_ids[c])] if fmt.frame_column else []
         if fmt.target_column:
             row.append(tnames[int(data.target[m])])
+        if fmt.sensor_column:
+            row.append(names[int(data.sensor[m])])
         if fmt.vertex_column:
             row.append(int(data.vertex[m]))
-        row += [_fmt(v * meas_factor) for v in data.measured[m]]
+        row += [_fmt(v * meas_factor) for v in data.measured[m, :dim]]
         if fmt.point_columns:
-            pf = length_factor(profile.length_unit, fmt.point_unit or profile.length_unit)
-            row += [_fmt(v * pf) for v in data.point[m]]
+            row += [_fmt(v * point_factor) for v in data.point[m]]
         for jname in fmt.joint_columns:
             v = data.joints[c, profile.joint(jname)]
             row.append(_fmt(v / joint_factor) if np.isfinite(v) else "0")

@@ -1,6 +1,6 @@
 """Readers for the CTU Prague Motoman data set (README in the data set's folder): the Leica tracker
 files, split into the subsets that share one tracker set-up and one arm, and the camera pixels
-joined with their poses, one dataset per camera.
+joined with their poses, one dataset of both cameras.
 
 The folder is the data set as published (ctu-vras/multirobot-calibration, converted to CSV); nothing
 here is copied from it. The tracker files are also plain `calib solve --robot motoman` input.
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import Dataset
+from ..dataset import Dataset, merge
 from ..errors import InputError
 from ..model.profile import Profile
 from .csv_format import read_dataset, select_rows
@@ -38,28 +38,9 @@ def leica_subset(profile: Profile, folder: str | Path, name: str) -> Dataset:
     return replace(select_rows(read_dataset(profile, path), where), source=f"{path} [{name}]")
 
 
-def camera_profile(profile: Profile, camera: str) -> Profile:
-    """The profile with `camera`'s pixels as its data: marker faces (vertex = face - 1) per arm."""
-    index = {s.name: i for i, s in enumerate(profile.sensors)}
-    if camera not in index:
-        raise InputError(f"unknown sensor '{camera}'")
-    data = replace(
-        profile.data,
-        sensor=index[camera],
-        target=None,
-        target_column="arm",
-        target_values={"1": profile.target("markers1"), "2": profile.target("markers2")},
-        target_default=None,
-        vertex_column="face",
-        measurement_columns=("u_px", "v_px"),
-        measurement_unit="px",
-        prediction_columns=("pred_u_px", "pred_v_px"),
-    )
-    return replace(profile, data=data)
-
-
-def camera_datasets(profile: Profile, folder: str | Path, sources: set[str] | None = None) -> dict[str, Dataset]:
-    """Per camera ("camera1", "camera2"): every ArUco face centre it saw, with the pose's joints.
+def camera_dataset(profile: Profile, folder: str | Path, sources: set[str] | None = None) -> Dataset:
+    """Every ArUco face centre each camera ("camera1", "camera2") saw, with the pose's joints: one
+    configuration per pose (frame id = the pose's row in camera_poses.csv, from 1).
 
     `sources` keeps only those source files (e.g. the poses a tracker also measured). Every problem
     in the files is an InputError naming the file, line and column."""
@@ -68,15 +49,10 @@ def camera_datasets(profile: Profile, folder: str | Path, sources: set[str] | No
     missing = {"camera1", "camera2", "markers1", "markers2"} - names
     if missing:
         raise InputError(f"robot '{profile.name}' has no {', '.join(sorted(missing))}: the camera format needs them")
-    joint_cols = {profile.joint(j): c for j, c in profile.data.joint_columns.items()}
-    poses: dict[tuple[str, str], np.ndarray] = {}
-    for row, number in _rows(folder / "camera_poses.csv", ["source_file", "pose_id", *joint_cols.values()]):
-        q = np.zeros(len(profile.joints))
-        for j, c in joint_cols.items():
-            q[j] = math.radians(number(c))
-        poses[(row["source_file"], row["pose_id"])] = q
-    per_camera: dict[str, list[tuple[int, int, int, float, float]]] = {"1": [], "2": []}
+    sensor_of = {str(k): [s.name for s in profile.sensors].index(f"camera{k}") for k in (1, 2)}
+    poses = _poses(profile, folder / "camera_poses.csv")
     pose_index: dict[tuple[str, str], int] = {}
+    obs: list[tuple[int, int, int, int, float, float]] = []  # pose, sensor, target, vertex, u, v
     path = folder / "camera_observations.csv"
     columns = ["source_file", "pose_id", "face_id", "arm", "camera", "u_px", "v_px"]
     for row, number in _rows(path, columns):
@@ -86,42 +62,67 @@ def camera_datasets(profile: Profile, folder: str | Path, sources: set[str] | No
         if key not in poses:
             raise number.fail(f"pose {key[1]} of {key[0]} is not in camera_poses.csv", "pose_id")
         camera, arm, face = int(number("camera")), int(number("arm")), int(number("face_id"))
-        if str(camera) not in per_camera:
+        if str(camera) not in sensor_of:
             raise number.fail(f"camera {camera} is not 1 or 2", "camera")
         if arm not in (1, 2):
             raise number.fail(f"arm {arm} is not 1 or 2", "arm")
-        if not 1 <= face <= len(profile.targets[profile.target(f"markers{arm}")].points):
+        target = profile.target(f"markers{arm}")
+        if not 1 <= face <= len(profile.targets[target].points):
             raise number.fail(f"face {face} is not a marker face of the profile", "face_id")
         k = pose_index.setdefault(key, len(pose_index))
-        per_camera[str(camera)].append((k, arm, face - 1, number("u_px"), number("v_px")))
+        obs.append((k, sensor_of[str(camera)], target, face - 1, number("u_px"), number("v_px")))
     if not pose_index:
         raise InputError("has no observation to calibrate from", file=str(path))
-    keys = list(pose_index)
-    joints = np.array([poses[k] for k in keys])
-    out = {}
-    for cam, obs in per_camera.items():
-        if not obs:
-            continue
-        prof = camera_profile(profile, f"camera{cam}")
-        arr = np.array(obs)
-        used = np.unique(arr[:, 0].astype(int))
-        remap = np.full(len(keys), -1)
-        remap[used] = np.arange(len(used))
-        targets = np.array([prof.target(f"markers{int(a)}") for a in arr[:, 1]])
-        vertex = arr[:, 2].astype(int)
-        points = np.array([prof.targets[t].points[v] for t, v in zip(targets, vertex, strict=True)])
-        out[f"camera{cam}"] = Dataset(
-            robot=profile.name,
-            frame_ids=used + 1,
-            joints=joints[used],
-            cfg=remap[arr[:, 0].astype(int)],
-            target=targets,
-            point=points,
-            vertex=vertex,
-            measured=arr[:, 3:5],
-            source=str(path),
-        )
-    return out
+    arr = np.array(obs)
+    order = np.argsort(arr[:, 0], kind="stable")  # a pose's observations together
+    arr = arr[order]
+    target, vertex = arr[:, 2].astype(int), arr[:, 3].astype(int)
+    return Dataset(
+        robot=profile.name,
+        frame_ids=np.array([poses[k][0] for k in pose_index]),
+        joints=np.array([poses[k][1] for k in pose_index]),
+        cfg=arr[:, 0].astype(int),
+        target=target,
+        point=np.array([profile.targets[t].points[v] for t, v in zip(target, vertex, strict=True)]),
+        vertex=vertex,
+        measured=arr[:, 4:6],
+        sensor=arr[:, 1].astype(int),
+        source=str(path),
+    )
+
+
+def _poses(profile: Profile, path: Path) -> dict[tuple[str, str], tuple[int, np.ndarray]]:
+    """(source file, pose id) -> the pose's row in camera_poses.csv (from 1) and its joint readings (rad)."""
+    joint_cols = {profile.joint(j): c for j, c in profile.data.joint_columns.items()}
+    poses = {}
+    for row, number in _rows(path, ["source_file", "pose_id", *joint_cols.values()]):
+        q = np.zeros(len(profile.joints))
+        for j, c in joint_cols.items():
+            q[j] = math.radians(number(c))
+        poses[(row["source_file"], row["pose_id"])] = (len(poses) + 1, q)
+    return poses
+
+
+def recording(profile: Profile, folder: str | Path, source: str) -> Dataset:
+    """One recording of the Feb 2019 session (a source file: one tracker set-up, one arm) as one
+    dataset of three sensors: per pose, the tracker's reading of the reflector (where it has one)
+    and both cameras' face centres; frame id = the pose's row in camera_poses.csv."""
+    folder = Path(folder)
+    poses = _poses(profile, folder / "camera_poses.csv")
+    tracker = read_dataset(profile, folder / "leica_feb2019.csv")
+    column = {h: i for i, h in enumerate(tracker.header)}
+    if "pose_id" not in column or "source_file" not in column:
+        raise InputError("needs the columns source_file and pose_id", file=str(folder / "leica_feb2019.csv"))
+    tracker = select_rows(tracker, {"source_file": source})
+    frame_of = []
+    for c in range(tracker.n_configurations):
+        row = tracker.rows[int(np.flatnonzero(tracker.cfg == c)[0])]
+        key = (source, row[column["pose_id"]].strip())
+        if key not in poses:
+            raise InputError(f"pose {key[1]} of {source} is not in camera_poses.csv", file=tracker.source)
+        frame_of.append(poses[key][0])
+    tracker = replace(tracker, frame_ids=np.array(frame_of), header=[], rows=[], lines=None)
+    return merge([tracker, camera_dataset(profile, folder, {source})])
 
 
 class _Numbers:

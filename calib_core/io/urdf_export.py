@@ -20,6 +20,7 @@ import numpy as np
 
 from ..model.kinematics import axis_angle
 from ..model.profile import Op, Profile
+from ..sensors.optics import Optical
 from ..units import length_factor
 
 EFFORT = 100.0  # URDF requires an effort limit; profiles have none
@@ -100,9 +101,10 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None) -> str:
             T[:3, 3] = target.grid.mean(axis=0) * scale
             _visual(link, T, "box", "board", size=urdf_numbers(size))
     for sensor in profile.sensors:
-        T = np.eye(4)
-        T[:3, :3] = sensor.R_frame_optical
-        _visual(links[profile.frames[sensor.frame].name], T, "box", "camera", size=urdf_numbers(CAMERA_BOX))
+        if isinstance(sensor, Optical):
+            T = np.eye(4)
+            T[:3, :3] = sensor.R_frame_optical
+            _visual(links[profile.frames[sensor.frame].name], T, "box", "camera", size=urdf_numbers(CAMERA_BOX))
 
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"

@@ -30,7 +30,7 @@ class Poses:
 
 def op_ids(profile: Profile) -> list[tuple[int, int]]:
     """(frame, position) of every op, in a fixed order; an op's id is its index in this list."""
-    return [(f, k) for f, frame in enumerate(profile.frames) for k in range(len(frame.ops))]
+    return profile.op_ids
 
 
 _EYE = np.eye(3)
@@ -174,22 +174,41 @@ def target_points(profile: Profile, p: np.ndarray, target: int) -> np.ndarray:
     return p[list(t.point_params)][None]
 
 
+def to_sensor(
+    poses: Poses, target_frame: int, sensor_frame: int, cfg: np.ndarray, local: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points `local` (n, 3) of a target frame, one per configuration cfg (n,): in the base frame
+    (P_base), in the sensor frame (x_sensor), and the rotations R_base_sensor, R_base_target."""
+    R_base_target = poses.R[target_frame][cfg]
+    P_base = (R_base_target @ local[:, :, None])[:, :, 0] + poses.t[target_frame][cfg]
+    R_base_sensor = poses.R[sensor_frame][cfg]
+    x_sensor = ((P_base - poses.t[sensor_frame][cfg])[:, None, :] @ R_base_sensor)[:, 0, :]
+    return P_base, x_sensor, R_base_sensor, R_base_target
+
+
 def sensor_points(
-    profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray, *, center_only: bool = False
+    profile: Profile,
+    p: np.ndarray,
+    q: np.ndarray,
+    targets: np.ndarray,
+    *,
+    sensor: int | None = None,
+    center_only: bool = False,
 ) -> np.ndarray:
-    """Each configuration's target points in the data sensor's frame: (N, K, 3), or (N, 3) of
-    their centre with `center_only`. Rows whose target has fewer points than K are zero-padded."""
-    sensor = profile.sensors[profile.data.sensor]
+    """Each configuration's target points in a sensor's frame (default: the data format's sensor):
+    (N, K, 3), or (N, 3) of their centre with `center_only`. Rows whose target has fewer points
+    than K are zero-padded."""
+    frame = profile.sensors[profile.data.sensor if sensor is None else sensor].frame
     used = sorted(set(np.asarray(targets).tolist()))
-    poses = forward(profile, p, q, frames=sorted({profile.targets[t].frame for t in used} | {sensor.frame}))
+    poses = forward(profile, p, q, frames=sorted({profile.targets[t].frame for t in used} | {frame}))
     K = 1 if center_only else max(len(target_points(profile, p, t)) for t in used)
     out = np.zeros((len(q), K, 3))
     for t in used:
         rows = np.flatnonzero(targets == t)
         pts = target_points(profile, p, t)
         pts = pts.mean(axis=0, keepdims=True) if center_only else pts
-        tf = profile.targets[t].frame
-        P = poses.R[tf][rows] @ pts.T + poses.t[tf][rows][:, :, None]  # (n, 3, k)
-        Rs, ts = poses.R[sensor.frame][rows], poses.t[sensor.frame][rows]
-        out[rows, : len(pts)] = (Rs.transpose(0, 2, 1) @ (P - ts[:, :, None])).transpose(0, 2, 1)
+        cfg = np.repeat(rows, len(pts))
+        local = np.tile(pts, (len(rows), 1))
+        x = to_sensor(poses, profile.targets[t].frame, frame, cfg, local)[1]
+        out[rows, : len(pts)] = x.reshape(len(rows), len(pts), 3)
     return out[:, 0] if center_only else out

@@ -17,13 +17,17 @@ import numpy as np
 import yaml
 
 from ..errors import InputError
+from ..sensors import SENSOR_MODELS, Sensor
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
-from .profile import DataFormat, Frame, Joint, Mode, Op, Parameter, Profile, Sensor, Target, Tie
+from .profile import DataFormat, Frame, Joint, Mode, Op, Parameter, Profile, Target, Tie
 from .urdf_import import compile_urdf_profile
 
 BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
 
 AXES = {"x": 0, "y": 1, "z": 2}
+
+# An elementary transform before it is an Op: (t|r, vector, field or parameter name, value, jointed).
+Step = tuple[str, np.ndarray, str, float, bool]
 
 
 def load_profile(name_or_path: str | Path) -> Profile:
@@ -136,7 +140,7 @@ class _Compiler:
             raise self.fail("profile", "needs at least one sensor and one target")
         self.target_index = {t.name: i for i, t in enumerate(targets)}
         self.sensor_index = {s.name: i for i, s in enumerate(sensors)}
-        data = self.compile_data(self.get(doc, "data", "profile"), joints)
+        data = self.compile_data(self.get(doc, "data", "profile"), sensors)
         modes = {
             str(k): self.compile_mode(str(k), v, f"modes.{k}") for k, v in self.get(doc, "modes", "profile").items()
         }
@@ -204,78 +208,77 @@ class _Compiler:
             raise self.fail(where, "needs exactly one of mdh, dh, urdf, ops, registration")
         kind = kinds[0]
         body = spec[kind]
-        steps: list[tuple[str, np.ndarray, str, float, bool]] = []  # (t|r, vector, field, value, jointed)
-        e = np.eye(3)
         if kind == "registration":
-            if body is not True:
-                raise self.fail(f"{where}.registration", "must be true")
-            if joint >= 0:
-                raise self.fail(where, "a registration frame cannot be driven by a joint")
-            steps = [("t", e[k], "xyz"[k], 0.0, False) for k in range(3)]
-            steps += [("r", e[2], "yaw", 0.0, False), ("r", e[1], "pitch", 0.0, False), ("r", e[0], "roll", 0.0, False)]
+            steps = self.registration_steps(body, joint, where)
         elif kind in ("mdh", "dh"):
-            vals = {
-                k: self.number(self.get(body, k, f"{where}.{kind}", 0.0), f"{where}.{kind}.{k}")
-                for k in ("a", "alpha", "d")
-            }
-            angle_key = "theta" if kind == "mdh" else "offset"
-            vals[angle_key] = self.number(
-                body.get(angle_key, body.get("theta", body.get("offset", 0.0))),
-                f"{where}.{kind}.{angle_key}",
-            )
-            a = ("t", e[0], "a", vals["a"], False)
-            alpha = ("r", e[0], "alpha", vals["alpha"] * self.to_rad, False)
-            d = ("t", e[2], "d", vals["d"], False)
-            th = ("r", e[2], angle_key, vals[angle_key] * self.to_rad, True)
-            steps = [a, alpha, d, th] if kind == "mdh" else [th, d, a, alpha]
+            steps = self.dh_steps(kind, body, where)
         elif kind == "urdf":
-            xyz = self.vector(body.get("xyz", [0, 0, 0]), f"{where}.urdf.xyz")
-            rpy = self.vector(body.get("rpy", [0, 0, 0]), f"{where}.urdf.rpy") * self.to_rad
-            steps = [("t", e[k], "xyz"[k], xyz[k], False) for k in range(3)]
-            steps += [
-                ("r", e[2], "yaw", rpy[2], False),
-                ("r", e[1], "pitch", rpy[1], False),
-                ("r", e[0], "roll", rpy[0], False),
-            ]
-            if joint >= 0 or "axis" in body:
-                axis = self.vector(self.get(body, "axis", f"{where}.urdf"), f"{where}.urdf.axis")
-                norm = np.linalg.norm(axis)
-                if norm < 1e-9:
-                    raise self.fail(f"{where}.urdf.axis", "must not be zero")
-                offset = self.number(body.get("offset", 0.0), f"{where}.urdf.offset") * self.to_rad
-                steps.append(("r", axis / norm, "offset", offset, True))
+            steps = self.urdf_steps(body, joint, where)
         else:
-            if not isinstance(body, list):
-                raise self.fail(f"{where}.ops", "expected a list")
-            for k, op in enumerate(body):
-                w = f"{where}.ops[{k}]"
-                key = [x for x in op if x in ("tx", "ty", "tz", "rx", "ry", "rz")] if isinstance(op, dict) else []
-                if len(key) != 1:
-                    raise self.fail(w, "needs exactly one of tx, ty, tz, rx, ry, rz")
-                op_kind, axis_name = key[0][0], key[0][1]
-                value = self.number(op[key[0]], f"{w}.{key[0]}")
-                if op_kind == "r":
-                    value *= self.to_rad
-                pname = str(op["param"]) if "param" in op else f"{fname}.{key[0]}{k}"
-                steps.append((op_kind, e[AXES[axis_name]], pname, value, bool(op.get("joint", False))))
+            steps = self.op_list_steps(body, fname, where)
         ops = []
         for op_kind, vector, fieldname, value, jointed in steps:
             pname = fieldname if kind == "ops" else renames.get(fieldname, f"{fname}.{fieldname}")
             pi = self.add_param(pname, "angle" if op_kind == "r" else "length", value, where)
             nonzero = np.flatnonzero(vector)
             principal = len(nonzero) == 1 and vector[nonzero[0]] == 1.0
-            ops.append(
-                Op(
-                    op_kind,
-                    vector,
-                    int(nonzero[0]) if principal else None,
-                    pi,
-                    joint if jointed else -1,
-                )
-            )
+            ops.append(Op(op_kind, vector, int(nonzero[0]) if principal else None, pi, joint if jointed else -1))
         if joint >= 0 and not any(op.joint >= 0 for op in ops):
             raise self.fail(where, "names a joint but no op is driven by it")
         return ops
+
+    def registration_steps(self, body: Any, joint: int, where: str) -> list[Step]:
+        if body is not True:
+            raise self.fail(f"{where}.registration", "must be true")
+        if joint >= 0:
+            raise self.fail(where, "a registration frame cannot be driven by a joint")
+        return _pose_steps(np.zeros(3), np.zeros(3))
+
+    def dh_steps(self, kind: str, body: Any, where: str) -> list[Step]:
+        vals = {
+            k: self.number(self.get(body, k, f"{where}.{kind}", 0.0), f"{where}.{kind}.{k}")
+            for k in ("a", "alpha", "d")
+        }
+        angle_key = "theta" if kind == "mdh" else "offset"
+        vals[angle_key] = self.number(
+            body.get(angle_key, body.get("theta", body.get("offset", 0.0))), f"{where}.{kind}.{angle_key}"
+        )
+        e = np.eye(3)
+        a = ("t", e[0], "a", vals["a"], False)
+        alpha = ("r", e[0], "alpha", vals["alpha"] * self.to_rad, False)
+        d = ("t", e[2], "d", vals["d"], False)
+        th = ("r", e[2], angle_key, vals[angle_key] * self.to_rad, True)
+        return [a, alpha, d, th] if kind == "mdh" else [th, d, a, alpha]
+
+    def urdf_steps(self, body: Any, joint: int, where: str) -> list[Step]:
+        xyz = self.vector(body.get("xyz", [0, 0, 0]), f"{where}.urdf.xyz")
+        rpy = self.vector(body.get("rpy", [0, 0, 0]), f"{where}.urdf.rpy") * self.to_rad
+        steps = _pose_steps(xyz, rpy)
+        if joint >= 0 or "axis" in body:
+            axis = self.vector(self.get(body, "axis", f"{where}.urdf"), f"{where}.urdf.axis")
+            norm = np.linalg.norm(axis)
+            if norm < 1e-9:
+                raise self.fail(f"{where}.urdf.axis", "must not be zero")
+            offset = self.number(body.get("offset", 0.0), f"{where}.urdf.offset") * self.to_rad
+            steps.append(("r", axis / norm, "offset", offset, True))
+        return steps
+
+    def op_list_steps(self, body: Any, fname: str, where: str) -> list[Step]:
+        if not isinstance(body, list):
+            raise self.fail(f"{where}.ops", "expected a list")
+        steps = []
+        for k, op in enumerate(body):
+            w = f"{where}.ops[{k}]"
+            key = [x for x in op if x in ("tx", "ty", "tz", "rx", "ry", "rz")] if isinstance(op, dict) else []
+            if len(key) != 1:
+                raise self.fail(w, "needs exactly one of tx, ty, tz, rx, ry, rz")
+            op_kind, axis_name = key[0][0], key[0][1]
+            value = self.number(op[key[0]], f"{w}.{key[0]}")
+            if op_kind == "r":
+                value *= self.to_rad
+            pname = str(op["param"]) if "param" in op else f"{fname}.{key[0]}{k}"
+            steps.append((op_kind, np.eye(3)[AXES[axis_name]], pname, value, bool(op.get("joint", False))))
+        return steps
 
     def compile_target(self, spec: dict, where: str) -> Target:
         tname = str(self.get(spec, "name", where))
@@ -330,100 +333,107 @@ class _Compiler:
         if fname not in self.frame_index:
             raise self.fail(f"{where}.frame", f"unknown frame '{fname}'")
         model = str(self.get(spec, "model", where))
-        if model not in ("point3d", "pinhole"):
-            raise self.fail(f"{where}.model", f"unknown sensor model '{model}' (point3d, pinhole)")
-        convention = str(spec.get("convention", "z-forward"))
-        if convention not in ("x-forward", "z-forward"):
-            raise self.fail(f"{where}.convention", "must be x-forward or z-forward")
-        intr = None
-        if "intrinsics" in spec:
-            intr = self.add_params(sname, "px", spec["intrinsics"], ("fx", "fy", "cx", "cy"), f"{where}.intrinsics")
-        elif model == "pinhole":
-            raise self.fail(where, "a pinhole sensor needs intrinsics")
-        dist = None
-        if "distortion" in spec:
-            # OpenCV's order: k1 k2 p1 p2 k3, and k4 k5 k6 of the rational model when any is given.
-            rational = isinstance(spec["distortion"], dict) and any(k in spec["distortion"] for k in ("k4", "k5", "k6"))
-            keys = ("k1", "k2", "p1", "p2", "k3") + (("k4", "k5", "k6") if rational else ())
-            dist = self.add_params(sname, "scalar", spec["distortion"], keys, f"{where}.distortion", default=0.0)
-        # The optical frame's axes in the sensor frame; x-forward: x_cv = -y, y_cv = -z, z_cv = x.
-        R_opt = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]) if convention == "x-forward" else np.eye(3)
-        if "optical" in spec:
-            o = spec["optical"]
-            z = self.vector(self.get(o, "z", f"{where}.optical"), f"{where}.optical.z")
-            x = self.vector(self.get(o, "x", f"{where}.optical"), f"{where}.optical.x")
-            if abs(z @ x) > 1e-9 or abs(np.linalg.norm(z) - 1) > 1e-9 or abs(np.linalg.norm(x) - 1) > 1e-9:
-                raise self.fail(f"{where}.optical", "x and z must be orthogonal unit vectors")
-            R_opt = np.stack([x, np.cross(z, x), z], axis=1)
-        noise = {str(k): v for k, v in (spec.get("noise") or {}).items()}
-        kind = noise.get("model", "isotropic")
-        if kind not in ("isotropic", "stereo"):
-            raise self.fail(f"{where}.noise.model", f"unknown noise model '{kind}' (isotropic, stereo)")
-        if kind == "stereo" and (model != "point3d" or "intrinsics" not in spec or "baseline" not in spec):
-            raise self.fail(
-                f"{where}.noise",
-                "the stereo noise model needs a point3d sensor with intrinsics and a baseline",
-            )
-        for k, v in noise.items():
-            if k != "model":
-                noise[k] = self.number(v, f"{where}.noise.{k}")
-        image = spec.get("image")
-        rng = spec.get("range")
-        baseline = spec.get("baseline")
-        return Sensor(
-            sname,
-            self.frame_index[fname],
-            model,
-            convention,
-            intr,
-            dist,
-            None if image is None else (int(image[0]), int(image[1])),
-            R_opt,
-            None if rng is None else (self.number(rng[0], f"{where}.range"), self.number(rng[1], f"{where}.range")),
-            None if baseline is None else self.number(baseline, f"{where}.baseline"),
-            noise,
-        )
+        if model not in SENSOR_MODELS:
+            raise self.fail(f"{where}.model", f"unknown sensor model '{model}' ({', '.join(SENSOR_MODELS)})")
+        try:
+            return SENSOR_MODELS[model].from_spec(spec, self, sname, self.frame_index[fname], where)
+        except InputError as exc:  # a noise model's check names the field, not the file
+            raise InputError(exc.message, file=self.source) from None
 
-    def compile_data(self, spec: dict, joints: list[Joint]) -> DataFormat:
+    def compile_data(self, spec: dict, sensors: list[Sensor]) -> DataFormat:
         where = "data"
         jcols = {str(k): str(v) for k, v in self.get(spec, "joints", where).items()}
         for jn in jcols:
             if jn not in self.joint_index:
                 raise self.fail(f"{where}.joints", f"'{jn}' is not a joint")
-        sensor = str(self.get(spec, "sensor", where))
-        if sensor not in self.sensor_index:
-            raise self.fail(f"{where}.sensor", f"unknown sensor '{sensor}'")
+        joint_unit = str(spec.get("joint_unit", "deg"))
+        if joint_unit not in ANGLE_IN_RAD:
+            raise self.fail(f"{where}.joint_unit", f"unknown unit '{joint_unit}' ({', '.join(ANGLE_IN_RAD)})")
+        sensor = self.index_of(self.get(spec, "sensor", where), self.sensor_index, f"{where}.sensor", "sensor")
+        svalues = {
+            str(k): self.index_of(v, self.sensor_index, f"{where}.sensors.{k}", "sensor")
+            for k, v in (spec.get("sensors") or {}).items()
+        }
+        if svalues and not spec.get("sensor_column"):
+            raise self.fail(where, "names sensors by value but has no sensor_column")
         target = spec.get("target")
-        if target is not None and target not in self.target_index:
-            raise self.fail(f"{where}.target", f"unknown target '{target}'")
-        tvalues = {}
-        for k, v in (spec.get("targets") or {}).items():
-            if v not in self.target_index:
-                raise self.fail(f"{where}.targets.{k}", f"unknown target '{v}'")
-            tvalues[str(k)] = self.target_index[v]
+        if target is not None:
+            target = self.index_of(target, self.target_index, f"{where}.target", "target")
+        tvalues = {
+            str(k): self.index_of(v, self.target_index, f"{where}.targets.{k}", "target")
+            for k, v in (spec.get("targets") or {}).items()
+        }
         if target is None and not spec.get("target_column"):
             raise self.fail(where, "needs a target or a target_column")
         default = spec.get("target_default")
         if default is not None and str(default) not in tvalues:
             raise self.fail(f"{where}.target_default", f"'{default}' is not one of the targets' values")
-        meas = self.get(spec, "measurement", where)
-        point = spec.get("point")
+        columns, unit = self.compile_measurement(spec, [sensors[i] for i in sorted({sensor, *svalues.values()})])
+        point_columns, point_unit = self.compile_point(spec)
+        frame_column = spec.get("frame_column", "frame")
         return DataFormat(
-            frame_column=None if spec.get("frame_column", "frame") is None else str(spec.get("frame_column", "frame")),
+            frame_column=None if frame_column is None else str(frame_column),
             joint_columns=jcols,
-            joint_unit=str(spec.get("joint_unit", "deg")),
-            sensor=self.sensor_index[sensor],
-            target=None if target is None else self.target_index[target],
+            joint_unit=joint_unit,
+            sensor=sensor,
+            target=target,
             target_column=spec.get("target_column"),
             target_values=tvalues,
-            point_columns=None if point is None else tuple(point["columns"]),
-            point_unit=None if point is None else str(point.get("unit", self.length_unit)),
+            point_columns=point_columns,
+            point_unit=point_unit,
             vertex_column=spec.get("vertex_column"),
-            measurement_columns=tuple(self.get(meas, "columns", f"{where}.measurement")),
-            measurement_unit=str(meas.get("unit", self.length_unit)),
-            prediction_columns=tuple(self.get(spec, "prediction_columns", where)),
+            measurement_columns=columns,
+            measurement_unit=unit,
+            prediction_columns=self.columns(
+                self.get(spec, "prediction_columns", where), f"{where}.prediction_columns", len(columns)
+            ),
             target_default=None if default is None else tvalues[str(default)],
+            sensor_column=spec.get("sensor_column"),
+            sensor_values=svalues,
         )
+
+    def compile_measurement(self, spec: dict, named: list[Sensor]) -> tuple[tuple[str, ...], str]:
+        """The measurement columns and their unit, checked against every sensor the format names."""
+        where = "data.measurement"
+        meas = self.get(spec, "measurement", "data")
+        columns = self.columns(self.get(meas, "columns", where), f"{where}.columns")
+        for s in named:
+            if len(columns) != s.dim:
+                numbers = "1 number" if s.dim == 1 else f"{s.dim} numbers"
+                raise self.fail(
+                    f"{where}.columns", f"a {s.kind} sensor ('{s.name}') measures {numbers}, not {len(columns)}"
+                )
+        units = {s.unit for s in named}
+        if len(units) > 1:
+            raise self.fail("data.sensors", f"the sensors of one CSV format must measure in one unit, not {units}")
+        unit = str(meas.get("unit", next(iter(units))))
+        if (unit != "px" and unit not in LENGTH_IN_M) or (unit == "px") != (named[0].unit == "px"):
+            raise self.fail(f"{where}.unit", f"'{unit}' is not a unit of {named[0].name}'s measurements")
+        return columns, unit
+
+    def compile_point(self, spec: dict) -> tuple[tuple[str, ...] | None, str | None]:
+        """The columns of the observed point in the target frame, and their length unit (or none)."""
+        point = spec.get("point")
+        if point is None:
+            return None, None
+        columns = self.columns(self.get(point, "columns", "data.point"), "data.point.columns", 3)
+        unit = str(point.get("unit", self.length_unit))
+        if unit not in LENGTH_IN_M:
+            raise self.fail("data.point.unit", f"unknown unit '{unit}' ({', '.join(LENGTH_IN_M)})")
+        return columns, unit
+
+    def index_of(self, name: Any, index: dict[str, int], where: str, what: str) -> int:
+        if str(name) not in index:
+            raise self.fail(where, f"unknown {what} '{name}'")
+        return index[str(name)]
+
+    def columns(self, value: Any, where: str, count: int | None = None) -> tuple[str, ...]:
+        """A list of column names (of `count` names when given)."""
+        if not isinstance(value, list) or not value or not all(isinstance(c, str) and c for c in value):
+            raise self.fail(where, f"expected a list of column names, got {value!r}")
+        if count is not None and len(value) != count:
+            raise self.fail(where, f"expected {count} column names, got {len(value)}")
+        return tuple(value)
 
     def compile_mode(self, name: str, spec: dict, where: str) -> Mode:
         names = list(self.index)
@@ -454,7 +464,15 @@ class _Compiler:
         free = list(dict.fromkeys(i for i in free if i not in followers))
         priors = self.per_parameter(spec, "priors", names, where)
         bounds = self.per_parameter(spec, "bounds", names, where)
-        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds)
+        sensors = None
+        if "sensors" in spec:
+            listed = spec["sensors"]
+            if not isinstance(listed, list) or not listed:
+                raise self.fail(f"{where}.sensors", f"expected a list of sensor names, got {listed!r}")
+            sensors = tuple(
+                self.index_of(n, self.sensor_index, f"{where}.sensors[{k}]", "sensor") for k, n in enumerate(listed)
+            )
+        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds, sensors)
 
     def per_parameter(self, spec: dict, key: str, names: list[str], where: str) -> dict[int, float]:
         """{name or glob pattern: positive number in the profile's units} -> {index: internal units}."""
@@ -469,3 +487,10 @@ class _Compiler:
             for i in (self.index[h] for h in hits):
                 out[i] = v * (self.to_rad if self.params[i].kind == "angle" else 1.0)
         return out
+
+
+def _pose_steps(xyz: np.ndarray, rpy: np.ndarray) -> list[Step]:
+    """Trans(x, y, z) Rot_z(yaw) Rot_y(pitch) Rot_x(roll): a URDF origin, a registration's pose."""
+    e = np.eye(3)
+    steps: list[Step] = [("t", e[k], "xyz"[k], float(xyz[k]), False) for k in range(3)]
+    return steps + [("r", e[2 - k], ("yaw", "pitch", "roll")[k], float(rpy[2 - k]), False) for k in range(3)]

@@ -15,7 +15,7 @@ Modified DH, standard DH and URDF-style joints are sugar for such op lists:
 Parameters are named `<frame>.<field>` (`shoulder_roll.theta`) unless the frame renames them
 (`names: {offset: LHipYawPitch}`) or an op names its own (`param: CamPitch`). Targets (points on the
 robot the sensors see: a calibrated point, a checkerboard grid, a list of fixed marker points, or
-the frame's origin), sensors (a 3-D point sensor or a pinhole camera), the CSV data format and the
+the frame's origin), sensors (measurement models: calib_core.sensors), the CSV data format and the
 calibration modes (free parameters, ties, priors) complete the profile. Joints shared by several
 chains, several sensors and targets need nothing special: they are frames of the one tree.
 """
@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..sensors import Sensor
 
 
 @dataclass(frozen=True)
@@ -83,23 +84,6 @@ class Target:
 
 
 @dataclass(frozen=True)
-class Sensor:
-    """A sensor fixed to a frame: `point3d` measures 3-D points, `pinhole` projects them to pixels."""
-
-    name: str
-    frame: int
-    model: str
-    convention: str  # "x-forward" (robot: x forward, y left, z up) or "z-forward" (OpenCV)
-    intrinsics: tuple[int, int, int, int] | None  # parameter indices of fx, fy, cx, cy
-    distortion: tuple[int, ...] | None  # parameter indices of k1, k2, p1, p2, k3 (and k4, k5, k6)
-    image: tuple[int, int] | None  # width, height in px
-    R_frame_optical: np.ndarray  # the OpenCV optical frame's axes in the sensor frame
-    range: tuple[float, float] | None  # visible distances, profile length unit
-    baseline: float | None  # stereo baseline, profile length unit
-    noise: dict[str, float]  # the measurement noise model the calibration weighs observations by
-
-
-@dataclass(frozen=True)
 class Tie:
     follower: int
     leader: int
@@ -114,6 +98,7 @@ class Mode:
     ties: tuple[Tie, ...]
     priors: dict[int, float]  # parameter index -> standard deviation (internal units)
     bounds: dict[int, float] = field(default_factory=dict)  # index -> largest |change| from nominal
+    sensors: tuple[int, ...] | None = None  # the sensors whose observations it fits (None: every one)
 
 
 @dataclass(frozen=True)
@@ -123,7 +108,7 @@ class DataFormat:
     frame_column: str | None  # None: every row is a configuration of its own
     joint_columns: dict[str, str]  # joint name -> column
     joint_unit: str
-    sensor: int
+    sensor: int  # the sensor of every row (the default when a sensor column picks it)
     target: int | None  # the target of every row, or None when a column picks it
     target_column: str | None
     target_values: dict[str, int]
@@ -134,6 +119,8 @@ class DataFormat:
     measurement_unit: str
     prediction_columns: tuple[str, ...]
     target_default: int | None = None  # the target of rows when the target column is absent
+    sensor_column: str | None = None  # a column naming each row's sensor (several sensors of one kind)
+    sensor_values: dict[str, int] = field(default_factory=dict)  # its values -> sensor index
 
 
 @dataclass
@@ -156,6 +143,8 @@ class Profile:
         self._param_index = {p.name: i for i, p in enumerate(self.parameters)}
         self._frame_index = {f.name: i for i, f in enumerate(self.frames)}
         self._joint_index = {j.name: i for i, j in enumerate(self.joints)}
+        # (frame, position) of every op in a fixed order: an op's id is its index here (kinematics).
+        self.op_ids = [(f, k) for f, frame in enumerate(self.frames) for k in range(len(frame.ops))]
 
     # --- look-ups -------------------------------------------------------------------------------
     @property
@@ -198,6 +187,12 @@ class Profile:
             frame = self.frames[frame].parent
         return out[::-1]
 
+    def joints_between(self, target: int, sensor: int) -> set[int]:
+        """The joints on the chains from the base to a target and to a sensor: those an observation
+        of that target by that sensor depends on."""
+        frames = set(self.chain(self.targets[target].frame)) | set(self.chain(self.sensors[sensor].frame))
+        return {self.frames[f].joint for f in frames if self.frames[f].joint >= 0}
+
     def label(self, index: int) -> str:
         """The paper's notation: `shoulder_roll.d` reads d(shoulder_roll); `CamYaw` stays CamYaw."""
         name = self.parameters[index].name
@@ -234,42 +229,11 @@ class Profile:
         """The simulator's hidden true robot (the profile's `simulation.truth`), internal units."""
         return self.params_from_display(self.simulation.get("truth", {}))
 
-    def with_noise(self, noise: dict[str, Any]) -> Profile:
-        """The same robot with the data sensor's observations weighed by `noise` (a noise model as in
-        the YAML's `sensors[].noise`): for data measured with another precision than the profile
-        assumes, such as the simulated detectors' (`simulation.detected_noise`)."""
-        i = self.data.sensor
+    def with_noise(self, noise: dict[str, Any], sensor: int | None = None) -> Profile:
+        """The same robot with a sensor's observations (default: the data format's) weighed by `noise`
+        (a noise model as in the YAML's `sensors[].noise`): for data measured with another precision
+        than the profile assumes, such as the simulated detectors' (`simulation.detected_noise`)."""
+        i = self.data.sensor if sensor is None else sensor
         sensors = list(self.sensors)
-        sensors[i] = replace(sensors[i], noise=noise_model(noise, sensors[i], f"noise of sensor '{sensors[i].name}'"))
+        sensors[i] = sensors[i].with_noise(noise, f"noise of sensor '{sensors[i].name}'")
         return replace(self, sensors=sensors)
-
-
-NOISE_MODELS = ("isotropic", "stereo")
-
-
-def noise_model(noise: dict[str, Any], sensor: Sensor, where: str) -> dict[str, Any]:
-    """A checked copy of a sensor's noise model; InputError naming `where` and the field if it is wrong.
-
-    isotropic: `sigma` in the measurement's unit (px, or the length unit). stereo: a point3d sensor
-    with intrinsics and a baseline; `pixel` (lateral) and `disparity` noise in px."""
-    out: dict[str, Any] = {str(k): v for k, v in noise.items()}
-    kind = out.get("model", "isotropic")
-    if kind not in NOISE_MODELS:
-        raise InputError(f"{where}.model: unknown noise model '{kind}' ({', '.join(NOISE_MODELS)})")
-    if kind == "stereo" and (
-        sensor.model != "point3d" or sensor.intrinsics is None or sensor.baseline is None or sensor.range is None
-    ):
-        raise InputError(f"{where}: the stereo noise model needs a point3d sensor with intrinsics, a baseline, a range")
-    wanted = {"isotropic": ("sigma",), "stereo": ("pixel", "disparity")}[kind]
-    for k, v in out.items():
-        if k == "model":
-            continue
-        if k not in wanted:
-            raise InputError(f"{where}.{k}: not a field of the {kind} noise model ({', '.join(wanted)})")
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
-            raise InputError(f"{where}.{k}: expected a positive number, got {v!r}")
-        out[k] = float(v)
-    missing = [k for k in wanted if k not in out]
-    if missing:
-        raise InputError(f"{where}.{missing[0]}: the {kind} noise model needs it")
-    return out

@@ -21,12 +21,13 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..errors import InputError
-from ..model.kinematics import forward, sensor_points, target_points
+from ..model.kinematics import forward, sensor_points, target_points, to_sensor
 from ..model.profile import Profile
-from ..sensors.measurement import optical_rotation, predict, project_to_image
+from ..sensors import Sensor
 from ..vision.sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, render_board_image
 from ..vision.sighting import Sighting, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair, no_depth_band_px, render_pair, sphere_views
+from .contact import contacts
 
 # The share of the sphere's outline the arm and hand must leave free in each camera of a stereo head.
 # On 240 rendered first-day frames the BallFinder found the sphere in 8 of 31 views with less than
@@ -193,85 +194,69 @@ class SimulatedRobot:
         sensor = prof.sensors[prof.data.sensor]
         tf = prof.targets[target].frame
         if any(op.joint == joint for f in prof.chain(tf) for op in prof.frames[f].ops):
-            x = self._sensor_points(qs, np.full(len(qs), target), p, center_only=True)
+            x = sensor_points(prof, p, qs, np.full(len(qs), target), center_only=True)
         else:  # only the sensor turns: the target's centre once per row, the sensor's chain per candidate
             centre = target_points(prof, p, target).mean(axis=0, keepdims=True)
-            poses = forward(prof, p, q, frames=[tf])
-            P = np.repeat(poses.R[tf] @ centre.T + poses.t[tf][:, :, None], len(candidates), axis=0)
+            at_target = forward(prof, p, q, frames=[tf])
             poses = forward(prof, p, qs, frames=[sensor.frame])
-            Rs, ts = poses.R[sensor.frame], poses.t[sensor.frame]
-            x = (Rs.transpose(0, 2, 1) @ (P - ts[:, :, None]))[:, :, 0]  # as kinematics.sensor_points
-        uv = project_to_image(sensor, self.true_params, x)
-        ahead = (x @ optical_rotation(sensor))[:, 2] > 0
-        cost = np.where(ahead, np.abs(uv[:, 0] - sensor.image[0] / 2), np.inf) if sensor.image else np.zeros(len(x))
+            poses.R[tf] = np.repeat(at_target.R[tf], len(candidates), axis=0)  # the target's pose per candidate
+            poses.t[tf] = np.repeat(at_target.t[tf], len(candidates), axis=0)
+            x = to_sensor(poses, tf, sensor.frame, np.arange(len(qs)), np.repeat(centre, len(qs), axis=0))[1]
+        uv = sensor.project(p, x)
+        if uv is None or sensor.image is None:
+            return np.zeros(len(q))
+        cost = np.where(np.isfinite(uv[:, 0]), np.abs(uv[:, 0] - sensor.image[0] / 2), np.inf)
         return candidates[np.argmin(cost.reshape(len(q), len(candidates)), axis=1)]
 
     # --- what the sensor sees ---------------------------------------------------------------------
-    def _sensor_points(
-        self, q: np.ndarray, targets: np.ndarray, p: np.ndarray, center_only: bool = False
-    ) -> np.ndarray:
-        """Target points in the sensor frame: (N, 3) with center_only, else (N, K, 3)."""
-        return sensor_points(self.profile, p, q, targets, center_only=center_only)
+    def visible(self, q: np.ndarray, targets: np.ndarray, sensor: int | None = None) -> np.ndarray:
+        """Whether a sensor (default: the data format's) sees each configuration's target well enough
+        for its detector (N,) bool.
 
-    def visible(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """Whether the sensor sees each configuration's target well enough for its detector (N,) bool.
-
-        Every point in front of the sensor, in its range and inside its image (margin px clear of the
-        border). A board shows its face, seen at most MAX_OBLIQUITY_DEG from its normal with neighbouring
-        vertices at least MIN_VERTEX_SPACING_PX apart. A stereo head's sphere lies whole inside both
-        images, right of the matcher's band without depth, and the arm and hand leave at least
-        MIN_SPHERE_SHARE of its outline free in each camera (`_sees_sphere`)."""
+        Every point where the sensor sees (in front, in its range and inside its image, margin px
+        clear of the border). A board shows its face, seen at most MAX_OBLIQUITY_DEG from its normal
+        with neighbouring vertices at least MIN_VERTEX_SPACING_PX apart. A stereo head's sphere lies
+        whole inside both images, right of the matcher's band without depth, and the arm and hand
+        leave at least MIN_SPHERE_SHARE of its outline free in each camera (`_sees_sphere`)."""
         prof = self.profile
-        sensor = prof.sensors[prof.data.sensor]
-        x = self._sensor_points(q, targets, self.true_params)
+        s = prof.data.sensor if sensor is None else sensor
+        sens = prof.sensors[s]
+        x = sensor_points(prof, self.true_params, q, targets, sensor=s)
         N, K, _ = x.shape
-        flat = x.reshape(-1, 3)
-        X = flat @ optical_rotation(sensor)
-        ok = X[:, 2] > 1e-6
-        if sensor.range is not None:
-            ok &= (X[:, 2] >= sensor.range[0]) & (X[:, 2] <= sensor.range[1])
-        if sensor.image is not None and (sensor.model == "pinhole" or sensor.intrinsics is not None):
-            uv = project_to_image(
-                sensor,
-                self.true_params,
-                np.where(ok[:, None], flat, [0.0, 0.0, 1.0] @ optical_rotation(sensor).T),
-            )
-            w, h = sensor.image
-            m = self.margin
-            ok &= (uv[:, 0] >= m) & (uv[:, 0] <= w - 1 - m) & (uv[:, 1] >= m) & (uv[:, 1] <= h - 1 - m)
-        ok = ok.reshape(N, K)
+        ok = sens.visible(self.true_params, x.reshape(-1, 3), self.margin).reshape(N, K)
         for t in set(targets.tolist()):
-            grid = prof.targets[t].grid
             rows = np.flatnonzero(targets == t)
-            if grid is None:
-                ok[rows, 1:] = True
-            else:
-                ok[rows, len(grid) :] = True
-                # The board's face (its -z side, under the sole) must look at the camera.
-                c = x[rows, : len(grid)].mean(axis=1)
-                normal = x[rows, 1] - x[rows, 0]
-                across = x[rows, prof.targets[t].grid_shape[1]] - x[rows, 0]
-                # +x cross -y: the board's -z axis, the normal of its face; it must point back to
-                # the camera, which sits at the origin of these coordinates.
-                face = np.cross(normal, across)
-                towards = -np.einsum("ni,ni->n", face, c)
-                ok[rows] &= (towards > 0)[:, None]
-                # Not too oblique: the angle between the face's normal and the ray to the board's centre.
-                cos = towards / np.maximum(np.linalg.norm(face, axis=1) * np.linalg.norm(c, axis=1), 1e-300)
-                ok[rows] &= (cos >= math.cos(math.radians(MAX_OBLIQUITY_DEG)))[:, None]
-                if sensor.image is not None and sensor.model == "pinhole":
-                    n_rows, n_cols = prof.targets[t].grid_shape
-                    g = uv.reshape(N, K, 2)[rows, : len(grid)].reshape(len(rows), n_rows, n_cols, 2)
-                    spacing = np.minimum(
-                        np.linalg.norm(np.diff(g, axis=1), axis=3).min(axis=(1, 2)),
-                        np.linalg.norm(np.diff(g, axis=2), axis=3).min(axis=(1, 2)),
-                    )
-                    ok[rows] &= (spacing >= MIN_VERTEX_SPACING_PX)[:, None]
+            n = len(target_points(prof, self.true_params, t))
+            ok[rows, n:] = True
+            if prof.targets[t].grid is not None:
+                ok[rows, :n] &= self._board_ok(sens, x[rows, :n], prof.targets[t].grid_shape)[:, None]
         seen = ok.all(axis=1)
-        if sensor.model == "point3d" and sensor.baseline is not None and sensor.intrinsics is not None:
+        if sens.reading == "stereo":
             rows = np.flatnonzero(seen)
             seen[rows] = self._sees_sphere(q[rows])
         return seen
+
+    def _board_ok(self, sensor: Sensor, x: np.ndarray, shape: tuple[int, int] | None) -> np.ndarray:
+        """Whether a board (vertices x (N, K, 3) in the sensor frame) shows its face, not too
+        obliquely, with its vertices far enough apart in the image to be told apart."""
+        assert shape is not None  # a grid target has its shape
+        n_rows, n_cols = shape
+        c = x.mean(axis=1)
+        # +x cross -y: the board's -z axis, the normal of its face (under the sole); it must point
+        # back to the camera, which sits at the origin of these coordinates.
+        face = np.cross(x[:, 1] - x[:, 0], x[:, n_cols] - x[:, 0])
+        towards = -np.einsum("ni,ni->n", face, c)
+        cos = towards / np.maximum(np.linalg.norm(face, axis=1) * np.linalg.norm(c, axis=1), 1e-300)
+        ok = (towards > 0) & (cos >= math.cos(math.radians(MAX_OBLIQUITY_DEG)))
+        uv = sensor.project(self.true_params, x.reshape(-1, 3))
+        if uv is not None and sensor.reading == "image":
+            g = uv.reshape(len(x), n_rows, n_cols, 2)
+            spacing = np.minimum(
+                np.linalg.norm(np.diff(g, axis=1), axis=3).min(axis=(1, 2)),
+                np.linalg.norm(np.diff(g, axis=2), axis=3).min(axis=(1, 2)),
+            )
+            ok &= spacing >= MIN_VERTEX_SPACING_PX
+        return ok
 
     def _sees_sphere(self, q: np.ndarray) -> np.ndarray:
         """Whether the rendered stereo pair shows the sphere well enough to the BallFinder (N,) bool."""
@@ -295,60 +280,52 @@ class SimulatedRobot:
         q: np.ndarray,
         targets: np.ndarray,
         *,
+        sensors: np.ndarray | None = None,
         outlier_rate: float = 0.0,
         outlier_size: float = 0.0,
     ) -> Simulation:
-        """Observe configurations q (the robot's unquantised readings) as the sensor would."""
-        prof = self.profile
-        sensor = prof.sensors[prof.data.sensor]
-        x = self._sensor_points(q, targets, self.true_params)
-        cfg, tgt, point, vertex, exact, noisy = [], [], [], [], [], []
+        """Observe configurations q (the robot's unquantised readings) as the sensors would:
+        configuration n by sensor sensors[n] (default: every one by the data format's sensor)."""
+        prof, p = self.profile, self.true_params
+        sensors = np.full(len(q), prof.data.sensor) if sensors is None else np.asarray(sensors, int)
+        noise = {"pixel": self.pixel_noise, "disparity": self.disparity_noise, "point": self.point_noise}
+        width = max(prof.sensors[s].dim for s in set(sensors.tolist()))
+        x: list[np.ndarray] = [np.zeros((0, 3))] * len(q)
+        for s in set(sensors.tolist()):
+            rows = np.flatnonzero(sensors == s)
+            for n, xs in zip(rows, sensor_points(prof, p, q[rows], targets[rows], sensor=s), strict=True):
+                x[n] = xs
+        obs: dict[str, list] = {k: [] for k in ("cfg", "target", "sensor", "point", "vertex", "exact", "noisy")}
         for n in range(len(q)):
-            t = int(targets[n])
+            t, sensor = int(targets[n]), prof.sensors[sensors[n]]
             grid = prof.targets[t].grid
             K = 1 if grid is None else len(grid)
-            xs = x[n, :K]
-            h = predict(sensor, self.true_params, xs)[0]
-            exact.append(h)
-            noisy.append(self._noisy(sensor, xs, h))
-            cfg += [n] * K
-            tgt += [t] * K
-            point.append(np.full((K, 3), np.nan) if grid is None else grid)
-            vertex += [-1] * K if grid is None else list(range(K))
-        exact_a = np.concatenate(exact)
-        noisy_a = np.concatenate(noisy)
-        outliers = self.rng.random(len(noisy_a)) < outlier_rate
+            pad = np.full((K, width - sensor.dim), np.nan)
+            obs["exact"].append(np.hstack([sensor.predict(p, x[n][:K])[0], pad]))
+            obs["noisy"].append(np.hstack([sensor.simulate(p, x[n][:K], self.rng, noise), pad]))
+            obs["cfg"] += [n] * K
+            obs["target"] += [t] * K
+            obs["sensor"] += [int(sensors[n])] * K
+            obs["point"].append(np.full((K, 3), np.nan) if grid is None else grid)
+            obs["vertex"] += [-1] * K if grid is None else list(range(K))
+        exact, noisy = np.concatenate(obs["exact"]), np.concatenate(obs["noisy"])
+        outliers = self.rng.random(len(noisy)) < outlier_rate
         if outliers.any():
-            d = self.rng.normal(size=(outliers.sum(), noisy_a.shape[1]))
-            noisy_a[outliers] += outlier_size * d / np.linalg.norm(d, axis=1, keepdims=True)
-        readings = self.readings(q)
+            d = self.rng.normal(size=(outliers.sum(), noisy.shape[1]))
+            noisy[outliers] += outlier_size * d / np.linalg.norm(d, axis=1, keepdims=True)
         data = Dataset(
             robot=prof.name,
             frame_ids=np.arange(1, len(q) + 1),
-            joints=readings,
-            cfg=np.array(cfg),
-            target=np.array(tgt),
-            point=np.concatenate(point),
-            vertex=np.array(vertex),
-            measured=noisy_a,
+            joints=self.readings(q),
+            cfg=np.array(obs["cfg"]),
+            target=np.array(obs["target"]),
+            point=np.concatenate(obs["point"]),
+            vertex=np.array(obs["vertex"]),
+            measured=noisy,
+            sensor=np.array(obs["sensor"]),
             source="simulator",
         )
-        return Simulation(data, self.true_params.copy(), q.copy(), exact_a, outliers)
-
-    def _noisy(self, sensor, xs: np.ndarray, h: np.ndarray) -> np.ndarray:
-        if sensor.model == "pinhole":
-            return h + self.rng.normal(0.0, self.pixel_noise, h.shape)
-        if sensor.intrinsics is None or sensor.baseline is None:
-            return h + self.rng.normal(0.0, self.point_noise, h.shape)
-        # Triangulate from the left pixel and the disparity, each with its own noise.
-        fx, fy, cx, cy = (self.true_params[i] for i in sensor.intrinsics)
-        X = xs @ sensor.R_frame_optical
-        u = fx * X[:, 0] / X[:, 2] + cx + self.rng.normal(0.0, self.pixel_noise, len(X))
-        v = fy * X[:, 1] / X[:, 2] + cy + self.rng.normal(0.0, self.pixel_noise, len(X))
-        disparity = fx * sensor.baseline / X[:, 2] + self.rng.normal(0.0, self.disparity_noise, len(X))
-        z = fx * sensor.baseline / disparity
-        X_noisy = np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=1)
-        return X_noisy @ sensor.R_frame_optical.T
+        return Simulation(data, p.copy(), q.copy(), exact, outliers)
 
     # --- seeing: rendered images and the detectors ------------------------------------------------
     def readings(self, q: np.ndarray) -> np.ndarray:
@@ -364,17 +341,17 @@ class SimulatedRobot:
         prof = self.profile
         sensor = prof.sensors[prof.data.sensor]
         readings = self.readings(q)
-        if sensor.model == "point3d" and sensor.baseline is not None:
+        if sensor.reading == "stereo":
             head = StereoHead.from_profile(prof, self.true_params, sensor.name)
             pair = render_pair(prof, self.true_params, q, head, self.rng)
             depth = depth_from_pair(pair.left, pair.right, head)
             sighting = sight_fixture(prof, believed, readings, depth, head)
             return Capture(frame, readings, sighting, {"left": pair.left, "right": pair.right})
-        if sensor.model == "pinhole":
+        if sensor.reading == "image":
             board = render_board_image(prof, self.true_params, q, target, self.rng)
             sighting = sight_board(prof, believed, readings, target, board.image)
             return Capture(frame, readings, sighting, {"image": board.image})
-        raise ValueError(f"no renderer for a '{sensor.model}' sensor without a stereo baseline")
+        raise ValueError(f"sensor '{sensor.name}' reads its measurements directly: there is no image to render")
 
     def simulate_images(self, n: int | None = None, believed: np.ndarray | None = None) -> ImageSimulation:
         """Random visible configurations, seen through rendered images and the detectors.
@@ -393,7 +370,11 @@ class SimulatedRobot:
         )
 
     def simulate(self, n: int | None = None, **kwargs) -> Simulation:
-        """Random visible configurations, observed."""
+        """Random visible configurations, observed (for plane constraints: configurations in
+        contact with each plane, `n` per plane)."""
+        if self.profile.simulation.get("sampling", {}).get("kind") == "contact":
+            q, targets, sensors = contacts(self, n or 30)
+            return self.measure(q, targets, sensors=sensors, **kwargs)
         q, targets = self.configurations(n)
         return self.measure(q, targets, **kwargs)
 
@@ -413,5 +394,6 @@ def dataset_from_captures(profile: Profile, captures: list[Capture]) -> Dataset:
         point=np.concatenate([c.sighting.points for c in got]),
         vertex=np.concatenate([c.sighting.vertices for c in got]),
         measured=np.concatenate([c.sighting.measured for c in got]),  # type: ignore[misc]
+        sensor=np.full(sum(counts), profile.data.sensor),
         source="simulator (images)",
     )

@@ -23,9 +23,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..model.kinematics import forward
+from ..model.kinematics import forward, sensor_points
 from ..model.profile import Profile
-from ..sensors.measurement import predict
+from ..sensors import Pinhole
 
 # Grey levels of the scene before the camera effects.
 BLACK, WHITE, PLATE, ROOM = 35.0, 215.0, 120.0, 25.0
@@ -92,8 +92,8 @@ class BoardDetection:
 def board_corners(profile: Profile, p: np.ndarray, q: np.ndarray, target: int) -> np.ndarray:
     """Image positions (K, 2) px of a board's vertices for parameters p and joint readings q (rad)."""
     sensor = profile.sensors[profile.data.sensor]
-    Rb, tb, Rs, ts = _poses(profile, p, q, target)
-    return predict(sensor, p, (profile.targets[target].grid @ Rb.T + tb - ts) @ Rs)[0]
+    x = sensor_points(profile, p, q[None], np.array([target]))[0, : len(profile.targets[target].grid)]
+    return sensor.predict(p, x)[0]
 
 
 def _poses(profile: Profile, p: np.ndarray, q: np.ndarray, target: int) -> tuple[np.ndarray, ...]:
@@ -125,12 +125,12 @@ def render_board_image(
     """
     sensor = profile.sensors[profile.data.sensor]
     tgt = profile.targets[target]
-    if sensor.model != "pinhole" or sensor.image is None or tgt.grid is None or tgt.grid_shape is None:
+    if not isinstance(sensor, Pinhole) or sensor.image is None or tgt.grid is None or tgt.grid_shape is None:
         raise ValueError("rendering needs a pinhole sensor with an image size and a board target")
     if sensor.distortion is not None and np.any(p[list(sensor.distortion)] != 0):
         raise ValueError("rendering supports no lens distortion")
     Rb, tb, Rs, ts = _poses(profile, p, q, target)
-    corners = predict(sensor, p, (tgt.grid @ Rb.T + tb - ts) @ Rs)[0]
+    corners = board_corners(profile, p, q, target)
 
     # A pixel's ray meets the board plane where a homography G says (the ray-plane intersection in
     # closed form): (col w, row w, w) = G (u, v, 1), in tiles from vertex 0; w > 0 where the ray hits.

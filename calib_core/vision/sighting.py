@@ -15,7 +15,6 @@ import numpy as np
 
 from ..model.kinematics import sensor_points, target_points
 from ..model.profile import Profile
-from ..sensors.measurement import predict
 from ..units import length_factor
 from .ballfinder import find_sphere
 from .sandal_board import detect_board
@@ -66,7 +65,7 @@ def sight_board(profile: Profile, p_believed: np.ndarray, q: np.ndarray, target:
     board = profile.targets[target]
     assert board.grid is not None and board.grid_shape is not None
     rows, cols = board.grid_shape
-    expected = predict(sensor, p_believed, predicted_points(profile, p_believed, q, target))[0]
+    expected = sensor.predict(p_believed, predicted_points(profile, p_believed, q, target))[0]
     found = detect_board(image, cols, rows, predicted=expected)
     vertices = np.arange(rows * cols)
     detail = {"found": found.found, "reason": found.reason, "residual_px": found.residual_px}

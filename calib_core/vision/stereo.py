@@ -25,8 +25,10 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from ..errors import InputError
 from ..model.kinematics import forward
 from ..model.profile import Profile
+from ..sensors import Point3D
 from ..units import length_factor
 
 # object_id values: what each pixel shows.
@@ -73,8 +75,9 @@ class StereoHead:
     def from_profile(cls, profile: Profile, p: np.ndarray, sensor: str = "eye") -> StereoHead:
         """The head of the profile's sensor `sensor` with the intrinsics in p (internal units)."""
         s = next((s for s in profile.sensors if s.name == sensor), None)
-        if s is None or s.intrinsics is None or s.baseline is None or s.image is None:
+        if not isinstance(s, Point3D) or s.reading != "stereo" or s.image is None:
             raise ValueError(f"robot '{profile.name}' has no stereo head '{sensor}' (intrinsics, image, baseline)")
+        assert s.intrinsics is not None and s.baseline is not None  # a stereo reading has them
         fx, fy, cx, cy = (float(p[i]) for i in s.intrinsics)
         width, height = s.image
         return cls(
@@ -327,8 +330,13 @@ def _body(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> _
     def axes(R_chest: np.ndarray) -> np.ndarray:
         return np.einsum("nji,njk->nik", R_cam, R_chest)
 
-    target = next(t for t in profile.targets if t.name == "fixture")
-    assert target.point_params is not None and target.radius is not None
+    target = next((t for t in profile.targets if t.name == "fixture"), None)
+    missing = [n for n in _ARM_FRAMES if n not in {f.name for f in profile.frames}]
+    if target is None or target.point_params is None or target.radius is None or missing:
+        raise InputError(
+            f"robot '{profile.name}': the stereo renderer draws an arm of the frames {', '.join(_ARM_FRAMES)} "
+            "holding a sphere target 'fixture' (a calibrated point with a radius), as Robonaut's"
+        )
     R_hand, t_hand = poses.R[target.frame], poses.t[target.frame] * k
     centre_hand_m = p[list(target.point_params)] * k
     links = []

@@ -1,0 +1,127 @@
+"""The typed parts of a calibration result: how the solver stopped, what the data determine, and
+every diagnostic with its severity. Each reads and writes the JSON of the calibration file; files
+written before these types existed (free-text status, a list of warning sentences) still load."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from enum import Enum
+from typing import Any
+
+from .solver import SolveStatus
+
+
+class Severity(Enum):
+    INFO = "info"  # worth knowing, needs nothing
+    WARNING = "warning"  # read it before applying: the result may be wrong or weaker than it looks
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    """One finding about a calibration: `code` for programs (`not-converged`, `held-fixed`, `weak`,
+    `outliers`, `at-bound`, `holdout-worse`, `registration-misfit`, `worse-than-start`), `message`
+    for people."""
+
+    severity: Severity
+    code: str
+    message: str
+
+    def to_dict(self) -> dict[str, str]:
+        return {"severity": self.severity.value, "code": self.code, "message": self.message}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Diagnostic:
+        return cls(Severity(d["severity"]), str(d["code"]), str(d["message"]))
+
+
+@dataclass
+class SolverReport:
+    """How the estimate was computed and why the solver stopped (a converged minimum, or a limit)."""
+
+    method: str  # "lm" or "nelder-mead"
+    status: SolveStatus
+    iterations: int
+    evaluations: int
+    solve_seconds: float  # the solver's own time (identifiability, solves), not file I/O
+    robust: bool = True
+    cost_history: list[float] = field(default_factory=list)
+    sigma: float | None = None  # scale of the whitened residuals at the solution
+    folds: int = 0  # k of the k-fold cross-validation (0: none)
+    cv_seconds: float | None = None
+
+    @property
+    def converged(self) -> bool:
+        return self.status.converged
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.update(status=self.status.code, message=self.status.value, converged=self.converged)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SolverReport:
+        return cls(
+            method=str(d.get("method", "lm")),
+            status=SolveStatus.from_code(str(d["status"])),
+            iterations=int(d["iterations"]),
+            evaluations=int(d.get("evaluations", d["iterations"])),
+            solve_seconds=float(d["solve_seconds"]),
+            robust=bool(d.get("robust", True)),
+            cost_history=[float(c) for c in d.get("cost_history", [])],
+            sigma=None if d.get("sigma") is None else float(d["sigma"]),
+            folds=int(d.get("folds", 0)),
+            cv_seconds=None if d.get("cv_seconds") is None else float(d["cv_seconds"]),
+        )
+
+
+@dataclass(frozen=True)
+class HeldParameter:
+    """A parameter the data cannot separate from others, held at its base value."""
+
+    parameter: str
+    message: str
+
+
+@dataclass(frozen=True)
+class Correlation:
+    a: str
+    b: str
+    rho: float
+
+
+@dataclass
+class IdentifiabilityReport:
+    """What the data determine, computed on the Jacobian of the noise-weighted residuals with
+    unit-length columns: singular values, rank, condition, the observability index O1, the held
+    parameters, strongly correlated pairs and each parameter's variance inflation."""
+
+    free: list[str]
+    held_fixed: list[HeldParameter] = field(default_factory=list)
+    singular_values: list[float] = field(default_factory=list)
+    rank: int = 0
+    condition: float | None = None
+    o1: float | None = None
+    correlations: list[Correlation] = field(default_factory=list)
+    inflation: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["note"] = "computed on the Jacobian of the noise-weighted residuals with unit-length columns"
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> IdentifiabilityReport:
+        held = [
+            HeldParameter(h, "held at its base value") if isinstance(h, str) else HeldParameter(**h)
+            for h in d.get("held_fixed", [])
+        ]
+        return cls(
+            free=[str(n) for n in d.get("free", [])],
+            held_fixed=held,
+            singular_values=[float(v) for v in d.get("singular_values", [])],
+            rank=int(d.get("rank", 0)),
+            condition=None if d.get("condition") is None else float(d["condition"]),
+            o1=None if d.get("o1") is None else float(d["o1"]),
+            correlations=[Correlation(**c) for c in d.get("correlations", [])],
+            inflation={str(k): float(v) for k, v in d.get("inflation", {}).items()},
+        )
