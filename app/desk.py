@@ -9,6 +9,7 @@ from __future__ import annotations
 import site
 import sys
 import tempfile
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -28,8 +29,8 @@ from .services.replay import ReplayService
 from .services.review import ReviewService
 from .store import FrameInfo, ProfileFiles, Store
 
-PACKAGE_DIR = Path(__file__).resolve().parent.parent
-SAMPLE_DIR = PACKAGE_DIR / "sample_sessions"
+PACKAGE_DIR = Path(__file__).resolve().parent.parent  # the code: no answer names a path under it
+SAMPLE_DIR = Path(str(resources.files("app.sample_sessions")))  # package data, in a wheel as in a checkout
 
 
 class Desk:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core import InputError, Profile, parse_dataset
-from calib_core.io.session import read_session
+from calib_core.io.session import read_session, session_robot
 
 from .store import NewFrame, Observations, Store
 from .store.db import now
@@ -39,16 +39,17 @@ def import_session_folder(
     """A calib-session/1 folder (frames, observations, images copied) as one new session; its robot is
     the one the folder names (a built-in profile), which must be one of `robots` (None: any)."""
     folder = Path(folder)
-    s = read_session(folder)
-    if robots is not None and s.robot not in robots:
-        raise InputError(f"robot '{s.robot}' is not on the desk", file=str(folder / "session.json"))
-    profile = store.sessions.profile(s.robot)
+    robot = session_robot(folder)
+    if robots is not None and robot not in robots:
+        raise InputError(f"robot '{robot}' is not on the desk", file=str(folder / "session.json"))
+    try:
+        profile = store.sessions.profile(robot)
+    except InputError as exc:  # the robot field names no robot of the desk (and never a path to read)
+        raise InputError(f"robot: {exc.message}", file=str(folder / "session.json")) from None
+    s = read_session(folder, profile)
     sid = store.sessions.new_id(session_id)
     data = s.data
-    by_frame: dict[int, Observations] = {}
-    for c, fid in enumerate(data.frame_ids):
-        rows = data.cfg == c
-        by_frame[int(fid)] = Observations(data.target[rows], data.vertex[rows], data.point[rows], data.measured[rows])
+    by_frame = {int(fid): Observations.of(data, c) for c, fid in enumerate(data.frame_ids)}
     records = {fr.frame: fr for fr in s.frames}
     if len(records) != len(s.frames):
         raise InputError("session.json lists a frame number twice", file=str(folder / "session.json"))
@@ -110,8 +111,7 @@ def import_csv(store: Store, robot: str, name: str, text: str, filename: str) ->
     sid = store.sessions.new_id(None)
     frames = []
     for c, fid in enumerate(data.frame_ids):
-        rows = data.cfg == c
-        obs = Observations(data.target[rows], data.vertex[rows], data.point[rows], data.measured[rows])
+        obs = Observations.of(data, c)
         q = np.nan_to_num(data.joints[c])
         frames.append(NewFrame(int(fid), q, int(obs.target[0]), "measured", "", {}, {}, obs))
     store.sessions.add_whole(

@@ -246,6 +246,8 @@ class JobManager:
                 after = cal.figures["after"]
                 job.snap["detail"].update(
                     iterations=cal.solver.iterations,
+                    converged=cal.converged,
+                    solver_status=cal.solver.status.value,
                     before_rms=cal.figures["before"].rms,
                     after_rms=after.rms,
                     unit=after.unit,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
+from importlib import resources
 from pathlib import Path
 
 from fastapi import FastAPI, Request
@@ -19,7 +20,7 @@ from fastapi.staticfiles import StaticFiles
 from calib_core import InputError
 
 from . import security
-from .desk import PACKAGE_DIR, SAMPLE_DIR, Desk
+from .desk import SAMPLE_DIR, Desk
 from .desk_config import DeskConfig
 from .drivers import RobotFault
 from .errors import NotFound
@@ -28,7 +29,7 @@ from .routers.robots import VERSION
 from .safety import ConfirmationRequired
 from .store import StoreWriteError
 
-STATIC_DIR = PACKAGE_DIR / "static"
+STATIC_DIR = Path(str(resources.files("app.static")))  # package data, in a wheel as in a checkout
 log = logging.getLogger("calib.server")
 
 

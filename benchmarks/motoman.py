@@ -1,4 +1,4 @@
-"""Real data: the CTU Motoman laser-tracker and camera sets (../shared/datasets/motoman).
+"""Real data: the CTU Motoman laser-tracker and camera sets (sample_sessions/motoman-ctu).
 
 1. Held-out error of `calib solve --robot motoman` on the tracker data: 10 random 70/30 splits
    (repeats of a configuration on one side), each subset (one tracker set-up, one arm), modes
@@ -10,7 +10,7 @@
 3. Identifiability on real data: free S, T and the torso row as well, and name what the data cannot
    separate.
 
-    python benchmarks/motoman.py [--data ../shared/datasets/motoman] [--splits 10]
+    python benchmarks/motoman.py [--data sample_sessions/motoman-ctu] [--splits 10]
 """
 
 from __future__ import annotations
@@ -175,7 +175,7 @@ def _fmt(s: tuple[float, float, float]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared/datasets/motoman")
+    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / "sample_sessions/motoman-ctu")
     ap.add_argument("--splits", type=int, default=10)
     args = ap.parse_args()
     profile = load_profile("motoman")

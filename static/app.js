@@ -330,10 +330,13 @@ async function startCalibration() {
     drawCurve($("#cost-curve"), j.cost || []);
   });
   if (done.state === "done") {
+    const converged = done.detail.converged !== false;
+    if (!converged) $("#job-state").textContent = `done, but the solver did not converge (${done.detail.solver_status})`;
     await loadCalibrations();
     await loadReview("active", done.result);
     showTab("review");
-    toast("Calibration done: review it, then apply.", "info");
+    if (converged) toast("Calibration done: review it, then apply.", "info");
+    else toast(`The calibration did not converge (${done.detail.solver_status}): read the warnings before applying.`, "error");
   }
 }
 
@@ -521,7 +524,13 @@ async function renderParameters() {
   if (!state.newCal) return;
   const cal = await api("GET", `/calibrations/${state.newCal}`);
   state.newCalibration = cal;
-  for (const msg of cal.warnings) w.append(el("p", { class: "warning" }, `⚠ ${msg}`));
+  if (!cal.converged) {
+    w.append(el("p", { class: "warning", "data-code": "not-converged" },
+      `⚠ Did not converge: ${cal.solver.message} after ${cal.solver.iterations} iterations.`));
+  }
+  for (const d of cal.diagnostics.filter((d) => d.severity === "warning" && d.code !== "not-converged")) {
+    w.append(el("p", { class: "warning", "data-code": d.code }, `⚠ ${d.message}`));
+  }
   if (cal.outliers.length) {
     w.append(el("p", {}, `Outliers left out: ${cal.outliers.map((o) => `frame ${o.frame} (${fmt(o.error, 2)} ${o.unit})`).join(", ")}`));
   }

@@ -324,7 +324,7 @@ def test_a_replay_beyond_the_limits_is_refused_before_moving(client: TestClient)
 
 
 # --- a robot with real data only (a profile without a simulation section: no driver) --------------
-MOTOMAN_CSV = Path(__file__).resolve().parent.parent.parent / "shared" / "datasets" / "motoman" / "leica_feb2019.csv"
+MOTOMAN_CSV = SAMPLES / "motoman-ctu" / "leica_feb2019.csv"
 
 
 def test_only_a_profile_with_a_simulation_section_gets_a_simulated_robot() -> None:
@@ -333,7 +333,6 @@ def test_only_a_profile_with_a_simulation_section_gets_a_simulated_robot() -> No
     assert not can_simulate(dataclasses.replace(motoman, simulation={}))
 
 
-@pytest.mark.skipif(not MOTOMAN_CSV.is_file(), reason="the Motoman data set is not beside the project")
 def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_be_driven(
     client: TestClient, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -502,3 +501,42 @@ def test_the_simulated_motoman_replays_and_calibrates_to_its_tracker_noise(clien
     assert review.status_code == 200, review.text
     errors = np.array([row["err_new"] for row in review.json()["table"]], float)
     assert len(errors) == 20 and np.all(errors < 10 * noise_m), errors
+
+
+def test_a_session_of_three_sensors_calibrates_in_each_mode(client: TestClient) -> None:
+    """The motoman-left-cube sample (real CTU data): per pose the tracker's reading and both cameras' face
+    centres. The session says what each sensor saw per frame; a calibration in `tracker-cameras` fits the
+    three and reports each (px for the cameras, m for the tracker); `offsets` fits the tracker alone."""
+    s = client.get("/api/sessions/motoman-left-cube").json()
+    assert s["robot"] == "motoman" and len(s["frames"]) == 216 and s["measured"] == 216
+    seen = [f["observations"] for f in s["frames"]]
+    assert sum(o.get("tracker", 0) for o in seen) == 208
+    assert sum(o.get("camera1", 0) for o in seen) == 1533 and sum(o.get("camera2", 0) for o in seen) == 1447
+    runs = {}
+    for mode in ("tracker-cameras", "offsets"):
+        r = client.post("/api/sessions/motoman-left-cube/calibrations", json={"mode": mode, "holdout": 0.3})
+        assert r.status_code == 202, r.text
+        job = wait_job(client, r.json()["job"])
+        assert job["state"] == "done", job
+        runs[mode] = client.get(f"/api/calibrations/{job['result']}").json()
+    both = runs["tracker-cameras"]["sensor_figures"]
+    assert {k: both[k]["after"]["unit"] for k in both} == {"tracker": "m", "camera1": "px", "camera2": "px"}
+    assert both["camera1"]["holdout_after"]["rms"] < 0.1 * both["camera1"]["holdout_before"]["rms"]
+    assert both["tracker"]["holdout_after"]["rms"] < both["tracker"]["holdout_before"]["rms"]
+    assert runs["offsets"]["sensor_figures"] == {} and runs["offsets"]["figures"]["after"]["unit"] == "m"
+    assert runs["offsets"]["figures"]["before"]["n"] + runs["offsets"]["figures"]["holdout_before"]["n"] == 208
+
+
+def test_a_calibration_that_did_not_converge_says_so_and_needs_confirmation(client: TestClient) -> None:
+    """A daily calibration of the first sample day from the nominal model (8 deg off) stops at the solver's
+    iteration limit: the job, the calibration and the apply gate say it did not converge, never just done."""
+    r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"})
+    job = wait_job(client, r.json()["job"])
+    assert job["state"] == "done" and job["detail"]["converged"] is False
+    assert job["detail"]["solver_status"] == "maximum iterations reached"
+    cal = client.get(f"/api/calibrations/{job['result']}").json()
+    assert cal["converged"] is False and cal["solver"]["status"] == "max_iterations"
+    assert any(d["code"] == "not-converged" and d["severity"] == "warning" for d in cal["diagnostics"])
+    refused = client.post(f"/api/calibrations/{job['result']}/apply", json={})
+    assert refused.status_code == 409
+    assert any("did not converge" in reason for reason in refused.json()["reasons"])

@@ -8,6 +8,8 @@ are within a few of their own reported standard deviations of the truth.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -270,6 +272,28 @@ def test_kfold_splits_keep_repeated_configurations_together(duplicated) -> None:
     for train, test in splits:
         assert len(test) > 0
         assert not set(groups[train]) & set(groups[test])
+
+
+def test_a_calibration_file_of_the_previous_format_loads(rn_full, tmp_path) -> None:
+    """Files written before the solver status and the diagnostics were typed: a free-text status and
+    a list of warning sentences."""
+    d = rn_full.to_dict()
+    d["solver"] = {k: v for k, v in d["solver"].items() if k not in ("converged", "message")}
+    d["solver"]["status"] = "converged (no step can reduce the cost further)"
+    for key in ("diagnostics", "converged", "sensor_figures"):
+        d.pop(key)
+    d["identifiability"]["held_fixed"] = [h["parameter"] for h in d["identifiability"]["held_fixed"]]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(d))
+    back = Calibration.load(path)
+    assert back.converged and back.solver.status.code == "no_further_decrease"
+    assert back.warnings == rn_full.warnings
+    assert [h.parameter for h in back.identifiability.held_fixed] == [
+        h.parameter for h in rn_full.identifiability.held_fixed
+    ]
+    d["solver"]["status"] = "maximum iterations reached"
+    path.write_text(json.dumps(d))
+    assert not Calibration.load(path).converged
 
 
 def test_calibration_save_load_round_trip(rn, rn_sim, rn_full, tmp_path) -> None:

@@ -27,10 +27,7 @@ from calib_core.io.csv_format import parse_dataset, to_csv
 from calib_core.io.ctu_motoman import camera_dataset, leica_subset, recording
 from calib_core.model.kinematics import forward
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "motoman"
-needs_data = pytest.mark.skipif(
-    not (DATA / "leica_feb2019.csv").exists(), reason="the CTU data set is not beside the project"
-)
+DATA = Path(__file__).resolve().parents[1] / "sample_sessions" / "motoman-ctu"
 
 
 @pytest.fixture(scope="module")
@@ -176,7 +173,6 @@ def test_csv_without_frame_column_and_default_arm(mm) -> None:
         parse_dataset(mm, text.replace("\nright,", "\nmiddle,", 1))
 
 
-@needs_data
 @pytest.mark.parametrize(
     ("subset", "mode", "readme_rms_mm"),
     [("feb2019-A-right", "full", 0.42), ("feb2019-B-right-cube", "full", 0.073), ("aug2019-right", "full", 2.52)],
@@ -202,7 +198,6 @@ def test_real_tracker_data_held_out_as_good_as_plain_least_squares(
     assert np.mean(rms) <= 1.05 * readme_rms_mm
 
 
-@needs_data
 def test_cli_solves_one_setup_and_predicts_in_the_tracker_frame(tmp_path: Path) -> None:
     cal = tmp_path / "cal.json"
     args = ["solve", "--robot", "motoman", "--mode", "offsets", "--data", str(DATA / "leica_feb2019.csv")]
@@ -240,7 +235,6 @@ def test_cli_solves_one_setup_and_predicts_in_the_tracker_frame(tmp_path: Path) 
     assert not (tmp_path / "x.json").exists()
 
 
-@needs_data
 def test_identifiability_names_what_the_tracker_cannot_separate(mm) -> None:
     """Freeing S, T and the torso row: the data cannot tell them from the registration and the
     reflector row while E stands still, and the report says which."""
@@ -362,7 +356,6 @@ def test_mixed_sensors_have_an_exact_jacobian(mm) -> None:
     assert check_jacobian(problem, [mm.parameters[i].name for i in mode.free]) > 40
 
 
-@needs_data
 def test_a_real_recording_of_three_sensors_calibrates_per_mode(mm) -> None:
     """The left arm's 6x6x6 cube as one session: per pose the tracker's reading and both cameras'
     pixels. Each mode fits the sensors it names (the tracker's modes the tracker alone, exactly as on
@@ -384,7 +377,6 @@ def test_a_real_recording_of_three_sensors_calibrates_per_mode(mm) -> None:
         calibrate(mm, data.of_sensor(1), "offsets")
 
 
-@needs_data
 def test_real_camera_pixels_calibrate_and_the_tracker_agrees(mm) -> None:
     """The CTU pixels (four source files, for speed): the camera-only calibration explains them far
     better than nominal, and the tracker it never saw finds the left arm's cube no worse."""
@@ -436,7 +428,6 @@ def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(mm) ->
         calibrate(mm, data, "cameras")
 
 
-@needs_data
 def test_cli_self_observe_writes_a_calibration_export_takes(tmp_path: Path) -> None:
     cal, yaml_out = tmp_path / "cams.json", tmp_path / "cams.yaml"
     sources = ["--source", "leica_left_hand_6x6x6_dataset.mat", "--source", "no_leica_wall_table1_5x5_dataset.mat"]

@@ -223,6 +223,7 @@ def test_apply_asks_for_confirmation_when_worse_or_beyond(client: TestClient) ->
     assert daily in body["detail"] and "confirm" in body["detail"]
     assert "held-out frames of session robonaut-a-day2" in body["reasons"][0] and full in body["reasons"][0]
     assert any(x.startswith("wrist_yaw.a moves by") and "bound 5 cm" in x for x in body["reasons"])
+    assert "its solver did not converge (maximum iterations reached after 100 iterations)" in body["reasons"]
     assert client.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == full
     assert client.get("/api/robot/history", params={"robot": "robonaut-a"}).json() == history
     assert client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == full

@@ -512,10 +512,11 @@ def test_a_store_made_with_the_first_schema_opens_and_keeps_its_data(tmp_path: P
     db.close()
 
     store = Store(tmp_path)
-    assert store.db.version == 2 and store.db.meta("schema") == "2"
+    assert store.db.version == 3 and store.db.meta("schema") == "3"
     assert [(s.id, s.robot, s.frames, s.measured) for s in store.sessions.list()] == [("s-0ld", "nao", 1, 1)]
     data = store.sessions.dataset("s-0ld", load_profile("nao"))
     assert data.measured.tolist() == [[320.5, 240.25]] and data.vertex.tolist() == [3]
+    assert data.sensor.tolist() == [load_profile("nao").data.sensor]  # rows of before: the data sensor's
     assert store.calibrations.load("c-0ld00001").values() == full.values()
     assert store.calibrations.active("nao") == "c-0ld00001"
     assert [h["note"] for h in store.calibrations.history("nao")] == ["kept"]
@@ -526,5 +527,5 @@ def test_a_store_made_with_the_first_schema_opens_and_keeps_its_data(tmp_path: P
     assert store.robots.names_with_data() == ["nao"]
     store.close()
     again = Store(tmp_path)  # migrated once: opening again changes nothing
-    assert again.db.version == 2 and len(again.sessions.list()) == 1
+    assert again.db.version == 3 and len(again.sessions.list()) == 1
     again.close()

@@ -24,6 +24,7 @@ class FrameOut(BaseModel):
     images: dict[str, str]  # role -> URL
     detail: dict[str, Any]  # what the detector reported
     captured: str
+    observations: dict[str, int] = {}  # sensor name -> how many observations it made in this frame
 
 
 class RobotState(BaseModel):
@@ -50,7 +51,9 @@ def degrees(profile: Profile, q_rad: np.ndarray) -> dict[str, float | None]:
     }
 
 
-def frame_out(profile: Profile, f: FrameInfo) -> FrameOut:
+def frame_out(profile: Profile, f: FrameInfo, counts: dict[int | None, int] | None = None) -> FrameOut:
+    """A frame as the API shows it; `counts`: its observations per sensor index (None: the data sensor)."""
+    names = {profile.sensors[profile.data.sensor if s is None else s].name: n for s, n in (counts or {}).items()}
     return FrameOut(
         index=f.index,
         joints=degrees(profile, f.joints_rad),
@@ -60,6 +63,7 @@ def frame_out(profile: Profile, f: FrameInfo) -> FrameOut:
         images={role: f"/api/files/{path}" for role, path in f.images.items()},
         detail=f.detail,
         captured=f.captured,
+        observations=names,
     )
 
 

@@ -79,6 +79,7 @@ def sessions(store: StoreDep) -> list[SessionSummary]:
 def session(store: StoreDep, robots: RobotsDep, session_id: str) -> SessionOut:
     s = store.sessions.get(session_id)
     profile = robots.get(s.robot).profile
+    counts = store.sessions.sensor_counts(session_id)
     return SessionOut(
         id=s.id,
         robot=s.robot,
@@ -88,7 +89,7 @@ def session(store: StoreDep, robots: RobotsDep, session_id: str) -> SessionOut:
         source=s.source,
         measured=s.measured,
         truth=s.truth,
-        frames=[frame_out(profile, f) for f in store.sessions.frames(session_id)],
+        frames=[frame_out(profile, f, counts.get(f.index)) for f in store.sessions.frames(session_id)],
     )
 
 

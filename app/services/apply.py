@@ -3,7 +3,7 @@
 A calibration belongs to the robot whose session it was made from (an instance: `nao-2`, not every NAO),
 and is applied to that robot only: recorded in its apply history first, then pushed to its driver. One
 that is worse than the active calibration or moves a parameter beyond its sane bound needs the operator's
-confirmation (ConfirmationRequired, 409) unless `confirm`.
+confirmation (ConfirmationRequired, 409) unless `confirm`, and so does one whose solver did not converge.
 """
 
 from __future__ import annotations
@@ -64,5 +64,9 @@ class ApplyService:
             worse = safety.worse_than_active(profile, data.select(heldout), new_p, active_here, active, where)
             if worse is not None:
                 reasons.append(worse)
+        if not cal.converged:
+            reasons.append(
+                f"its solver did not converge ({cal.solver.status.value} after {cal.solver.iterations} iterations)"
+            )
         reasons += safety.parameter_jumps(profile, new_p, active_p, active, from_nominal=active_id is None)
         return safety.concerns(reasons)

@@ -78,7 +78,22 @@ CREATE TABLE IF NOT EXISTS robots (
     origin TEXT NOT NULL, added TEXT NOT NULL);
 """
 
-MIGRATIONS = {1: _SCHEMA_V1, 2: _SCHEMA_V2}  # version -> what brings the version before it there
+# Version 3: observations of several sensors in one session (the Motoman's tracker and two cameras looking at
+# one pose): each row says its sensor (NULL in rows of before: the robot's data-format sensor, the only one
+# sessions had), and a measurement of one number (a plane's distance) leaves m1 empty. SQLite cannot drop a
+# NOT NULL, so the table is rebuilt, its rows copied as they are.
+_SCHEMA_V3 = """
+CREATE TABLE observations_v3 (
+    session_id TEXT NOT NULL, idx INTEGER NOT NULL, seq INTEGER NOT NULL, target INTEGER NOT NULL,
+    vertex INTEGER NOT NULL, px REAL, py REAL, pz REAL, m0 REAL NOT NULL, m1 REAL, m2 REAL, sensor INTEGER,
+    PRIMARY KEY (session_id, idx, seq),
+    FOREIGN KEY (session_id, idx) REFERENCES frames(session_id, idx) ON DELETE CASCADE);
+INSERT INTO observations_v3 SELECT session_id, idx, seq, target, vertex, px, py, pz, m0, m1, m2, NULL FROM observations;
+DROP TABLE observations;
+ALTER TABLE observations_v3 RENAME TO observations;
+"""
+
+MIGRATIONS = {1: _SCHEMA_V1, 2: _SCHEMA_V2, 3: _SCHEMA_V3}  # version -> what brings the version before it there
 SCHEMA_VERSION = max(MIGRATIONS)
 
 

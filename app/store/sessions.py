@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core import Dataset, InputError, Profile, to_csv
+from calib_core.io.session import csv_sensors
 
 from ..errors import NotFound
 from ..validation import check_id, check_joints_rad, check_role, check_target
@@ -63,12 +64,19 @@ class FrameInfo:
 
 @dataclass
 class Observations:
-    """A frame's observations in internal units (rows of the dataset)."""
+    """A frame's observations in internal units (rows of the dataset), of one sensor or several."""
 
     target: np.ndarray  # (K,)
     vertex: np.ndarray  # (K,)
     point: np.ndarray  # (K, 3), NaN: the target's own point
-    measured: np.ndarray  # (K, dim)
+    measured: np.ndarray  # (K, width): NaN beyond what an observation's sensor measures
+    sensor: np.ndarray  # (K,) the sensor of each (its index in the profile)
+
+    @classmethod
+    def of(cls, data: Dataset, cfg: int) -> Observations:
+        """The observations of configuration `cfg` of a dataset."""
+        rows = data.cfg == cfg
+        return cls(data.target[rows], data.vertex[rows], data.point[rows], data.measured[rows], data.sensor[rows])
 
 
 @dataclass
@@ -197,6 +205,7 @@ class SessionRepository:
         vertices: np.ndarray | None = None,
         images: dict[str, np.ndarray] | None = None,
         detail: dict | None = None,
+        sensor: int | None = None,
     ) -> int:
         """Store a frame and its observations; an existing frame with that index is replaced whole.
 
@@ -211,7 +220,7 @@ class SessionRepository:
             raise InputError(f"unknown frame status '{status}' ({', '.join(FRAME_STATUSES)})")
         obs = None
         if measured is not None:
-            obs = observations(profile, target, measured, points, vertices)
+            obs = observations(profile, target, measured, points, vertices, sensor)
         if (status == "measured") != (obs is not None and len(obs.measured) > 0):
             raise InputError("a frame has measurements exactly when its status is 'measured'")
         encoded = {check_role(role): encode_jpeg(img) for role, img in (images or {}).items()}
@@ -266,8 +275,9 @@ class SessionRepository:
         """The measured frames as a calib_core Dataset, equal to what parse_dataset makes of their CSV.
 
         Like parse_dataset, a frame's joint readings are NaN where none of its observations' chains
-        needs them. `lines` is None (no file); `header` and `rows` are the profile's CSV, so that
-        calib_core.to_csv and predictions per row work on it.
+        needs them. `lines` is None (no file); `header` and `rows` are the profile's CSV when every
+        observation is of a sensor that format holds (so calib_core.to_csv and predictions per row work
+        on it), else empty. `measured` has the columns of the largest sensor's measurement.
         """
         info = self.get(session_id)
         if info.robot != profile.name:
@@ -280,25 +290,27 @@ class SessionRepository:
                 (session_id,),
             ).fetchall()
             obs = db.execute(
-                "SELECT o.idx, o.target, o.vertex, o.px, o.py, o.pz, o.m0, o.m1, o.m2 FROM observations o "
+                "SELECT o.idx, o.target, o.vertex, o.px, o.py, o.pz, o.m0, o.m1, o.m2, o.sensor FROM observations o "
                 "JOIN frames f ON f.session_id = o.session_id AND f.idx = o.idx "
                 "WHERE o.session_id = ? AND f.status = 'measured' ORDER BY o.idx, o.seq",
                 (session_id,),
             ).fetchall()
-        dim = profile.sensors[profile.data.sensor].dim
         frame_ids = np.array([r["idx"] for r in frames], dtype=int)
         position = {int(f): k for k, f in enumerate(frame_ids)}
         cfg = np.array([position[r["idx"]] for r in obs], dtype=int)
         target = np.array([r["target"] for r in obs], dtype=int)
+        sensor = np.array([profile.data.sensor if r["sensor"] is None else r["sensor"] for r in obs], dtype=int)
         values = np.array([[r["px"], r["py"], r["pz"], r["m0"], r["m1"], r["m2"]] for r in obs], dtype=float).reshape(
             -1, 6
         )
+        width = max(
+            (profile.sensors[s].dim for s in set(sensor.tolist())), default=profile.sensors[profile.data.sensor].dim
+        )
         joints = np.array([json.loads(r["joints_rad"]) for r in frames], dtype=float).reshape(-1, len(profile.joints))
-        needed = np.zeros((len(profile.targets), len(profile.joints)), bool)
-        for t in range(len(profile.targets)):
-            needed[t, sorted(profile.joints_between(t, profile.data.sensor))] = True
         keep = np.zeros(joints.shape, bool)
-        np.logical_or.at(keep, cfg, needed[target])
+        for t, s in {(int(t), int(s)) for t, s in zip(target, sensor, strict=True)}:
+            rows = cfg[(target == t) & (sensor == s)]
+            keep[np.ix_(rows, sorted(profile.joints_between(t, s)))] = True
         data = Dataset(
             robot=profile.name,
             frame_ids=frame_ids,
@@ -307,13 +319,26 @@ class SessionRepository:
             target=target,
             point=values[:, :3],
             vertex=np.array([r["vertex"] for r in obs], dtype=int),
-            measured=values[:, 3 : 3 + dim],
-            sensor=np.full(len(obs), profile.data.sensor),
+            measured=values[:, 3 : 3 + width],
+            sensor=sensor,
             source=f"session {session_id}",
         )
-        table = list(csv.reader(io.StringIO(to_csv(profile, data))))
-        data.header, data.rows = table[0], table[1:]
+        if set(data.sensors) <= csv_sensors(profile):
+            table = list(csv.reader(io.StringIO(to_csv(profile, data))))
+            data.header, data.rows = table[0], table[1:]
         return data
+
+    def sensor_counts(self, session_id: str) -> dict[int, dict[int, int]]:
+        """Per frame index, how many observations each sensor (profile index; None: the data sensor) made."""
+        self.get(session_id)
+        rows = self.db.all(
+            "SELECT idx, sensor, COUNT(*) AS n FROM observations WHERE session_id = ? GROUP BY idx, sensor",
+            (session_id,),
+        )
+        out: dict[int, dict[int, int]] = {}
+        for r in rows:
+            out.setdefault(int(r["idx"]), {})[r["sensor"]] = int(r["n"])
+        return out
 
     # --- what the sweep keeps -----------------------------------------------------------------------
     def ids(self) -> set[str]:
@@ -330,10 +355,19 @@ class SessionRepository:
 
 
 def observations(
-    profile: Profile, target: int, measured: np.ndarray, points: np.ndarray | None, vertices: np.ndarray | None
+    profile: Profile,
+    target: int,
+    measured: np.ndarray,
+    points: np.ndarray | None,
+    vertices: np.ndarray | None,
+    sensor: int | None = None,
 ) -> Observations:
-    """A frame's measurements (rows of the profile's measurement size) as Observations of one target."""
-    dim = profile.sensors[profile.data.sensor].dim
+    """A frame's measurements by one sensor (default: the data format's), rows of its measurement size,
+    as Observations of one target."""
+    s = profile.data.sensor if sensor is None else sensor
+    if not 0 <= s < len(profile.sensors):
+        raise InputError(f"sensor {s} is not one of the {len(profile.sensors)} sensors of {profile.name}")
+    dim = profile.sensors[s].dim
     m = np.asarray(measured, dtype=float)
     if m.ndim != 2 or m.shape[1] != dim:
         raise InputError(f"{profile.name} measurements are rows of {dim} numbers, not shape {m.shape}")
@@ -342,7 +376,7 @@ def observations(
     k = len(m)
     p = np.full((k, 3), np.nan) if points is None else np.asarray(points, dtype=float).reshape(k, 3)
     v = np.full(k, -1) if vertices is None else np.asarray(vertices, dtype=int).reshape(k)
-    return Observations(np.full(k, target), v, p, m)
+    return Observations(np.full(k, target), v, p, m, np.full(k, s))
 
 
 def _insert_session(
@@ -384,10 +418,10 @@ def _insert_observations(db: sqlite3.Connection, sid: str, index: int, obs: Obse
 
     rows = []
     for k in range(len(obs.measured)):
-        m = [float(v) for v in obs.measured[k]] + [None] * (3 - obs.measured.shape[1])
+        m = [opt(v) for v in obs.measured[k]] + [None] * (3 - obs.measured.shape[1])
         p = [opt(v) for v in obs.point[k]]
-        rows.append((sid, index, k, int(obs.target[k]), int(obs.vertex[k]), *p, *m))
-    db.executemany("INSERT INTO observations VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+        rows.append((sid, index, k, int(obs.target[k]), int(obs.vertex[k]), *p, *m, int(obs.sensor[k])))
+    db.executemany("INSERT INTO observations VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
 
 
 def _session_info(r: sqlite3.Row) -> SessionInfo:

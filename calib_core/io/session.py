@@ -29,6 +29,7 @@ from ..files import write_atomic
 from ..model.loader import BUILTIN_PROFILES, load_profile
 from ..model.profile import Profile
 from .csv_format import read_dataset, to_csv
+from .observations_csv import parse_observations, to_observations_csv
 
 FORMAT = "calib-session/1"
 
@@ -84,18 +85,21 @@ def write_session(
                     raise OSError(f"cannot write {rel}")
                 paths[role] = rel
             records.append({**fr.__dict__, "images": paths or fr.images})
+        pinned = set(data.sensors) <= csv_sensors(profile)
         meta = {
             "format": FORMAT,
             "robot": profile.name,
             "name": name,
             "description": description,
             "made_by": made_by,
-            "data": "data.csv",
+            "data": "data.csv" if pinned else "observations.csv",
+            "data_format": "profile" if pinned else "observations",
             "truth": "truth.json" if truth is not None else None,
             "frames": records,
         }
         write_atomic(work / "session.json", json.dumps(meta, indent=1) + "\n")
-        write_atomic(work / "data.csv", to_csv(profile, data))
+        text = to_csv(profile, data) if pinned else to_observations_csv(profile, data)
+        write_atomic(work / meta["data"], text)
         if truth is not None:
             write_atomic(work / "truth.json", json.dumps(profile.params_to_display(truth), indent=1) + "\n")
         if target.exists():
@@ -111,26 +115,17 @@ def write_session(
         raise
 
 
-def read_session(folder: str | Path) -> SessionFolder:
-    """A session folder; InputError names the file and the field of any problem."""
+def read_session(folder: str | Path, profile: Profile | None = None) -> SessionFolder:
+    """A session folder; InputError names the file and the field of any problem. `profile`: the robot
+    the folder must be of (a robot of one's own); default a built-in one, by the folder's robot name."""
     folder = Path(folder)
-    meta_path = folder / "session.json"
+    meta, meta_path = _meta(folder)
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("session.json is missing: not a session folder", file=str(folder)) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot be read ({exc})", file=str(meta_path)) from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise InputError(f"not a session file (format is not {FORMAT!r})", file=str(meta_path))
-    try:
-        if meta["robot"] not in BUILTIN_PROFILES:  # a name, never a path to read a profile from
-            raise InputError(f"robot: unknown robot {meta['robot']!r} (known: {', '.join(BUILTIN_PROFILES)})")
-        profile = load_profile(meta["robot"])
+        profile = _profile(meta["robot"], profile)
         if not isinstance(meta["frames"], list):
             raise InputError("frames: expected a list")
         frames = [_frame_record(fr, i) for i, fr in enumerate(meta["frames"])]
-        data = read_dataset(profile, folder / _text(meta, "data", "data.csv"))
+        data = _read_data(profile, folder / _text(meta, "data", "data.csv"), meta.get("data_format", "profile"))
         truth = None
         if meta.get("truth"):
             truth = json.loads((folder / _text(meta, "truth")).read_text(encoding="utf-8"))
@@ -154,6 +149,58 @@ def read_session(folder: str | Path) -> SessionFolder:
         raise InputError(f"lacks the field {exc}", file=str(meta_path)) from None
     except (TypeError, json.JSONDecodeError, OSError) as exc:
         raise InputError(f"is malformed ({exc})", file=str(meta_path)) from None
+
+
+def session_robot(folder: str | Path) -> str:
+    """The name of the robot a session folder is of (to pick its profile before reading the folder)."""
+    meta, meta_path = _meta(Path(folder))
+    robot = meta.get("robot")
+    if not isinstance(robot, str) or not robot:
+        raise InputError(f"robot: expected a robot's name, got {robot!r}", file=str(meta_path))
+    return robot
+
+
+def _meta(folder: Path) -> tuple[dict, Path]:
+    """session.json of a folder, checked to be one."""
+    meta_path = folder / "session.json"
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("session.json is missing: not a session folder", file=str(folder)) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot be read ({exc})", file=str(meta_path)) from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise InputError(f"not a session file (format is not {FORMAT!r})", file=str(meta_path))
+    return meta, meta_path
+
+
+def csv_sensors(profile: Profile) -> set[int]:
+    """The sensors the profile's pinned CSV format holds observations of."""
+    fmt = profile.data
+    return set(fmt.sensor_values.values()) if fmt.sensor_column else {fmt.sensor}
+
+
+def _profile(robot: Any, profile: Profile | None) -> Profile:
+    if profile is not None:
+        if robot != profile.name:
+            raise InputError(f"robot: the session is of robot {robot!r}, not {profile.name!r}")
+        return profile
+    if robot not in BUILTIN_PROFILES:  # a name, never a path to read a profile from
+        raise InputError(f"robot: unknown robot {robot!r} (known: {', '.join(BUILTIN_PROFILES)})")
+    return load_profile(robot)
+
+
+def _read_data(profile: Profile, path: Path, data_format: Any) -> Dataset:
+    """The measured observations: the profile's pinned CSV format, or the observations format."""
+    if data_format == "profile":
+        return read_dataset(profile, path)
+    if data_format != "observations":
+        raise InputError(f"data_format: {data_format!r} is not 'profile' or 'observations'")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot be read ({exc.__class__.__name__})", file=str(path)) from None
+    return parse_observations(profile, text, str(path))
 
 
 def _finite(value: Any) -> bool:

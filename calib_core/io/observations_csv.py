@@ -1,0 +1,140 @@
+"""The observations format: any dataset of a profile as one CSV, every sensor's observations in it.
+
+The pinned formats (specs/robonaut-a.md, specs/nao.md, specs/motoman.md) hold one kind of measurement
+each. A session with several sensors (the Motoman's tracker and two cameras looking at one pose) is
+written in this long format instead, one row per observation:
+
+    frame,sensor,target,vertex,m0,m1,m2,point_x,point_y,point_z,<joint>,<joint>,...
+
+- `sensor` and `target` by name; `vertex` the grid vertex or marker point (-1: none);
+- `m0 m1 m2` the measurement in its sensor's unit (the profile's length unit, or px), as many as the
+  sensor measures (the rest empty);
+- `point_*` the observed point in the target frame, profile length unit (empty: the target's own);
+- one column per joint of the profile, the reading in deg (empty where the observation does not need it).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+
+import numpy as np
+
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.profile import Profile
+from .csv_format import MAX_MAGNITUDE
+
+MEASURES = ("m0", "m1", "m2")
+POINT = ("point_x", "point_y", "point_z")
+
+
+def to_observations_csv(profile: Profile, data: Dataset) -> str:
+    """The dataset in the observations format (joint readings in deg)."""
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(["frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names])
+    for m in range(data.n_observations):
+        sensor = profile.sensors[int(data.sensor[m])]
+        c = int(data.cfg[m])
+        measured = [_num(v) for v in data.measured[m, : sensor.dim]] + [""] * (3 - sensor.dim)
+        joints = [_num(math.degrees(v)) for v in data.joints[c]]
+        point = [_num(v) for v in data.point[m]]
+        target = profile.targets[int(data.target[m])].name
+        w.writerow([int(data.frame_ids[c]), sensor.name, target, int(data.vertex[m]), *measured, *point, *joints])
+    return out.getvalue()
+
+
+def parse_observations(profile: Profile, text: str, name: str = "<observations>") -> Dataset:
+    """A dataset from the observations format; InputError naming file, line and column."""
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or not any(c.strip() for c in rows[0]):
+        raise InputError("file is empty (a header line and data rows are required)", file=name)
+    header = [h.strip() for h in rows[0]]
+    col = {h: i for i, h in enumerate(header)}
+    for c in ("frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names):
+        if c not in col:
+            raise InputError(f"missing column '{c}' in the header", file=name, line=1, column=c)
+    sensors = {s.name: i for i, s in enumerate(profile.sensors)}
+    targets = {t.name: i for i, t in enumerate(profile.targets)}
+    frames: dict[int, int] = {}
+    joints: list[np.ndarray] = []
+    obs: dict[str, list] = {k: [] for k in ("cfg", "sensor", "target", "vertex", "measured", "point", "line")}
+    for ln, fields in enumerate(rows[1:], start=2):
+        if not any(f.strip() for f in fields):
+            continue
+        if len(fields) != len(header):
+            raise InputError(f"has {len(fields)} fields but the header has {len(header)}", file=name, line=ln)
+
+        def cell(c: str, *, optional: bool = False, ln: int = ln, fields: list[str] = fields) -> float:
+            text = fields[col[c]].strip()
+            if not text and optional:
+                return math.nan
+            try:
+                v = float(text)
+            except ValueError:
+                raise InputError(
+                    "is empty" if not text else f"'{text}' is not a number", file=name, line=ln, column=c
+                ) from None
+            if not math.isfinite(v) or abs(v) > MAX_MAGNITUDE:
+                raise InputError(f"'{text}' is not a finite number of sensible size", file=name, line=ln, column=c)
+            return v
+
+        def choice(c: str, known: dict[str, int], ln: int = ln, fields: list[str] = fields) -> int:
+            v = fields[col[c]].strip()
+            if v not in known:
+                raise InputError(f"'{v}' is not one of {', '.join(known)}", file=name, line=ln, column=c)
+            return known[v]
+
+        s, t = choice("sensor", sensors), choice("target", targets)
+        fid = cell("frame")
+        if fid != int(fid):
+            raise InputError(f"frame id {fid} is not an integer", file=name, line=ln, column="frame")
+        q = np.array([math.radians(cell(j, optional=True)) for j in profile.joint_names])
+        missing = [profile.joints[j].name for j in profile.joints_between(t, s) if math.isnan(q[j])]
+        if missing:
+            raise InputError("is empty, but the observation needs it", file=name, line=ln, column=missing[0])
+        k = frames.setdefault(int(fid), len(frames))
+        if k == len(joints):
+            joints.append(q)
+        else:
+            joints[k] = np.where(np.isnan(joints[k]), q, joints[k])
+        dim = profile.sensors[s].dim
+        obs["cfg"].append(k)
+        obs["sensor"].append(s)
+        obs["target"].append(t)
+        vertex = cell("vertex")
+        if vertex != int(vertex) or not -1 <= vertex < _points_of(profile, t):
+            what = f"vertex {vertex:g} is not a point of {profile.targets[t].name}"
+            raise InputError(what, file=name, line=ln, column="vertex")
+        obs["vertex"].append(int(vertex))
+        obs["measured"].append([cell(c) for c in MEASURES[:dim]] + [math.nan] * (3 - dim))
+        obs["point"].append([cell(c, optional=True) for c in POINT])
+        obs["line"].append(ln)
+    if not frames:
+        raise InputError("has a header but no data rows", file=name, line=1)
+    width = max(profile.sensors[s].dim for s in set(obs["sensor"]))
+    return Dataset(
+        robot=profile.name,
+        frame_ids=np.array(list(frames), dtype=int),
+        joints=np.array(joints),
+        cfg=np.array(obs["cfg"], dtype=int),
+        target=np.array(obs["target"], dtype=int),
+        point=np.array(obs["point"], dtype=float),
+        vertex=np.array(obs["vertex"], dtype=int),
+        measured=np.array(obs["measured"], dtype=float)[:, :width],
+        sensor=np.array(obs["sensor"], dtype=int),
+        source=name,
+        lines=np.array(obs["line"], dtype=int),
+    )
+
+
+def _points_of(profile: Profile, target: int) -> int:
+    """How many points a target has that a vertex can name (a grid's vertices, fixed points)."""
+    t = profile.targets[target]
+    return len(t.grid) if t.grid is not None else len(t.points) if t.points is not None else 0
+
+
+def _num(v: float) -> str:
+    return "" if not math.isfinite(v) else f"{v:.12g}"

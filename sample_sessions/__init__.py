@@ -1,0 +1,1 @@
+"""The sample sessions, shipped as package data of app.sample_sessions (README.md says what each is)."""

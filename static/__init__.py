@@ -1,0 +1,1 @@
+"""The dashboard's page (plain HTML, JS and CSS, no build step), shipped as package data of app.static."""
