@@ -247,6 +247,7 @@ class _Passes:
             levenberg_marquardt(
                 self.problem.residuals_jacobian,
                 x0,
+                fun=self.problem.residuals,
                 initial=start,
                 robust=loss,
                 ftol=1e-6 if loss else 1e-10,
@@ -261,13 +262,12 @@ class _Passes:
     def least_squares(self, initial: tuple | None, robust: bool) -> None:
         problem = self.problem
         x = self.run(problem.x0, None, initial)
-        if len(problem.blocks) > 1:
-            # Each sensor weighed by its actual scatter, not only its declared noise.
-            r = problem.residuals(x)
-            for b in problem.blocks:
-                b.scale = robust_sigma(r[b.rows], b.dim)
-            x = self.run(x, None)
-        if problem.priors:
+        if len(problem.blocks) > 1 or problem.priors:
+            if len(problem.blocks) > 1:
+                # Each sensor weighed by its actual scatter, not only its declared noise.
+                r = problem.residuals(x)
+                for b in problem.blocks:
+                    b.scale = robust_sigma(r[b.rows], b.dim)
             # A prior's sigma is meant against the residuals' actual scale (a MAP estimate), not
             # the declared sensor noise: on a real robot the model error outweighs the noise.
             problem.prior_scale = pooled_robust_sigma(problem, problem.residuals(x))

@@ -107,6 +107,7 @@ def levenberg_marquardt(
     fun_jac: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     x0: np.ndarray,
     *,
+    fun: Callable[[np.ndarray], np.ndarray] | None = None,
     initial: tuple[np.ndarray, np.ndarray] | None = None,
     robust: Robust | None = None,
     max_iterations: int = 100,
@@ -119,7 +120,8 @@ def levenberg_marquardt(
 ) -> SolveResult:
     """Minimise 0.5 |r(x)|^2 (or the robust cost) by Levenberg-Marquardt with Marquardt scaling,
     within the box [lower, upper] when given: a variable at a bound that the gradient pushes
-    outward leaves the step's system, and every step is projected into the box."""
+    outward leaves the step's system, and every step is projected into the box. `fun`: the
+    residuals alone (cheaper than with the Jacobian), for the trials after a rejected step."""
     start = time.perf_counter()
     lo = np.full(len(x0), -np.inf) if lower is None else np.asarray(lower, float)
     hi = np.full(len(x0), np.inf) if upper is None else np.asarray(upper, float)
@@ -148,9 +150,12 @@ def levenberg_marquardt(
         if np.max(np.abs(np.where(held, 0.0, g)), initial=0.0) <= 1e-14 * max(1.0, cost):
             status = SolveStatus.GRADIENT_VANISHED
             break
-        # Near the solution nearly every step is accepted, so the trial point gets its Jacobian
-        # at once (a rejected step wastes one; an accepted one saves a residual evaluation).
+        # Near the solution nearly every step is accepted, so the first trial point gets its
+        # Jacobian at once (an accepted step saves a residual evaluation); after a rejection most
+        # trials are rejected too (at the solution, all of them), so they get residuals only.
         accepted = False
+        J_new: np.ndarray | None = None
+        tries = 0
         while True:
             try:
                 dx = _box_step(H + lam * np.diag(diag), g, x, lo, hi, held)
@@ -161,7 +166,11 @@ def levenberg_marquardt(
             predicted = -(g @ dx) - 0.5 * dx @ H @ dx
             if np.linalg.norm(dx) <= xtol * (np.linalg.norm(x) + xtol) or predicted <= ftol * cost:
                 break
-            r_new, J_new = fun_jac(x + dx)
+            if tries == 0 or fun is None:
+                r_new, J_new = fun_jac(x + dx)
+            else:
+                r_new, J_new = fun(x + dx), None
+            tries += 1
             evaluations += 1
             cost_new = cost_of(r_new)
             rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
@@ -175,6 +184,9 @@ def levenberg_marquardt(
         if not accepted:
             status = SolveStatus.NO_FURTHER_DECREASE
             break
+        if J_new is None:
+            r_new, J_new = fun_jac(x + dx)
+            evaluations += 1
         reduction = cost - cost_new
         x, r, J, cost = x + dx, r_new, J_new, cost_new
         lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
