@@ -26,8 +26,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from calib_core import Dataset, Profile
+from calib_core.estimation.validation import figures
 from calib_core.io.urdf_export import to_urdf
-from calib_core.model.kinematics import forward
+from calib_core.model.kinematics import forward, to_sensor
 from calib_core.sensors import Pinhole, Sensor
 from calib_core.units import length_factor
 
@@ -85,6 +86,7 @@ class Review:
         sides: dict[str, _Side],
         heldout: np.ndarray,
         bounds_m: np.ndarray,
+        sensor: int,
     ) -> None:
         self.profile = profile
         self.indices = indices
@@ -98,7 +100,8 @@ class Review:
         self.heldout = heldout
         self.bounds_m = bounds_m
         self._row = {int(i): r for r, i in enumerate(indices)}
-        self.sensor = profile.sensors[profile.data.sensor]
+        self.sensor_index = sensor
+        self.sensor = profile.sensors[sensor]
         self.unit = self.sensor.unit
         self.urdf = {side: to_urdf(profile, s.p) for side, s in sides.items()}
 
@@ -112,23 +115,30 @@ class Review:
         new_p: np.ndarray | None,
         *,
         heldout_frames: Iterable[int] = frozenset(),
+        sensor: int | None = None,
     ) -> Review:
-        """Precompute every frame for both calibrations. `data`: the session's measured frames
-        (frame_ids = frame indices), None when nothing was measured; frames not in it get no error."""
+        """Precompute every frame for both calibrations, as one sensor (default: the data format's) sees
+        it. `data`: the session's measured frames (frame_ids = frame indices), None when nothing was
+        measured; frames without an observation of the sensor get no error."""
+        sensor = profile.data.sensor if sensor is None else sensor
+        if data is not None:
+            data = data.of_sensor(sensor) if sensor in data.sensors else None
         frames = sorted(frames, key=lambda f: f.index)
         n = len(frames)
         indices = np.array([f.index for f in frames], dtype=int)
         targets = np.array([f.target for f in frames], dtype=int)
         joints = np.array([np.asarray(f.joints_rad, float) for f in frames]).reshape(n, len(profile.joints))
-        rows, target, point, measured = _observations(profile, indices, targets, joints, data)
+        rows, target, point, measured = _observations(profile, indices, targets, joints, data, sensor)
         joints = np.nan_to_num(joints)  # joints the frame's chains do not use do not matter
         order = np.argsort(rows, kind="stable")
         rows, target, point, measured = rows[order], target[order], point[order], measured[order]
         start = np.searchsorted(rows, np.arange(n + 1))
-        sensor = profile.sensors[profile.data.sensor]
-        measured_px = _image_of_measurements(sensor, new_p if new_p is not None else old_p, measured)
+        seen_by = profile.sensors[sensor]
+        measured_px = _image_of_measurements(seen_by, new_p if new_p is not None else old_p, measured)
         params = {"old": old_p} | ({} if new_p is None else {"new": new_p})
-        sides = {side: _side(profile, p, joints, rows, target, point, measured, n) for side, p in params.items()}
+        sides = {
+            side: _side(profile, p, joints, rows, target, point, measured, n, sensor) for side, p in params.items()
+        }
         heldout = np.isin(indices, np.fromiter(heldout_frames, dtype=int))
         bounds = frame_bounds_m(profile, old_p, joints, [s.predicted_m for s in sides.values()])
         return cls(
@@ -143,6 +153,7 @@ class Review:
             sides,
             heldout,
             bounds,
+            sensor,
         )
 
     # --- per frame ------------------------------------------------------------------------------
@@ -246,7 +257,9 @@ def live_geometry(
     k = len(points)
     dim = profile.sensors[profile.data.sensor].dim
     meas = np.full((k, dim), np.nan) if measured is None else np.asarray(measured, float)
-    s = _side(profile, p, q, np.zeros(k, int), np.full(k, target), np.asarray(points, float), meas, 1)
+    s = _side(
+        profile, p, q, np.zeros(k, int), np.full(k, target), np.asarray(points, float), meas, 1, profile.data.sensor
+    )
     return FrameGeometry(0, "live", q[0], {"old": s.predicted_m}, {"old": s.measured_m})
 
 
@@ -254,12 +267,12 @@ def live_geometry(
 
 
 def _observations(
-    profile: Profile, indices: np.ndarray, targets: np.ndarray, joints: np.ndarray, data: Dataset | None
+    profile: Profile, indices: np.ndarray, targets: np.ndarray, joints: np.ndarray, data: Dataset | None, sensor: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every frame's observed points: the dataset's for measured frames (their joint readings fill
     the frame's), the whole target, unmeasured (NaN), for the others, so a frame whose detector
     found nothing still shows where its target was predicted. Returns (row, target, point, measured)."""
-    dim = profile.sensors[profile.data.sensor].dim
+    dim = profile.sensors[sensor].dim
     row_of = {int(i): r for r, i in enumerate(indices)}
     rows, target, point, measured = [], [], [], []
     seen = np.zeros(len(indices), bool)
@@ -270,7 +283,7 @@ def _observations(
         rows.append(obs_rows)
         target.append(data.target[keep])
         point.append(data.point[keep])
-        measured.append(data.measured[keep])
+        measured.append(data.measured[keep, :dim])
         seen[obs_rows] = True
         for c, r in enumerate(cfg_row):
             if r >= 0:
@@ -298,12 +311,14 @@ def _side(
     point: np.ndarray,
     measured: np.ndarray,
     n_frames: int,
+    sensor_index: int,
 ) -> _Side:
-    sensor = profile.sensors[profile.data.sensor]
+    sensor = profile.sensors[sensor_index]
     to_m = length_factor(profile.length_unit, "m")
     used = sorted(set(target.tolist()))
     poses = forward(profile, p, joints, frames=sorted({profile.targets[t].frame for t in used} | {sensor.frame}))
     P = np.zeros((len(rows), 3))  # the points in the base frame, profile length unit
+    x = np.zeros((len(rows), 3))  # ... and in the sensor frame
     normal = np.zeros((len(rows), 3))  # the target frame's z axis (a board's normal)
     for t in used:
         sel = np.flatnonzero(target == t)
@@ -311,12 +326,10 @@ def _side(
         local = point[sel]
         if tg.point_params is not None:
             local = np.where(np.isnan(local), p[list(tg.point_params)], local)
-        R_base_target = poses.R[tg.frame][rows[sel]]
-        P[sel] = (R_base_target @ local[:, :, None])[:, :, 0] + poses.t[tg.frame][rows[sel]]
+        P[sel], x[sel], _, R_base_target = to_sensor(poses, tg.frame, sensor.frame, rows[sel], local)
         normal[sel] = R_base_target[:, :, 2]
     R_base_sensor = poses.R[sensor.frame][rows]
     t_base_sensor = poses.t[sensor.frame][rows]
-    x = ((P - t_base_sensor)[:, None, :] @ R_base_sensor)[:, 0, :]  # in the sensor frame
     predicted = sensor.predict(p, x)[0] if len(x) else np.zeros((0, measured.shape[1]))
     if isinstance(sensor, Pinhole):
         ray = sensor.view_rays(p, measured)  # sensor frame
@@ -377,10 +390,10 @@ def frame_bounds_m(
 
 
 def _figures(error: np.ndarray) -> dict[str, Any]:
-    e = error[np.isfinite(error)]
-    if len(e) == 0:
-        return {"mean": None, "rms": None, "max": None, "n": 0}
-    return {"mean": float(e.mean()), "rms": float(np.sqrt(np.mean(e**2))), "max": float(e.max()), "n": len(e)}
+    """{mean, rms, max, n} of the measured observations' distances (calib_core's figures; None when none)."""
+    e = error[np.isfinite(error)][:, None]
+    f = figures(e, np.zeros_like(e), "")
+    return {k: (None if f.n == 0 else getattr(f, k)) for k in ("mean", "rms", "max")} | {"n": f.n}
 
 
 def _num(v: float) -> float | None:

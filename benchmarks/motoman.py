@@ -30,7 +30,7 @@ from calib_core.estimation.problem import Problem
 from calib_core.estimation.registration import register
 from calib_core.estimation.solver import levenberg_marquardt
 from calib_core.estimation.validation import holdout_split
-from calib_core.io.ctu_motoman import LEICA_SUBSETS, camera_dataset, leica_subset
+from calib_core.io.ctu_motoman import LEICA_SUBSETS, camera_dataset, leica_subset, recording
 from calib_core.model.profile import Profile
 
 # The data set README's held-out figures (mm): M0, M1, M2 as mean / RMS / max, and M2r RMS.
@@ -165,6 +165,31 @@ def identifiability(profile: Profile, folder: Path) -> None:
         )
 
 
+def one_session(profile: Profile, folder: Path, splits: int) -> None:
+    print("\n## 4. One session of three sensors: the left cube's tracker readings and both cameras' pixels\n")
+    data = recording(profile, folder, "leica_left_hand_6x6x6_dataset.mat")
+    counts = ", ".join(f"{s.name} {int(np.sum(data.sensor == i))}" for i, s in enumerate(profile.sensors))
+    print(f"{data.n_configurations} poses; observations: {counts}. Held out: 30% of the poses, {splits} splits.\n")
+    print("| mode | sensor | held out before: RMS | held out after: RMS | solve |")
+    print("|---|---|---|---|---|")
+    for mode in ("offsets", "cameras", "tracker-cameras"):
+        rows: dict[str, list[tuple[float, float]]] = {}
+        seconds = []
+        for seed in range(splits):
+            cal = calibrate(profile, data, mode, holdout=0.3, seed=seed)
+            seconds.append(cal.solver.solve_seconds)
+            each = cal.sensor_figures or {profile.sensors[data.sensors[0]].name: cal.figures}
+            for name, f in each.items():
+                rows.setdefault(name, []).append((f["holdout_before"].rms, f["holdout_after"].rms))
+        for name, values in rows.items():
+            before, after = np.array(values).T
+            scale, unit = (1000.0, "mm") if name == "tracker" else (1.0, "px")
+            print(
+                f"| {mode} | {name} | {scale * before.mean():.3f} {unit} | {scale * after.mean():.3f} ± "
+                f"{scale * after.std():.3f} {unit} | {1000 * np.median(seconds):.0f} ms |"
+            )
+
+
 def names_of(profile: Profile) -> list[str]:
     return [s.name for s in profile.sensors]
 
@@ -182,6 +207,7 @@ def main() -> None:
     tracker_holdout(profile, args.data, args.splits)
     self_observation(profile, args.data)
     identifiability(profile, args.data)
+    one_session(profile, args.data, args.splits)
 
 
 if __name__ == "__main__":
