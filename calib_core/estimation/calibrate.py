@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from datetime import UTC, datetime
 
 import numpy as np
@@ -30,29 +30,16 @@ from ..errors import InputError
 from ..model.profile import Mode, Profile
 from .calibration import Calibration, Outlier, parameter_estimate
 from .diagnostics import diagnose
-from .identifiability import Dependency, find_dependencies, identifiability_report, report
+from .fit import Fit
+from .identifiability import find_dependencies, identifiability_report, report
 from .outliers import inliers, pooled_robust_sigma, problem_outliers, robust_sigma
 from .problem import Problem
 from .registration import register, registration_params
 from .reports import SolverReport
-from .solver import Robust, SolveResult, SolveStatus, levenberg_marquardt, nelder_mead
+from .solver import Robust, SolveResult, levenberg_marquardt, nelder_mead
 from .validation import Figures, check_share, holdout_split, kfold_splits, sensor_figures
 
 METHODS = ("lm", "nelder-mead")
-
-
-@dataclass
-class Fit:
-    problem: Problem
-    p: np.ndarray
-    dependencies: list[Dependency]
-    iterations: int
-    evaluations: int
-    seconds: float
-    status: SolveStatus
-    cost_history: list[float]
-    sigma: float  # scale of the whitened residuals at the solution
-    sigmas: dict[int, float]  # per sensor (profile index): the scale of its whitened residuals
 
 
 def calibrate(

@@ -5,19 +5,15 @@ a tracker registration that cannot fit, a fit worse than its start."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from ..model.profile import Mode, Profile
 from ..units import LENGTH_IN_M
 from .calibration import Outlier
+from .fit import Fit
 from .identifiability import Report, weak_parameters
 from .reports import Diagnostic, Severity, SolverReport
 from .validation import Figures
-
-if TYPE_CHECKING:
-    from .calibrate import Fit
 
 # No robot's nominal model is this far off once the tracker's pose is fitted; rows from two tracker
 # set-ups (or the wrong arm) are.

@@ -10,25 +10,23 @@ on the way, or does not reach the plane, is drawn again.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..dataset import Dataset
 from ..errors import InputError
 from ..estimation.problem import Problem
-
-if TYPE_CHECKING:
-    from .simulator import SimulatedRobot
+from ..model.profile import Profile
 
 MARGIN_RAD = math.radians(1.0)  # kept clear of every joint limit, as a real robot's replay does
 CONTACT_TOLERANCE = 1e-9  # profile length unit: in contact
 
 
-def contacts(robot: SimulatedRobot, per_plane: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Configurations (N, n_joints) with the target on each plane sensor, `per_plane` each; their
-    targets (N,) and the plane sensor of each (N,)."""
-    prof = robot.profile
+def contacts(
+    prof: Profile, p_true: np.ndarray, rng: np.random.Generator, per_plane: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Configurations (N, n_joints) in which the true robot (parameters p_true) touches each plane
+    sensor with the sampling's target, `per_plane` each; their targets (N,) and the plane of each (N,)."""
     sampling = prof.simulation.get("sampling", {})
     target = prof.target(str(sampling["target"])) if "target" in sampling else (prof.data.target or 0)
     planes = [i for i, s in enumerate(prof.sensors) if s.kind == "plane"]
@@ -36,15 +34,16 @@ def contacts(robot: SimulatedRobot, per_plane: int) -> tuple[np.ndarray, np.ndar
         raise InputError(f"robot '{prof.name}' has no plane sensor to be in contact with")
     qs, targets, sensors = [], [], []
     for s in planes:
-        found = _on_plane(robot, target, s, per_plane)
+        found = _on_plane(prof, p_true, rng, target, s, per_plane)
         qs.append(found)
         targets += [target] * per_plane
         sensors += [s] * per_plane
     return np.concatenate(qs), np.array(targets), np.array(sensors)
 
 
-def _on_plane(robot: SimulatedRobot, target: int, sensor: int, n: int) -> np.ndarray:
-    prof = robot.profile
+def _on_plane(
+    prof: Profile, p_true: np.ndarray, rng: np.random.Generator, target: int, sensor: int, n: int
+) -> np.ndarray:
     lo, hi = prof.joint_limits()
     lo, hi = lo + MARGIN_RAD, hi - MARGIN_RAD
     moving = sorted(prof.joints_between(target, sensor))
@@ -56,14 +55,14 @@ def _on_plane(robot: SimulatedRobot, target: int, sensor: int, n: int) -> np.nda
         to_joint[params.index(param), joint] = 1.0
     found: list[np.ndarray] = []
     for _ in range(50):
-        q = robot.rng.uniform(lo, hi, (4 * n, len(lo)))
+        q = rng.uniform(lo, hi, (4 * n, len(lo)))
         for _ in range(30):
-            r, J = _distance(robot, q, target, sensor, params)
+            r, J = _distance(prof, p_true, q, target, sensor, params)
             if np.max(np.abs(r)) < CONTACT_TOLERANCE:
                 break
             Jq = J @ to_joint  # (N, n_joints)
             q -= Jq * (r / np.maximum(np.sum(Jq**2, axis=1), 1e-300))[:, None]
-        r, _ = _distance(robot, q, target, sensor, params)
+        r, _ = _distance(prof, p_true, q, target, sensor, params)
         ok = (np.abs(r) < 1e-6) & np.all((q >= lo) & (q <= hi), axis=1)
         found += list(q[ok])
         if len(found) >= n:
@@ -72,12 +71,12 @@ def _on_plane(robot: SimulatedRobot, target: int, sensor: int, n: int) -> np.nda
 
 
 def _distance(
-    robot: SimulatedRobot, q: np.ndarray, target: int, sensor: int, params: list[int]
+    prof: Profile, p_true: np.ndarray, q: np.ndarray, target: int, sensor: int, params: list[int]
 ) -> tuple[np.ndarray, np.ndarray]:
     """The plane distance of the target in each configuration (N,) and its Jacobian by `params` (N, k)."""
     n = len(q)
     data = Dataset(
-        robot=robot.profile.name,
+        robot=prof.name,
         frame_ids=np.arange(1, n + 1),
         joints=q,
         cfg=np.arange(n),
@@ -87,6 +86,6 @@ def _distance(
         measured=np.zeros((n, 1)),
         sensor=np.full(n, sensor),
     )
-    problem = Problem(robot.profile, data, params, robot.true_params, noise_model=False)
+    problem = Problem(prof, data, params, p_true, noise_model=False)
     r, J = problem.residuals_jacobian(problem.x0)
     return r, J

@@ -373,7 +373,7 @@ class SimulatedRobot:
         """Random visible configurations, observed (for plane constraints: configurations in
         contact with each plane, `n` per plane)."""
         if self.profile.simulation.get("sampling", {}).get("kind") == "contact":
-            q, targets, sensors = contacts(self, n or 30)
+            q, targets, sensors = contacts(self.profile, self.true_params, self.rng, n or 30)
             return self.measure(q, targets, sensors=sensors, **kwargs)
         q, targets = self.configurations(n)
         return self.measure(q, targets, **kwargs)

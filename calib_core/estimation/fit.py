@@ -1,0 +1,25 @@
+"""What one solve found: the estimate, the problem it was found on, and how the solver got there."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .identifiability import Dependency
+from .problem import Problem
+from .solver import SolveStatus
+
+
+@dataclass
+class Fit:
+    problem: Problem
+    p: np.ndarray
+    dependencies: list[Dependency]
+    iterations: int
+    evaluations: int
+    seconds: float
+    status: SolveStatus
+    cost_history: list[float]
+    sigma: float  # scale of the whitened residuals at the solution
+    sigmas: dict[int, float]  # per sensor (profile index): the scale of its whitened residuals
