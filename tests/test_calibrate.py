@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from calib_core import Calibration, Dataset, Problem, SimulatedRobot, calibrate, load_profile
+from calib_core import Calibration, Dataset, InputError, Problem, SimulatedRobot, calibrate, load_profile
 from calib_core.estimation.validation import configuration_groups, kfold_splits
 
 
@@ -294,6 +294,10 @@ def test_a_calibration_file_of_the_previous_format_loads(rn_full, tmp_path) -> N
     d["solver"]["status"] = "maximum iterations reached"
     path.write_text(json.dumps(d))
     assert not Calibration.load(path).converged
+    d["solver"]["folds"] = float("inf")  # found by fuzzing: int(inf) overflowed past the file's checks
+    path.write_text(json.dumps(d))
+    with pytest.raises(InputError, match="calibration file is malformed"):
+        Calibration.load(path)
 
 
 def test_calibration_save_load_round_trip(rn, rn_sim, rn_full, tmp_path) -> None:

@@ -139,7 +139,7 @@ class Calibration:
             raise
         except KeyError as exc:
             raise InputError(f"calibration file lacks the field {exc}", file=source) from None
-        except (TypeError, ValueError, AttributeError) as exc:
+        except (TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise InputError(f"calibration file is malformed ({exc})", file=source) from None
 
     @classmethod

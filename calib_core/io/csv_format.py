@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +19,7 @@ from ..dataset import Dataset
 from ..errors import InputError
 from ..model.profile import DataFormat, Profile
 from ..units import ANGLE_IN_RAD, length_factor
-
-# No joint angle, length or pixel in a calibration dataset comes near this; beyond it, arithmetic
-# on squares overflows, so such a value is reported as bad input rather than computed with.
-MAX_MAGNITUDE = 1e9
+from .rows import Row, table
 
 
 def read_dataset(profile: Profile, path: str | Path) -> Dataset:
@@ -41,53 +37,6 @@ def read_dataset(profile: Profile, path: str | Path) -> Dataset:
     except OSError as exc:
         raise InputError(f"cannot be read ({exc.strerror})", file=name) from None
     return parse_dataset(profile, text, name)
-
-
-class _Row:
-    """One data row: its fields by column, read with the file, line and column of every problem."""
-
-    def __init__(self, name: str, line: int, fields: list[str], col: dict[str, int]) -> None:
-        self.name, self.line, self.fields, self.col = name, line, fields, col
-
-    def fail(self, message: str, column: str | None = None) -> InputError:
-        return InputError(message, file=self.name, line=self.line, column=column)
-
-    def text(self, c: str) -> str:
-        return self.fields[self.col[c]].strip()
-
-    def number(self, c: str) -> float:
-        s = self.text(c)
-        try:
-            v = float(s)
-        except ValueError:
-            raise self.fail("is empty" if not s else f"'{s}' is not a number", c) from None
-        if not math.isfinite(v):
-            raise self.fail(f"'{s}' is not a finite number", c)
-        if abs(v) > MAX_MAGNITUDE:
-            raise self.fail(f"'{s}' is implausibly large (beyond {MAX_MAGNITUDE:g})", c)
-        return v
-
-    def choice(self, c: str, values: dict[str, int]) -> int:
-        v = self.text(c)
-        if v not in values:
-            raise self.fail(f"'{v}' is not one of {', '.join(values)}", c)
-        return values[v]
-
-
-def _header(fmt: DataFormat, text: str, name: str) -> tuple[int, list[str], list[tuple[int, list[str]]]]:
-    """The header line, its column names, and the data rows (line number, fields)."""
-    try:
-        table = list(csv.reader(io.StringIO(text)))
-    except csv.Error as exc:
-        raise InputError(f"not a valid CSV file ({exc})", file=name) from None
-    lines = [(i + 1, r) for i, r in enumerate(table) if any(c.strip() for c in r)]
-    if not lines:
-        raise InputError("file is empty (a header line and data rows are required)", file=name)
-    header_line, header = lines[0]
-    header = [h.strip() for h in header]
-    if not lines[1:]:
-        raise InputError("has a header but no data rows", file=name, line=header_line)
-    return header_line, header, lines[1:]
 
 
 def _required(fmt: DataFormat, col: dict[str, int]) -> list[str]:
@@ -109,7 +58,7 @@ def _target_column(fmt: DataFormat, col: dict[str, int]) -> str | None:
 
 def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     fmt = profile.data
-    header_line, header, body = _header(fmt, text, name)
+    header_line, header, body = table(text, name)
     col = {h: i for i, h in enumerate(header)}
     for c in _required(fmt, col):
         if c not in col:
@@ -122,9 +71,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     frames = _Frames()
     obs: dict[str, list] = {k: [] for k in ("cfg", "target", "sensor", "point", "vertex", "measured", "line")}
     for ln, fields in body:
-        if len(fields) != len(header):
-            raise InputError(f"has {len(fields)} fields but the header has {len(header)}", file=name, line=ln)
-        row = _Row(name, ln, fields, col)
+        row = Row(name, ln, fields, col)
         fid = _frame_id(row, fmt, len(obs["line"]) + 1)
         ti = row.choice(target_column, fmt.target_values) if target_column else fmt.target
         if ti is None:
@@ -177,7 +124,7 @@ class _Frames:
         self.first_line: dict[int, int] = {}
         self.joints: list[np.ndarray] = []
 
-    def add(self, fid: int, q: np.ndarray, row: _Row) -> int:
+    def add(self, fid: int, q: np.ndarray, row: Row) -> int:
         if fid not in self.index:
             self.index[fid] = len(self.joints)
             self.first_line[fid] = row.line
@@ -192,7 +139,7 @@ class _Frames:
         return self.index[fid]
 
 
-def _frame_id(row: _Row, fmt: DataFormat, default: int) -> int:
+def _frame_id(row: Row, fmt: DataFormat, default: int) -> int:
     if not fmt.frame_column:
         return default
     f = row.number(fmt.frame_column)
@@ -201,7 +148,7 @@ def _frame_id(row: _Row, fmt: DataFormat, default: int) -> int:
     return int(f)
 
 
-def _vertex(row: _Row, fmt: DataFormat, profile: Profile, target: int) -> int:
+def _vertex(row: Row, fmt: DataFormat, profile: Profile, target: int) -> int:
     if not fmt.vertex_column:
         return -1
     v = row.number(fmt.vertex_column)

@@ -24,7 +24,7 @@ import numpy as np
 from ..dataset import Dataset
 from ..errors import InputError
 from ..model.profile import Profile
-from .csv_format import MAX_MAGNITUDE
+from .rows import Row, table
 
 MEASURES = ("m0", "m1", "m2")
 POINT = ("point_x", "point_y", "point_z")
@@ -48,72 +48,42 @@ def to_observations_csv(profile: Profile, data: Dataset) -> str:
 
 def parse_observations(profile: Profile, text: str, name: str = "<observations>") -> Dataset:
     """A dataset from the observations format; InputError naming file, line and column."""
-    rows = list(csv.reader(io.StringIO(text)))
-    if not rows or not any(c.strip() for c in rows[0]):
-        raise InputError("file is empty (a header line and data rows are required)", file=name)
-    header = [h.strip() for h in rows[0]]
+    header_line, header, body = table(text, name)
     col = {h: i for i, h in enumerate(header)}
     for c in ("frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names):
         if c not in col:
-            raise InputError(f"missing column '{c}' in the header", file=name, line=1, column=c)
+            raise InputError(f"missing column '{c}' in the header", file=name, line=header_line, column=c)
     sensors = {s.name: i for i, s in enumerate(profile.sensors)}
     targets = {t.name: i for i, t in enumerate(profile.targets)}
     frames: dict[int, int] = {}
     joints: list[np.ndarray] = []
     obs: dict[str, list] = {k: [] for k in ("cfg", "sensor", "target", "vertex", "measured", "point", "line")}
-    for ln, fields in enumerate(rows[1:], start=2):
-        if not any(f.strip() for f in fields):
-            continue
-        if len(fields) != len(header):
-            raise InputError(f"has {len(fields)} fields but the header has {len(header)}", file=name, line=ln)
-
-        def cell(c: str, *, optional: bool = False, ln: int = ln, fields: list[str] = fields) -> float:
-            text = fields[col[c]].strip()
-            if not text and optional:
-                return math.nan
-            try:
-                v = float(text)
-            except ValueError:
-                raise InputError(
-                    "is empty" if not text else f"'{text}' is not a number", file=name, line=ln, column=c
-                ) from None
-            if not math.isfinite(v) or abs(v) > MAX_MAGNITUDE:
-                raise InputError(f"'{text}' is not a finite number of sensible size", file=name, line=ln, column=c)
-            return v
-
-        def choice(c: str, known: dict[str, int], ln: int = ln, fields: list[str] = fields) -> int:
-            v = fields[col[c]].strip()
-            if v not in known:
-                raise InputError(f"'{v}' is not one of {', '.join(known)}", file=name, line=ln, column=c)
-            return known[v]
-
-        s, t = choice("sensor", sensors), choice("target", targets)
-        fid = cell("frame")
+    for ln, fields in body:
+        row = Row(name, ln, fields, col)
+        s, t = row.choice("sensor", sensors), row.choice("target", targets)
+        fid = row.number("frame")
         if fid != int(fid):
-            raise InputError(f"frame id {fid} is not an integer", file=name, line=ln, column="frame")
-        q = np.array([math.radians(cell(j, optional=True)) for j in profile.joint_names])
-        missing = [profile.joints[j].name for j in profile.joints_between(t, s) if math.isnan(q[j])]
+            raise row.fail(f"frame id {fid} is not an integer", "frame")
+        q = np.radians([row.number(j, optional=True) for j in profile.joint_names])
+        missing = [profile.joints[j].name for j in profile.joints_between(t, s) if np.isnan(q[j])]
         if missing:
-            raise InputError("is empty, but the observation needs it", file=name, line=ln, column=missing[0])
+            raise row.fail("is empty, but the observation needs it", missing[0])
         k = frames.setdefault(int(fid), len(frames))
         if k == len(joints):
             joints.append(q)
         else:
             joints[k] = np.where(np.isnan(joints[k]), q, joints[k])
+        vertex = row.number("vertex")
+        if vertex != int(vertex) or not -1 <= vertex < _points_of(profile, t):
+            raise row.fail(f"vertex {vertex:g} is not a point of {profile.targets[t].name}", "vertex")
         dim = profile.sensors[s].dim
         obs["cfg"].append(k)
         obs["sensor"].append(s)
         obs["target"].append(t)
-        vertex = cell("vertex")
-        if vertex != int(vertex) or not -1 <= vertex < _points_of(profile, t):
-            what = f"vertex {vertex:g} is not a point of {profile.targets[t].name}"
-            raise InputError(what, file=name, line=ln, column="vertex")
         obs["vertex"].append(int(vertex))
-        obs["measured"].append([cell(c) for c in MEASURES[:dim]] + [math.nan] * (3 - dim))
-        obs["point"].append([cell(c, optional=True) for c in POINT])
+        obs["measured"].append([row.number(c) for c in MEASURES[:dim]] + [math.nan] * (3 - dim))
+        obs["point"].append([row.number(c, optional=True) for c in POINT])
         obs["line"].append(ln)
-    if not frames:
-        raise InputError("has a header but no data rows", file=name, line=1)
     width = max(profile.sensors[s].dim for s in set(obs["sensor"]))
     return Dataset(
         robot=profile.name,
