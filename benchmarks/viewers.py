@@ -4,7 +4,8 @@
   client store holding the frame's points), through the API's port and its websocket proxy;
 - memory: the server's resident memory before, with N tabs open (each reviewing a sample session, one frame
   stepped), and after they are closed and their viewers dropped; twice, so growth from the first round to the
-  second shows a leak.
+  second shows a leak. Each tab in a browser context of its own: one context allows 6 connections to a host,
+  and every page holds one for the robot's event stream.
 
     .venv/bin/python benchmarks/viewers.py [--tabs 20] [--selects 100] [--rounds 2]
 
@@ -112,13 +113,14 @@ def main() -> None:
         for round_ in range(1, args.rounds + 1):
             pages = []
             for k in range(args.tabs):
-                pages.append(open_tab(context, server.url, SESSIONS[k % len(SESSIONS)]))
+                tab_context = browser.new_context(viewport={"width": 1000, "height": 700})
+                pages.append(open_tab(tab_context, server.url, SESSIONS[k % len(SESSIONS)]))
                 pages[-1].click("#step-fwd")
             time.sleep(2)
             viewers = viewer_count(server)
             open_mb = rss_mb(pid)
             for p in pages:
-                p.close()
+                p.context.close()
             deadline = time.monotonic() + 60
             while viewer_count(server) not in (None, 1) and time.monotonic() < deadline:
                 time.sleep(0.5)
