@@ -164,7 +164,13 @@ def _parser() -> argparse.ArgumentParser:
     sv = sub.add_parser("serve", help="start the dashboard (simulated robots, sample sessions) in a browser")
     sv.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     sv.add_argument("--port", type=int, default=8000, help="the page and the API (default 8000)")
-    sv.add_argument("--viser-port", type=int, default=None, help="the 3-D scene's port (default: --port + 1)")
+    sv.add_argument(
+        "--viser-port",
+        type=int,
+        default=0,
+        help="the 3-D scene server's port, on 127.0.0.1 only: browsers reach the scene through --port "
+        "(default: any free one)",
+    )
     sv.add_argument("--data-dir", default="data", help="where sessions, calibrations and history live (default data/)")
     sv.add_argument(
         "--sim-speed", type=float, default=1.0, help="the simulated robots' speed, times their joint velocity limits"
@@ -494,7 +500,8 @@ def _serve(args: argparse.Namespace) -> int:
 
     if not 0 < args.port < 65536:
         raise InputError(f"--port {args.port} is not a TCP port")
-    viser_port = args.port + 1 if args.viser_port is None else args.viser_port
+    if not 0 <= args.viser_port < 65536:
+        raise InputError(f"--viser-port {args.viser_port} is not a TCP port")
     if not 0.1 <= args.sim_speed <= 100:
         raise InputError(f"--sim-speed {args.sim_speed} must be between 0.1 and 100")
     config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
@@ -502,7 +509,7 @@ def _serve(args: argparse.Namespace) -> int:
         args.host,
         args.port,
         Path(args.data_dir),
-        viser_port=viser_port,
+        viser_port=args.viser_port,
         config=config,
         time_scale=args.sim_speed,
         new_token=args.new_token,

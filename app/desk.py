@@ -1,11 +1,14 @@
-"""The calibration desk: the store, the jobs, the robots, the 3-D scene and the services over them, composed.
+"""The calibration desk: the store, the jobs, the robots, the viewers with their 3-D scenes and the services over
+them, composed.
 
 The HTTP API (app/routers/) is a thin layer over this; a script or a test can drive the desk directly.
-One desk per process: it owns the viser server and the robots' drivers.
+One desk per process: it owns the viser server (on loopback: browsers reach it through app/scene_proxy.py) and
+the robots' drivers.
 """
 
 from __future__ import annotations
 
+import secrets
 import site
 import sys
 import tempfile
@@ -22,12 +25,14 @@ from .drivers.registry import DriverContext, DriverSpec
 from .importers import ensure_samples
 from .jobs import JobManager
 from .robots import Robot, Robots
-from .scene import ReviewScene
+from .scene import configure
+from .scene_proxy import ViserClients
 from .services.apply import ApplyService
 from .services.observe import Observer
 from .services.replay import ReplayService
 from .services.review import ReviewService
 from .store import FrameInfo, ProfileFiles, Store
+from .viewers import LINGER_S, Shown, Viewer, Viewers
 
 PACKAGE_DIR = Path(__file__).resolve().parent.parent  # the code: no answer names a path under it
 SAMPLE_DIR = Path(str(resources.files("app.sample_sessions")))  # package data, in a wheel as in a checkout
@@ -40,18 +45,19 @@ class Desk:
         *,
         config: DeskConfig | None = None,
         sample_dir: Path | None = SAMPLE_DIR,
-        viser_host: str = "127.0.0.1",
         viser_port: int = 0,
         time_scale: float = 1.0,
         workers: int = 1,
         loopback: bool = True,
+        viewer_linger_s: float = LINGER_S,
     ) -> None:
-        """`loopback`: the desk is reached from this machine only, so a request may name a file on it."""
+        """`loopback`: the desk is reached from this machine only, so a request may name a file on it.
+        `viser_port`: the viser server's port on 127.0.0.1 (0: any free one)."""
         self.data_dir = Path(data_dir)
         self.config = config or default_config()
         self.sample_dir = sample_dir
-        self.viser_host = viser_host
         self.viser_port = viser_port
+        self.viewer_linger_s = viewer_linger_s
         self.time_scale = time_scale
         self.workers = workers
         self.loopback = loopback
@@ -61,6 +67,7 @@ class Desk:
 
     # --- life ---------------------------------------------------------------------------------
     def start(self) -> None:
+        self.instance = secrets.token_hex(8)
         self.store = Store(self.data_dir)
         self.robots = Robots(self.store, DriverContext(time_scale=self.time_scale, base_dir=self.config.base_dir))
         self.robots.start(self.config)
@@ -69,18 +76,20 @@ class Desk:
         self.jobs = JobManager(self.store, workers=self.workers, scrub=self.scrub)
         drivable = [r.name for r in self.robots.all() if r.drivable]
         self.connected = self.config.connected or (drivable[0] if drivable else None)
-        self.viser = viser.ViserServer(host=self.viser_host, port=self.viser_port, verbose=False)
+        self.viser = viser.ViserServer(host="127.0.0.1", port=self.viser_port, verbose=False)
         security.close_viser_share(self.viser)
-        self.scene = ReviewScene(self.viser)
+        configure(self.viser)
+        self.viser_clients = ViserClients(self.viser)
+        self.viewers = Viewers(self._shown_first, linger_s=self.viewer_linger_s)
+        self.viser.on_client_connect(self.viewers.client_ready)
         self.apply = ApplyService(self.store, self.robots)
         self.replay = ReplayService(self.store, self.robots, self.jobs)
-        self.reviews = ReviewService(self.store, self.robots, self.scene)
-        shown = self.connected or next(iter(self.robots.names()), None)
-        if shown is not None:
-            self._show(shown)
+        self.reviews = ReviewService(self.store, self.robots)
+        self.viewers.start()
 
     def stop(self) -> None:
         self.observe(None)
+        self.viewers.stop()
         self.robots.close()
         self.jobs.shutdown()
         self.viser.stop()
@@ -107,9 +116,7 @@ class Desk:
         self.robots.remove(name)
         if self.connected == name:
             self.connected = next((r.name for r in self.robots.all() if r.drivable), None)
-        shown = self.connected or next(iter(self.robots.names()), None)
-        if self.scene.robot == name and shown is not None:
-            self._show(shown)
+        self.viewers.replace_robot(name, self._shown_first())
 
     # --- the robot in view --------------------------------------------------------------------
     def robot_name(self, robot: str | None) -> str:
@@ -120,37 +127,42 @@ class Desk:
             raise self.robots.no_driver_error(None)
         return self.connected
 
-    def connect(self, robot: str) -> None:
+    def connect(self, robot: str, viewer: Viewer | None = None) -> None:
+        """Connect the desk to a drivable robot; the viewer (None: the default one) shows it, closing its review
+        of another robot."""
         self.robots.driver(robot)  # named exactly: robot_name would take "" for the connected one
         if robot != self.connected:
             self.observe(None)
             self.connected = robot
-        self._show(robot)
+        (viewer or self.viewers.default).show_robot(self._shown(robot))
 
-    def _show(self, robot: str) -> None:
-        """The scene shows this robot (at zero joint angles) unless it shows it already; the review of another
-        robot it showed is closed."""
+    def _shown(self, robot: str) -> Shown:
         r = self.robots.get(robot)
-        with self.reviews.lock:
-            if self.scene.robot == robot:
-                return
-            self.scene.show_robot(r.profile, None if r.urdf is None else r.urdf.read_text(encoding="utf-8"))
-            self.reviews.close()
+        return Shown(r.profile, None if r.urdf is None else r.urdf.read_text(encoding="utf-8"))
+
+    def _shown_first(self) -> Shown | None:
+        """What a new viewer shows: the connected robot, or the first one on the desk."""
+        robot = self.connected or next(iter(self.robots.names()), None)
+        return None if robot is None else self._shown(robot)
 
     # --- capture and observe ------------------------------------------------------------------
     def capture(self, session_id: str) -> FrameInfo:
         session = self.store.sessions.get(session_id)
         return capture_frame(self.store, self.robots.driver(session.robot), session_id)
 
-    def observe(self, session_id: str | None, *, autocapture: bool = False) -> None:
-        """Observe a session's robot (None: stop observing)."""
+    def observe(self, session_id: str | None, *, autocapture: bool = False, viewer: Viewer | None = None) -> None:
+        """Observe a session's robot, its live view shown to the viewer (None: the default one) and to those
+        already watching that robot; None: stop observing (every viewer watching goes back to its review)."""
         if self._observer is not None:
             self._observer.stop()
             self._observer = None
         if session_id is None:
+            self.viewers.unwatch_all()
             return
-        self.connect(self.store.sessions.get(session_id).robot)
-        self._observer = Observer(self.store, self.robots, self.scene, session_id, autocapture, self.scrub)
+        viewer = viewer or self.viewers.default
+        self.connect(self.store.sessions.get(session_id).robot, viewer)  # another robot: the watchers stop
+        self.viewers.watch(viewer, True)
+        self._observer = Observer(self.store, self.robots, self.viewers, session_id, autocapture, self.scrub)
         self._observer.start()
 
     def observing(self) -> dict[str, Any] | None:
@@ -158,12 +170,17 @@ class Desk:
         return None if observer is None else observer.snapshot()
 
     # --- review -------------------------------------------------------------------------------
-    def review(self, session_id: str, old: str | None, new: str | None) -> dict[str, Any]:
+    def review(self, session_id: str, old: str | None, new: str | None, viewer: Viewer | None = None) -> dict[str, Any]:
+        """Load a review into a viewer (None: the default one). A viewer watching another robot live stops
+        watching; the live view ends when nobody watches it any more."""
         review, key = self.reviews.build(session_id, old, new)
+        viewer = viewer or self.viewers.default
         observer = self._observer
         if observer is not None and observer.robot != key["robot"]:
-            self.observe(None)  # the scene shows one robot: the review replaces the live view of another
-        return self.reviews.show(review, key)
+            self.viewers.watch(viewer, False)
+            if not self.viewers.watched():
+                self.observe(None)
+        return self.reviews.show(viewer, review, key)
 
 
 def server_paths(data_dir: Path) -> list[Path]:

@@ -2,10 +2,10 @@
 
 A framing looks at the box's centre from the front (+x, the way the scene turns every robot) and a little
 above, far enough that the box's bounding sphere fits the narrower of the camera's two fields of view. When
-the robot shown changes, `ClientFraming.frame` moves every connected browser's camera (its own framing
-would show a 2 m robot through a camera set for a 0.5 m one, or the other way round) and sets viser's
-initial camera for browsers that connect later. A browser that has not reported its camera yet is framed
-when it first does.
+the robot shown changes, `ClientFraming.frame` moves the camera of every browser the scene draws on (its
+own framing would show a 2 m robot through a camera set for a 0.5 m one, or the other way round): one
+viewer's browser, or every connected one, when viser's initial camera is set too for browsers that connect
+later. A browser that has not reported its camera yet is framed when it first does.
 """
 
 from __future__ import annotations
@@ -63,35 +63,48 @@ def camera_reported(camera: viser.CameraHandle) -> bool:
         return False
 
 
-class ClientFraming:
-    """Keeps every browser's camera on the latest framing: moved once per framing, free in between."""
+Target = viser.ViserServer | viser.ClientHandle  # every browser's scene, or one browser's
 
-    def __init__(self, server: viser.ViserServer) -> None:
-        self.server = server
+
+class ClientFraming:
+    """Keeps the browsers' cameras on the latest framing: moved once per framing, free in between. The browsers
+    of a target: one (a viser client) or every one connected (the server; those that connect later start at
+    the framing too)."""
+
+    def __init__(self, target: Target) -> None:
+        self.target = target
         self.current: Framing | None = None
         self._version = 0
         self._framed: dict[int, int] = {}  # client id -> the framing version its camera was given
         self._lock = threading.Lock()
-        server.on_client_connect(self._connected)
-        server.on_client_disconnect(self._disconnected)
+        if isinstance(target, viser.ClientHandle):
+            self._connected(target)
+        else:
+            target.on_client_connect(self._connected)
+            target.on_client_disconnect(self._disconnected)
 
     def frame(self, f: Framing) -> None:
-        """Frame `f` on every connected browser now, and on those that connect later."""
+        """Frame `f` on every browser of the target now (and, for the server, on those that connect later)."""
         with self._lock:
             self.current = f
             self._version += 1
-            self.server.initial_camera.up = f.up
-            self.server.initial_camera.look_at = tuple(float(v) for v in f.look_at)
-            self.server.initial_camera.position = tuple(float(v) for v in f.position())
-        for client in list(self.server.get_clients().values()):
+            if isinstance(self.target, viser.ViserServer):
+                self.target.initial_camera.up = f.up
+                self.target.initial_camera.look_at = tuple(float(v) for v in f.look_at)
+                self.target.initial_camera.position = tuple(float(v) for v in f.position())
+        for client in list(self._clients().values()):
             self._apply(client)
+
+    def _clients(self) -> dict[int, viser.ClientHandle]:
+        target = self.target
+        return {target.client_id: target} if isinstance(target, viser.ClientHandle) else target.get_clients()
 
     def state(self) -> dict[str, Any]:
         """{framing: {look_at, radius_m, box_m} or None, clients: {id: {framed, look_at, position}}}."""
         with self._lock:
             f, version, framed = self.current, self._version, dict(self._framed)
         clients: dict[int, dict[str, Any]] = {}
-        for cid, client in self.server.get_clients().items():
+        for cid, client in self._clients().items():
             cam = client.camera
             seen = camera_reported(cam)
             clients[cid] = {

@@ -17,10 +17,13 @@ Each side's URDF is generated from that side's parameters (`Review.urdf`), so bo
 same joint readings and still differ where the calibrations differ. The scene keeps its own registry
 of the nodes it made (viser has no public listing) and reports it through `state()`.
 
+A scene draws on a target: one browser's viser client (the desk: each viewer's own scene, app/viewers.py;
+viser sends client-scoped nodes to that browser only) or the server (every browser).
+
 One robot at a time: when the robot shown changes (a review, the built-in robot, or the live view of
 another robot), everything shown for the previous one is removed from viser (re-adding a node under the
-same name would keep the old children, so a Robonaut arm would stay inside a NAO scene) and every
-browser's camera is framed on the new robot (app/framing.py): the copies' extents at the nominal model and
+same name would keep the old children, so a Robonaut arm would stay inside a NAO scene) and the target's
+browsers' cameras are framed on the new robot (app/framing.py): the copies' extents at the nominal model and
 zero joint angles, where the layout puts them.
 """
 
@@ -43,7 +46,7 @@ from calib_core.model.kinematics import forward
 from calib_core.units import length_factor
 from calib_core.vision.sighting import Sighting
 
-from .framing import ClientFraming, framing
+from .framing import ClientFraming, Target, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
 
 SIDES = ("old", "new")
@@ -106,10 +109,18 @@ def display_rotation(profile: Profile) -> np.ndarray:
     return np.stack([ahead, np.cross(up, ahead), up])
 
 
+def configure(server: viser.ViserServer) -> None:
+    """The viser client as the page embeds it, for every browser: no share button (it would tunnel the scene
+    through an external service), the (empty) control panel minimised so the scene gets the room."""
+    server.gui.configure_theme(show_share_button=False)
+    server.gui.main_panel.minimize()
+
+
 class ReviewScene:
-    def __init__(self, server: viser.ViserServer, urdf_path: Path | None = None) -> None:
-        """`urdf_path`: a built-in robot's URDF to show (at zero joint angles) before any review."""
-        self.server = server
+    def __init__(self, target: Target, urdf_path: Path | None = None) -> None:
+        """`target`: the scene of one browser (a viser client: a viewer's own scene) or of every browser (the
+        server); `urdf_path`: a built-in robot's URDF to show (at zero joint angles) before any review."""
+        self.target = target
         self.robot: str | None = None
         self.review: Review | None = None
         self.index: int | None = None
@@ -127,9 +138,7 @@ class ReviewScene:
         self._centre_m = np.zeros(3)
         self._live_robot: str | None = None
         self._extent_m = np.zeros((2, 3))  # the robot's world box at the nominal model, zero joint angles
-        self.camera = ClientFraming(server)
-        server.gui.configure_theme(show_share_button=False)
-        server.gui.main_panel.minimize()  # the page has the controls; the scene gets the room
+        self.camera = ClientFraming(target)
         if urdf_path is not None:
             text = Path(urdf_path).read_text(encoding="utf-8")
             self.set_robot(urdf_path, yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=False).robot.name)
@@ -191,7 +200,7 @@ class ReviewScene:
             if self.review is None:
                 raise ValueError("no review is loaded: load(review) first")
             geometry = self.review.frame_geometry(index)  # NotFound naming the frames for a bad index
-            with self.server.atomic():
+            with self.target.atomic():
                 for side in self.review.sides:
                     self._set_joints(self._copies[side], geometry.joints_rad)
                     self._show_frame(f"/review/{side}/base/frame", geometry, side)
@@ -234,7 +243,7 @@ class ReviewScene:
                 self._label("/live/label", LABELS["live"], (0.0, 0.0, top + 0.1))
                 self._add_parts("/live/base/frame", SIDE_COLOR["old"], _point_size(profile))
             copy = self._ensure_copy("live", "/live/base/robot", profile, text, None)
-            with self.server.atomic():
+            with self.target.atomic():
                 self._set_joints(copy, geometry.joints_rad)
                 self._show_frame("/live/base/frame", geometry, "old")
                 self.live = True
@@ -360,8 +369,8 @@ class ReviewScene:
         if current is not None:
             self._drop_copy(slot)
         self._builds += 1
-        node = self.server.scene.add_frame(f"{root}/u{self._builds}", show_axes=False)
-        handle = ViserUrdf(self.server, urdf, root_node_name=node.name, mesh_color_override=rgba)
+        node = self.target.scene.add_frame(f"{root}/u{self._builds}", show_axes=False)
+        handle = ViserUrdf(self.target, urdf, root_node_name=node.name, mesh_color_override=rgba)
         order = [profile.joint(name) for name in urdf.actuated_joint_names]
         self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order)
         return self._copies[slot]
@@ -419,11 +428,11 @@ class ReviewScene:
         if name in self._nodes:
             self._nodes[name].wxyz = wxyz  # type: ignore[assignment]
             return
-        self._nodes[name] = self.server.scene.add_frame(name, show_axes=False, wxyz=wxyz, visible=visible)
+        self._nodes[name] = self.target.scene.add_frame(name, show_axes=False, wxyz=wxyz, visible=visible)
 
     def _label(self, name: str, text: str, position: tuple[float, float, float]) -> None:
         if name not in self._nodes:
-            self._nodes[name] = self.server.scene.add_label(name, text, anchor="bottom-center")
+            self._nodes[name] = self.target.scene.add_label(name, text, anchor="bottom-center")
         self._nodes[name].text = text  # type: ignore[attr-defined]
         self._nodes[name].position = position
 
@@ -432,7 +441,7 @@ class ReviewScene:
         millimetre residuals) and its lines, empty and hidden; viser gets one placeholder point."""
         self._frame(base)
         for part, c in (("measured", RED), ("predicted", color)):
-            self._nodes[f"{base}/{part}"] = self.server.scene.add_point_cloud(
+            self._nodes[f"{base}/{part}"] = self.target.scene.add_point_cloud(
                 f"{base}/{part}",
                 np.zeros((1, 3), np.float32),
                 np.array(c, np.uint8),
@@ -443,7 +452,7 @@ class ReviewScene:
                 visible=False,
             )
             self._counts[f"{base}/{part}"] = 0
-        self._nodes[f"{base}/lines"] = self.server.scene.add_line_segments(
+        self._nodes[f"{base}/lines"] = self.target.scene.add_line_segments(
             f"{base}/lines",
             np.zeros((1, 2, 3), np.float32),
             np.array(color, np.uint8),

@@ -2,20 +2,24 @@
 error texts without paths, and the viser server's share tunnel closed.
 
 - Bound to loopback (the default), the desk needs no token: only this machine reaches it. Bound to any
-  other address, every /api request except /api/health needs the access token: requests that change
-  state or move the robot (every method but GET and HEAD) carry it as `Authorization: Bearer <token>`;
-  reads may instead carry the read cookie the desk sets on an answer to a request with the token (so the
-  page's images and server-sent events, which cannot send headers, work). The cookie is a random key of
-  this server process, not the token, and never authorizes a change, so a cross-site request cannot
-  ride on it.
+  other address, every /api request except /api/health, and the 3-D scene under /scene (its page and its
+  websocket, app/scene_proxy.py), need the access token: requests that change state or move the robot
+  (every method but GET and HEAD) carry it as `Authorization: Bearer <token>`; reads (the scene's websocket
+  is one: it shows the scene and changes nothing on the desk) may instead carry the read cookie the desk sets
+  on an answer to a request with the token (so the page's images, server-sent events and the scene's iframe
+  and websocket, which cannot send headers, work), and the scene's page may carry the token as `?token=`.
+  The cookie is a random key of this server process, not the token, and never authorizes a change, so a
+  cross-site request cannot ride on it.
 - The token is made at the first start off loopback (`secrets.token_urlsafe`), shown once, and stored
   only as a salted SHA-256 digest in DATA/access-token.json (mode 600). A slow hash (scrypt) protects
   guessable passwords; a 256-bit random token is not guessable, and a fast digest keeps every request
   cheap. `calib serve --new-token` replaces a lost token.
 - A request that changes state and carries an Origin header other than the desk's own is refused (403),
-  on loopback too: a page on another site cannot drive the robot through the operator's browser. On
+  on loopback too: a page on another site cannot drive the robot through the operator's browser. So is a
+  websocket from another site's page (browsers let any page open one, with the desk's cookies). On
   loopback, `calib serve` also answers only to loopback host names (a DNS-rebinding page's Host is its
-  own name).
+  own name), the websocket included. A refused websocket gets the HTTP answer instead of the upgrade (or,
+  where the server cannot send one, a close with code 1008, policy violation).
 - Request bodies are capped before they are read: an upload (a CSV to import, a robot's profile with its
   URDF) at MAX_UPLOAD_BYTES plus the form's overhead, anything else at MAX_BODY_BYTES; a declared
   Content-Length above the cap is refused at once, and a body streamed without one is cut off when it
@@ -34,6 +38,7 @@ import secrets
 from collections.abc import Awaitable, Callable, Iterable, MutableMapping
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs
 
 from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException
@@ -42,6 +47,7 @@ TOKEN_FILE = "access-token.json"
 TOKEN_FORMAT = "calib-access-token/1"
 READ_COOKIE = "calib_read"
 OPEN_PATHS = frozenset({"/api/health"})
+GUARDED_PREFIXES = ("/api", "/scene")
 SAFE_METHODS = frozenset({"GET", "HEAD"})
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_BODY_BYTES = 1024 * 1024
@@ -54,6 +60,7 @@ Message = MutableMapping[str, Any]
 Receive = Callable[[], Awaitable[Message]]
 Send = Callable[[Message], Awaitable[None]]
 ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
+Refusal = tuple[int, str, list[tuple[bytes, bytes]]]  # status, detail, extra headers
 
 
 def is_loopback(host: str) -> bool:
@@ -144,40 +151,19 @@ class Guard:
         self.read_key = secrets.token_urlsafe(32)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
+        if scope["type"] not in ("http", "websocket"):
             await self.app(scope, receive, send)
             return
+        websocket = scope["type"] == "websocket"
         headers = Headers(scope=scope)
-        method, path = scope["method"], scope["path"]
-        host = headers.get("host", "")
-        if self.trusted_hosts is not None and _hostname(host) not in self.trusted_hosts:
-            await _answer(send, 403, f"this desk answers only to {', '.join(sorted(self.trusted_hosts))}")
+        refusal, set_cookie = self._check(scope, headers, websocket)
+        if refusal is not None:
+            await (_refuse_websocket(scope, receive, send, *refusal) if websocket else _answer(send, *refusal))
             return
-        origin = headers.get("origin")
-        if (
-            method not in SAFE_METHODS
-            and origin is not None
-            and origin.lower() != f"{scope['scheme']}://{host}".lower()
-        ):
-            await _answer(send, 403, "a request from another site's page may not change anything here")
+        if websocket:
+            await self.app(scope, receive, send)
             return
-        set_cookie = False
-        if self.tokens is not None and path.startswith("/api") and path not in OPEN_PATHS:
-            bearer = _bearer(headers.get("authorization", ""))
-            if bearer is not None and self.tokens.verify(bearer):
-                set_cookie = _cookie(headers, READ_COOKIE) != self.read_key
-            elif method not in SAFE_METHODS or not hmac.compare_digest(
-                _cookie(headers, READ_COOKIE) or "", self.read_key
-            ):
-                what = "a wrong access token" if bearer is not None else "no access token"
-                await _answer(
-                    send,
-                    401,
-                    f"this desk is reachable from the network and the request has {what}: send "
-                    "'Authorization: Bearer <token>' with the token calib serve printed at its first start",
-                    [(b"www-authenticate", b"Bearer")],
-                )
-                return
+        path = scope["path"]
         limit = self.max_upload_bytes + FORM_OVERHEAD_BYTES if path in UPLOAD_PATHS else MAX_BODY_BYTES
         declared = headers.get("content-length")
         if declared is not None:
@@ -204,7 +190,7 @@ class Guard:
             if message["type"] == "http.response.start":
                 started = True
                 if set_cookie:
-                    cookie = f"{READ_COOKIE}={self.read_key}; Path=/api; HttpOnly; SameSite=Strict"
+                    cookie = f"{READ_COOKIE}={self.read_key}; Path=/; HttpOnly; SameSite=Strict"
                     message["headers"] = [*message.get("headers", []), (b"set-cookie", cookie.encode())]
             await send(message)
 
@@ -214,6 +200,37 @@ class Guard:
             if started:
                 raise
             await _answer(send, 413, str(exc.detail))
+
+    def _check(self, scope: Scope, headers: Headers, websocket: bool) -> tuple[Refusal | None, bool]:
+        """(why the request is refused, or None; whether the answer sets the read cookie)."""
+        method, path = ("GET" if websocket else scope["method"]), scope["path"]
+        host = headers.get("host", "")
+        if self.trusted_hosts is not None and _hostname(host) not in self.trusted_hosts:
+            return (403, f"this desk answers only to {', '.join(sorted(self.trusted_hosts))}", []), False
+        origin = headers.get("origin")
+        scheme = {"ws": "http", "wss": "https"}.get(scope["scheme"], scope["scheme"])
+        if (
+            (websocket or method not in SAFE_METHODS)
+            and origin is not None
+            and origin.lower() != f"{scheme}://{host}".lower()
+        ):
+            what = "open the desk's scene" if websocket else "change anything here"
+            return (403, f"a request from another site's page may not {what}", []), False
+        if self.tokens is None or not path.startswith(GUARDED_PREFIXES) or path in OPEN_PATHS:
+            return None, False
+        token = _bearer(headers.get("authorization", ""))
+        if token is None and path.startswith("/scene") and method in SAFE_METHODS:
+            token = next(iter(parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [])), None)
+        if token is not None and self.tokens.verify(token):
+            return None, not websocket and _cookie(headers, READ_COOKIE) != self.read_key
+        if method in SAFE_METHODS and hmac.compare_digest(_cookie(headers, READ_COOKIE) or "", self.read_key):
+            return None, False
+        what = "a wrong access token" if token is not None else "no access token"
+        detail = (
+            f"this desk is reachable from the network and the request has {what}: send "
+            "'Authorization: Bearer <token>' with the token calib serve printed at its first start"
+        )
+        return (401, detail, [(b"www-authenticate", b"Bearer")]), False
 
 
 def _hostname(host: str) -> str:
@@ -246,6 +263,21 @@ async def _answer(send: Send, status: int, detail: str, extra: list[tuple[bytes,
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
     await send({"type": "http.response.start", "status": status, "headers": headers + (extra or [])})
     await send({"type": "http.response.body", "body": body})
+
+
+async def _refuse_websocket(
+    scope: Scope, receive: Receive, send: Send, status: int, detail: str, extra: list[tuple[bytes, bytes]]
+) -> None:
+    """Refuse a websocket before it opens: the HTTP answer where the server can send one (ASGI's
+    websocket.http.response), else a close with 1008 (policy violation)."""
+    await receive()  # websocket.connect
+    if "websocket.http.response" not in scope.get("extensions", {}):
+        await send({"type": "websocket.close", "code": 1008, "reason": detail[:120]})
+        return
+    body = json.dumps({"detail": detail}).encode()
+    headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()), *extra]
+    await send({"type": "websocket.http.response.start", "status": status, "headers": headers})
+    await send({"type": "websocket.http.response.body", "body": body})
 
 
 class Scrubber:

@@ -1,7 +1,9 @@
-"""The dashboard's web server: FastAPI (the JSON API and the page) with the viser scene beside it.
+"""The dashboard's web server: FastAPI (the JSON API, the page and the 3-D scene) on one port.
 
-One process, one uvicorn worker: the viser server runs its own threads and port, started and
-stopped in the app's lifespan; calibrations run in a spawn process pool (app/jobs.py).
+One process, one uvicorn worker: the viser server runs its own threads on a loopback port, started and
+stopped in the app's lifespan, and browsers reach it through this app (app/scene_proxy.py: its client page
+and its websocket under /scene, behind the same guard as the API); calibrations run in a spawn process pool
+(app/jobs.py).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from fastapi.staticfiles import StaticFiles
 
 from calib_core import InputError
 
-from . import security
+from . import scene_proxy, security
 from .desk import SAMPLE_DIR, Desk
 from .desk_config import DeskConfig
 from .drivers import RobotFault
@@ -28,8 +30,10 @@ from .routers import api
 from .routers.robots import VERSION
 from .safety import ConfirmationRequired
 from .store import StoreWriteError
+from .viewers import TooManyViewers
 
 STATIC_DIR = Path(str(resources.files("app.static")))  # package data, in a wheel as in a checkout
+SHUTDOWN_WAIT_S = 3
 log = logging.getLogger("calib.server")
 
 
@@ -39,7 +43,6 @@ def create_app(
     config: DeskConfig | None = None,
     sample_dir: Path | None = SAMPLE_DIR,
     host: str = "127.0.0.1",
-    viser_host: str | None = None,
     viser_port: int = 0,
     time_scale: float = 1.0,
     workers: int = 1,
@@ -47,9 +50,10 @@ def create_app(
     new_token: bool = False,
 ) -> FastAPI:
     """`config`: the robots (None: the built-in ones). `host`: the address the server is bound to; off loopback
-    every /api request but /api/health needs the access token (app/security.py); `app.state.new_token` is the
-    token made at this start (shown once), None when one was stored before. `trusted_hosts`: the Host names
-    answered (None: any)."""
+    every /api request but /api/health, and the scene under /scene, need the access token (app/security.py);
+    `app.state.new_token` is the token made at this start (shown once), None when one was stored before.
+    `viser_port`: the viser server's port, on 127.0.0.1 whatever `host` is (0: any free one). `trusted_hosts`:
+    the Host names answered (None: any)."""
     tokens = None
     token = None
     if not security.is_loopback(host):
@@ -59,7 +63,6 @@ def create_app(
         data_dir,
         config=config,
         sample_dir=sample_dir,
-        viser_host=host if viser_host is None else viser_host,
         viser_port=viser_port,
         time_scale=time_scale,
         workers=workers,
@@ -78,6 +81,7 @@ def create_app(
     app = FastAPI(title="robot-selfcal dashboard", version=VERSION, lifespan=lifespan)
     app.state.new_token = token
     app.include_router(api)
+    app.include_router(scene_proxy.router)
     _error_handlers(app, desk.scrub)
     app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
@@ -106,6 +110,10 @@ def _error_handlers(app: FastAPI, scrub: Callable[[str], str]) -> None:
     @app.exception_handler(InputError)  # also a joint limit refused (drivers.LimitError)
     async def input_error(request: Request, exc: InputError) -> JSONResponse:
         return detail(422, str(exc))
+
+    @app.exception_handler(TooManyViewers)
+    async def too_many_viewers(request: Request, exc: TooManyViewers) -> JSONResponse:
+        return detail(429, str(exc))
 
     @app.exception_handler(NotFound)
     async def not_found(request: Request, exc: NotFound) -> JSONResponse:
@@ -160,4 +168,15 @@ def serve(
         print(f"calib dashboard: open {url}", flush=True)
         if not loopback:
             print("every API request needs the access token printed at the first start", flush=True)
-    uvicorn.run(app, host=host, port=port, workers=1, log_level="warning")
+    # The scene's websocket relays viser's messages uncompressed, as viser sends them: compressing meshes and
+    # point clouds costs more time than it saves on a local network. An open page's event streams never end by
+    # themselves: a stop waits for them at most SHUTDOWN_WAIT_S (the scene's websockets close at once, 1012).
+    uvicorn.run(
+        app,
+        host=host,
+        port=port,
+        workers=1,
+        log_level="warning",
+        ws_per_message_deflate=False,
+        timeout_graceful_shutdown=SHUTDOWN_WAIT_S,
+    )

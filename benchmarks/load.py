@@ -7,7 +7,8 @@ Starts `calib serve` as a user would (tests/browser.py's `served`: free ports, a
 sample sessions), then for --seconds runs at once:
   - --clients browser-like clients, each loading the review of a sample session once and then scrubbing
     at --rate steps/s: POST /api/review/frame at a random frame, GET /api/review/marks/{frame}, GET that
-    frame's camera image. The review is server-global (one loaded at a time): the clients share it.
+    frame's camera image. Each client is a viewer of its own (its X-Viewer header), as a browser tab is; no
+    browser draws their scenes.
   - a background of --background API requests/s, open loop (sent on schedule, whatever the answers'
     latency): session list, a session's detail, jobs, robot, active calibration, in turn.
 Reports errors (any non-2xx or transport failure), p50/p99 latency per kind, requests/s achieved, and
@@ -73,8 +74,11 @@ class Tally:
             self.examples.append(text)
 
 
-async def scrubber(http: httpx.AsyncClient, tally: Tally, session: str, rate_hz: float, until: float) -> None:
-    r = await tally.request(http, "review load", "POST", "/api/review", json={"session": session})
+async def scrubber(
+    http: httpx.AsyncClient, tally: Tally, viewer: str, session: str, rate_hz: float, until: float
+) -> None:
+    headers = {"X-Viewer": viewer}
+    r = await tally.request(http, "review load", "POST", "/api/review", json={"session": session}, headers=headers)
     if r is None:
         return
     frames = [row["index"] for row in r.json()["table"]]
@@ -82,8 +86,8 @@ async def scrubber(http: httpx.AsyncClient, tally: Tally, session: str, rate_hz:
     next_step = time.monotonic()
     while time.monotonic() < until:
         index = rng.choice(frames)
-        await tally.request(http, "frame select", "POST", "/api/review/frame", json={"index": index})
-        marks = await tally.request(http, "marks", "GET", f"/api/review/marks/{index}")
+        await tally.request(http, "frame select", "POST", "/api/review/frame", json={"index": index}, headers=headers)
+        marks = await tally.request(http, "marks", "GET", f"/api/review/marks/{index}", headers=headers)
         image = marks.json().get("image") if marks is not None else None
         if image:
             await tally.request(http, "image", "GET", image)
@@ -123,7 +127,7 @@ async def run(url: str, pid: int, args: argparse.Namespace) -> dict:
         results = await asyncio.gather(
             background(http, tally, args.background, until),
             warm_up_mark(),
-            *(scrubber(http, tally, args.session, args.rate, until) for _ in range(args.clients)),
+            *(scrubber(http, tally, f"load-{k}", args.session, args.rate, until) for k in range(args.clients)),
         )
         elapsed = time.monotonic() - t0
         memory["end"] = rss_mb(pid)

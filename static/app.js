@@ -1,6 +1,6 @@
 // The calibration desk page: plain ES module, talks to the JSON API under /api and embeds the viser
-// scene in an iframe. State lives on the server; this file only shows it and sends the operator's
-// actions.
+// scene in an iframe (served by the same port under /scene). State lives on the server; this file only
+// shows it and sends the operator's actions.
 
 const $ = (sel) => document.querySelector(sel);
 const state = {
@@ -9,6 +9,7 @@ const state = {
   session: null,       // the selected session (full /api/sessions/{id} answer)
   calibrations: [],    // of the selected session
   review: null,        // the last /api/review answer
+  reviewAsked: null,   // [old, new] as that review was asked for (shown again after a server restart)
   frameOrder: [],      // frame indices in slider order
   frame: null,         // the selected frame index
   newCal: null,        // the calibration under review (id)
@@ -30,8 +31,13 @@ const TOKEN_KEY = "calib-access-token";
   history.replaceState(null, "", url);
 })();
 
+// This tab's viewer: its own review and 3-D scene on the server, so another tab never moves them. A new one
+// per page load (a duplicated tab gets its own); every request names it, and the scene's iframe is its own.
+// crypto.getRandomValues, not randomUUID: the desk may be served over plain http off loopback.
+const VIEWER = Array.from(crypto.getRandomValues(new Uint8Array(16)), (b) => b.toString(16).padStart(2, "0")).join("");
+
 async function api(method, path, body, retried = false) {
-  const opts = { method, headers: {} };
+  const opts = { method, headers: { "X-Viewer": VIEWER } };
   const token = sessionStorage.getItem(TOKEN_KEY);
   if (token) opts.headers.Authorization = `Bearer ${token}`;
   if (body instanceof FormData) opts.body = body;
@@ -97,9 +103,8 @@ const el = (tag, attrs = {}, ...children) => {
 // --- start-up --------------------------------------------------------------------------------
 async function init() {
   const health = await api("GET", "/health");
-  const scene = $("#scene");
-  scene.src = `${location.protocol}//${location.hostname}:${health.viser_port}/`;
   for (const r of await api("GET", "/robots")) state.robots[r.name] = r;
+  showScene();  // after a request with the token: off loopback, its answer set the cookie the scene needs
   const sel = $("#robot-select");
   for (const r of Object.values(state.robots)) addRobotOption(r);
   // The connected robot; a desk without a drivable robot has none: the first one is shown.
@@ -113,7 +118,33 @@ async function init() {
   buildJoints();
   showDrivable();
   await refreshActive();
+  watchServer(health.instance);
   document.body.dataset.ready = "1";
+}
+
+function showScene() {
+  $("#scene").src = `/scene/${VIEWER}/`;
+}
+
+// A restarted server knows nothing of this tab's viewer, and viser's client in an iframe does not reconnect
+// until it gets focus: when /api/health names another server instance, reload the scene and show the review
+// (and frame) this tab showed.
+function watchServer(instance) {
+  setInterval(async () => {
+    const health = await api("GET", "/health").catch(() => null);
+    if (!health || health.instance === instance) return;
+    instance = health.instance;
+    await act(reopenScene);
+  }, 2000);
+}
+
+async function reopenScene() {
+  await api("GET", "/robots");  // a new read cookie (off loopback): the old server's is no longer valid
+  showScene();
+  if (!state.session || !state.reviewAsked) return;
+  const frame = state.frame;
+  await loadReview(...state.reviewAsked);
+  if (frame !== null && state.frameOrder.includes(frame)) await selectFrame(frame);
 }
 
 function addRobotOption(r) {
@@ -122,7 +153,7 @@ function addRobotOption(r) {
 
 // A robot with real data only (no driver) has sessions imported from CSV, calibrations and reviews,
 // but nothing to connect to or move: its capture and motion controls are disabled.
-// The 3-D scene shows the connected robot: a session and review of another robot are closed.
+// This tab's 3-D scene shows the connected robot: a session and review of another robot are closed.
 async function connect(robot) {
   if (state.robots[robot].drivable) await api("POST", "/robot/connect", { robot });
   state.robot = robot;
@@ -133,7 +164,8 @@ async function connect(robot) {
 }
 
 function closeSession() {
-  Object.assign(state, { session: null, review: null, newCal: null, frame: null, frameOrder: [], calibrations: [] });
+  Object.assign(state, { session: null, review: null, reviewAsked: null, newCal: null, frame: null, frameOrder: [],
+    calibrations: [] });
   for (const li of document.querySelectorAll("#sessions li")) li.classList.remove("selected");
   for (const sel of ["#frames", "#summary", "#parameters", "#warnings", "#calibrations"]) $(sel).replaceChildren();
   for (const sel of ["#split-old", "#split-new", "#histogram"]) {
@@ -343,6 +375,7 @@ async function startCalibration() {
 // --- review ----------------------------------------------------------------------------------
 async function loadReview(old, neu) {
   state.review = await api("POST", "/review", { session: state.session.id, old: old || null, new: neu || null });
+  state.reviewAsked = [old, neu];
   state.newCal = state.review.new;
   $("#review-old").value = old || "";
   $("#review-new").value = neu || "";

@@ -3,6 +3,7 @@ and a headless Debian chromium driven by Playwright (never `playwright install`)
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import signal
 import socket
@@ -30,6 +31,21 @@ CHROMIUM_ARGS = [
 PAPER_COLOURS = {"red": (255, 0, 0), "blue": (0, 0, 255), "green": (0, 200, 0)}
 
 
+def listening(port: int) -> set[str]:
+    """The addresses a TCP port is listened on (from /proc/net/tcp and tcp6): e.g. {"127.0.0.1"}."""
+    found = set()
+    for table, size in (("/proc/net/tcp", 4), ("/proc/net/tcp6", 16)):
+        for line in Path(table).read_text().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            address, hex_port = local.split(":")
+            if state == "0A" and int(hex_port, 16) == port:  # LISTEN
+                raw = bytes.fromhex(address)
+                # the kernel writes each 32-bit word in host (little-endian) order
+                words = b"".join(raw[i : i + 4][::-1] for i in range(0, size, 4))
+                found.add(str(ipaddress.ip_address(words)))
+    return found
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -41,6 +57,7 @@ class Server:
     url: str
     process: subprocess.Popen
     data_dir: Path
+    token: str | None = None  # the access token printed at the first start off loopback
 
     def get(self, path: str, **kw) -> httpx.Response:
         return httpx.get(f"{self.url}{path}", timeout=30, **kw)
@@ -50,10 +67,12 @@ class Server:
 
 
 @contextmanager
-def served(data_dir: Path, timeout_s: float = 60.0, sim_speed: float = 1.0) -> Iterator[Server]:
-    """`calib serve` as a user starts it, on free ports, until the block ends."""
-    port, viser_port = free_port(), free_port()
-    cmd = [str(Path(sys.executable).parent / "calib"), "serve", "--port", str(port), "--viser-port", str(viser_port)]
+def served(
+    data_dir: Path, timeout_s: float = 60.0, sim_speed: float = 1.0, *, host: str = "127.0.0.1", port: int = 0
+) -> Iterator[Server]:
+    """`calib serve` as a user starts it (bound to `host`, on `port` or a free one), until the block ends."""
+    port = port or free_port()
+    cmd = [str(Path(sys.executable).parent / "calib"), "serve", "--host", host, "--port", str(port)]
     proc = subprocess.Popen(
         [*cmd, "--data-dir", str(data_dir), "--sim-speed", str(sim_speed)],
         cwd=Path(__file__).resolve().parent.parent,
@@ -75,6 +94,12 @@ def served(data_dir: Path, timeout_s: float = 60.0, sim_speed: float = 1.0) -> I
             if time.monotonic() > deadline:
                 raise RuntimeError("calib serve did not answer /api/health in time")
             time.sleep(0.2)
+        if host != "127.0.0.1":  # printed before the server started: the first lines
+            for _ in range(20):
+                line = proc.stdout.readline().decode()  # type: ignore[union-attr]
+                if "?token=" in line:
+                    server.token = line.rsplit("?token=", 1)[1].strip()
+                    break
         yield server
     finally:
         proc.send_signal(signal.SIGINT)

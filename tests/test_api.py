@@ -18,6 +18,7 @@ import pytest
 import yaml
 import yourdfpy
 from fastapi.testclient import TestClient
+from test_viewers import browser
 
 from app.drivers.simulated import can_simulate
 from app.server import create_app
@@ -406,12 +407,13 @@ def test_a_robot_with_real_data_only_imports_calibrates_and_reviews_but_cannot_b
 
 # --- the simulated Motoman: a laser tracker read directly, no images ------------------------------
 def _observed(client: TestClient, session: str, timeout_s: float = 10.0) -> dict:
-    """Observe a session until the live view shows a reading: the scene's state and what observing reports."""
+    """Observe a session until the live view shows a reading: the (default viewer's) scene's state and what
+    observing reports."""
     assert client.post(f"/api/sessions/{session}/observe", json={"on": True}).status_code == 200
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         observing = client.get("/api/robot").json()["observing"]
-        state = client.app.state.desk.scene.state()
+        state = client.app.state.desk.viewers.default.scene.state()
         if observing and observing.get("detection") == "measured" and state["live"]:
             return {**state, "observing": observing}
         time.sleep(0.1)
@@ -447,16 +449,18 @@ def test_the_simulated_motoman_replays_and_calibrates_to_its_tracker_noise(clien
         # Observe: the live view places the tracker's reading through a registration fitted on the session's
         # frames; a session with none yet shows only the prediction.
         fresh = client.post("/api/sessions", json={"robot": "motoman", "name": "no frames yet"}).json()["id"]
-        live = _observed(client, fresh)
-        assert "3 frames are measured" in live["observing"]["reason"]
-        assert not live["nodes"]["/live/base/frame/measured"]["shown"] and live["nodes"]["/live"]["shown"]
-        live = _observed(client, sid)
-        measured = np.array(live["nodes"]["/live/base/frame/measured"]["points"])
-        predicted = np.array(live["nodes"]["/live/base/frame/predicted"]["points"])
-        # Beside its prediction through the active calibration (the nominal model: mm off; one applied from the
-        # real robot's data in another test: cm), not where the unregistered tracker would put it (metres off).
-        assert len(measured) == 1 and np.linalg.norm(measured - predicted) < 0.05
-        client.post(f"/api/sessions/{sid}/observe", json={"on": False})
+        with browser(client, "default"):  # the default viewer's scene, in a browser
+            live = _observed(client, fresh)
+            assert "3 frames are measured" in live["observing"]["reason"]
+            assert not live["nodes"]["/live/base/frame/measured"]["shown"] and live["nodes"]["/live"]["shown"]
+            live = _observed(client, sid)
+            measured = np.array(live["nodes"]["/live/base/frame/measured"]["points"])
+            predicted = np.array(live["nodes"]["/live/base/frame/predicted"]["points"])
+            # Beside its prediction through the active calibration (the nominal model: mm off; one applied from
+            # the real robot's data in another test: cm), not where the unregistered tracker would put it (metres
+            # off).
+            assert len(measured) == 1 and np.linalg.norm(measured - predicted) < 0.05
+            client.post(f"/api/sessions/{sid}/observe", json={"on": False})
     finally:
         del driver.move_to
         client.post("/api/robot/connect", json={"robot": "robonaut-a"})

@@ -15,7 +15,10 @@ import msgspec
 import pytest
 import viser
 import websockets
+from browser import listening
 from fastapi.testclient import TestClient
+from starlette.testclient import WebSocketDenialResponse
+from test_viewers import PROTOCOL, camera_message
 
 from app.security import (
     LOOPBACK_NAMES,
@@ -42,10 +45,8 @@ def local(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
 
 @pytest.fixture(scope="module")
 def remote(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
-    """Bound to every address (the API; the scene stays on loopback in the test)."""
-    app = create_app(
-        tmp_path_factory.mktemp("remote"), sample_dir=None, host="0.0.0.0", viser_host="127.0.0.1", time_scale=50.0
-    )
+    """Bound to every address (the API and the scene's page and websocket; viser itself stays on loopback)."""
+    app = create_app(tmp_path_factory.mktemp("remote"), sample_dir=None, host="0.0.0.0", time_scale=50.0)
     with TestClient(app, base_url="http://192.0.2.10:8000") as c:
         yield c
 
@@ -298,4 +299,65 @@ def test_the_desks_scene_has_its_share_closed(remote: TestClient, local: TestCli
     for client in (remote, local):
         desk = client.app.state.desk
         assert _messages.ShareUrlRequest not in desk.viser._websock_server._incoming_handlers
-    assert local.app.state.desk.viser_host == "127.0.0.1"
+        # Off loopback too, viser listens on loopback only: browsers reach the scene through the API's port.
+        assert listening(desk.viser_port_number) == {"127.0.0.1"}
+
+
+# --- the 3-D scene through the API's port (app/scene_proxy.py) ----------------------------------------------
+def _scene_socket(client: TestClient, **headers: str):
+    """The scene's websocket as a browser on the desk's page opens it (TestClient would say Host: testserver)."""
+    return client.websocket_connect(
+        "/scene/tab", subprotocols=[PROTOCOL], headers={"Host": client.base_url.netloc.decode(), **headers}
+    )
+
+
+def _refused(client: TestClient, **headers: str) -> WebSocketDenialResponse:
+    with pytest.raises(WebSocketDenialResponse) as refused, _scene_socket(client, **headers):
+        pass
+    return refused.value
+
+
+def test_off_loopback_the_scene_needs_the_token(remote: TestClient) -> None:
+    """The scene's page and its websocket, like the API: refused without the token, answered with it (header,
+    ?token= on the page, or the read cookie an answer to a request with the token set)."""
+    token = remote.app.state.new_token
+    remote.cookies.clear()
+    for r in (
+        remote.get("/scene/tab/"),
+        remote.get("/scene/tab/?token=wrong"),
+        remote.get("/scene/tab/", headers=bearer("x")),
+    ):
+        assert r.status_code == 401 and "token" in r.json()["detail"], r.text
+    for headers in ({}, {"Authorization": "Bearer wrong"}):
+        refusal = _refused(remote, **headers)
+        assert refusal.status_code == 401 and "token" in refusal.json()["detail"]
+    remote.cookies.set("calib_read", "guessed")
+    assert _refused(remote).status_code == 401
+    remote.cookies.clear()
+
+    page = remote.get("/scene/tab/", headers=bearer(token))
+    assert page.status_code == 200 and b"<html" in page.content[:200].lower()
+    with _scene_socket(remote, Authorization=f"Bearer {token}") as ws:
+        assert ws.accepted_subprotocol == PROTOCOL
+    remote.cookies.clear()
+    page = remote.get(f"/scene/tab/?token={token}")  # the iframe's address may carry it
+    assert page.status_code == 200 and "Path=/;" in page.headers["set-cookie"]
+    cookie = f"calib_read={page.cookies['calib_read']}"
+    remote.cookies.clear()
+    with _scene_socket(remote, Cookie=cookie) as ws:  # the browser's websocket carries the cookie only
+        assert ws.accepted_subprotocol == PROTOCOL
+        ws.send_bytes(camera_message())
+        assert len(ws.receive_bytes()) > 0  # viser's scene comes through
+    remote.cookies.clear()
+
+
+def test_another_sites_page_cannot_open_the_scene(local: TestClient) -> None:
+    """On loopback no token is needed, so a page of another site (whose websocket the browser would open with the
+    desk's cookies) and a rebound host name are refused."""
+    for origin in ("http://evil.example", "null", "http://127.0.0.1:9999"):
+        refusal = _refused(local, Origin=origin)
+        assert refusal.status_code == 403 and "another site" in refusal.json()["detail"]
+    assert _refused(local, Host="evil.example:8000").status_code == 403
+    with _scene_socket(local, Origin=LOCAL) as ws:
+        assert ws.accepted_subprotocol == PROTOCOL
+    assert local.get("/scene/tab/", headers={"Host": "evil.example:8000"}).status_code == 403

@@ -1,10 +1,11 @@
-"""What the routers are given (FastAPI `Depends`): the desk and its parts, and reading an upload whole."""
+"""What the routers are given (FastAPI `Depends`): the desk and its parts, the viewer a request is for, and
+reading an upload whole."""
 
 from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request, UploadFile
+from fastapi import Depends, Header, HTTPException, Request, UploadFile
 from fastapi import Path as PathParam
 
 from ..desk import Desk
@@ -13,6 +14,7 @@ from ..robots import Robots
 from ..security import MAX_UPLOAD_BYTES
 from ..store import Store
 from ..validation import FRAME_MAX, FRAME_MIN
+from ..viewers import VIEWER_PATTERN, Viewer
 
 
 def get_desk(request: Request) -> Desk:
@@ -34,9 +36,24 @@ def get_robots(desk: DeskDep) -> Robots:
     return desk.robots
 
 
+def get_viewer(
+    desk: DeskDep,
+    viewer: Annotated[
+        str | None,
+        Header(
+            alias="X-Viewer",
+            pattern=VIEWER_PATTERN,
+            description="the browser tab (viewer) the request is for: an id its page makes; none: the default viewer",
+        ),
+    ] = None,
+) -> Viewer:
+    return desk.viewers.get(viewer)
+
+
 StoreDep = Annotated[Store, Depends(get_store)]
 JobsDep = Annotated[JobManager, Depends(get_jobs)]
 RobotsDep = Annotated[Robots, Depends(get_robots)]
+ViewerDep = Annotated[Viewer, Depends(get_viewer)]
 FrameIndex = Annotated[int, PathParam(ge=FRAME_MIN, le=FRAME_MAX, description="a frame number")]
 
 

@@ -1,4 +1,7 @@
-"""Review: load a session with an old and a new calibration into the scene, select frames, the 2-D marks."""
+"""Review: load a session with an old and a new calibration into a viewer's scene, select frames, the 2-D marks.
+
+Each request is for the viewer its `X-Viewer` header names (a browser tab; none: the default viewer), so tabs
+reviewing different sessions never move each other (app/viewers.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +11,7 @@ from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
 from ..validation import FRAME_MAX, FRAME_MIN
-from .deps import DeskDep, FrameIndex
+from .deps import DeskDep, FrameIndex, ViewerDep
 
 router = APIRouter()
 
@@ -38,8 +41,8 @@ class ReviewOut(BaseModel):
 
 
 @router.post("/review")
-def review(desk: DeskDep, body: ReviewRequest) -> ReviewOut:
-    return ReviewOut.model_validate(desk.review(body.session, body.old, body.new))
+def review(desk: DeskDep, viewer: ViewerDep, body: ReviewRequest) -> ReviewOut:
+    return ReviewOut.model_validate(desk.review(body.session, body.old, body.new, viewer))
 
 
 class SelectRequest(BaseModel):
@@ -56,8 +59,8 @@ class Selected(BaseModel):
 
 
 @router.post("/review/frame")
-def select(desk: DeskDep, body: SelectRequest) -> Selected:
-    return Selected.model_validate(desk.reviews.select(body.index, show_all=body.all, overlay=body.overlay))
+def select(desk: DeskDep, viewer: ViewerDep, body: SelectRequest) -> Selected:
+    return Selected.model_validate(desk.reviews.select(viewer, body.index, show_all=body.all, overlay=body.overlay))
 
 
 class Marks(BaseModel):
@@ -74,5 +77,26 @@ class Marks(BaseModel):
 
 
 @router.get("/review/marks/{index}")
-def marks(desk: DeskDep, index: FrameIndex) -> Marks:
-    return Marks.model_validate(desk.reviews.marks(index))
+def marks(desk: DeskDep, viewer: ViewerDep, index: FrameIndex) -> Marks:
+    return Marks.model_validate(desk.reviews.marks(viewer, index))
+
+
+class ViewerOut(BaseModel):
+    """A viewer (a browser tab) and what it shows."""
+
+    id: str
+    connected: bool  # its scene's websocket is open
+    robot: str | None  # the robot its scene shows
+    session: str | None  # the session it reviews (None: no review loaded)
+    old: str | None
+    new: str | None
+    index: int | None  # the frame selected
+    overlay: bool
+    all: bool
+    live: bool  # its scene shows Observe's live view
+
+
+@router.get("/viewers")
+def viewers(desk: DeskDep) -> list[ViewerOut]:
+    """Every viewer on the desk: the default one, and one per open tab (a closed tab's goes a few seconds later)."""
+    return [ViewerOut.model_validate(v.state()) for v in desk.viewers.all()]

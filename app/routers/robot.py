@@ -15,7 +15,7 @@ from calib_core import InputError
 
 from ..drivers import Wandering
 from ..validation import joints_from_deg
-from .deps import DeskDep, JobsDep, RobotsDep, StoreDep
+from .deps import DeskDep, JobsDep, RobotsDep, StoreDep, ViewerDep
 from .models import RobotState, robot_state
 
 ROBOT_EVENT_PERIOD_S = 0.1
@@ -99,8 +99,9 @@ class ConnectRequest(BaseModel):
 
 
 @router.post("/robot/connect")
-def connect(desk: DeskDep, body: ConnectRequest) -> RobotState:
-    desk.connect(body.robot)
+def connect(desk: DeskDep, viewer: ViewerDep, body: ConnectRequest) -> RobotState:
+    """Connect the desk to a drivable robot; the viewer's scene shows it (closing a review of another robot)."""
+    desk.connect(body.robot, viewer)
     return robot_state(desk, body.robot)
 
 

@@ -24,12 +24,13 @@ router = APIRouter()
 class Health(BaseModel):
     status: str
     version: str
-    viser_port: int
+    viser_port: int  # the viser server's, on 127.0.0.1 only: browsers reach the scene under /scene on this port
+    instance: str  # this server process: another after a restart (the page then reloads its scene)
 
 
 @router.get("/health")
 def health(desk: DeskDep) -> Health:
-    return Health(status="ok", version=VERSION, viser_port=desk.viser_port_number)
+    return Health(status="ok", version=VERSION, viser_port=desk.viser_port_number, instance=desk.instance)
 
 
 class JointOut(BaseModel):

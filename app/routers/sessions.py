@@ -14,7 +14,7 @@ from pydantic import BaseModel, Field
 from ..importers import import_csv
 from ..services.replay import ReplayPlan
 from ..validation import ID, IMAGE_NAME
-from .deps import DeskDep, FrameIndex, JobsDep, RobotsDep, StoreDep, read_upload
+from .deps import DeskDep, FrameIndex, JobsDep, RobotsDep, StoreDep, ViewerDep, read_upload
 from .models import FrameOut, JobStarted, RobotState, frame_out, robot_state
 
 router = APIRouter()
@@ -183,9 +183,9 @@ class Observing(BaseModel):
 
 
 @router.post("/sessions/{session_id}/observe")
-def observe(desk: DeskDep, session_id: str, body: ObserveRequest) -> Observing:
+def observe(desk: DeskDep, viewer: ViewerDep, session_id: str, body: ObserveRequest) -> Observing:
     desk.store.sessions.get(session_id)
-    desk.observe(session_id if body.on else None, autocapture=body.autocapture)
+    desk.observe(session_id if body.on else None, autocapture=body.autocapture, viewer=viewer)
     return Observing(observing=desk.observing())
 
 

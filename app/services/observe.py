@@ -2,7 +2,7 @@
 
 At a few Hz, look through the cameras when the robot stands still and show the detection beside the
 prediction of the active calibration; with autocapture, keep the good settled frames (app/capture.py's
-AutoCapture). One robot is observed at a time: the scene shows one robot.
+AutoCapture). One robot is observed at a time; its live view goes to the viewers watching (app/viewers.py).
 """
 
 from __future__ import annotations
@@ -10,20 +10,27 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
+from calib_core import Profile
 from calib_core.estimation.registration import register, registration_params
 
 from ..capture import AutoCapture
 from ..drivers import Look, RobotDriver
 from ..robots import Robots
-from ..scene import ReviewScene
+from ..scene import LookLike
 from ..store import Store
 
 OBSERVE_PERIOD_S = 0.5
 MIN_REGISTRATION_FRAMES = 3  # measured frames an external tracker's pose is fitted on (3 points not on one line)
+
+
+class LiveView(Protocol):
+    """Where the looks go (app.viewers.Viewers: every viewer watching)."""
+
+    def show_live(self, profile: Profile, look: LookLike, p: np.ndarray) -> None: ...
 
 
 class Observer:
@@ -33,14 +40,14 @@ class Observer:
         self,
         store: Store,
         robots: Robots,
-        scene: ReviewScene,
+        live: LiveView,
         session_id: str,
         autocapture: bool,
         scrub: Callable[[str], str],
     ) -> None:
         self.store = store
         self.robots = robots
-        self.scene = scene
+        self.live = live
         self.session_id = session_id
         self.robot = store.sessions.get(session_id).robot
         self.driver: RobotDriver = robots.driver(self.robot)
@@ -57,7 +64,6 @@ class Observer:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
-        self.scene.hide_live()
 
     def snapshot(self) -> dict[str, Any]:
         return dict(self._last)
@@ -90,7 +96,7 @@ class Observer:
         if not registered:  # where the tracker stands is unknown: its reading has no place in the scene yet
             look = Look(look.readings_rad, look.target, replace(look.sighting, measured=None), look.images)
             self._last["reason"] = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
-        self.scene.show_live(self.driver.profile, look, p)
+        self.live.show_live(self.driver.profile, look, p)
 
     def _live_params(self) -> tuple[np.ndarray, bool]:
         """The active calibration, seeing an external tracker (if any) through a registration fitted on this

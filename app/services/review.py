@@ -1,12 +1,11 @@
-"""Review: a session's frames as an old and a new calibration see them, in the scene and as figures.
+"""Review: a session's frames as an old and a new calibration see them, in a viewer's scene and as figures.
 
-The review loaded last is the one the frame slider and the 2-D marks address; loading a session of
-another robot replaces what the scene showed.
+Each viewer (a browser tab, app/viewers.py) has its own review: the one it loaded last is the one its frame
+slider and 2-D marks address; loading a session of another robot replaces what that viewer's scene showed.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Any
 
@@ -17,18 +16,14 @@ from calib_core.estimation.registration import register, registration_params
 
 from ..review import Review
 from ..robots import Robots
-from ..scene import ReviewScene
 from ..store import Store
+from ..viewers import Viewer
 
 
 class ReviewService:
-    def __init__(self, store: Store, robots: Robots, scene: ReviewScene) -> None:
+    def __init__(self, store: Store, robots: Robots) -> None:
         self.store = store
         self.robots = robots
-        self.scene = scene
-        self.lock = threading.Lock()  # the scene's review, and the robot it shows
-        self._review: Review | None = None
-        self._key: dict[str, Any] = {}
 
     def build(self, session_id: str, old: str | None, new: str | None) -> tuple[Review, dict[str, Any]]:
         """A session's review with an old and a new calibration ("active": the robot's active one; None: the
@@ -48,40 +43,24 @@ class ReviewService:
         review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout)
         return review, {"session": session_id, "old": old_id, "new": new_id, "robot": session.robot}
 
-    def show(self, review: Review, key: dict[str, Any]) -> dict[str, Any]:
-        """Show a review in the scene (another robot's replaces everything the scene showed): its table and
+    def show(self, viewer: Viewer, review: Review, key: dict[str, Any]) -> dict[str, Any]:
+        """Show a review in a viewer's scene (another robot's replaces everything it showed): its table and
         summary."""
-        with self.lock:
-            self.scene.load(review)
-            self._review = review
-            self._key = key
+        viewer.load(review, key)
         return {**key, "table": review.table(), "summary": review.summary()}
 
-    def close(self) -> None:
-        """Forget the review (the scene shows another robot)."""
-        self._review = None
-        self._key = {}
-
-    def select(self, index: int, *, show_all: bool = False, overlay: bool = False) -> dict[str, Any]:
+    def select(self, viewer: Viewer, index: int, *, show_all: bool = False, overlay: bool = False) -> dict[str, Any]:
         t0 = time.perf_counter()
-        with self.lock:
-            self._current()
-            self.scene.set_overlay(overlay)
-            self.scene.show_all(show_all)
-            self.scene.select(index)
+        viewer.select(index, show_all=show_all, overlay=overlay)
         return {"index": index, "all": show_all, "overlay": overlay, "server_ms": (time.perf_counter() - t0) * 1e3}
 
-    def marks(self, index: int) -> dict[str, Any]:
-        review = self._current()
+    def marks(self, viewer: Viewer, index: int) -> dict[str, Any]:
+        with viewer.lock:
+            review, session = viewer.current(), viewer.key["session"]
         marks = review.marks(index)
-        frame = self.store.sessions.frame(self._key["session"], index)
+        frame = self.store.sessions.frame(session, index)
         path = frame.images.get(marks["role"]) if marks.get("role") else None
         return {**marks, "image": None if path is None else f"/api/files/{path}"}
-
-    def _current(self) -> Review:
-        if self._review is None:
-            raise InputError("no session is loaded for review (POST /api/review first)")
-        return self._review
 
     def _params(self, robot: str, profile: Profile, ref: str | None) -> tuple[str | None, np.ndarray]:
         if ref == "active":
