@@ -170,10 +170,18 @@ class Desk:
         return None if observer is None else observer.snapshot()
 
     # --- review -------------------------------------------------------------------------------
-    def review(self, session_id: str, old: str | None, new: str | None, viewer: Viewer | None = None) -> dict[str, Any]:
-        """Load a review into a viewer (None: the default one). A viewer watching another robot live stops
-        watching; the live view ends when nobody watches it any more."""
-        review, key = self.reviews.build(session_id, old, new)
+    def review(
+        self,
+        session_id: str,
+        old: str | None,
+        new: str | None,
+        viewer: Viewer | None = None,
+        sensor: str | None = None,
+    ) -> dict[str, Any]:
+        """Load a review (as one sensor sees it; None: the data format's) into a viewer (None: the default
+        one). A viewer watching another robot live stops watching; the live view ends when nobody watches it
+        any more."""
+        review, key = self.reviews.build(session_id, old, new, sensor)
         viewer = viewer or self.viewers.default
         observer = self._observer
         if observer is not None and observer.robot != key["robot"]:

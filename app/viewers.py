@@ -58,7 +58,7 @@ class Viewer:
         self.lock = threading.RLock()
         self.shown = shown  # the robot shown when no review is loaded
         self.review: Review | None = None
-        self.key: dict[str, Any] = {}  # session, old, new, robot of the review
+        self.key: dict[str, Any] = {}  # session, old, new, robot, sensor(s) of the review
         self.index: int | None = None
         self.overlay = False
         self.all = False
@@ -128,7 +128,7 @@ class Viewer:
                 scene.hide_live()
 
     def state(self) -> dict[str, Any]:
-        """{id, connected, robot, session, old, new, index, overlay, all, live}."""
+        """{id, connected, robot, session, old, new, sensor, index, overlay, all, live}."""
         with self.lock:
             return {
                 "id": self.id,
@@ -137,6 +137,7 @@ class Viewer:
                 "session": self.key.get("session"),
                 "old": self.key.get("old"),
                 "new": self.key.get("new"),
+                "sensor": self.key.get("sensor"),
                 "index": self.index,
                 "overlay": self.overlay,
                 "all": self.all,

@@ -9,7 +9,7 @@ const state = {
   session: null,       // the selected session (full /api/sessions/{id} answer)
   calibrations: [],    // of the selected session
   review: null,        // the last /api/review answer
-  reviewAsked: null,   // [old, new] as that review was asked for (shown again after a server restart)
+  reviewAsked: null,   // [old, new, sensor] as that review was asked for (shown again after a server restart)
   frameOrder: [],      // frame indices in slider order
   frame: null,         // the selected frame index
   newCal: null,        // the calibration under review (id)
@@ -203,7 +203,9 @@ function wire() {
   $("#holdout").addEventListener("input", () => ($("#holdout-out").textContent = `${Math.round($("#holdout").value * 100)}%`));
   $("#calibrate-start").addEventListener("click", () => act(startCalibration));
   $("#calibrate-cancel").addEventListener("click", () => state.job && act(() => api("POST", `/jobs/${state.job.id}/cancel`)));
-  $("#review-load").addEventListener("click", () => act(() => loadReview($("#review-old").value, $("#review-new").value)));
+  const reviewAgain = () => act(() => loadReview($("#review-old").value, $("#review-new").value, $("#review-sensor").value || null));
+  $("#review-load").addEventListener("click", reviewAgain);
+  $("#review-sensor").addEventListener("change", reviewAgain);
   $("#frame-slider").addEventListener("input", () => selectFrame(state.frameOrder[+$("#frame-slider").value]));
   $("#step-back").addEventListener("click", () => step(-1));
   $("#step-fwd").addEventListener("click", () => step(+1));
@@ -373,12 +375,19 @@ async function startCalibration() {
 }
 
 // --- review ----------------------------------------------------------------------------------
-async function loadReview(old, neu) {
-  state.review = await api("POST", "/review", { session: state.session.id, old: old || null, new: neu || null });
-  state.reviewAsked = [old, neu];
+// `sensor`: whose observations (a session of several sensors); null: the data format's sensor.
+async function loadReview(old, neu, sensor = null) {
+  const body = { session: state.session.id, old: old || null, new: neu || null, sensor };
+  state.review = await api("POST", "/review", body);
+  state.reviewAsked = [old, neu, sensor];
   state.newCal = state.review.new;
   $("#review-old").value = old || "";
   $("#review-new").value = neu || "";
+  const sensors = $("#review-sensor");
+  const names = [...new Set([state.review.sensor, ...state.review.sensors])];
+  sensors.replaceChildren(...names.map((s) => el("option", { value: s }, s)));
+  sensors.value = state.review.sensor;
+  $("#review-sensor-label").hidden = state.review.sensors.length < 2;
   const rows = state.review.table;
   state.sort = { key: state.newCal ? "err_new" : "err_old", dir: -1 };
   state.frameOrder = rows.map((r) => r.index);

@@ -68,17 +68,28 @@ class Server:
 
 @contextmanager
 def served(
-    data_dir: Path, timeout_s: float = 60.0, sim_speed: float = 1.0, *, host: str = "127.0.0.1", port: int = 0
+    data_dir: Path,
+    timeout_s: float = 60.0,
+    sim_speed: float = 1.0,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    calib: Path | None = None,
+    cwd: Path | None = None,
+    env: dict[str, str] | None = None,
 ) -> Iterator[Server]:
-    """`calib serve` as a user starts it (bound to `host`, on `port` or a free one), until the block ends."""
+    """`calib serve` as a user starts it (bound to `host`, on `port` or a free one), until the block ends.
+    `calib`: another installation's command (default: this environment's), run in `cwd` (default: the
+    checkout) with `env` (default: this process's)."""
     port = port or free_port()
-    cmd = [str(Path(sys.executable).parent / "calib"), "serve", "--host", host, "--port", str(port)]
+    calib = calib or Path(sys.executable).parent / "calib"
+    cmd = [str(calib), "serve", "--host", host, "--port", str(port)]
     proc = subprocess.Popen(
         [*cmd, "--data-dir", str(data_dir), "--sim-speed", str(sim_speed)],
-        cwd=Path(__file__).resolve().parent.parent,
+        cwd=cwd or Path(__file__).resolve().parent.parent,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        env={**(os.environ if env is None else env), "PYTHONUNBUFFERED": "1"},
     )
     server = Server(f"http://127.0.0.1:{port}", proc, data_dir)
     deadline = time.monotonic() + timeout_s

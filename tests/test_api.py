@@ -530,6 +530,23 @@ def test_a_session_of_three_sensors_calibrates_in_each_mode(client: TestClient) 
     assert runs["offsets"]["sensor_figures"] == {} and runs["offsets"]["figures"]["after"]["unit"] == "m"
     assert runs["offsets"]["figures"]["before"]["n"] + runs["offsets"]["figures"]["holdout_before"]["n"] == 208
 
+    # Reviewed one sensor at a time: the tracker by default (the data format's), a camera in px on request.
+    cal = runs["tracker-cameras"]["id"]
+    tracker = client.post("/api/review", json={"session": "motoman-left-cube", "new": cal}).json()
+    assert tracker["sensor"] == "tracker" and tracker["sensors"] == ["tracker", "camera1", "camera2"]
+    assert tracker["summary"]["unit"] == "m"
+    camera = client.post("/api/review", json={"session": "motoman-left-cube", "new": cal, "sensor": "camera1"})
+    assert camera.status_code == 200, camera.text
+    camera = camera.json()
+    assert camera["sensor"] == "camera1" and camera["summary"]["unit"] == "px"
+    rows = [r for r in camera["table"] if r["err_new"] is not None]
+    assert len(rows) == sum(1 for o in seen if o.get("camera1"))
+    old, new = (np.median([r[k] for r in rows]) for k in ("err_old", "err_new"))
+    assert new < 0.2 * old, (old, new)  # the nominal model misses the faces by tens of px, the new one by a few
+    unknown = client.post("/api/review", json={"session": "motoman-left-cube", "sensor": "camera3"})
+    assert unknown.status_code == 422 and "camera3" in unknown.json()["detail"], unknown.text
+    assert client.get("/api/viewers").json()[0]["sensor"] == "camera1"  # the refused review changed nothing
+
 
 def test_a_calibration_that_did_not_converge_says_so_and_needs_confirmation(client: TestClient) -> None:
     """A daily calibration of the first sample day from the nominal model (8 deg off) stops at the solver's

@@ -87,6 +87,64 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         browser.close()
 
 
+def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(tmp_path: Path) -> None:
+    """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in m, a camera in px); a
+    one-sensor session shows no sensor choice. A daily calibration from the nominal model stops at the solver's
+    iteration limit: the page says so (job line, toast, warning) and applying it asks the operator first."""
+    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
+        browser = launch(pw)
+        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+
+        page.click("li[data-session='motoman-left-cube']")
+        page.wait_for_selector("#frames tr[data-frame]", state="attached")
+        page.click("#tabs button[data-tab='review']")
+        page.wait_for_selector("#review-sensor-label:not([hidden])")
+        assert page.eval_on_selector_all("#review-sensor option", "os => os.map(o => o.value)") == [
+            "tracker",
+            "camera1",
+            "camera2",
+        ]
+        assert page.input_value("#review-sensor") == "tracker"
+        assert page.text_content("#summary th") == "error (m)"
+        page.select_option("#review-sensor", "camera1")
+        page.wait_for_function("document.querySelector('#summary th').textContent === 'error (px)'")
+        camera1 = server.post("/api/review", json={"session": "motoman-left-cube", "sensor": "camera1"}).json()
+        measured = sum(1 for r in camera1["table"] if r["err_old"] is not None)
+        shown = page.eval_on_selector_all("#frames tr[data-frame]", "rows => rows.length")
+        assert shown == len(camera1["table"]) and measured > 100
+        shot(page, "4b-review-sensor")
+
+        page.click("li[data-session='robonaut-a-day1']")
+        page.wait_for_function("document.querySelector('#summary th').textContent === 'error (cm)'")
+        assert page.is_hidden("#review-sensor-label")
+        page.click("#tabs button[data-tab='calibrate']")
+        page.select_option("#mode", "daily")
+        page.select_option("#base", "")
+        page.fill("#holdout", "0")
+        page.click("#calibrate-start")
+        page.wait_for_function(
+            "document.querySelector('#job-state').textContent.includes('did not converge')", timeout=120_000
+        )
+        page.wait_for_function("document.querySelector('#toast').textContent.includes('did not converge')")
+        page.wait_for_selector("#warnings [data-code='not-converged']")
+        shot(page, "4c-not-converged")
+
+        page.click("#tabs button[data-tab='apply']")
+        asked: list[str] = []
+        page.once("dialog", lambda d: (asked.append(d.message), d.dismiss()))
+        before = server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"]
+        page.click("#apply")
+        page.wait_for_function("true")
+        deadline = time.monotonic() + 10
+        while not asked and time.monotonic() < deadline:
+            page.wait_for_timeout(100)
+        assert asked and "did not converge" in asked[0], asked
+        assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == before
+        browser.close()
+
+
 def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
     with served(tmp_path / "data", sim_speed=10.0) as server, playwright_api.sync_playwright() as pw:
         browser = launch(pw)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -161,6 +162,17 @@ def test_settled_needs_the_robot_still_for_the_time_asked(rn) -> None:
         assert d.settled(0.3)
 
 
+def _visit(d: SimulatedDriver, configurations: np.ndarray) -> Iterator[np.ndarray]:
+    """Drive to each configuration within the limits (others are skipped), one at a time."""
+    for q in configurations:
+        try:
+            d.check(q)
+        except LimitError:
+            continue
+        assert d.move_to(q)
+        yield q
+
+
 def test_look_finds_the_sphere_within_1_cm_of_the_truth(rn) -> None:
     """In typical visible configurations (a few, since the forearm can hide the sphere), the BallFinder
     seeded by the nominal model measures the fixture centre where the hidden truth puts it."""
@@ -168,12 +180,7 @@ def test_look_finds_the_sphere_within_1_cm_of_the_truth(rn) -> None:
     configurations, _ = planner.configurations(16)
     with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
         errors = []
-        for q in configurations:
-            try:
-                d.check(q)
-            except LimitError:
-                continue
-            assert d.move_to(q)
+        for _ in _visit(d, configurations):
             look = d.look()
             assert look.target == 0 and set(look.images) == {"left", "right"}
             assert look.images["left"].shape == (480, 640)
@@ -195,12 +202,7 @@ def test_applied_calibration_seeds_the_detector(rn) -> None:
     planner = SimulatedRobot.from_profile(rn, seed=5)
     configurations, _ = planner.configurations(16)
     with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
-        for q in configurations:
-            try:
-                d.check(q)
-            except LimitError:
-                continue
-            assert d.move_to(q)
+        for _ in _visit(d, configurations):
             if d.look().sighting.status == "measured":
                 break
         else:

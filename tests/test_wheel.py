@@ -5,15 +5,12 @@ sample sessions served from the installed package data."""
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
-import time
 import tomllib
 from pathlib import Path
 
-import httpx
-from browser import free_port
+from browser import served
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ("motoman-left-cube", "nao", "robonaut-a-day1", "robonaut-a-day2")
@@ -49,34 +46,13 @@ def test_an_installed_wheel_serves_the_page_and_the_samples(tmp_path: Path) -> N
     ).stdout
     assert str(ROOT) not in where and str(venv) in where  # the installed copy, not the checkout
 
-    port = free_port()
-    cmd = [str(venv / "bin" / "calib"), "serve", "--port", str(port), "--data-dir", str(tmp_path / "data")]
-    proc = subprocess.Popen(cmd, cwd=elsewhere, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 90
-        while True:
-            assert proc.poll() is None, proc.stdout.read().decode()[-2000:]  # type: ignore[union-attr]
-            try:
-                if httpx.get(f"{url}/api/health", timeout=5).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            assert time.monotonic() < deadline, "calib serve did not answer in time"
-            time.sleep(0.3)
-        page = httpx.get(f"{url}/", timeout=10)
+    with served(tmp_path / "data", 90.0, calib=venv / "bin" / "calib", cwd=elsewhere, env=env) as server:
+        page = server.get("/")
         assert page.status_code == 200 and "<title>" in page.text and "app.js" in page.text
-        assert httpx.get(f"{url}/app.js", timeout=10).status_code == 200
-        sessions = {s["id"]: s for s in httpx.get(f"{url}/api/sessions", timeout=10).json()}
+        assert server.get("/app.js").status_code == 200
+        sessions = {s["id"]: s for s in server.get("/api/sessions").json()}
         assert set(SAMPLES) <= set(sessions), sessions.keys()
         assert sessions["motoman-left-cube"]["frames"] == 216
-        frames = httpx.get(f"{url}/api/sessions/robonaut-a-day1", timeout=10).json()["frames"]
+        frames = server.get("/api/sessions/robonaut-a-day1").json()["frames"]
         image = next(f["images"]["left"] for f in frames if f["images"])
-        assert httpx.get(f"{url}{image}", timeout=10).content[:2] == b"\xff\xd8"  # a sample's JPEG
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        assert server.get(image).content[:2] == b"\xff\xd8"  # a sample's JPEG

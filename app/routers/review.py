@@ -20,6 +20,7 @@ class ReviewRequest(BaseModel):
     session: str
     old: str | None = "active"  # a calibration of the session's robot, "active" or None (the nominal model)
     new: str | None = None
+    sensor: str | None = Field(default=None, max_length=200)  # the sensor whose observations (None: the data format's)
 
 
 class ReviewRow(BaseModel):
@@ -36,13 +37,15 @@ class ReviewOut(BaseModel):
     robot: str
     old: str | None
     new: str | None
+    sensor: str  # the sensor the table, the summary and the scene's red marks are of
+    sensors: list[str]  # the sensors the session has observations of
     table: list[ReviewRow]
     summary: dict[str, Any]  # old and new mean, RMS, max (held out too), unit, histogram
 
 
 @router.post("/review")
 def review(desk: DeskDep, viewer: ViewerDep, body: ReviewRequest) -> ReviewOut:
-    return ReviewOut.model_validate(desk.review(body.session, body.old, body.new, viewer))
+    return ReviewOut.model_validate(desk.review(body.session, body.old, body.new, viewer, body.sensor))
 
 
 class SelectRequest(BaseModel):
@@ -90,6 +93,7 @@ class ViewerOut(BaseModel):
     session: str | None  # the session it reviews (None: no review loaded)
     old: str | None
     new: str | None
+    sensor: str | None  # the sensor reviewed
     index: int | None  # the frame selected
     overlay: bool
     all: bool

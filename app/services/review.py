@@ -25,11 +25,15 @@ class ReviewService:
         self.store = store
         self.robots = robots
 
-    def build(self, session_id: str, old: str | None, new: str | None) -> tuple[Review, dict[str, Any]]:
+    def build(
+        self, session_id: str, old: str | None, new: str | None, sensor: str | None = None
+    ) -> tuple[Review, dict[str, Any]]:
         """A session's review with an old and a new calibration ("active": the robot's active one; None: the
-        nominal model), and its key (session, old, new); `show` puts it in the scene."""
+        nominal model) as one sensor sees it (its name; None: the data format's), and its key (session, old,
+        new, sensor, and the sensors the session has observations of); `show` puts it in the scene."""
         session = self.store.sessions.get(session_id)
         profile = self.robots.get(session.robot).profile
+        sensor_index = self._sensor(profile, session.robot, sensor)
         old_id, old_p = self._params(session.robot, profile, old)
         new_id, new_p = (None, None) if new is None else self._params(session.robot, profile, new)
         heldout: set[int] = set()
@@ -40,8 +44,13 @@ class ReviewService:
         if data is not None and registration_params(profile):
             old_p = self._registered(profile, data, old_p, old_id, session_id, heldout)
             new_p = None if new_p is None else self._registered(profile, data, new_p, new_id, session_id, heldout)
-        review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout)
-        return review, {"session": session_id, "old": old_id, "new": new_id, "robot": session.robot}
+        review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout, sensor=sensor_index)
+        observed = sorted(data.sensors) if data is not None else [profile.data.sensor]
+        key = {"session": session_id, "old": old_id, "new": new_id, "robot": session.robot}
+        return review, key | {
+            "sensor": profile.sensors[sensor_index].name,
+            "sensors": [profile.sensors[i].name for i in observed],
+        }
 
     def show(self, viewer: Viewer, review: Review, key: dict[str, Any]) -> dict[str, Any]:
         """Show a review in a viewer's scene (another robot's replaces everything it showed): its table and
@@ -61,6 +70,15 @@ class ReviewService:
         frame = self.store.sessions.frame(session, index)
         path = frame.images.get(marks["role"]) if marks.get("role") else None
         return {**marks, "image": None if path is None else f"/api/files/{path}"}
+
+    @staticmethod
+    def _sensor(profile: Profile, robot: str, name: str | None) -> int:
+        if name is None:
+            return profile.data.sensor
+        names = [s.name for s in profile.sensors]
+        if name not in names:
+            raise InputError(f"sensor: '{name}' is not a sensor of robot {robot} (its sensors: {', '.join(names)})")
+        return names.index(name)
 
     def _params(self, robot: str, profile: Profile, ref: str | None) -> tuple[str | None, np.ndarray]:
         if ref == "active":
