@@ -204,12 +204,16 @@ class Problem:
         pred, J = self._evaluate(p, jacobian=True)
         assert J is not None
         r = self._with_priors(self._whitened(pred), p)
+        weighed = np.empty_like(J)
         for b in self.blocks:
-            J3 = J[b.rows].reshape(-1, b.dim, len(self.free))  # a view: weighed in place
-            if isinstance(b.W, np.ndarray):
-                J3[:] = b.W @ (J3 * (self.included[b.obs] / b.scale)[:, None, None])
+            J3 = J[b.rows].reshape(-1, b.dim, len(self.free))
+            out = weighed[b.rows].reshape(J3.shape)  # views of contiguous rows: written in place
+            w = self.included[b.obs] / b.scale
+            if isinstance(b.W, np.ndarray):  # scale the (n, dim, dim) whitening, not the wide Jacobian
+                np.matmul(b.W * w[:, None, None], J3, out=out)
             else:
-                J3 *= (self.included[b.obs] * (b.W / b.scale))[:, None, None]
+                np.multiply(J3, (w * b.W)[:, None, None], out=out)
+        J = weighed
         if self.priors:
             Jp = np.zeros((len(self.priors), len(self.free)))
             for k, (i, s) in enumerate(self.priors.items()):
