@@ -68,28 +68,37 @@ def main() -> None:
         # Page ready: from navigation to the page's data-ready flag, and to the 3-D view drawn.
         from playwright.sync_api import sync_playwright
 
-        with sync_playwright() as pw:
-            browser = launch(pw)
-            ready, drawn = [], []
-            for _ in range(3):
-                page = browser.new_page(viewport={"width": 1500, "height": 1000})
-                t0 = time.perf_counter()
-                page.goto(server.url)
-                page.wait_for_selector("body[data-ready='1']", timeout=60_000)
-                ready.append((time.perf_counter() - t0) * 1e3)
-                wait_for_scene(page)
-                drawn.append((time.perf_counter() - t0) * 1e3)
-                page.close()
-            browser.close()
+        pw = sync_playwright().start()
+        browser = launch(pw)
+        ready, drawn = [], []
+        for _ in range(3):
+            page = browser.new_page(viewport={"width": 1500, "height": 1000})
+            t0 = time.perf_counter()
+            page.goto(server.url)
+            page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+            ready.append((time.perf_counter() - t0) * 1e3)
+            wait_for_scene(page)
+            drawn.append((time.perf_counter() - t0) * 1e3)
+            page.close()
         print(f"page ready (controls usable): {figures(ready)}")
         print(f"page ready with the 3-D view drawn: {figures(drawn)}")
+
+        # A tab left open: the reviews and selects below are its viewer's, drawn into its connected scene
+        # (a request without X-Viewer addresses the default viewer, which no browser shows).
+        known = {v["id"] for v in server.get("/api/viewers").json()}
+        tab = browser.new_page(viewport={"width": 1500, "height": 1000})
+        tab.goto(server.url)
+        tab.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        wait_for_scene(tab)
+        (opened,) = [v["id"] for v in server.get("/api/viewers").json() if v["connected"] and v["id"] not in known]
+        viewer = {"X-Viewer": opened}
 
         # Memory with the three sample sessions open in review, after a calibration of each.
         for sid, mode in (("robonaut-a-day1", "full"), ("robonaut-a-day2", "daily"), ("nao", "full")):
             job = wait(server, server.post(f"/api/sessions/{sid}/calibrations", json={"mode": mode}).json()["job"])
-            r = server.post("/api/review", json={"session": sid, "old": None, "new": job["result"]}).json()
-            for row in r["table"][:20]:
-                server.post("/api/review/frame", json={"index": row["index"]})
+            r = server.post("/api/review", json={"session": sid, "old": None, "new": job["result"]}, headers=viewer)
+            for row in r.json()["table"][:20]:
+                server.post("/api/review/frame", json={"index": row["index"]}, headers=viewer)
         print(f"server RSS with the three sample sessions reviewed: {rss_mb(pid):.0f} MB")
         print(f"  (+ calibration worker processes: {children_rss_mb(pid):.0f} MB)")
 
@@ -108,20 +117,22 @@ def main() -> None:
         job = wait(server, server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "full"}).json()["job"])
         print(f"full calibration job on {args.frames} frames: {(time.perf_counter() - t0):.2f} s end to end")
         t0 = time.perf_counter()
-        server.post("/api/review", json={"session": sid, "old": None, "new": job["result"]})
+        server.post("/api/review", json={"session": sid, "old": None, "new": job["result"]}, headers=viewer)
         print(f"review load ({args.frames} frames, old and new): {(time.perf_counter() - t0) * 1e3:.0f} ms")
         rng = np.random.default_rng(0)
         server_ms, round_ms = [], []
         for mode in ({"all": False, "overlay": False}, {"all": False, "overlay": True}):
             for index in rng.integers(1, args.frames + 1, args.selects):
                 t0 = time.perf_counter()
-                r = server.post("/api/review/frame", json={"index": int(index), **mode}).json()
+                r = server.post("/api/review/frame", json={"index": int(index), **mode}, headers=viewer).json()
                 round_ms.append((time.perf_counter() - t0) * 1e3)
                 server_ms.append(r["server_ms"])
         print(f"frame select on {args.frames} frames, in the server: {figures(server_ms)}")
         print(f"frame select round trip over HTTP: {figures(round_ms)}")
         print(f"server RSS at the end: {rss_mb(pid):.0f} MB")
         print(f"machine load average (1 min) at the end: {Path('/proc/loadavg').read_text().split()[0]}")
+        browser.close()
+        pw.stop()
 
 
 if __name__ == "__main__":
