@@ -506,11 +506,17 @@ async function drawSplit(index) {
   if ($("#split").hidden) return;
   const m = await api("GET", `/review/marks/${index}`);
   const img = m.image ? await loadImage(m.image) : null;
-  drawMarks($("#split-old"), img, m, m.old, "#0050ff");
-  drawMarks($("#split-new"), img, m, m.new, "#00b000");
+  const found = (m.measured || []).some((p) => p);
+  for (const [id, predicted, colour] of [["#split-old", m.old, "#0050ff"], ["#split-new", m.new, "#00b000"]]) {
+    const canvas = $(id);
+    drawMarks(canvas, img, m, predicted, colour, found);
+    canvas.dataset.frame = index;
+    canvas.dataset.status = found ? "measured" : "not found";
+  }
 }
 
-function drawMarks(canvas, img, m, predicted, colour) {
+// Points are [u, v] px or null (not measured; a prediction behind the camera): nulls are not drawn.
+function drawMarks(canvas, img, m, predicted, colour, found) {
   const ctx = canvas.getContext("2d");
   const w = m.width || 640;
   const h = m.height || 480;
@@ -529,19 +535,18 @@ function drawMarks(canvas, img, m, predicted, colour) {
     ctx.strokeStyle = colour;
     ctx.lineWidth = 1;
     predicted.forEach((p, i) => {
-      if (!measured[i]) return;
+      if (!p || !measured[i]) return;
       ctx.beginPath();
       ctx.moveTo(p[0] * s, p[1] * s);
       ctx.lineTo(measured[i][0] * s, measured[i][1] * s);
       ctx.stroke();
     });
-    for (const p of predicted) dot(p, colour, 3);
+    for (const p of predicted) if (p) dot(p, colour, 3);
   }
-  for (const p of measured) dot(p, "#ff0000", 3);
-  if (!predicted) {
-    ctx.fillStyle = "#ccc";
-    ctx.fillText("no calibration on this side", 8, 16);
-  }
+  for (const p of measured) if (p) dot(p, "#ff0000", 3);
+  ctx.fillStyle = "#ccc";
+  if (!predicted) ctx.fillText("no calibration on this side", 8, 16);
+  if (!found) ctx.fillText("not found: the detector found no fixture in this frame", 8, predicted ? 16 : 32);
 }
 
 function renderSummary() {

@@ -145,6 +145,37 @@ def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(tm
         browser.close()
 
 
+def test_a_frame_whose_detection_failed_shows_as_not_found(tmp_path: Path) -> None:
+    """Robonaut day 1's frames 3, 18 and 29 found no sphere (`measured: [null]`): selecting one raises no
+    error in the page, both halves of the 2-D split view show that frame and say it was not found."""
+    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
+        browser = launch(pw)
+        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        page.click("li[data-session='robonaut-a-day1']")
+        page.wait_for_selector("#frames tr[data-frame]", state="attached")
+        page.click("#tabs button[data-tab='review']")
+        table = server.post("/api/review", json={"session": "robonaut-a-day1"}).json()["table"]
+        failed = [r["index"] for r in table if r["status"] == "not found"]
+        assert all(server.get(f"/api/review/marks/{i}").json()["measured"] == [None] for i in failed)
+        assert failed[:3] == [3, 18, 29], failed
+        for index in (failed[0], 5, failed[1]):
+            page.click(f"#frames tr[data-frame='{index}']")
+            page.wait_for_function(
+                f"['#split-old', '#split-new'].every(s => document.querySelector(s).dataset.frame === '{index}')"
+            )
+        assert page.get_attribute("#split-old", "data-status") == "not found"
+        assert page.get_attribute("#split-new", "data-status") == "not found"
+        toast = page.locator("#toast")
+        assert toast.is_hidden() or "Cannot read" not in toast.text_content()
+        assert errors == []
+        shot(page, "4d-not-found")
+        browser.close()
+
+
 def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
     with served(tmp_path / "data", sim_speed=10.0) as server, playwright_api.sync_playwright() as pw:
         browser = launch(pw)
