@@ -211,6 +211,7 @@ class JobManager:
         self.timeout_s = timeout_s
         self.cancel_grace_s = cancel_grace_s
         self._lock = threading.RLock()
+        self._submitting = threading.Lock()  # a calibration request: checked against the live jobs, then queued
         self._save_lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
         self._jobs: dict[str, _Job] = {}
@@ -231,7 +232,25 @@ class JobManager:
         self, session_id: str, mode: str, base_id: str | None, holdout: float, *, folds: int = 0, method: str = "lm"
     ) -> str:
         """Validate, then queue a calibration of the session's measured frames; the job's result is the
-        stored calibration's id. Unknown session or base calibration: NotFound; anything else wrong: InputError."""
+        stored calibration's id. Unknown session or base calibration: NotFound; anything else wrong: InputError.
+        The same request while such a job is queued or running (a double click, a second tab) is that job."""
+        with self._submitting:  # two requests at once: the second finds the first's job
+            asked = {"mode": mode, "base": base_id, "holdout": holdout, "folds": folds, "method": method}
+            with self._lock:
+                for job_id, job in self._jobs.items():
+                    snap = job.snap
+                    live = snap["state"] in ("queued", "running") and snap["session"] == session_id
+                    if (
+                        live
+                        and snap["kind"] == "calibration"
+                        and all(snap["detail"].get(k) == v for k, v in asked.items())
+                    ):
+                        return job_id
+            return self._submit_calibration(session_id, mode, base_id, holdout, folds, method)
+
+    def _submit_calibration(
+        self, session_id: str, mode: str, base_id: str | None, holdout: float, folds: int, method: str
+    ) -> str:
         payload = self.calibration_payload(session_id, mode, base_id, holdout, folds=folds, method=method)
 
         def finish(result: dict, job_id: str) -> str:

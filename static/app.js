@@ -201,7 +201,16 @@ function wire() {
   $("#import-session").addEventListener("submit", (e) => act(() => importSession(e)));
   $("#add-robot").addEventListener("submit", (e) => act(() => addRobot(e)));
   $("#holdout").addEventListener("input", () => ($("#holdout-out").textContent = `${Math.round($("#holdout").value * 100)}%`));
-  $("#calibrate-start").addEventListener("click", () => act(startCalibration));
+  $("#calibrate-start").addEventListener("click", () => act(async () => {
+    const button = $("#calibrate-start");
+    if (button.disabled) return;  // a double click: one calibration
+    button.disabled = true;
+    try {
+      await startCalibration();
+    } finally {
+      button.disabled = false;
+    }
+  }));
   $("#calibrate-cancel").addEventListener("click", () => state.job && act(() => api("POST", `/jobs/${state.job.id}/cancel`)));
   const reviewAgain = () => act(() => loadReview($("#review-old").value, $("#review-new").value, $("#review-sensor").value || null));
   $("#review-load").addEventListener("click", reviewAgain);
@@ -661,10 +670,14 @@ async function applyCalibration(id, note) {
 
 async function applyNew() {
   const r = await applyCalibration(state.newCal, "");
-  if (!r) return;
-  $("#apply-state").textContent = `Active: ${r.active} (previous: ${r.previous || "nominal model"})`;
+  if (r) await applied(r);
+}
+
+async function applied(r) {
   await refreshActive();
-  toast("Applied to the robot.", "info");
+  $("#apply-state").textContent = r.recorded ? `Active: ${r.active} (previous: ${r.previous || "nominal model"})`
+    : `Active: ${r.active} (it already was: sent to the robot again, history unchanged)`;
+  toast(r.recorded ? "Applied to the robot." : "Already the active calibration: sent to the robot again.", "info");
 }
 
 async function refreshActive() {
@@ -678,7 +691,8 @@ async function refreshActive() {
       el("td", {}, h.mode || ""), el("td", {}, h.session || ""),
       el("td", {}, h.figures && h.figures.after ? fmt(h.figures.after.mean) : ""),
       el("td", {}, el("button", { onclick: () => act(async () => {
-        if (await applyCalibration(h.calibration, "re-applied from history")) await refreshActive();
+        const r = await applyCalibration(h.calibration, "re-applied from history");
+        if (r) await applied(r);
       }) }, "re-apply"))));
   }
 }

@@ -215,9 +215,14 @@ def test_apply_makes_it_active_and_history_allows_rollback(client: TestClient, d
     assert daily["state"] == "done", daily
     client.post(f"/api/calibrations/{daily['result']}/apply")
     back = client.post(f"/api/calibrations/{day1_full['id']}/apply").json()
-    assert back == {"active": day1_full["id"], "previous": daily["result"], "robot": "robonaut-a"}
+    assert back == {"active": day1_full["id"], "previous": daily["result"], "robot": "robonaut-a", "recorded": True}
     history = client.get("/api/robot/history", params={"robot": "robonaut-a"}).json()
     assert [h["calibration"] for h in history[:3]] == [day1_full["id"], daily["result"], day1_full["id"]]
+    # The active one applied again: pushed to the robot again, no history row whose "previous" is itself.
+    again = client.post(f"/api/calibrations/{day1_full['id']}/apply").json()
+    assert again == {"active": day1_full["id"], "previous": day1_full["id"], "robot": "robonaut-a", "recorded": False}
+    assert client.get("/api/robot/history", params={"robot": "robonaut-a"}).json() == history
+    assert client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == day1_full["id"]
 
 
 def test_review_compares_old_and_new_frame_by_frame(client: TestClient, day1_full: dict) -> None:

@@ -348,7 +348,8 @@ class _Applier(threading.Thread):
                 if r.status_code != 200:
                     self.refused.append(r.text)
                     return
-                self.acked.append(self.in_flight)
+                if r.json()["recorded"]:  # not when it was already active (a new round starts with either)
+                    self.acked.append(self.in_flight)
                 self.in_flight = None
 
 

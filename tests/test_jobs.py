@@ -9,6 +9,7 @@ import shutil
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -176,6 +177,24 @@ def test_cancel_a_running_and_a_queued_job(jobs: JobManager, store: Store) -> No
         jobs.pause(running)
     with pytest.raises(NotFound):
         jobs.cancel("j-nothere")
+
+
+def test_the_same_calibration_asked_twice_while_it_runs_is_one_job(jobs: JobManager, store: Store) -> None:
+    """A double click on Calibrate, or two tabs asking at once: one job, one calibration; another request
+    (another held-out share) is another job, and once the first is done the same request runs again."""
+    n_cals = len(store.calibrations.list())
+    running = slow_job(jobs)
+    ask = ("robonaut-a-day1", "full", None, 0.3)
+    with ThreadPoolExecutor(4) as pool:
+        ids = set(pool.map(lambda _: jobs.submit_calibration(*ask), range(4)))
+    assert len(ids) == 1
+    other = jobs.submit_calibration("robonaut-a-day1", "full", None, 0.2)
+    assert other not in ids
+    jobs.cancel(running)
+    (first,) = ids
+    assert wait(jobs, first)["state"] == "done" and wait(jobs, other)["state"] == "done"
+    assert len(store.calibrations.list()) == n_cals + 2
+    assert jobs.submit_calibration(*ask) != first
 
 
 def test_a_failing_worker_fails_its_job_with_one_line(jobs: JobManager) -> None:

@@ -57,6 +57,7 @@ class Applied(BaseModel):
     active: str
     previous: str | None  # the robot's active calibration before (None: the nominal model)
     robot: str
+    recorded: bool  # a history row was added (False: it was already active, pushed to the driver again)
 
 
 @router.post("/calibrations/{cal_id}/apply", responses={409: {"model": ApplyConcerns}})

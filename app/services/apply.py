@@ -4,6 +4,8 @@ A calibration belongs to the robot whose session it was made from (an instance: 
 and is applied to that robot only: recorded in its apply history first, then pushed to its driver. One
 that is worse than the active calibration or moves a parameter beyond its sane bound needs the operator's
 confirmation (ConfirmationRequired, 409) unless `confirm`, and so does one whose solver did not converge.
+Applying the active calibration again pushes it to the driver again (a robot that restarted) and adds no
+history row.
 """
 
 from __future__ import annotations
@@ -35,9 +37,12 @@ class ApplyService:
                     + (f" (and {len(reasons) - 1} more)" if len(reasons) > 1 else ""),
                     reasons,
                 )
+        if self.store.calibrations.active(info.robot) == cal_id:  # already active: pushed again, no new row
+            self.robots.push_active(info.robot)
+            return {"active": cal_id, "previous": cal_id, "robot": info.robot, "recorded": False}
         active, previous = self.store.calibrations.apply(info.robot, cal_id, note)
         self.robots.push_active(info.robot)
-        return {"active": active, "previous": previous, "robot": info.robot}
+        return {"active": active, "previous": previous, "robot": info.robot, "recorded": True}
 
     def concerns(self, cal_id: str) -> list[str]:
         """Why applying this calibration needs a confirmation (empty: it does not)."""
