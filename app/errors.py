@@ -12,4 +12,4 @@ class NotFound(Exception):
 
     @classmethod
     def unknown(cls, kind: str, key: object) -> NotFound:
-        return cls(f"unknown {kind} '{key}' not found")
+        return cls(f"no {kind} '{key}' on this desk")

@@ -141,10 +141,10 @@ def test_bad_requests_answer_4xx_with_a_sentence(
 def test_unknown_ids_answer_404_with_the_sentence_of_the_store(client: TestClient) -> None:
     """NotFound (raised by the store, the job manager and the review) is what answers 404."""
     for path, sentence in [
-        ("/api/sessions/s-nothere", "unknown session 's-nothere' not found"),
-        ("/api/sessions/nao/frames/99999/goto", "session 'nao' has no frame 99999 not found"),
-        ("/api/jobs/j-nothere", "unknown job 'j-nothere' not found"),
-        ("/api/calibrations/c-nothere", "unknown calibration 'c-nothere' not found"),
+        ("/api/sessions/s-nothere", "no session 's-nothere' on this desk"),
+        ("/api/sessions/nao/frames/99999/goto", "session 'nao' has no frame 99999"),
+        ("/api/jobs/j-nothere", "no job 'j-nothere' on this desk"),
+        ("/api/calibrations/c-nothere", "no calibration 'c-nothere' on this desk"),
     ]:
         r = client.post(path) if path.endswith("goto") else client.get(path)
         assert (r.status_code, r.json()) == (404, {"detail": sentence}), path

@@ -268,7 +268,7 @@ class SessionRepository:
         row = self.db.one("SELECT * FROM frames WHERE session_id = ? AND idx = ?", (session_id, int(index)))
         if row is None:
             self.get(session_id)
-            raise NotFound(f"session '{session_id}' has no frame {index} not found")
+            raise NotFound(f"session '{session_id}' has no frame {index}")
         return _frame_info(row)
 
     def dataset(self, session_id: str, profile: Profile) -> Dataset:
