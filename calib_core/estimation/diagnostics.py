@@ -5,6 +5,8 @@ a tracker registration that cannot fit, a fit worse than its start."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 from ..model.profile import Mode, Profile
@@ -39,9 +41,27 @@ def diagnose(
     out = [warn("held-fixed", d.describe(profile)) for d in fit.dependencies]
     out += [warn("weak", w) for w in weak_parameters(profile, rep, free, nuisance)]
     if outliers:
-        frames = sorted({o.frame for o in outliers})
-        shown = ", ".join(str(f) for f in frames[:10]) + (" ..." if len(frames) > 10 else "")
-        out.append(warn("outliers", f"{len(outliers)} observations rejected as outliers (frames {shown})"))
+        out.append(
+            warn(
+                "outliers",
+                f"{len(outliers)} observations rejected as outliers (frames {_frames(o.frame for o in outliers)}): "
+                "each beyond its sensor's outlier limit and predicted neither by a richer model of the robot nor "
+                "by its neighbours in joint space or in time (a failed detection, a swapped marker)",
+            )
+        )
+    if fit.verdict is not None and fit.verdict.model_error.any():
+        data = fit.problem.data
+        kept = np.flatnonzero(fit.verdict.model_error)
+        out.append(
+            Diagnostic(
+                Severity.INFO,
+                "model-error",
+                f"{len(kept)} observations beyond the outlier limit were kept (frames "
+                f"{_frames(int(data.frame_ids[data.cfg[k]]) for k in kept)}): the other observations predict "
+                "them, so they are model error (unmodelled geometry or drift), not gross errors; a mode with more "
+                "parameters may fit them",
+            )
+        )
     nominal = profile.nominal()
     bounded = [
         profile.label(i) for i in free if i in mode.bounds and abs(fit.p[i] - nominal[i]) >= mode.bounds[i] * (1 - 1e-9)
@@ -76,6 +96,12 @@ def diagnose(
     if figs["after"].rms > figs["before"].rms:
         out.append(warn("worse-than-start", "the calibration fits the data worse than its starting point"))
     return out
+
+
+def _frames(frames: Iterable[int]) -> str:
+    """Frame numbers for a message: sorted, at most ten."""
+    ids = sorted(set(frames))
+    return ", ".join(str(f) for f in ids[:10]) + (" ..." if len(ids) > 10 else "")
 
 
 def _registration_misfit(
