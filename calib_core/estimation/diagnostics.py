@@ -20,6 +20,7 @@ from .validation import Figures
 # No robot's nominal model is this far off once the tracker's pose is fitted; rows from two tracker
 # set-ups (or the wrong arm) are.
 REGISTRATION_MISFIT_M = 0.05
+NOISE_EXCESS = 100.0  # residual scale over the declared noise beyond which the noise model cannot be right
 HOLDOUT_WORSE = 1.5  # held-out RMS this many times the training RMS: the calibration may not generalise
 
 
@@ -93,6 +94,7 @@ def diagnose(
             )
         )
     out += _registration_misfit(profile, fit, figs, each)
+    out += _noise_excess(fit)
     if figs["after"].rms > figs["before"].rms:
         out.append(warn("worse-than-start", "the calibration fits the data worse than its starting point"))
     return out
@@ -102,6 +104,26 @@ def _frames(frames: Iterable[int]) -> str:
     """Frame numbers for a message: sorted, at most ten."""
     ids = sorted(set(frames))
     return ", ".join(str(f) for f in ids[:10]) + (" ..." if len(ids) > 10 else "")
+
+
+def _noise_excess(fit: Fit) -> list[Diagnostic]:
+    """A fit whose residuals are far above a sensor's declared noise: model error the mode cannot
+    take, a noise figure that is wrong, or data in the wrong unit. It may be right (a real robot's
+    model error), so a warning, not an error."""
+    out = []
+    for b in fit.problem.blocks:
+        ratio = fit.sigmas.get(b.index, 0.0)
+        if ratio > NOISE_EXCESS:
+            out.append(
+                Diagnostic(
+                    Severity.WARNING,
+                    "noise-excess",
+                    f"the fit's residuals are {ratio:.0f} times the noise '{b.sensor.name}' declares: errors "
+                    "the mode cannot model, a noise figure that is too optimistic, or data in the wrong unit "
+                    "(check data.joint_unit and the measurement's unit)",
+                )
+            )
+    return out
 
 
 def _registration_misfit(
@@ -121,9 +143,11 @@ def _registration_misfit(
                 Diagnostic(
                     Severity.WARNING,
                     "registration-misfit",
-                    f"with only the registration fitted the model is {before.rms:.3g} {before.unit} RMS off: are "
-                    "these rows from one tracker set-up and the arm the data say? Calibrate each set-up on its own "
-                    "(calib solve --where)",
+                    f"with only the tracker's pose fitted the starting model misses the data by {before.rms:.3g} "
+                    f"{before.unit} RMS, more than any robot's nominal geometry is off: the data and the profile "
+                    "disagree. Likely causes: rows from two tracker set-ups or of the other arm (calibrate each on "
+                    "its own: calib solve --where), the joint readings' unit (data.joint_unit), or the measured "
+                    "point (a reflector or target far from where the profile puts it)",
                 )
             )
     return out
