@@ -1,4 +1,4 @@
-"""The `calib` command (specs/cli.md): solve, predict, simulate, detect-sphere, detect-board.
+"""The `calib` command (specs/cli.md): solve, predict, evaluate, simulate, detect-sphere, detect-board.
 
 Bad input ends with exit status 2 and a message naming file, line and column; an internal failure
 (a bug) with exit status 1 and one line (set CALIB_DEBUG=1 for the traceback); never a traceback
@@ -28,6 +28,7 @@ from calib_core import (
     Problem,
     SimulatedRobot,
     calibrate,
+    evaluate,
     load_profile,
     read_dataset,
     to_csv,
@@ -92,6 +93,18 @@ def _parser() -> argparse.ArgumentParser:
     pr.add_argument("--data", required=True)
     pr.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE", help=WHERE_HELP)
     pr.add_argument("--out", required=True, help="CSV: the input rows plus prediction columns")
+
+    ev = sub.add_parser("evaluate", help="the error figures of a calibration on data it was not fitted on")
+    ev.add_argument("--robot", required=True)
+    ev.add_argument("--calibration", required=True, help="calibration JSON")
+    ev.add_argument("--data", required=True, help="CSV in the robot's format, with measurements")
+    ev.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE", help=WHERE_HELP)
+    ev.add_argument(
+        "--register",
+        action="store_true",
+        help="fit the tracker's pose to these data first (another tracker set-up); the robot's parameters stay",
+    )
+    ev.add_argument("--json", action="store_true", help='one JSON object {"mean", "rms", "max", "n", "unit"}')
 
     so = sub.add_parser(
         "self-observe", help="calibrate from what the robot's cameras see of its markers (the CTU camera format)"
@@ -194,6 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         commands = {
             "solve": _solve,
             "predict": _predict,
+            "evaluate": _evaluate,
             "export": _export,
             "self-observe": _self_observe,
             "simulate": _simulate,
@@ -268,6 +282,23 @@ def _predict(args: argparse.Namespace) -> int:
         f"{'calibration ' + args.calibration if cal else 'the nominal model'}"
         f"{' (registration fitted to these rows)' if cal is None and registration_params(profile) else ''}: {args.out}"
     )
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    profile = load_profile(args.robot)
+    cal = _load_calibration(args.calibration, profile)
+    data = _where(read_dataset(profile, args.data), args.where)
+    result = evaluate(profile, cal, data, reregister=args.register)
+    if args.json:
+        _print_json(result.to_dict(), one_line=True)
+        return 0
+    seen = " (the tracker's pose fitted to these rows)" if result.registered else ""
+    print(f"{profile.name} {cal.mode} calibration {args.calibration} on {args.data}{seen}")
+    print(f"  {result.figures}")
+    if len(result.sensors) > 1:
+        for name, f in result.sensors.items():
+            print(f"  {name}: {f}")
     return 0
 
 

@@ -28,7 +28,9 @@ _EXPORTS = {
     "Profile": "model.profile",
     "SimulatedRobot": "sim.simulator",
     "Simulation": "sim.simulator",
+    "Evaluation": "estimation.evaluation",
     "calibrate": "estimation.calibrate",
+    "evaluate": "estimation.evaluation",
     "fit_parameters": "estimation.calibrate",
     "load_profile": "model.loader",
     "merge": "dataset",
@@ -43,6 +45,7 @@ __all__ = [
     "SENSOR_MODELS",
     "Calibration",
     "Dataset",
+    "Evaluation",
     "InputError",
     "Problem",
     "Profile",
@@ -50,6 +53,7 @@ __all__ = [
     "SimulatedRobot",
     "Simulation",
     "calibrate",
+    "evaluate",
     "fit_parameters",
     "load_profile",
     "merge",
@@ -75,6 +79,7 @@ if TYPE_CHECKING:
     from .errors import InputError
     from .estimation.calibrate import calibrate, fit_parameters
     from .estimation.calibration import Calibration
+    from .estimation.evaluation import Evaluation, evaluate
     from .estimation.problem import Problem
     from .estimation.registration import register
     from .files import write_atomic

@@ -566,3 +566,18 @@ def test_a_calibration_that_did_not_converge_says_so_and_needs_confirmation(clie
     refused = client.post(f"/api/calibrations/{job['result']}/apply", json={})
     assert refused.status_code == 409
     assert any("did not converge" in reason for reason in refused.json()["reasons"])
+
+
+def test_importing_joint_readings_in_radians_for_a_degree_profile_is_a_422_naming_the_column(
+    client: TestClient, tmp_path: Path
+) -> None:
+    from test_sanity_checks import radians_copy
+
+    radians_copy(tmp_path / "rad.csv")
+    r = client.post(
+        "/api/sessions/import",
+        data={"robot": "motoman", "name": "radians"},
+        files={"data": ("rad.csv", io.BytesIO((tmp_path / "rad.csv").read_bytes()), "text/csv")},
+    )
+    assert r.status_code == 422, r.text
+    assert "look like radians" in r.text and "column" in r.text

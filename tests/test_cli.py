@@ -617,3 +617,81 @@ def test_every_subcommand_answers_help(sub: tuple[str, ...], help_runs: dict) ->
     }
     for opt in options.get(sub[0] if sub else "", ["solve", "predict", "simulate"]):
         assert opt in proc.stdout, (opt, proc.stdout)
+
+
+@pytest.fixture(scope="module")
+def evaluated(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A full calibration from day 1, evaluated on 40 fresh configurations of the same robot."""
+    d = tmp_path_factory.mktemp("evaluate")
+    ok(calib("simulate", "--robot", "robonaut-a", "--configurations", "67", "--out", "day1.csv", cwd=d))
+    ok(calib("simulate", "--robot", "robonaut-a", "--configurations", "40", "--seed", "5", "--out", "fresh.csv", cwd=d))
+    ok(
+        calib(
+            "simulate", "--robot", "robonaut-a", "--configurations", "40", "--out", "x.csv", "--truth", "t.json", cwd=d
+        )
+    )
+    ok(calib("solve", "--robot", "robonaut-a", "--mode", "full", "--data", "day1.csv", "--out", "full.json", cwd=d))
+    args = ("evaluate", "--robot", "robonaut-a", "--calibration", "full.json", "--data", "fresh.csv")
+    return {"dir": d, "text": ok(calib(*args, cwd=d)), "json": ok(calib(*args, "--json", cwd=d))}
+
+
+def test_evaluate_prints_the_figures_on_data_it_was_not_fitted_on(evaluated: dict) -> None:
+    from calib_core import Problem, read_dataset
+
+    d = evaluated["dir"]
+    figures = json.loads(evaluated["json"].stdout)
+    assert set(figures) == {"mean", "rms", "max", "n", "unit"}
+    assert figures["n"] == 40 and figures["unit"] == "cm"
+    assert f"mean {figures['mean']:.3f} cm" in evaluated["text"].stdout
+    # The same figures from the predictions `calib predict` writes, computed here.
+    ok(
+        calib(
+            "predict",
+            "--robot",
+            "robonaut-a",
+            "--calibration",
+            "full.json",
+            "--data",
+            "fresh.csv",
+            "--out",
+            "p.csv",
+            cwd=d,
+        )
+    )
+    _, rows = read_rows(d / "p.csv")
+    e = [math.dist([float(r[k]) for k in "xyz"], [float(r[f"pred_{k}"]) for k in "xyz"]) for r in rows]
+    assert figures["mean"] == pytest.approx(sum(e) / len(e), abs=1e-5)
+    assert figures["max"] == pytest.approx(max(e), abs=1e-5)
+    # Against the truth: the calibrated model is at the noise floor (the truth's own error on these data).
+    rn = load_profile("robonaut-a")
+    truth = rn.params_from_display(json.loads((d / "t.json").read_text())["parameters"])
+    data = read_dataset(rn, d / "fresh.csv")
+    err = (Problem(rn, data, [], truth).predict(truth) - data.measured) ** 2
+    floor = math.sqrt(float(err.sum(axis=1).mean()))
+    assert 0.8 * floor <= figures["rms"] <= 1.3 * floor, (figures["rms"], floor)
+
+
+@pytest.mark.parametrize(
+    ("content", "must"),
+    [
+        ("frame,x,y\n1,2,3\n", r"fresh\.csv.*(column|z)"),
+        (None, r"fresh\.csv.*line 3.*shoulder_pitch"),
+    ],
+    ids=["missing-column", "not-a-number"],
+)
+def test_evaluate_bad_input_exits_2_naming_file_line_and_column(evaluated: dict, content, must: str) -> None:
+    d = evaluated["dir"]
+    bad = d / "bad" / "fresh.csv"
+    bad.parent.mkdir(exist_ok=True)
+    if content is None:
+        lines = (d / "fresh.csv").read_text().splitlines()
+        cells = lines[2].split(",")
+        cells[5] = "abc"  # shoulder_pitch of line 3
+        lines[2] = ",".join(cells)
+        content = "\n".join(lines) + "\n"
+    bad.write_text(content)
+    proc = calib("evaluate", "--robot", "robonaut-a", "--calibration", "full.json", "--data", str(bad), cwd=d)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert re.search(must, proc.stderr, re.IGNORECASE), proc.stderr
+    missing = calib("evaluate", "--robot", "robonaut-a", "--calibration", "none.json", "--data", "fresh.csv", cwd=d)
+    assert missing.returncode == 2 and "none.json" in missing.stderr, missing.stderr

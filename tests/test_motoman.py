@@ -153,7 +153,7 @@ def test_the_other_arm_is_left_alone_and_rows_of_two_setups_are_warned_about(mm)
     assert not any("L2" in w for w in cal.warnings)
     moved = replace(data, measured=data.measured + np.where(np.arange(120) < 60, 0.0, 1.5)[:, None])
     mixed = calibrate(mm, moved, "offsets")
-    assert any("one tracker set-up" in w for w in mixed.warnings)
+    assert any("two tracker set-ups" in w for w in mixed.warnings)
 
 
 def test_csv_without_frame_column_and_default_arm(mm) -> None:

@@ -32,7 +32,7 @@ from .calibration import Calibration, Outlier, parameter_estimate
 from .diagnostics import diagnose
 from .fit import Fit
 from .identifiability import find_dependencies, identifiability_report, report
-from .outliers import inliers, pooled_robust_sigma, problem_outliers, robust_sigma
+from .outliers import OutlierVerdict, inliers, pooled_robust_sigma, problem_outliers, robust_sigma, sort_outliers
 from .problem import Problem
 from .registration import register, registration_params
 from .reports import SolverReport
@@ -195,6 +195,7 @@ def fit_parameters(
         passes.history,
         sigma,
         sigmas,
+        passes.verdict,
     )
 
 
@@ -214,6 +215,7 @@ class _Passes:
         self.iterations = self.evaluations = 0
         self.history: list[float] = []
         self.last: SolveResult
+        self.verdict: OutlierVerdict | None = None
 
     def absorb(self, res: SolveResult) -> None:
         self.iterations += res.iterations
@@ -266,7 +268,9 @@ class _Passes:
             scale = {b.index: robust_sigma(r[b.rows], b.dim) * np.sqrt(chi2.ppf(0.95, b.dim)) for b in problem.blocks}
             x = self.run(x, Robust([(b.rows, b.dim, scale[b.index]) for b in problem.blocks]))
             r = problem.residuals(x)
-            problem.included = ~problem_outliers(problem, r)
+            # Beyond the limit is not enough: only what no smooth model predicts is a gross error.
+            self.verdict = sort_outliers(problem, x, problem_outliers(problem, r))
+            problem.included = ~self.verdict.gross
             problem.prior_scale = pooled_robust_sigma(problem, r)
             self.run(x, None)
 
@@ -377,7 +381,9 @@ def _result(
         dim = profile.sensors[train.sensor[k]].dim
         error = float(np.linalg.norm(pred[k, :dim] - train.measured[k, :dim]))
         line = None if train.lines is None else int(train.lines[k])
-        outliers.append(Outlier(int(train.frame_ids[train.cfg[k]]), line, error, profile.sensors[train.sensor[k]].unit))
+        sigmas = None if fit.verdict is None else float(fit.verdict.sigmas[k])
+        frame = int(train.frame_ids[train.cfg[k]])
+        outliers.append(Outlier(frame, line, error, profile.sensors[train.sensor[k]].unit, sigmas))
     nuisance = frozenset(registration_params(profile, train.sensors))
     return Calibration(
         robot=profile.name,

@@ -41,10 +41,15 @@ class ParameterEstimate:
 
 @dataclass
 class Outlier:
+    """A rejected observation: its frame and CSV line, its error at the fit (the sensor's unit) and
+    why it was rejected (`sigmas`: how far the best prediction from the other observations misses
+    it, in robust sigmas; None in files written before it was recorded)."""
+
     frame: int
     line: int | None
     error: float
     unit: str
+    sigmas: float | None = None
 
 
 @dataclass

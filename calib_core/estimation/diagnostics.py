@@ -5,6 +5,8 @@ a tracker registration that cannot fit, a fit worse than its start."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 from ..model.profile import Mode, Profile
@@ -18,6 +20,7 @@ from .validation import Figures
 # No robot's nominal model is this far off once the tracker's pose is fitted; rows from two tracker
 # set-ups (or the wrong arm) are.
 REGISTRATION_MISFIT_M = 0.05
+NOISE_EXCESS = 100.0  # residual scale over the declared noise beyond which the noise model cannot be right
 HOLDOUT_WORSE = 1.5  # held-out RMS this many times the training RMS: the calibration may not generalise
 
 
@@ -39,9 +42,27 @@ def diagnose(
     out = [warn("held-fixed", d.describe(profile)) for d in fit.dependencies]
     out += [warn("weak", w) for w in weak_parameters(profile, rep, free, nuisance)]
     if outliers:
-        frames = sorted({o.frame for o in outliers})
-        shown = ", ".join(str(f) for f in frames[:10]) + (" ..." if len(frames) > 10 else "")
-        out.append(warn("outliers", f"{len(outliers)} observations rejected as outliers (frames {shown})"))
+        out.append(
+            warn(
+                "outliers",
+                f"{len(outliers)} observations rejected as outliers (frames {_frames(o.frame for o in outliers)}): "
+                "each beyond its sensor's outlier limit and predicted neither by a richer model of the robot nor "
+                "by its neighbours in joint space or in time (a failed detection, a swapped marker)",
+            )
+        )
+    if fit.verdict is not None and fit.verdict.model_error.any():
+        data = fit.problem.data
+        kept = np.flatnonzero(fit.verdict.model_error)
+        out.append(
+            Diagnostic(
+                Severity.INFO,
+                "model-error",
+                f"{len(kept)} observations beyond the outlier limit were kept (frames "
+                f"{_frames(int(data.frame_ids[data.cfg[k]]) for k in kept)}): the other observations predict "
+                "them, so they are model error (unmodelled geometry or drift), not gross errors; a mode with more "
+                "parameters may fit them",
+            )
+        )
     nominal = profile.nominal()
     bounded = [
         profile.label(i) for i in free if i in mode.bounds and abs(fit.p[i] - nominal[i]) >= mode.bounds[i] * (1 - 1e-9)
@@ -73,8 +94,35 @@ def diagnose(
             )
         )
     out += _registration_misfit(profile, fit, figs, each)
+    out += _noise_excess(fit)
     if figs["after"].rms > figs["before"].rms:
         out.append(warn("worse-than-start", "the calibration fits the data worse than its starting point"))
+    return out
+
+
+def _frames(frames: Iterable[int]) -> str:
+    """Frame numbers for a message: sorted, at most ten."""
+    ids = sorted(set(frames))
+    return ", ".join(str(f) for f in ids[:10]) + (" ..." if len(ids) > 10 else "")
+
+
+def _noise_excess(fit: Fit) -> list[Diagnostic]:
+    """A fit whose residuals are far above a sensor's declared noise: model error the mode cannot
+    take, a noise figure that is wrong, or data in the wrong unit. It may be right (a real robot's
+    model error), so a warning, not an error."""
+    out = []
+    for b in fit.problem.blocks:
+        ratio = fit.sigmas.get(b.index, 0.0)
+        if ratio > NOISE_EXCESS:
+            out.append(
+                Diagnostic(
+                    Severity.WARNING,
+                    "noise-excess",
+                    f"the fit's residuals are {ratio:.0f} times the noise '{b.sensor.name}' declares: errors "
+                    "the mode cannot model, a noise figure that is too optimistic, or data in the wrong unit "
+                    "(check data.joint_unit and the measurement's unit)",
+                )
+            )
     return out
 
 
@@ -95,9 +143,11 @@ def _registration_misfit(
                 Diagnostic(
                     Severity.WARNING,
                     "registration-misfit",
-                    f"with only the registration fitted the model is {before.rms:.3g} {before.unit} RMS off: are "
-                    "these rows from one tracker set-up and the arm the data say? Calibrate each set-up on its own "
-                    "(calib solve --where)",
+                    f"with only the tracker's pose fitted the starting model misses the data by {before.rms:.3g} "
+                    f"{before.unit} RMS, more than any robot's nominal geometry is off: the data and the profile "
+                    "disagree. Likely causes: rows from two tracker set-ups or of the other arm (calibrate each on "
+                    "its own: calib solve --where), the joint readings' unit (data.joint_unit), or the measured "
+                    "point (a reflector or target far from where the profile puts it)",
                 )
             )
     return out

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .identifiability import Dependency
+from .outliers import OutlierVerdict
 from .problem import Problem
 from .solver import SolveStatus
 
@@ -23,3 +24,4 @@ class Fit:
     cost_history: list[float]
     sigma: float  # scale of the whitened residuals at the solution
     sigmas: dict[int, float]  # per sensor (profile index): the scale of its whitened residuals
+    verdict: OutlierVerdict | None = None  # the robust pass's flagged observations, sorted (None: no robust pass)

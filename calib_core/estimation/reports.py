@@ -19,8 +19,8 @@ class Severity(Enum):
 @dataclass(frozen=True)
 class Diagnostic:
     """One finding about a calibration: `code` for programs (`not-converged`, `held-fixed`, `weak`,
-    `outliers`, `at-bound`, `holdout-worse`, `registration-misfit`, `worse-than-start`), `message`
-    for people."""
+    `outliers`, `model-error`, `at-bound`, `holdout-worse`, `registration-misfit`, `noise-excess`,
+    `worse-than-start`), `message` for people."""
 
     severity: Severity
     code: str

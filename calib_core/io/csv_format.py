@@ -98,6 +98,8 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         obs["vertex"].append(vertex)
         obs["measured"].append([row.number(c) * meas_factor for c in fmt.measurement_columns])
         obs["line"].append(ln)
+    joints = np.array(frames.joints).reshape(-1, len(profile.joints))
+    check_joint_unit(profile, joints, name, list(frames.first_line.values()))
     return Dataset(
         robot=profile.name,
         frame_ids=np.array(list(frames.index), dtype=int),
@@ -113,6 +115,51 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         header=header,
         rows=[fields for _, fields in body],
     )
+
+
+RADIAN_RANGE = 3.2  # every reading of a radian file is within +-pi
+MIN_READINGS = 10  # fewer readings do not tell the units apart
+
+
+def check_joint_unit(profile: Profile, q: np.ndarray, name: str, lines: list[int]) -> None:
+    """Joint readings in the other angle unit than the profile's `data.joint_unit`: surely wrong.
+
+    Degrees read as radians: a reading beyond 2 pi that is also beyond its joint's limits (no joint
+    turns that far). Radians read as degrees: a calibration needs the joints to move by tens of
+    degrees, so when at least MIN_READINGS readings all lie within +-3.2 (the radians' +-pi) while
+    the joints' limits allow far more, they are radians. `q`: (N, n_joints) in rad, NaN where unread;
+    `lines`: each configuration's first line."""
+    fmt = profile.data
+    factor = ANGLE_IN_RAD[fmt.joint_unit]
+    lo, hi = profile.joint_limits()
+    columns = {profile.joint(j): c for j, c in fmt.joint_columns.items()}
+    read = [j for j in columns if np.isfinite(q[:, j]).any()] if len(q) else []
+    if not read:
+        return
+    raw = q[:, read] / factor
+    if fmt.joint_unit == "rad":
+        beyond = (np.abs(raw) > 2 * np.pi) & ((q[:, read] < lo[read]) | (q[:, read] > hi[read]))
+        if beyond.any():
+            n, k = np.argwhere(beyond)[0]
+            raise InputError(
+                f"joint readings look like degrees but the profile says joint_unit: rad ({raw[n, k]:g} is beyond "
+                f"2 pi and the joint's limits); convert them, or set data.joint_unit: deg in the profile",
+                file=name,
+                line=lines[n],
+                column=columns[read[k]],
+            )
+    elif fmt.joint_unit == "deg" and np.isfinite(raw).sum() >= MIN_READINGS:
+        spans = np.nanmax(raw, axis=0) - np.nanmin(raw, axis=0)
+        room = np.degrees(hi[read] - lo[read])
+        if np.nanmax(np.abs(raw)) <= RADIAN_RANGE and spans.max() > 0 and room.max() > 4 * RADIAN_RANGE:
+            widest = columns[read[int(np.argmax(spans))]]
+            raise InputError(
+                f"joint readings look like radians but the profile says joint_unit: deg (every reading within "
+                f"+-{RADIAN_RANGE}, where the joints can turn by {room.max():.0f} deg); convert them, or set "
+                "data.joint_unit: rad in the profile",
+                file=name,
+                column=widest,
+            )
 
 
 class _Frames:

@@ -129,6 +129,16 @@ class SimulatedRobot:
             return self._stances(sampling, n)
         return self._uniform(n or 100)
 
+    def clustered(self, n: int, spread: float, wide_share: float) -> tuple[np.ndarray, np.ndarray]:
+        """Configurations as a session on a real robot often takes them: most within `spread` (rad) of
+        one visible configuration on every joint (a small workspace, a cube of poses), a share
+        `wide_share` of them anywhere visible. The joints' readings (N, n_joints) and the targets (N,)."""
+        q_wide, targets = self._uniform(n)
+        lo, hi = self.profile.joint_limits()
+        narrow = np.clip(q_wide[0] + self.rng.uniform(-spread, spread, q_wide.shape), lo, hi)
+        wide = self.rng.random(n) < wide_share
+        return np.where(wide[:, None], q_wide, narrow), targets
+
     def _uniform(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.profile.joint_limits()
         target = self.profile.data.target if self.profile.data.target is not None else 0

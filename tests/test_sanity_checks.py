@@ -1,0 +1,78 @@
+"""Input that is surely wrong is refused with its likely cause (exit 2 on the command line, 422 on
+the API's import paths: both are InputError); input that may be right gets a warning diagnostic."""
+
+from __future__ import annotations
+
+import csv
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib_core import InputError, SimulatedRobot, calibrate, load_profile, read_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
+FEB = ROOT / "sample_sessions" / "motoman-ctu" / "leica_feb2019.csv"
+MOTOMAN_YAML = ROOT / "calib_core" / "model" / "profiles" / "motoman.yaml"
+
+
+def radians_copy(path: Path) -> None:
+    """The Feb 2019 tracker file with every joint reading in radians (the columns still say _deg)."""
+    with FEB.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (str(math.radians(float(v))) if k.endswith("_deg") and v else v) for k, v in r.items()})
+
+
+def test_radians_in_a_degree_profile_exit_2_naming_file_and_column(tmp_path: Path) -> None:
+    # Before this check the solve "succeeded": 308 mm RMS after calibration, exit 0.
+    radians_copy(tmp_path / "rad.csv")
+    args = ["solve", "--robot", "motoman", "--mode", "offsets", "--data", "rad.csv", "--out", "x.json"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "app.cli", *args, "--where", "leica_frame_group=A", "--where", "reflector_arm=right"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "rad.csv" in proc.stderr and "column '" in proc.stderr
+    assert "look like radians but the profile says joint_unit: deg" in proc.stderr
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_degrees_in_a_radian_profile_name_the_line_and_column(tmp_path: Path) -> None:
+    text = MOTOMAN_YAML.read_text().replace("joint_unit: deg", "joint_unit: rad")
+    (tmp_path / "motoman-rad.yaml").write_text(text)
+    profile = load_profile(tmp_path / "motoman-rad.yaml")
+    with pytest.raises(InputError, match="look like degrees but the profile says joint_unit: rad") as err:
+        read_dataset(profile, FEB)
+    assert err.value.line is not None and err.value.column is not None and str(FEB) in str(err.value)
+    # The same file read as degrees is fine, and so are radians read as radians.
+    read_dataset(load_profile("motoman"), FEB)
+    radians_copy(tmp_path / "rad.csv")
+    assert (
+        read_dataset(profile, tmp_path / "rad.csv").n_observations
+        == read_dataset(load_profile("motoman"), FEB).n_observations
+    )
+
+
+def test_residuals_far_above_the_declared_noise_are_warned_about() -> None:
+    mm = load_profile("motoman")
+    robot = SimulatedRobot.from_profile(mm, seed=2)
+    robot.point_noise = 0.01  # 10 mm per axis where the profile declares 0.05 mm
+    noisy = calibrate(mm, robot.simulate(80).data, "offsets")
+    assert [d.code for d in noisy.diagnostics].count("noise-excess") == 1
+    assert "tracker" in next(d.message for d in noisy.diagnostics if d.code == "noise-excess")
+    quiet = calibrate(mm, SimulatedRobot.from_profile(mm, seed=2).simulate(80).data, "offsets")
+    assert "noise-excess" not in [d.code for d in quiet.diagnostics]
+    assert np.isfinite(quiet.figures["after"].rms)
