@@ -110,6 +110,15 @@ def test_a_bad_csv_names_line_and_column_and_creates_nothing(client: TestClient)
     detail = r.json()["detail"]
     assert "line 4" in detail and "y" in detail and "banana" in detail, detail
     assert len(client.get("/api/sessions").json()) == before
+    # A Robonaut file imported for the NAO: the answer names the robot whose format it was read in.
+    r = client.post(
+        "/api/sessions/import",
+        data={"robot": "nao", "name": "wrong robot"},
+        files={"data": ("day1.csv", (SAMPLES / "robonaut-a-day1" / "data.csv").open("rb"), "text/csv")},
+    )
+    assert r.status_code == 422 and "missing column" in r.json()["detail"]
+    assert "data format of robot nao" in r.json()["detail"], r.text
+    assert len(client.get("/api/sessions").json()) == before
 
 
 @pytest.mark.parametrize(

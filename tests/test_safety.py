@@ -229,7 +229,12 @@ def test_apply_asks_for_confirmation_when_worse_or_beyond(client: TestClient) ->
     assert client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == full
     # Confirmed, it applies.
     r = client.post(f"/api/calibrations/{daily}/apply", json={"confirm": True, "note": "operator confirmed"})
-    assert r.status_code == 200 and r.json() == {"active": daily, "previous": full, "robot": "robonaut-a", "recorded": True}
+    assert r.status_code == 200 and r.json() == {
+        "active": daily,
+        "previous": full,
+        "robot": "robonaut-a",
+        "recorded": True,
+    }
     assert client.get("/api/robot", params={"robot": "robonaut-a"}).json()["calibration"] == daily
     # Rolling back is not worse, but the parameters jump as far back: that is asked too.
     r = client.post(f"/api/calibrations/{full}/apply")

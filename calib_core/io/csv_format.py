@@ -62,7 +62,13 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     col = {h: i for i, h in enumerate(header)}
     for c in _required(fmt, col):
         if c not in col:
-            raise InputError(f"missing column '{c}' in the header", file=name, line=header_line, column=c)
+            raise InputError(
+                f"missing column '{c}' in the header (the data format of robot {profile.name}: is the file of"
+                " another robot?)",
+                file=name,
+                line=header_line,
+                column=c,
+            )
     target_column = _target_column(fmt, col)
     joint_factor = ANGLE_IN_RAD[fmt.joint_unit]
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(fmt.measurement_unit, profile.length_unit)

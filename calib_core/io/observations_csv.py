@@ -52,7 +52,13 @@ def parse_observations(profile: Profile, text: str, name: str = "<observations>"
     col = {h: i for i, h in enumerate(header)}
     for c in ("frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names):
         if c not in col:
-            raise InputError(f"missing column '{c}' in the header", file=name, line=header_line, column=c)
+            raise InputError(
+                f"missing column '{c}' in the header (the data format of robot {profile.name}: is the file of"
+                " another robot?)",
+                file=name,
+                line=header_line,
+                column=c,
+            )
     sensors = {s.name: i for i, s in enumerate(profile.sensors)}
     targets = {t.name: i for i, t in enumerate(profile.targets)}
     frames: dict[int, int] = {}
