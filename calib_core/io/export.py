@@ -53,7 +53,7 @@ USE_YAML = (
 
 def joint_offsets(profile: Profile, p: np.ndarray) -> dict[str, tuple[int, float]]:
     """Per joint: the parameter that is its offset (the first frame it drives, in profile order) and
-    that parameter's change from nominal, internal units (rad)."""
+    that parameter's change from nominal, internal units (rad; a prismatic joint's: length unit)."""
     nominal = profile.nominal()
     out: dict[str, tuple[int, float]] = {}
     for frame in profile.frames:
@@ -85,8 +85,8 @@ def offsets_yaml(profile: Profile, cal: Calibration) -> str:
     for jname, (i, delta) in joint_offsets(profile, p).items():
         s = std.get(names[i])
         joints[jname] = {
-            "offset": round(math.degrees(delta), DIGITS),
-            "unit": "deg",
+            "offset": round(profile.to_display(i, delta), DIGITS),
+            "unit": profile.unit(i),  # deg; a prismatic joint's: the profile's length unit
             "std": None if s is None else round(float(s), DIGITS),
             "parameter": names[i],
         }
