@@ -559,3 +559,112 @@ def test_the_command_line_says_what_is_wrong_with_a_urdf(tmp_path: Path, capsys:
     err = capsys.readouterr().err
     assert code == 2
     assert "arm.urdf" in err and "joint 'wrist_1'" in err and "Traceback" not in err
+
+
+# --- what URDFs in the wild get wrong, tolerated with a note --------------------------------------
+
+
+LENIENT = {
+    "version 0.0": (
+        lambda t: t.replace('<?xml version="1.0"?>', '<?xml version="0.0" ?>', 1),
+        'arm.urdf, line 1: the XML declaration says version="0.0", read as XML 1.0',
+    ),
+    "declaration after comments": (
+        lambda t: "<!-- written by hand -->\n\n" + t,
+        "arm.urdf, line 3: the XML declaration is not at the start of the file (after comments), moved there",
+    ),
+    "declaration after blank lines": (
+        lambda t: "\n\n\n" + t,
+        "arm.urdf, line 4: the XML declaration is not at the start of the file (after blank lines), moved there",
+    ),
+    "NUL bytes after the root": (lambda t: t + "\0", "arm.urdf: NUL bytes after the root element, ignored"),
+}
+
+
+@pytest.mark.parametrize("case", list(LENIENT))
+def test_xml_quirks_load_with_a_note(tmp_path: Path, case: str, capsys: pytest.CaptureFixture) -> None:
+    """The same robot as the well-formed file, and a note saying what was put right; the CLI prints it."""
+    fix, note = LENIENT[case]
+    (tmp_path / "clean").mkdir()
+    clean = load_profile(_setup(tmp_path / "clean"))
+    path = _setup(tmp_path, urdf_text=fix(arm_urdf()))
+    profile = load_profile(path)
+    assert len(profile.notes) == 1 and profile.notes[0].endswith(note), profile.notes
+    np.testing.assert_array_equal(profile.nominal(), clean.nominal())
+    assert profile.parameter_names == clean.parameter_names
+    # The export rewrites the file as read, put right: valid XML that yourdfpy reads.
+    text = calibrated_urdf(profile, _calibration(profile, profile.nominal() + 0.001))
+    (tmp_path / "out.urdf").write_text(text, encoding="utf-8")
+    assert _load(tmp_path / "out.urdf").joint_names == _load(tmp_path / "clean" / "arm.urdf").joint_names
+    data = tmp_path / "data.csv"
+    data.write_text("frame,x,y,z\n", encoding="utf-8")
+    main(["solve", "--robot", str(path), "--mode", "offsets", "--data", str(data), "--out", str(tmp_path / "c.json")])
+    assert f"calib solve: note: {profile.notes[0]}" in capsys.readouterr().err
+
+
+def test_other_xml_errors_stay_errors_on_the_files_line(tmp_path: Path) -> None:
+    """Put-right declarations keep every line where it was: a later error names its own line."""
+    text = "<!-- c -->\n" + arm_urdf().replace('xyz="0.0 0.0 0.089"', 'xyz="0 0.089"', 1)
+    line = text[: text.index('xyz="0 0.089"')].count("\n") + 1
+    with pytest.raises(InputError) as err:
+        load_profile(_setup(tmp_path, urdf_text=text))
+    assert err.value.line == line  # the <origin>'s line in the file as written
+    assert "joint 'shoulder_pan'" in str(err.value)
+    with pytest.raises(InputError, match="not valid XML"):  # broken XML with a quirk: still broken
+        load_profile(_setup(tmp_path, urdf_text='<?xml version="0.0"?>\n<robot name="a"><link name="a">'))
+
+
+NO_LIMITS = '<limit lower="-3.1" upper="3.1" effort="150" velocity="3.15"/>'
+
+
+def test_a_revolute_joint_without_limits_gets_zero_and_notes(tmp_path: Path) -> None:
+    """The URDF spec's default: lower = upper = 0. The joint cannot move, yet the default modes
+    estimate its offset: both said, naming the joint."""
+    text = arm_urdf().replace(NO_LIMITS, '<limit effort="150" velocity="3.15"/>', 1)  # shoulder_pan
+    profile = load_profile(_setup(tmp_path, urdf_text=text))
+    pan = profile.joints[profile.joint("shoulder_pan")]
+    assert (pan.lower, pan.upper) == (0.0, 0.0)
+    assert len(profile.notes) == 2, profile.notes
+    assert (
+        "joint 'shoulder_pan' (revolute) has no <limit lower=... upper=...>: both 0, the URDF default"
+        in (profile.notes[0])
+    )
+    assert profile.notes[0].startswith(f"{tmp_path / 'arm.urdf'}, line ")
+    assert profile.notes[1].startswith("joint 'shoulder_pan' cannot move (lower = upper = 0 deg)")
+    assert "mode(s) offsets, origins estimate its offset" in profile.notes[1]
+
+
+def test_the_profiles_joints_give_limits_before_they_are_checked(tmp_path: Path) -> None:
+    """A joint without limits, and one with limits the wrong way round, made usable by the profile."""
+    text = arm_urdf().replace(NO_LIMITS, '<limit effort="150" velocity="3.15"/>', 1)  # shoulder_pan
+    text = text.replace(NO_LIMITS, '<limit lower="1" upper="-1" effort="150" velocity="3.15"/>', 1)  # lift
+    profile_text = (
+        PROFILE + "joints:\n  shoulder_pan: {lower: -90, upper: 90}\n  shoulder_lift: {lower: -45, upper: 45}\n"
+    )
+    profile = load_profile(_setup(tmp_path, profile_text, urdf_text=text))
+    assert profile.notes == ()
+    limits = {j.name: (j.lower, j.upper) for j in profile.joints}
+    assert limits["shoulder_pan"] == pytest.approx((-HALF_PI, HALF_PI))
+    assert limits["shoulder_lift"] == pytest.approx((-HALF_PI / 2, HALF_PI / 2))
+    # Only one limit given: the other is still the URDF's default, and the note stays.
+    profile_text = PROFILE + "joints:\n  shoulder_pan: {upper: 90}\n  shoulder_lift: {lower: -45, upper: 45}\n"
+    profile = load_profile(_setup(tmp_path, profile_text, urdf_text=text))
+    assert len(profile.notes) == 1 and "joint 'shoulder_pan' (revolute) has no <limit" in profile.notes[0]
+    # An override that puts them the wrong way round is the profile's mistake, named there.
+    profile_text = PROFILE + "joints:\n  shoulder_lift: {lower: 45, upper: -45}\n"
+    with pytest.raises(InputError) as err:
+        load_profile(_setup(tmp_path, profile_text, urdf_text=text))
+    assert err.value.file == str(tmp_path / "arm.yaml") and "joints.shoulder_lift" in str(err.value)
+
+
+def test_the_api_robot_answer_carries_the_notes_and_prismatic_units(tmp_path: Path) -> None:
+    from app.robots import Robot  # noqa: F401  (the router's answer is built from a loaded profile)
+    from app.routers.robots import _joint_out
+
+    text = arm_urdf().replace('<?xml version="1.0"?>', '<?xml version="0.0"?>', 1)
+    profile = load_profile(_setup(tmp_path, urdf_text=text))
+    finger = _joint_out(profile, profile.joint("finger_joint"))
+    assert (finger.type, finger.unit, finger.lower, finger.upper, finger.lower_deg) == ("prismatic", "mm", 0, 40, None)
+    elbow = _joint_out(profile, profile.joint("elbow"))
+    assert (elbow.type, elbow.unit) == ("revolute", "deg")
+    assert elbow.lower_deg == pytest.approx(math.degrees(-3.1)) == pytest.approx(elbow.lower)

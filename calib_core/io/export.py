@@ -20,8 +20,6 @@ driver that model; use one of them, never both:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import yaml
 from lxml import etree

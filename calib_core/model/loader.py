@@ -219,7 +219,9 @@ class _Compiler:
             steps = self.registration_steps(body, joint, where)
         elif kind in ("mdh", "dh"):
             if joint >= 0 and self.joints[joint].prismatic:
-                raise self.fail(where, f"prismatic joint '{self.joints[joint].name}' needs a urdf or ops frame, not {kind}")
+                raise self.fail(
+                    where, f"prismatic joint '{self.joints[joint].name}' needs a urdf or ops frame, not {kind}"
+                )
             steps = self.dh_steps(kind, body, where)
         elif kind == "urdf":
             steps = self.urdf_steps(body, joint, where)
@@ -239,7 +241,9 @@ class _Compiler:
             if any(op.joint >= 0 and op.kind != want for op in ops):
                 kind = "prismatic" if want == "t" else "revolute"
                 motion = "a translation (tx, ty, tz)" if want == "t" else "a rotation (rx, ry, rz)"
-                raise self.fail(where, f"joint '{self.joints[joint].name}' is {kind}: the op it drives must be {motion}")
+                raise self.fail(
+                    where, f"joint '{self.joints[joint].name}' is {kind}: the op it drives must be {motion}"
+                )
         return ops
 
     def registration_steps(self, body: Any, joint: int, where: str) -> list[Step]:

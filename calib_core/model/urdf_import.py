@@ -164,9 +164,12 @@ def _tolerated(data: bytes, name: str) -> tuple[bytes, list[str]]:
     version = re.search(rb"""version\s*=\s*["']([^"']*)["']""", declaration)
     if match.start() > 0 and data[: match.start()].strip(b"\xef\xbb\xbf"):
         what = "comments" if b"<!--" in data[: match.start()] else "blank lines"
-        notes.append(f"{name}, line {line}: the XML declaration is not at the start of the file (after {what}), moved there")
+        notes.append(
+            f"{name}, line {line}: the XML declaration is not at the start of the file (after {what}), moved there"
+        )
     elif version is not None and version.group(1) != b"1.0":
-        notes.append(f'{name}, line {line}: the XML declaration says version="{version.group(1).decode(errors="replace")}", read as XML 1.0')
+        said = version.group(1).decode(errors="replace")
+        notes.append(f'{name}, line {line}: the XML declaration says version="{said}", read as XML 1.0')
     else:
         return data, notes
     encoding = re.search(rb"""encoding\s*=\s*["']([^"']*)["']""", declaration)
