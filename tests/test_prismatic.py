@@ -17,7 +17,7 @@ import pytest
 import yourdfpy
 from jacobian_check import check_jacobian, perturbed
 
-from calib_core import Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv
+from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv
 from calib_core.model.kinematics import forward
 
 # name, type, parent, child, xyz (m), rpy (rad), axis, limits (m or rad)
@@ -162,3 +162,83 @@ def test_a_simulated_tracker_recovers_the_offsets(profile_path: Path) -> None:
         assert abs(p.value - value) < 4 * p.std, (name, p.value, value, p.std)
         assert abs(p.value - value) < 0.01, (name, p.value, value)  # deg or mm
     assert cal.figures["after"].rms < 1.15 * 0.01 * math.sqrt(3)
+
+
+OPS_PROFILE = """\
+profile: 1
+name: slide
+units: {length: mm, angle: deg}
+joints:
+  slide: {type: prismatic, lower: 0, upper: 500, velocity: 100, resolution: 0.01}
+  turn: {lower: -90, upper: 90}
+frames:
+  - {name: carriage, parent: base, joint: slide, ops: [{tx: 0, joint: true, param: slide_offset}]}
+  - {name: arm, parent: carriage, joint: turn, urdf: {xyz: [0, 0, 100], axis: [0, 0, 1]}}
+  - {name: station, parent: base, urdf: {xyz: [0, 0, 0]}}
+targets:
+  - {name: tip, frame: arm, points: [[200, 0, 0]]}
+sensors:
+  - {name: s, frame: station, model: point3d}
+data:
+  sensor: s
+  target: tip
+  joints: {slide: slide_m, turn: turn}
+  joint_length_unit: m
+  measurement: {columns: [x, y, z], unit: mm}
+  prediction_columns: [px, py, pz]
+modes:
+  all: {free: [slide_offset, arm.offset]}
+"""
+
+
+def _yaml_profile(tmp_path: Path, text: str = OPS_PROFILE) -> Path:
+    path = tmp_path / "slide.yaml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_a_prismatic_joint_in_a_yaml_profile(tmp_path: Path) -> None:
+    """`type: prismatic`: limits in mm, a translation op, CSV readings in data.joint_length_unit."""
+    profile = load_profile(_yaml_profile(tmp_path))
+    slide = profile.joints[profile.joint("slide")]
+    assert slide.prismatic and (slide.lower, slide.upper, slide.resolution) == (0.0, 500.0, 0.01)
+    assert profile.joints[profile.joint("turn")].upper == pytest.approx(math.pi / 2)
+    data = parse_dataset(profile, "frame,x,y,z,slide_m,turn\n1,0,0,0,0.25,90\n")
+    np.testing.assert_allclose(data.joints[0], [250.0, math.pi / 2])  # mm, rad
+    tip = forward(profile, profile.nominal(), data.joints).t[profile.frame("arm")][0]
+    np.testing.assert_allclose(tip, [250.0, 0.0, 100.0], atol=1e-12)
+    assert "slide_m" in to_csv(profile, data) and ",0.25," in to_csv(profile, data)
+
+
+BAD_PRISMATIC = {
+    "a rotation driven by a prismatic joint": (
+        "ops: [{tx: 0, joint: true, param: slide_offset}]",
+        "ops: [{rx: 0, joint: true, param: slide_offset}]",
+        "frames[0]: joint 'slide' is prismatic: the op it drives must be a translation (tx, ty, tz)",
+    ),
+    "a translation driven by a revolute joint": (
+        "{type: prismatic, lower: 0, upper: 500,",
+        "{lower: 0, upper: 500,",
+        "frames[0]: joint 'slide' is revolute: the op it drives must be a rotation (rx, ry, rz)",
+    ),
+    "a DH row": (
+        "ops: [{tx: 0, joint: true, param: slide_offset}]",
+        "mdh: {a: 0, alpha: 0, d: 0, theta: 0}",
+        "frames[0]: prismatic joint 'slide' needs a urdf or ops frame, not mdh",
+    ),
+    "an unknown type": ("{type: prismatic,", "{type: spherical,", "joints.slide.type: unknown joint type 'spherical'"),
+    "an unknown length unit": ("joint_length_unit: m", "joint_length_unit: inch", "data.joint_length_unit: unknown"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_PRISMATIC))
+def test_bad_prismatic_profiles_name_the_field(tmp_path: Path, case: str) -> None:
+    old, new, words = BAD_PRISMATIC[case]
+    assert old in OPS_PROFILE
+    text = OPS_PROFILE.replace(old, new, 1).replace(
+        "modes:\n  all: {free: [slide_offset, arm.offset]}\n", "modes: {}\n"
+    )
+    with pytest.raises(InputError) as err:
+        load_profile(_yaml_profile(tmp_path, text))
+    assert err.value.file == str(tmp_path / "slide.yaml")
+    assert words in str(err.value), str(err.value)
