@@ -233,11 +233,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+def _load_robot(args: argparse.Namespace) -> Profile:
+    """The --robot profile; what loading it tolerated (a URDF's quirks) goes to stderr as notes."""
+    profile = load_profile(args.robot)
+    for note in profile.notes:
+        print(f"calib {args.command}: note: {note}", file=sys.stderr)
+    return profile
+
+
 def _solve(args: argparse.Namespace) -> int:
     check_share(args.holdout, "--holdout")
     if args.folds < 0 or args.folds == 1:
         raise InputError(f"--folds {args.folds} must be 0 (none) or at least 2")
-    profile = load_profile(args.robot)
+    profile = _load_robot(args)
     profile.mode(args.mode)
     base = _load_calibration(args.base, profile) if args.base else None
     data = _where(read_dataset(profile, args.data), args.where)
@@ -260,7 +268,7 @@ def _solve(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    profile = load_profile(args.robot)
+    profile = _load_robot(args)
     cal = _load_calibration(args.calibration, profile) if args.calibration else None
     p = cal.params(profile) if cal else profile.nominal()
     data = _where(read_dataset(profile, args.data), args.where)
@@ -306,7 +314,7 @@ def _self_observe(args: argparse.Namespace) -> int:
     from calib_core.io.ctu_motoman import camera_dataset
 
     check_share(args.holdout, "--holdout")
-    profile = load_profile(args.robot)
+    profile = _load_robot(args)
     profile.mode(args.mode)
     data = camera_dataset(profile, args.data, set(args.source) or None)
     _check_writable(args.out)
@@ -320,7 +328,7 @@ def _self_observe(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from calib_core.io.export import calibrated_urdf, offsets_yaml
 
-    profile = load_profile(args.robot)
+    profile = _load_robot(args)
     cal = _load_calibration(args.calibration, profile)
     _check_writable(args.out)
     text = calibrated_urdf(profile, cal) if args.format == "urdf" else offsets_yaml(profile, cal)
@@ -330,7 +338,7 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    profile = load_profile(args.robot)
+    profile = _load_robot(args)
     if (args.out is None) == (args.session is None):
         raise InputError("give either --out (a dataset CSV) or --session (a session folder with images)")
     if args.configurations is not None and args.configurations < 1:
@@ -447,7 +455,7 @@ def _detect_board(args: argparse.Namespace) -> int:
 def _import_bag(args: argparse.Namespace) -> int:
     from calib_core.io.bag_import import import_bag  # rosbags loads only for this subcommand
 
-    profile = load_profile(args.robot)
+    profile = _load_robot(args)
     believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None
     _check_writable(args.out, session=True)
     start = time.perf_counter()

@@ -240,7 +240,8 @@ def test_robots_added_while_the_desk_runs_stay_after_a_restart(desk_dir: Path, t
         assert r.status_code == 201, r.text
         arm = r.json()
         assert (arm["model"], arm["drivable"], arm["driver"]) == ("test-arm", False, None)
-        assert [j["name"] for j in arm["joints"]] == JOINTS
+        assert [j["name"] for j in arm["joints"]] == [*JOINTS, "finger_joint"]
+        assert arm["joints"][-1]["type"] == "prismatic" and arm["notes"] == []
         # A built-in profile by name: one more NAO, simulated.
         r = _add(client, name="nao-3", profile="nao", driver="simulated")
         assert r.status_code == 201 and r.json()["model"] == "nao", r.text

@@ -27,7 +27,8 @@ from calib_core.model.urdf_import import profile_frames, read_urdf
 from calib_core.units import length_factor
 
 HALF_PI = math.pi / 2
-# name, type, parent, child, xyz (m), rpy (rad), axis: a UR5-like arm, fixed flange and TCP, a prismatic finger
+# name, type, parent, child, xyz (m), rpy (rad), axis: a UR5-like arm, fixed flange and TCP, a prismatic
+# finger, and a planar tray (which cannot be calibrated: left out)
 ARM = [
     ("shoulder_pan", "revolute", "base_link", "shoulder_link", (0, 0, 0.089), (0, 0, 0), (0, 0, 1)),
     ("shoulder_lift", "revolute", "shoulder_link", "upper_arm_link", (0, 0.136, 0), (0, HALF_PI, 0), (0, 1, 0)),
@@ -38,8 +39,10 @@ ARM = [
     ("flange", "fixed", "wrist_3_link", "tool0", (0, 0.082, 0), (-HALF_PI, 0, 0), None),
     ("tcp_joint", "fixed", "tool0", "tcp", (0, 0, 0), (0, 0, 0), None),  # written without <origin>
     ("finger_joint", "prismatic", "tool0", "finger", (0, 0, 0.02), (0, 0, 0), (1, 0, 0)),
+    ("tray_joint", "planar", "base_link", "tray", (0.3, 0, 0), (0, 0, 0), (0, 0, 1)),
 ]
-JOINTS = [j[0] for j in ARM if j[1] in ("revolute", "continuous")]
+JOINTS = [j[0] for j in ARM if j[1] in ("revolute", "continuous")]  # the chain to the tracker's SMR
+FINGER_M = (0.0, 0.04)  # the finger's limits
 LINKS = ["base_link"] + [j[3] for j in ARM]
 SIGMA_MM = 0.02  # the tracker's noise per axis
 FLOOR_MM = SIGMA_MM * math.sqrt(3)  # the RMS distance that noise alone gives
@@ -207,14 +210,16 @@ def test_profile_kinematics_match_yourdfpy(tmp_path: Path, units: tuple[str, str
     text = text.replace("{x: 30, y: 10, z: 40}", "{x: 0, y: 0, z: 0}")
     profile = load_profile(_setup(tmp_path, text))
     assert profile.base == "base_link"
-    assert profile.joint_names == JOINTS  # the prismatic finger is left out
-    assert "finger" not in [f.name for f in profile.frames]
+    assert profile.joint_names == [*JOINTS, "finger_joint"]  # the planar tray is left out
+    assert "tray" not in [f.name for f in profile.frames]
     urdf = _load(tmp_path / "arm.urdf")
-    q = np.random.default_rng(3).uniform(-3.1, 3.1, (20, len(JOINTS)))
-    poses = forward(profile, profile.nominal(), q)
+    rng = np.random.default_rng(3)
     scale = length_factor(profile.length_unit, "m")
+    finger_m = rng.uniform(*FINGER_M, (20, 1))
+    q = np.hstack([rng.uniform(-3.1, 3.1, (20, len(JOINTS))), finger_m / scale])  # the finger in the length unit
+    poses = forward(profile, profile.nominal(), q)
     for n in range(len(q)):
-        urdf.update_cfg(dict(zip(JOINTS, q[n], strict=True)))
+        urdf.update_cfg(dict(zip([*JOINTS, "finger_joint"], [*q[n, :-1], finger_m[n, 0]], strict=True)))
         for link in LINKS[1:-1]:
             T = urdf.get_transform(frame_to=link, frame_from="base_link")
             f = profile.frame(link)
@@ -260,7 +265,7 @@ def test_own_modes_joints_and_units_are_kept(tmp_path: Path) -> None:
 def test_profile_frames_give_the_yaml_schema(tmp_path: Path) -> None:
     _setup(tmp_path)
     robot = read_urdf(tmp_path / "arm.urdf")
-    assert robot.root == "base_link" and "finger" in robot.left_out
+    assert robot.root == "base_link" and set(robot.left_out) == {"tray"}
     frames, joints = profile_frames(robot, "mm", "deg")
     assert frames[1] == {
         "name": "upper_arm_link",
@@ -278,6 +283,9 @@ def test_profile_frames_give_the_yaml_schema(tmp_path: Path) -> None:
         },
     }
     assert joints["shoulder_lift"] == pytest.approx({"lower": -177.6169, "upper": 177.6169, "velocity": 180.4817}, 1e-5)
+    finger = next(f for f in frames if f["name"] == "finger")
+    assert finger["urdf"]["axis"] == [1.0, 0.0, 0.0] and finger["names"]["offset"] == "finger_joint"
+    assert joints["finger_joint"] == {"type": "prismatic", "lower": 0.0, "upper": 40.0, "velocity": 100.0}  # mm
     yaml.safe_dump({"frames": frames, "joints": joints})  # plain data, writable as a profile
 
 
@@ -365,7 +373,7 @@ def test_origins_mode_reaches_the_noise_and_the_urdf_export_the_truth(
     assert main([*cmd, "--out", str(urdf_path)]) == 0
     capsys.readouterr()
     p = cal.params(profile)
-    at_rest = forward(profile, p, np.zeros((1, len(JOINTS))))
+    at_rest = forward(profile, p, np.zeros((1, len(profile.joints))))
     R, t = at_rest.R[profile.frame("tracker")][0], at_rest.t[profile.frame("tracker")][0]
     smr = p[[profile.param(f"smr.{k}") for k in "xyz"]]
     q = _readings(np.random.default_rng(23), 30)
@@ -383,15 +391,17 @@ def test_the_urdf_export_is_the_users_file_with_corrected_origins(tmp_path: Path
     text = calibrated_urdf(profile, cal)
     (tmp_path / "out.urdf").write_text(text, encoding="utf-8")
 
-    # Forward kinematics of the calibrated model at the raw readings, to 1e-9 m, by yourdfpy.
+    # Forward kinematics of the calibrated model at the raw readings, to 1e-9 m, by yourdfpy; the
+    # finger's offset (mm) is folded into its origin along its axis.
     urdf = _load(tmp_path / "out.urdf")
-    q = rng.uniform(-3.1, 3.1, (15, len(JOINTS)))
+    q = _arm_readings(rng, 15)
     poses = forward(profile, p, q)
     for n in range(len(q)):
-        urdf.update_cfg(dict(zip(JOINTS, q[n], strict=True)))
+        urdf.update_cfg(_cfg(q[n]))
         for link in LINKS[1:-1]:
             T = urdf.get_transform(frame_to=link, frame_from="base_link")
             np.testing.assert_allclose(poses.R[profile.frame(link)][n], T[:3, :3], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(poses.t[profile.frame(link)][n] / 1000, T[:3, 3], rtol=0, atol=1e-9)
             np.testing.assert_allclose(poses.t[profile.frame(link)][n] / 1000, T[:3, 3], rtol=0, atol=1e-9)
 
     # Everything but the imported joints' origins is the user's file (comments apart).
@@ -407,7 +417,7 @@ def test_the_urdf_export_is_the_users_file_with_corrected_origins(tmp_path: Path
         for j, o in zip((a, b), origins, strict=True):
             if o is not None:
                 j.remove(o)
-    assert changed == [*JOINTS, "flange", "tcp_joint"]  # the prismatic finger is untouched
+    assert changed == [*JOINTS, "flange", "tcp_joint", "finger_joint"]  # the planar tray is untouched
     assert etree.tostring(ours) == etree.tostring(theirs)
     assert 'mesh filename="package://arm_description/meshes/tool0.dae"' in text
     assert "<!-- the test arm -->" in text
@@ -435,7 +445,8 @@ def test_offsets_yaml_with_the_original_urdf_is_the_calibrated_model(tmp_path: P
     for i in profile.modes["offsets"].free:
         p[i] += rng.normal(0.0, 0.02)
     doc = yaml.safe_load(offsets_yaml(profile, _calibration(profile, p)))
-    assert set(doc["joints"]) == set(JOINTS)
+    assert set(doc["joints"]) == {*JOINTS, "finger_joint"}
+    assert (doc["joints"]["finger_joint"]["offset"], doc["joints"]["finger_joint"]["unit"]) == (0.0, "mm")
     assert doc["geometry"] == {}
     assert set(doc["setup"]) == {f"tracker.{k}" for k in ("x", "y", "z", "yaw", "pitch", "roll")} | {
         "smr.x",
@@ -445,12 +456,22 @@ def test_offsets_yaml_with_the_original_urdf_is_the_calibrated_model(tmp_path: P
     assert doc["urdf"].endswith("arm.urdf")
     offsets = np.radians([doc["joints"][j]["offset"] for j in JOINTS])
     urdf = _load(tmp_path / "arm.urdf")
-    q = rng.uniform(-3.1, 3.1, (10, len(JOINTS)))
+    q = _arm_readings(rng, 10)
     poses = forward(profile, p, q)
     for n in range(len(q)):
-        urdf.update_cfg(dict(zip(JOINTS, q[n] + offsets, strict=True)))
+        urdf.update_cfg(_cfg(q[n] + [*offsets, 0.0]))
         T = urdf.get_transform(frame_to="tool0", frame_from="base_link")
         np.testing.assert_allclose(poses.t[profile.frame("tool0")][n] / 1000, T[:3, 3], rtol=0, atol=1e-9)
+
+
+def _arm_readings(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Readings (n, 7) of the mm profile's joints: the arm's in rad, then the finger's in mm."""
+    return np.hstack([rng.uniform(-3.1, 3.1, (n, len(JOINTS))), rng.uniform(0.0, 40.0, (n, 1))])
+
+
+def _cfg(q: np.ndarray) -> dict[str, float]:
+    """yourdfpy's configuration (rad, m) for readings of the mm profile."""
+    return {**dict(zip(JOINTS, q[:-1], strict=True)), "finger_joint": q[-1] / 1000.0}
 
 
 def _calibration(profile, p: np.ndarray) -> Calibration:
@@ -490,9 +511,9 @@ BAD = {
         _replace('<parent link="base_link"/>', '<parent link="tool0"/>'),
         ["form a loop", "'shoulder_pan'", "'flange'"],
     ),
-    "no limit": (
-        _replace('<limit lower="-3.1" upper="3.1" effort="150" velocity="3.15"/>', ""),
-        ["joint 'shoulder_pan'", "needs <limit lower=... upper=...>"],
+    "limits the wrong way round": (
+        _replace('<limit lower="-3.1" upper="3.1"', '<limit lower="3.1" upper="-3.1"'),
+        ["joint 'shoulder_pan'", "<limit> lower 3.1 is above upper -3.1"],
     ),
     "bad origin": (_replace('xyz="0.0 0.0 0.089"', 'xyz="0 0.089"'), ["joint 'shoulder_pan'", "three finite numbers"]),
 }
@@ -514,8 +535,8 @@ def test_bad_profiles_of_a_urdf(tmp_path: Path) -> None:
     cases = {
         "urdf: arm.urdf": ("urdf: nowhere.urdf", "URDF file does not exist"),
         "  - {name: smr, frame: tool0,": (
-            "  - {name: smr, frame: finger,",
-            "targets[0].frame: link 'finger' hangs below joint 'finger_joint' (prismatic)",
+            "  - {name: smr, frame: tray,",
+            "targets[0].frame: link 'tray' hangs below joint 'tray_joint' (planar)",
         ),
         "profile: 1\n": ("profile: 1\nbase: world\n", "base: 'world' is not the root link 'base_link' of arm.urdf"),
         "  - {name: tracker, parent: base_link,": (
@@ -538,3 +559,112 @@ def test_the_command_line_says_what_is_wrong_with_a_urdf(tmp_path: Path, capsys:
     err = capsys.readouterr().err
     assert code == 2
     assert "arm.urdf" in err and "joint 'wrist_1'" in err and "Traceback" not in err
+
+
+# --- what URDFs in the wild get wrong, tolerated with a note --------------------------------------
+
+
+LENIENT = {
+    "version 0.0": (
+        lambda t: t.replace('<?xml version="1.0"?>', '<?xml version="0.0" ?>', 1),
+        'arm.urdf, line 1: the XML declaration says version="0.0", read as XML 1.0',
+    ),
+    "declaration after comments": (
+        lambda t: "<!-- written by hand -->\n\n" + t,
+        "arm.urdf, line 3: the XML declaration is not at the start of the file (after comments), moved there",
+    ),
+    "declaration after blank lines": (
+        lambda t: "\n\n\n" + t,
+        "arm.urdf, line 4: the XML declaration is not at the start of the file (after blank lines), moved there",
+    ),
+    "NUL bytes after the root": (lambda t: t + "\0", "arm.urdf: NUL bytes after the root element, ignored"),
+}
+
+
+@pytest.mark.parametrize("case", list(LENIENT))
+def test_xml_quirks_load_with_a_note(tmp_path: Path, case: str, capsys: pytest.CaptureFixture) -> None:
+    """The same robot as the well-formed file, and a note saying what was put right; the CLI prints it."""
+    fix, note = LENIENT[case]
+    (tmp_path / "clean").mkdir()
+    clean = load_profile(_setup(tmp_path / "clean"))
+    path = _setup(tmp_path, urdf_text=fix(arm_urdf()))
+    profile = load_profile(path)
+    assert len(profile.notes) == 1 and profile.notes[0].endswith(note), profile.notes
+    np.testing.assert_array_equal(profile.nominal(), clean.nominal())
+    assert profile.parameter_names == clean.parameter_names
+    # The export rewrites the file as read, put right: valid XML that yourdfpy reads.
+    text = calibrated_urdf(profile, _calibration(profile, profile.nominal() + 0.001))
+    (tmp_path / "out.urdf").write_text(text, encoding="utf-8")
+    assert _load(tmp_path / "out.urdf").joint_names == _load(tmp_path / "clean" / "arm.urdf").joint_names
+    data = tmp_path / "data.csv"
+    data.write_text("frame,x,y,z\n", encoding="utf-8")
+    main(["solve", "--robot", str(path), "--mode", "offsets", "--data", str(data), "--out", str(tmp_path / "c.json")])
+    assert f"calib solve: note: {profile.notes[0]}" in capsys.readouterr().err
+
+
+def test_other_xml_errors_stay_errors_on_the_files_line(tmp_path: Path) -> None:
+    """Put-right declarations keep every line where it was: a later error names its own line."""
+    text = "<!-- c -->\n" + arm_urdf().replace('xyz="0.0 0.0 0.089"', 'xyz="0 0.089"', 1)
+    line = text[: text.index('xyz="0 0.089"')].count("\n") + 1
+    with pytest.raises(InputError) as err:
+        load_profile(_setup(tmp_path, urdf_text=text))
+    assert err.value.line == line  # the <origin>'s line in the file as written
+    assert "joint 'shoulder_pan'" in str(err.value)
+    with pytest.raises(InputError, match="not valid XML"):  # broken XML with a quirk: still broken
+        load_profile(_setup(tmp_path, urdf_text='<?xml version="0.0"?>\n<robot name="a"><link name="a">'))
+
+
+NO_LIMITS = '<limit lower="-3.1" upper="3.1" effort="150" velocity="3.15"/>'
+
+
+def test_a_revolute_joint_without_limits_gets_zero_and_notes(tmp_path: Path) -> None:
+    """The URDF spec's default: lower = upper = 0. The joint cannot move, yet the default modes
+    estimate its offset: both said, naming the joint."""
+    text = arm_urdf().replace(NO_LIMITS, '<limit effort="150" velocity="3.15"/>', 1)  # shoulder_pan
+    profile = load_profile(_setup(tmp_path, urdf_text=text))
+    pan = profile.joints[profile.joint("shoulder_pan")]
+    assert (pan.lower, pan.upper) == (0.0, 0.0)
+    assert len(profile.notes) == 2, profile.notes
+    assert (
+        "joint 'shoulder_pan' (revolute) has no <limit lower=... upper=...>: both 0, the URDF default"
+        in (profile.notes[0])
+    )
+    assert profile.notes[0].startswith(f"{tmp_path / 'arm.urdf'}, line ")
+    assert profile.notes[1].startswith("joint 'shoulder_pan' cannot move (lower = upper = 0 deg)")
+    assert "mode(s) offsets, origins estimate its offset" in profile.notes[1]
+
+
+def test_the_profiles_joints_give_limits_before_they_are_checked(tmp_path: Path) -> None:
+    """A joint without limits, and one with limits the wrong way round, made usable by the profile."""
+    text = arm_urdf().replace(NO_LIMITS, '<limit effort="150" velocity="3.15"/>', 1)  # shoulder_pan
+    text = text.replace(NO_LIMITS, '<limit lower="1" upper="-1" effort="150" velocity="3.15"/>', 1)  # lift
+    profile_text = (
+        PROFILE + "joints:\n  shoulder_pan: {lower: -90, upper: 90}\n  shoulder_lift: {lower: -45, upper: 45}\n"
+    )
+    profile = load_profile(_setup(tmp_path, profile_text, urdf_text=text))
+    assert profile.notes == ()
+    limits = {j.name: (j.lower, j.upper) for j in profile.joints}
+    assert limits["shoulder_pan"] == pytest.approx((-HALF_PI, HALF_PI))
+    assert limits["shoulder_lift"] == pytest.approx((-HALF_PI / 2, HALF_PI / 2))
+    # Only one limit given: the other is still the URDF's default, and the note stays.
+    profile_text = PROFILE + "joints:\n  shoulder_pan: {upper: 90}\n  shoulder_lift: {lower: -45, upper: 45}\n"
+    profile = load_profile(_setup(tmp_path, profile_text, urdf_text=text))
+    assert len(profile.notes) == 1 and "joint 'shoulder_pan' (revolute) has no <limit" in profile.notes[0]
+    # An override that puts them the wrong way round is the profile's mistake, named there.
+    profile_text = PROFILE + "joints:\n  shoulder_lift: {lower: 45, upper: -45}\n"
+    with pytest.raises(InputError) as err:
+        load_profile(_setup(tmp_path, profile_text, urdf_text=text))
+    assert err.value.file == str(tmp_path / "arm.yaml") and "joints.shoulder_lift" in str(err.value)
+
+
+def test_the_api_robot_answer_carries_the_notes_and_prismatic_units(tmp_path: Path) -> None:
+    from app.robots import Robot  # noqa: F401  (the router's answer is built from a loaded profile)
+    from app.routers.robots import _joint_out
+
+    text = arm_urdf().replace('<?xml version="1.0"?>', '<?xml version="0.0"?>', 1)
+    profile = load_profile(_setup(tmp_path, urdf_text=text))
+    finger = _joint_out(profile, profile.joint("finger_joint"))
+    assert (finger.type, finger.unit, finger.lower, finger.upper, finger.lower_deg) == ("prismatic", "mm", 0, 40, None)
+    elbow = _joint_out(profile, profile.joint("elbow"))
+    assert (elbow.type, elbow.unit) == ("revolute", "deg")
+    assert elbow.lower_deg == pytest.approx(math.degrees(-3.1)) == pytest.approx(elbow.lower)

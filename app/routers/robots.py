@@ -10,6 +10,7 @@ from fastapi import APIRouter, File, Form, HTTPException, UploadFile
 from pydantic import BaseModel
 
 from calib_core import InputError
+from calib_core.model.profile import Profile
 
 from ..drivers.registry import KINDS, DriverSpec
 from ..profiles import file_name, is_builtin
@@ -35,9 +36,14 @@ def health(desk: DeskDep) -> Health:
 
 class JointOut(BaseModel):
     name: str
-    lower_deg: float
-    upper_deg: float
-    velocity_deg_s: float
+    lower_deg: float | None  # None for a prismatic joint: see lower, upper, velocity in unit
+    upper_deg: float | None
+    velocity_deg_s: float | None
+    type: str = "revolute"  # or "prismatic"
+    unit: str = "deg"  # of lower, upper (and velocity per s): deg, or the profile's length unit
+    lower: float = 0.0
+    upper: float = 0.0
+    velocity: float = 0.0
 
 
 class ModeOut(BaseModel):
@@ -65,6 +71,23 @@ class RobotOut(BaseModel):
     modes: list[ModeOut]
     targets: list[str]
     sensor: SensorOut
+    notes: list[str] = []  # what loading its profile tolerated (a URDF's quirks), for the user to read
+
+
+def _joint_out(p: Profile, k: int) -> JointOut:
+    j = p.joints[k]
+    revolute = not j.prismatic
+    return JointOut(
+        name=j.name,
+        lower_deg=math.degrees(j.lower) if revolute else None,
+        upper_deg=math.degrees(j.upper) if revolute else None,
+        velocity_deg_s=math.degrees(j.velocity) if revolute else None,
+        type="prismatic" if j.prismatic else "revolute",
+        unit=p.joint_display_unit(k),
+        lower=p.joint_to_display(k, j.lower),
+        upper=p.joint_to_display(k, j.upper),
+        velocity=p.joint_to_display(k, j.velocity),
+    )
 
 
 def robot_out(robot: Robot) -> RobotOut:
@@ -78,15 +101,8 @@ def robot_out(robot: Robot) -> RobotOut:
         drivable=robot.drivable,
         simulated=robot.simulated,
         origin=robot.origin,
-        joints=[
-            JointOut(
-                name=j.name,
-                lower_deg=math.degrees(j.lower),
-                upper_deg=math.degrees(j.upper),
-                velocity_deg_s=math.degrees(j.velocity),
-            )
-            for j in p.joints
-        ],
+        joints=[_joint_out(p, k) for k in range(len(p.joints))],
+        notes=list(p.notes),
         modes=[ModeOut(name=m.name, description=m.description) for m in p.modes.values()],
         targets=[t.name for t in p.targets],
         sensor=SensorOut(

@@ -56,6 +56,14 @@ def _target_column(fmt: DataFormat, col: dict[str, int]) -> str | None:
     return fmt.target_column if fmt.target_column in col or fmt.target_default is None else None
 
 
+def joint_factors(profile: Profile) -> np.ndarray:
+    """Per joint, what turns a reading in the CSV into internal units: the format's joint_unit to rad,
+    or (prismatic joints) its joint_length_unit to the profile's length unit."""
+    fmt = profile.data
+    lengths = length_factor(fmt.joint_length_unit or profile.length_unit, profile.length_unit)
+    return np.array([lengths if j.prismatic else ANGLE_IN_RAD[fmt.joint_unit] for j in profile.joints])
+
+
 def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     fmt = profile.data
     header_line, header, body = table(text, name)
@@ -70,7 +78,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
                 column=c,
             )
     target_column = _target_column(fmt, col)
-    joint_factor = ANGLE_IN_RAD[fmt.joint_unit]
+    joint_factor = joint_factors(profile)
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(fmt.measurement_unit, profile.length_unit)
     point_factor = length_factor(fmt.point_unit, profile.length_unit) if fmt.point_unit else 1.0
 
@@ -89,7 +97,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         for jname, c in fmt.joint_columns.items():
             j = profile.joint(jname)
             if j in needed:
-                q[j] = row.number(c) * joint_factor
+                q[j] = row.number(c) * joint_factor[j]
         cfg = frames.add(fid, q, row)
         vertex = _vertex(row, fmt, profile, ti)
         if fmt.point_columns:
@@ -236,7 +244,7 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
             f"the {profile.name} CSV format holds observations of {', '.join(profile.sensors[s].name for s in names)}, "
             f"not of {profile.sensors[stray[0]].name}"
         )
-    joint_factor = ANGLE_IN_RAD[fmt.joint_unit]
+    joint_factor = joint_factors(profile)
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(profile.length_unit, fmt.measurement_unit)
     point_factor = length_factor(profile.length_unit, fmt.point_unit or profile.length_unit)
     dim = len(fmt.measurement_columns)
@@ -260,8 +268,9 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
         if fmt.point_columns:
             row += [_fmt(v * point_factor) for v in data.point[m]]
         for jname in fmt.joint_columns:
-            v = data.joints[c, profile.joint(jname)]
-            row.append(_fmt(v / joint_factor) if np.isfinite(v) else "0")
+            j = profile.joint(jname)
+            v = data.joints[c, j]
+            row.append(_fmt(v / joint_factor[j]) if np.isfinite(v) else "0")
         row += [_fmt(v[m]) for v in extra.values()]
         w.writerow(row)
     return out.getvalue()

@@ -20,8 +20,6 @@ driver that model; use one of them, never both:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import yaml
 from lxml import etree
@@ -53,7 +51,7 @@ USE_YAML = (
 
 def joint_offsets(profile: Profile, p: np.ndarray) -> dict[str, tuple[int, float]]:
     """Per joint: the parameter that is its offset (the first frame it drives, in profile order) and
-    that parameter's change from nominal, internal units (rad)."""
+    that parameter's change from nominal, internal units (rad; a prismatic joint's: length unit)."""
     nominal = profile.nominal()
     out: dict[str, tuple[int, float]] = {}
     for frame in profile.frames:
@@ -85,8 +83,8 @@ def offsets_yaml(profile: Profile, cal: Calibration) -> str:
     for jname, (i, delta) in joint_offsets(profile, p).items():
         s = std.get(names[i])
         joints[jname] = {
-            "offset": round(math.degrees(delta), DIGITS),
-            "unit": "deg",
+            "offset": round(profile.to_display(i, delta), DIGITS),
+            "unit": profile.unit(i),  # deg; a prismatic joint's: the profile's length unit
             "std": None if s is None else round(float(s), DIGITS),
             "parameter": names[i],
         }

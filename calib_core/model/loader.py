@@ -25,6 +25,7 @@ from .urdf_import import compile_urdf_profile
 BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
 
 AXES = {"x": 0, "y": 1, "z": 2}
+JOINT_KINDS = ("revolute", "prismatic")  # a joint entry's `type`: its op rotates or translates
 
 # An elementary transform before it is an Op: (t|r, vector, field or parameter name, value, jointed).
 Step = tuple[str, np.ndarray, str, float, bool]
@@ -131,6 +132,7 @@ class _Compiler:
         self.to_rad = ANGLE_IN_RAD[self.angle_unit]
 
         joints = self.compile_joints()
+        self.joints = joints
         self.joint_index = {j.name: i for i, j in enumerate(joints)}
         frames = self.compile_frames()
         self.frame_index = {f.name: i for i, f in enumerate(frames)}
@@ -164,13 +166,18 @@ class _Compiler:
         out = []
         for jname, spec in (self.doc.get("joints") or {}).items():
             where = f"joints.{jname}"
-            lower = self.number(self.get(spec, "lower", where), f"{where}.lower") * self.to_rad
-            upper = self.number(self.get(spec, "upper", where), f"{where}.upper") * self.to_rad
-            vel = self.number(self.get(spec, "velocity", where, 30.0), f"{where}.velocity") * self.to_rad
-            res = self.number(spec.get("resolution", 0.0), f"{where}.resolution") * self.to_rad
+            kind = str(self.get(spec, "type", where, "revolute"))
+            if kind not in JOINT_KINDS:
+                raise self.fail(f"{where}.type", f"unknown joint type '{kind}' ({', '.join(JOINT_KINDS)})")
+            prismatic = kind == "prismatic"
+            scale = 1.0 if prismatic else self.to_rad  # prismatic: the profile's length unit as it is
+            lower = self.number(self.get(spec, "lower", where), f"{where}.lower") * scale
+            upper = self.number(self.get(spec, "upper", where), f"{where}.upper") * scale
+            vel = self.number(self.get(spec, "velocity", where, 30.0), f"{where}.velocity") * scale
+            res = self.number(spec.get("resolution", 0.0), f"{where}.resolution") * scale
             if lower > upper:
                 raise self.fail(where, "lower limit above upper limit")
-            out.append(Joint(str(jname), lower, upper, vel, res))
+            out.append(Joint(str(jname), lower, upper, vel, res, prismatic))
         return out
 
     def compile_frames(self) -> list[Frame]:
@@ -211,6 +218,10 @@ class _Compiler:
         if kind == "registration":
             steps = self.registration_steps(body, joint, where)
         elif kind in ("mdh", "dh"):
+            if joint >= 0 and self.joints[joint].prismatic:
+                raise self.fail(
+                    where, f"prismatic joint '{self.joints[joint].name}' needs a urdf or ops frame, not {kind}"
+                )
             steps = self.dh_steps(kind, body, where)
         elif kind == "urdf":
             steps = self.urdf_steps(body, joint, where)
@@ -225,6 +236,14 @@ class _Compiler:
             ops.append(Op(op_kind, vector, int(nonzero[0]) if principal else None, pi, joint if jointed else -1))
         if joint >= 0 and not any(op.joint >= 0 for op in ops):
             raise self.fail(where, "names a joint but no op is driven by it")
+        if joint >= 0:
+            want = "t" if self.joints[joint].prismatic else "r"
+            if any(op.joint >= 0 and op.kind != want for op in ops):
+                kind = "prismatic" if want == "t" else "revolute"
+                motion = "a translation (tx, ty, tz)" if want == "t" else "a rotation (rx, ry, rz)"
+                raise self.fail(
+                    where, f"joint '{self.joints[joint].name}' is {kind}: the op it drives must be {motion}"
+                )
         return ops
 
     def registration_steps(self, body: Any, joint: int, where: str) -> list[Step]:
@@ -259,8 +278,11 @@ class _Compiler:
             norm = np.linalg.norm(axis)
             if norm < 1e-9:
                 raise self.fail(f"{where}.urdf.axis", "must not be zero")
-            offset = self.number(body.get("offset", 0.0), f"{where}.urdf.offset") * self.to_rad
-            steps.append(("r", axis / norm, "offset", offset, True))
+            offset = self.number(body.get("offset", 0.0), f"{where}.urdf.offset")
+            if joint >= 0 and self.joints[joint].prismatic:  # Trans_axis(offset + q), a length
+                steps.append(("t", axis / norm, "offset", offset, True))
+            else:
+                steps.append(("r", axis / norm, "offset", offset * self.to_rad, True))
         return steps
 
     def op_list_steps(self, body: Any, fname: str, where: str) -> list[Step]:
@@ -349,6 +371,11 @@ class _Compiler:
         joint_unit = str(spec.get("joint_unit", "deg"))
         if joint_unit not in ANGLE_IN_RAD:
             raise self.fail(f"{where}.joint_unit", f"unknown unit '{joint_unit}' ({', '.join(ANGLE_IN_RAD)})")
+        joint_length_unit = spec.get("joint_length_unit")
+        if joint_length_unit is not None and str(joint_length_unit) not in LENGTH_IN_M:
+            raise self.fail(
+                f"{where}.joint_length_unit", f"unknown unit '{joint_length_unit}' ({', '.join(LENGTH_IN_M)})"
+            )
         sensor = self.index_of(self.get(spec, "sensor", where), self.sensor_index, f"{where}.sensor", "sensor")
         svalues = {
             str(k): self.index_of(v, self.sensor_index, f"{where}.sensors.{k}", "sensor")
@@ -390,6 +417,7 @@ class _Compiler:
             target_default=None if default is None else tvalues[str(default)],
             sensor_column=spec.get("sensor_column"),
             sensor_values=svalues,
+            joint_length_unit=None if joint_length_unit is None else str(joint_length_unit),
         )
 
     def compile_measurement(self, spec: dict, named: list[Sensor]) -> tuple[tuple[str, ...], str]:

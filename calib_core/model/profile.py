@@ -63,11 +63,15 @@ class Frame:
 
 @dataclass(frozen=True)
 class Joint:
+    """A joint's limits, speed and encoder step: rad for a revolute joint, the profile's length
+    unit for a prismatic one (its readings and offset are lengths)."""
+
     name: str
-    lower: float  # rad
-    upper: float  # rad
-    velocity: float  # rad/s
-    resolution: float = 0.0  # rad: the encoder's step; its rounding is noise on every reading
+    lower: float  # rad (prismatic: length unit)
+    upper: float  # rad (prismatic: length unit)
+    velocity: float  # rad/s (prismatic: length unit/s)
+    resolution: float = 0.0  # the encoder's step; its rounding is noise on every reading
+    prismatic: bool = False
 
 
 @dataclass(frozen=True)
@@ -121,6 +125,7 @@ class DataFormat:
     target_default: int | None = None  # the target of rows when the target column is absent
     sensor_column: str | None = None  # a column naming each row's sensor (several sensors of one kind)
     sensor_values: dict[str, int] = field(default_factory=dict)  # its values -> sensor index
+    joint_length_unit: str | None = None  # prismatic joints' readings (None: the profile's length unit)
 
 
 @dataclass
@@ -138,6 +143,7 @@ class Profile:
     modes: dict[str, Mode]
     data: DataFormat
     simulation: dict[str, Any] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()  # what loading it tolerated or what a user should know (a URDF's quirks)
 
     def __post_init__(self) -> None:
         self._param_index = {p.name: i for i, p in enumerate(self.parameters)}
@@ -221,8 +227,15 @@ class Profile:
     def params_to_display(self, p: np.ndarray) -> dict[str, float]:
         return {q.name: self.to_display(i, p[i]) for i, q in enumerate(self.parameters)}
 
+    def joint_display_unit(self, joint: int) -> str:
+        """The unit a joint's readings and limits are shown in: deg, or the length unit (prismatic)."""
+        return self.length_unit if self.joints[joint].prismatic else "deg"
+
+    def joint_to_display(self, joint: int, value: float) -> float:
+        return float(value) if self.joints[joint].prismatic else math.degrees(value)
+
     def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Lower and upper joint limits in rad."""
+        """Lower and upper joint limits in rad (prismatic joints: the profile's length unit)."""
         return np.array([j.lower for j in self.joints]), np.array([j.upper for j in self.joints])
 
     def true_params(self) -> np.ndarray:

@@ -34,6 +34,7 @@ yourdfpy, an independent URDF reader.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from importlib import resources
@@ -48,10 +49,12 @@ from ..errors import InputError
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
 from .profile import Mode, Profile
 
-SUPPORTED = ("revolute", "continuous", "fixed")
+SUPPORTED = ("revolute", "continuous", "prismatic", "fixed")
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
 CONTINUOUS_LIMIT_RAD = 2.0 * math.pi  # a continuous joint's readings: one turn either way
 DEFAULT_VELOCITY_RAD_S = 1.0  # when the URDF gives no <limit velocity>
+DEFAULT_SPEED_M_S = 0.1  # ... of a prismatic joint
+XML_DECLARATION = re.compile(rb"<\?xml\s[^>]*?\?>")
 ORIGIN_PRIOR_MM = 5.0  # the `origins` mode's prior sigma on each origin translation
 ORIGIN_PRIOR_DEG = 1.0  # ... and on each origin rotation
 ORIGIN_FIELDS = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -60,7 +63,7 @@ BUILTIN_SUFFIX = " (built-in)"
 
 @dataclass(frozen=True)
 class UrdfJoint:
-    """One imported URDF joint (revolute, continuous or fixed); URDF units: m, rad."""
+    """One imported URDF joint (revolute, continuous, prismatic or fixed); URDF units: m, rad."""
 
     name: str
     kind: str
@@ -69,14 +72,19 @@ class UrdfJoint:
     xyz: tuple[float, float, float]  # m
     rpy: tuple[float, float, float]  # rad
     axis: tuple[float, float, float] | None  # None for a fixed joint
-    lower: float | None  # rad (None: continuous or fixed)
+    lower: float | None  # rad, m for a prismatic joint (None: fixed)
     upper: float | None
-    velocity: float | None  # rad/s
+    velocity: float | None  # rad/s, m/s for a prismatic joint
     line: int
+    limits_given: bool = True  # False: <limit> has no lower or upper, so both are 0 (the URDF default)
 
     @property
     def movable(self) -> bool:
         return self.kind != "fixed"
+
+    @property
+    def prismatic(self) -> bool:
+        return self.kind == "prismatic"
 
 
 @dataclass(frozen=True)
@@ -84,11 +92,12 @@ class UrdfRobot:
     """A URDF file's kinematic tree as far as it can be calibrated."""
 
     path: str
-    data: bytes  # the file as read (exports rewrite its joint origins and keep everything else)
+    data: bytes  # the file as read, its XML put right (exports rewrite its joint origins, keep the rest)
     name: str
     root: str  # the root link: the profile's base
     joints: tuple[UrdfJoint, ...]  # imported joints, every parent before its children
-    left_out: dict[str, str]  # link -> why it is not in the profile ("below joint 'j' (prismatic)")
+    left_out: dict[str, str]  # link -> why it is not in the profile ("below joint 'j' (planar)")
+    notes: tuple[str, ...] = ()  # what reading it tolerated (a non-1.0 XML declaration, default limits)
 
     def joint(self, name: str) -> UrdfJoint:
         return next(j for j in self.joints if j.name == name)
@@ -108,22 +117,65 @@ def read_urdf(path: str | Path) -> UrdfRobot:
         raise InputError("is a directory, not a URDF file", file=name) from None
     except OSError as exc:
         raise InputError(f"URDF file cannot be read ({exc.strerror})", file=name) from None
-    root = _parse_xml(data, name)
+    root, notes, data = _parse_xml(data, name)
     if root.tag != "robot":
         raise InputError(f"not a URDF: the root element is <{root.tag}>, not <robot>", file=name, line=root.sourceline)
-    return _Reader(name, data, root).read()
+    robot = _Reader(name, data, root).read()
+    return replace(robot, notes=tuple(notes) + robot.notes)
 
 
-def _parse_xml(data: bytes, name: str) -> etree._Element:
+def _parse_xml(data: bytes, name: str) -> tuple[etree._Element, list[str], bytes]:
+    """The root element, notes on what was tolerated when the strict parse failed (an XML
+    declaration that is not version 1.0 or not at the start, after comments or blank lines; NUL
+    bytes after the root element) and the bytes parsed, so put right. Other XML errors stay errors,
+    with the strict parser's line."""
     parser = etree.XMLParser(resolve_entities=False, no_network=True, remove_comments=False)
     try:
-        root = etree.fromstring(data, parser=parser)
+        root, notes = etree.fromstring(data, parser=parser), []
     except etree.XMLSyntaxError as exc:
-        line = exc.lineno if exc.lineno else None
-        raise InputError(f"not valid XML ({exc.msg})", file=name, line=line) from None
+        data, notes = _tolerated(data, name)
+        root = None
+        if notes:
+            try:
+                root = etree.fromstring(data, parser=parser)
+            except etree.XMLSyntaxError:
+                root = None
+        if root is None:
+            line = exc.lineno if exc.lineno else None
+            raise InputError(f"not valid XML ({exc.msg})", file=name, line=line) from None
     if root is None:
         raise InputError("not valid XML (no root element)", file=name)
-    return root
+    return root, notes, data
+
+
+def _tolerated(data: bytes, name: str) -> tuple[bytes, list[str]]:
+    """The file with what many URDFs in the wild get wrong put right (line numbers kept), and a note
+    for each thing put right."""
+    notes: list[str] = []
+    body = data.rstrip(b"\0\t\r\n ")
+    if b"\0" in data[len(body) :]:
+        notes.append(f"{name}: NUL bytes after the root element, ignored")
+        data = body + b"\n"
+    match = XML_DECLARATION.search(data)
+    if match is None:
+        return data, notes
+    declaration = match.group()
+    line = data.count(b"\n", 0, match.start()) + 1
+    version = re.search(rb"""version\s*=\s*["']([^"']*)["']""", declaration)
+    if match.start() > 0 and data[: match.start()].strip(b"\xef\xbb\xbf"):
+        what = "comments" if b"<!--" in data[: match.start()] else "blank lines"
+        notes.append(
+            f"{name}, line {line}: the XML declaration is not at the start of the file (after {what}), moved there"
+        )
+    elif version is not None and version.group(1) != b"1.0":
+        said = version.group(1).decode(errors="replace")
+        notes.append(f'{name}, line {line}: the XML declaration says version="{said}", read as XML 1.0')
+    else:
+        return data, notes
+    encoding = re.search(rb"""encoding\s*=\s*["']([^"']*)["']""", declaration)
+    fixed = b'<?xml version="1.0"' + (b' encoding="' + encoding.group(1) + b'"' if encoding else b"") + b"?>"
+    blank = b"\n" * declaration.count(b"\n")
+    return fixed + data[: match.start()].lstrip(b"\xef\xbb\xbf") + blank + data[match.end() :], notes
 
 
 class _Reader:
@@ -261,22 +313,22 @@ class _Reader:
         rpy = self.numbers(origin, "rpy", "0 0 0", f"{what} origin")
         axis = None
         lower = upper = velocity = None
+        given = True
         if kind != "fixed":
             axis = self.numbers(el.find("axis"), "xyz", "1 0 0", f"{what} axis")
             if math.hypot(*axis) < 1e-9:
                 raise self.fail(f"{what} the axis must not be zero", el.find("axis"))
             lim = el.find("limit")
             velocity = self.limit(lim, "velocity", what)
-            if kind == "revolute":
+            if kind == "continuous":
+                lower, upper = -CONTINUOUS_LIMIT_RAD, CONTINUOUS_LIMIT_RAD
+            else:  # revolute, prismatic: a missing lower or upper is 0 (the URDF spec's default)
                 lower = self.limit(lim, "lower", what)
                 upper = self.limit(lim, "upper", what)
-                if lower is None or upper is None:
-                    raise self.fail(f"{what} a revolute joint needs <limit lower=... upper=...> (rad)", el)
-                if lower > upper:
-                    raise self.fail(f"{what} <limit> lower {lower} is above upper {upper}", lim)
-            else:
-                lower, upper = -CONTINUOUS_LIMIT_RAD, CONTINUOUS_LIMIT_RAD
-        return UrdfJoint(jname, kind, parent, child, xyz, rpy, axis, lower, upper, velocity, el.sourceline or 0)
+                given = lower is not None and upper is not None
+                lower, upper = lower or 0.0, upper or 0.0
+        line = el.sourceline or 0
+        return UrdfJoint(jname, kind, parent, child, xyz, rpy, axis, lower, upper, velocity, line, given)
 
 
 # --- the profile's frames and joints --------------------------------------------------------------
@@ -305,8 +357,17 @@ def profile_frames(robot: UrdfRobot, length_unit: str = "m", angle_unit: str = "
             body["axis"] = list(j.axis)
             names["offset"] = offset_param(j.name)
             frame["joint"] = j.name
-            velocity = j.velocity if j.velocity else DEFAULT_VELOCITY_RAD_S
-            joints[j.name] = {"lower": j.lower * to_angle, "upper": j.upper * to_angle, "velocity": velocity * to_angle}
+            if j.prismatic:  # limits and speed in the profile's length unit
+                speed = j.velocity if j.velocity else DEFAULT_SPEED_M_S
+                limits = {"lower": j.lower * to_length, "upper": j.upper * to_length, "velocity": speed * to_length}
+                joints[j.name] = {"type": "prismatic", **limits}
+            else:
+                velocity = j.velocity if j.velocity else DEFAULT_VELOCITY_RAD_S
+                joints[j.name] = {
+                    "lower": j.lower * to_angle,
+                    "upper": j.upper * to_angle,
+                    "velocity": velocity * to_angle,
+                }
         frame["urdf"] = body
         frame["names"] = names
         frames.append(frame)
@@ -349,6 +410,7 @@ def compile_urdf_profile(doc: dict, source: str, compile_doc: Callable[[dict], P
     for jname, spec in own_joints.items():
         merged[str(jname)] = {**merged[str(jname)], **spec} if str(jname) in joints and isinstance(spec, dict) else spec
     out["joints"] = merged
+    notes = list(robot.notes) + _limit_notes(robot, own_joints)
 
     for key in ("targets", "sensors"):
         for i, spec in enumerate(doc.get(key) or []):
@@ -362,7 +424,54 @@ def compile_urdf_profile(doc: dict, source: str, compile_doc: Callable[[dict], P
     if defaults:
         out["modes"] = {}
     profile = compile_doc(out)
-    return replace(profile, modes=default_modes(profile, robot)) if defaults else profile
+    if defaults:
+        profile = replace(profile, modes=default_modes(profile, robot))
+    return replace(profile, notes=tuple(notes + _stuck_notes(profile, robot)))
+
+
+def _limit_notes(robot: UrdfRobot, own_joints: dict) -> list[str]:
+    """A note per joint whose URDF <limit> lacks lower or upper (both 0, the URDF default) that the
+    profile's `joints` do not give both; InputError for limits the wrong way round that the profile
+    does not override (the profile's own are checked with its other fields)."""
+    notes = []
+    for j in robot.joints:
+        if j.kind not in ("revolute", "prismatic"):
+            continue
+        spec = own_joints.get(j.name)
+        overridden = {k for k in ("lower", "upper") if isinstance(spec, dict) and k in spec}
+        if not j.limits_given and len(overridden) < 2:
+            notes.append(
+                f"{robot.path}, line {j.line}: joint '{j.name}' ({j.kind}) has no <limit lower=... upper=...>: "
+                "both 0, the URDF default"
+            )
+        if not overridden and j.lower is not None and j.upper is not None and j.lower > j.upper:
+            raise InputError(
+                f"joint '{j.name}': <limit> lower {j.lower:g} is above upper {j.upper:g} "
+                "(or give its limits under the profile's joints)",
+                file=robot.path,
+                line=j.line,
+            )
+    return notes
+
+
+def _stuck_notes(profile: Profile, robot: UrdfRobot) -> list[str]:
+    """A note per URDF joint that cannot move (lower == upper) while a mode estimates its offset: the
+    data then see the offset only as a constant, and a planner has nowhere to move it."""
+    notes = []
+    urdf = {j.name for j in robot.joints if j.movable}
+    for k, joint in enumerate(profile.joints):
+        if joint.name not in urdf or joint.lower != joint.upper:
+            continue
+        params = {op.param for f in profile.frames for op in f.ops if op.joint == k}
+        modes = [m.name for m in profile.modes.values() if params & set(m.free)]
+        if modes:
+            value = f"{profile.joint_to_display(k, joint.lower):g} {profile.joint_display_unit(k)}"
+            notes.append(
+                f"joint '{joint.name}' cannot move (lower = upper = {value}) but mode(s) {', '.join(modes)} "
+                f"estimate its offset; give it limits under the profile's joints: {{{joint.name}: "
+                "{lower: ..., upper: ...}}"
+            )
+    return notes
 
 
 def urdf_path(doc: dict, source: str) -> Path:
@@ -383,7 +492,7 @@ def _check_kept(robot: UrdfRobot, frame: Any, where: str, fail: Callable[[str, s
         raise fail(
             where,
             f"link '{frame}' hangs {robot.left_out[str(frame)]}, which cannot be calibrated "
-            f"(only {', '.join(SUPPORTED)} joints can)",
+            f"(only {', '.join(SUPPORTED)} joints can, and no mimic joint)",
         )
 
 
