@@ -3,11 +3,16 @@ standard deviations are the real spread of the estimates (Monte Carlo over simul
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
 from calib_core import Problem, SimulatedRobot, calibrate, load_profile
+from calib_core.estimation.identifiability import find_dependencies, report
+
+PROFILES = Path(__file__).parent / "profiles"
 
 
 @pytest.fixture(scope="module")
@@ -124,6 +129,55 @@ def test_nao_full_head_reports_head_offsets_against_camera_rotations(nao_head_ca
     correlated = any(({c.a, c.b} & head) and ({c.a, c.b} & cam) for c in cal.identifiability.correlations)
     warned = any(any(h in w for h in head) and any(c in w for c in cam) for w in cal.warnings)
     assert held & head or correlated or warned, (held, cal.identifiability.correlations, cal.warnings)
+
+
+# --- Round-off is not an effect: a reflector on the last joint's axis -------------------------------------
+
+
+@pytest.fixture(scope="module")
+def iiwa():
+    return load_profile(PROFILES / "iiwa-tracker.yaml")
+
+
+def test_a_joint_turning_the_target_about_itself_is_held(iiwa) -> None:
+    """The reflector at the flange origin lies on j7's axis: offset(j7) moves no reading (its column is
+    round-off, 1e-17 of the others), so it is held and named, and the rest match the truth."""
+    sim = SimulatedRobot.from_profile(iiwa, seed=3).simulate(60)
+    cal = calibrate(iiwa, sim.data, "offsets")
+    held = {h.parameter: h.message for h in cal.identifiability.held_fixed}
+    assert list(held) == ["j7.offset"], held
+    sentence = (
+        "offset(j7) does not change any prediction with these data (the target lies on its axis): "
+        "held at its base value"
+    )
+    assert held["j7.offset"] == sentence
+    assert sentence in cal.warnings
+    est = {e.name: e for e in cal.parameters}
+    j7 = est["j7.offset"]
+    assert not j7.estimated and j7.std is None and j7.value == j7.base == 0.0
+    truth = {p.name: iiwa.to_display(i, sim.true_params[i]) for i, p in enumerate(iiwa.parameters)}
+    assert truth["j7.offset"] == pytest.approx(0.709)  # the case of the finding: a real offset, unseen
+    others = [e for e in cal.parameters if e.estimated]
+    assert len(others) == 11  # the tracker's pose and five offsets
+    off = {e.name: round((e.value - truth[e.name]) / e.std, 2) for e in others}
+    assert all(abs(z) <= 4 for z in off.values()), off
+    assert cal.identifiability.rank == 11
+
+
+def test_a_weak_but_real_column_is_not_round_off(iiwa) -> None:
+    """Scale-aware, not blind: a column a million times shorter than the others, but a direction of
+    its own, is kept; one at round-off level (1e-14 of them) is held, whatever direction it has."""
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(200, 4)) * [1.0, 3.0, 2.0, 1.0]
+    J[:, 3] *= 1e-6
+    free = [iiwa.param(n) for n in ("j2.offset", "j3.offset", "j4.offset", "j5.offset")]
+    assert find_dependencies(iiwa, J, free) == []
+    J[:, 3] = rng.normal(size=200) * 1e-14
+    deps = find_dependencies(iiwa, J, free)
+    assert [(d.fixed, d.partners) for d in deps] == [(free[3], {})]
+    rep = report(J, rng.normal(size=200), 1.0)
+    assert rep.rank == 3  # the pseudo-inverse would call it 4, with a finite standard deviation
+    assert np.isinf(rep.std[3]) and np.isfinite(rep.std[:3]).all()
 
 
 # --- Monte Carlo: reported standard deviations against the spread of the estimates ------------------------

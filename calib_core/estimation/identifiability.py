@@ -4,6 +4,11 @@ All of it works on the Jacobian of the whitened residuals with its columns scale
 that metres, degrees and pixels compare. Taking the columns in the mode's order, the kept ones are a
 set of parameters that the data determine; every other column is a combination of those (to
 round-off), and is named with that combination so that a user reads which parameters move together.
+
+A column that is round-off itself (a reflector on the last joint's axis leaves that joint's column
+near 1e-16 of the others) is not scaled up: scaled to unit length, round-off looks like a direction
+of its own, and the pseudo-inverse would report the parameter as determined. Such a column is zero,
+relative to the largest column and to the noise (`zero_columns`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,13 @@ from .reports import Correlation, HeldParameter, IdentifiabilityReport
 DEPENDENCE_TOLERANCE = 1e-4
 CORRELATION_LISTED = 0.9  # pairs listed in the report
 INFLATION_WARNING = 20.0  # sd inflated this much by the others (VIF 400): warned about
+# A column shorter than this share of the longest is round-off (1e-17 to 1e-13 here), not an effect:
+# the weakest real effect in the built-in profiles, a camera's focal length (per px) next to joint
+# angles (per rad), is 2e-5 of the longest.
+ZERO_RELATIVE = 1e-9
+# ... and so is one whose whole effect over all the data, per internal unit (m, rad, px) of the
+# parameter, is below this many noise standard deviations (the columns are whitened).
+ZERO_WHITENED = 1e-9
 
 
 @dataclass
@@ -36,7 +48,8 @@ class Dependency:
         terms = sorted(self.partners.items(), key=lambda kv: -abs(kv[1]))[:4]
         name = profile.label(self.fixed)
         if not terms:
-            return f"{name} has no effect on any measurement: held at its base value"
+            why = " (the target lies on its axis)" if _turns_a_joint(profile, self.fixed) else ""
+            return f"{name} does not change any prediction with these data{why}: held at its base value"
         others = " and ".join(profile.label(i) for i, _ in terms)
         change = ", ".join(f"{c:+.3g} {profile.unit(i)} on {profile.label(i)}".replace("  ", " ") for i, c in terms)
         return (
@@ -58,9 +71,20 @@ class Report:
     correlation: np.ndarray | None = None
 
 
-def column_scales(J: np.ndarray) -> np.ndarray:
+def _turns_a_joint(profile: Profile, index: int) -> bool:
+    """Whether the parameter is the offset of a revolute joint (a rotation a joint drives)."""
+    return any(op.param == index and op.kind == "r" and op.joint >= 0 for f in profile.frames for op in f.ops)
+
+
+def zero_columns(J: np.ndarray) -> np.ndarray:
+    """Columns of the whitened Jacobian that are round-off, not an effect on any prediction (bool)."""
     norms = np.linalg.norm(J, axis=0)
-    return np.where(norms > 0, norms, 1.0)
+    return norms <= max(ZERO_RELATIVE * norms.max(initial=0.0), ZERO_WHITENED)
+
+
+def column_scales(J: np.ndarray) -> np.ndarray:
+    """Each column's norm, or 1 for a zero column (so that its round-off stays round-off)."""
+    return np.where(zero_columns(J), 1.0, np.linalg.norm(J, axis=0))
 
 
 def find_dependencies(profile: Profile, J: np.ndarray, free: list[int]) -> list[Dependency]:
@@ -74,7 +98,7 @@ def find_dependencies(profile: Profile, J: np.ndarray, free: list[int]) -> list[
         return []
     scale = column_scales(J)
     Js = J / scale
-    zero = np.linalg.norm(J, axis=0) == 0
+    zero = zero_columns(J)
     basis = np.zeros((J.shape[0], 0))
     keep: list[int] = []
     out = []
@@ -146,6 +170,7 @@ def report(J: np.ndarray, r: np.ndarray, sigma: float, clusters: np.ndarray | No
         cov_scaled = sigma**2 * bread
     cov = cov_scaled / np.outer(scale, scale)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    std[zero_columns(J)] = np.inf  # the data say nothing about it (the pseudo-inverse would say 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
     # With unit columns, (J^T J)^-1_ii is the variance inflation factor of parameter i.
