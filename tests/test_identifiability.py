@@ -3,6 +3,7 @@ standard deviations are the real spread of the estimates (Monte Carlo over simul
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -258,3 +259,63 @@ def test_nao_reported_std_matches_monte_carlo(nao, nao_bases) -> None:
     assert len(ratios) == 21
     median = float(np.median(list(ratios.values())))
     assert 0.75 <= median <= 1.25, (median, {n: round(r, 3) for n, r in ratios.items()})
+
+
+# --- A minimal identifiable set (QR with column pivoting) -------------------------------------------------
+
+
+def test_minimal_set_holds_a_near_dependent_parameter_and_names_it(iiwa) -> None:
+    """Pivoted QR keeps one of two columns equal to 1e-6 and names the other with the change that
+    cancels it; a weak-but-independent column (1e-2 of its own) stays at the default cut."""
+    from calib_core.estimation.identifiability import MINIMAL_TOLERANCE, minimal_set
+
+    rng = np.random.default_rng(11)
+    J = rng.normal(size=(300, 3))
+    near = J[:, 0] + 1e-6 * rng.normal(size=300)  # all but ~1e-6 of it is column 0
+    weak = J[:, 1] + 1e-2 * rng.normal(size=300)  # ~1e-2 of it its own: determined, badly
+    J = np.column_stack([J, near, weak])
+    free = [iiwa.param(f"j{k}.offset") for k in range(2, 7)]
+    deps = minimal_set(iiwa, J, free)
+    assert MINIMAL_TOLERANCE == 1e-4  # the structural cut
+    assert len(deps) == 1 and deps[0].fixed in (free[0], free[3])  # one of the twins, the weak one kept
+    other = free[3] if deps[0].fixed == free[0] else free[0]
+    assert deps[0].remainder is None  # 1e-6 is below the structural cut: a strict dependence
+    assert deps[0].partners == {other: pytest.approx(-1.0, rel=1e-3)}
+    first = frozenset({free[3]})  # chosen before any other: then column 0 is the one held
+    assert [d.fixed for d in minimal_set(iiwa, J, free, first)] == [free[0]]
+
+
+def test_minimal_calibration_reports_what_it_held(rn) -> None:
+    """Robonaut full with --minimal: the strict dependencies are held as before (the profile's order),
+    no priors, and the result says it used a minimal set; held-out error as good as the mode's."""
+    sim = SimulatedRobot.from_profile(rn, seed=100).simulate(100)
+    plain = calibrate(rn, sim.data, "full", holdout=0.3, seed=1)
+    cal = calibrate(rn, sim.data, "full", holdout=0.3, seed=1, minimal=True)
+    assert cal.solver.minimal and not plain.solver.minimal
+    assert {h.parameter for h in cal.identifiability.held_fixed} >= {"neck_yaw.d"}
+    assert len(cal.identifiability.free) == len(plain.identifiability.free)
+    info = [d for d in cal.diagnostics if d.code == "minimal-set"]
+    assert info and info[0].severity.value == "info" and "minimal parameter set" in info[0].message
+    held_out = cal.figures["holdout_after"].rms
+    assert held_out <= 1.05 * plain.figures["holdout_after"].rms
+    test = sim.data.select(np.isin(sim.data.frame_ids, cal.frames["holdout"]))
+    e = Problem(rn, test, [], sim.true_params, noise_model=False).predict(sim.true_params) - test.measured
+    floor = float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+    assert held_out <= 1.1 * floor  # against the simulator's truth, not the code's own numbers
+
+
+def test_cli_solve_minimal(iiwa, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`calib solve --minimal` writes a calibration that says so and names what it held."""
+    from app.cli import main
+
+    robot, data, out = str(PROFILES / "iiwa-tracker.yaml"), tmp_path / "day.csv", tmp_path / "cal.json"
+    assert main(["simulate", "--robot", robot, "--configurations", "60", "--out", str(data)]) == 0
+    assert (
+        main(["solve", "--robot", robot, "--mode", "offsets", "--data", str(data), "--out", str(out), "--minimal"]) == 0
+    )
+    printed = capsys.readouterr().out
+    assert "info: minimal parameter set: 11 of the mode's 12 parameters estimated" in printed
+    assert "offset(j7) does not change any prediction" in printed
+    d = json.loads(out.read_text())
+    assert d["solver"]["minimal"] is True
+    assert [h["parameter"] for h in d["identifiability"]["held_fixed"]] == ["j7.offset"]
