@@ -86,6 +86,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--method", default="lm", choices=["lm", "nelder-mead"], help="solver (default lm)")
     s.add_argument("--no-robust", action="store_true", help="plain least squares (no outlier rejection)")
     s.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    s.add_argument(
+        "--minimal",
+        action="store_true",
+        help="estimate a minimal identifiable parameter set (QR of the data, no priors); hold and name the rest",
+    )
 
     pr = sub.add_parser("predict", help="add the model's predictions to each row of a dataset")
     pr.add_argument("--robot", required=True)
@@ -260,6 +265,7 @@ def _solve(args: argparse.Namespace) -> int:
         method=args.method,
         robust=not args.no_robust,
         seed=args.seed,
+        minimal=args.minimal,
     )
     _save(args.out, lambda: cal.save(args.out))
     print(cal.summary())

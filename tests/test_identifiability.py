@@ -3,11 +3,17 @@ standard deviations are the real spread of the estimates (Monte Carlo over simul
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
 from calib_core import Problem, SimulatedRobot, calibrate, load_profile
+from calib_core.estimation.identifiability import find_dependencies, report
+
+PROFILES = Path(__file__).parent / "profiles"
 
 
 @pytest.fixture(scope="module")
@@ -126,6 +132,55 @@ def test_nao_full_head_reports_head_offsets_against_camera_rotations(nao_head_ca
     assert held & head or correlated or warned, (held, cal.identifiability.correlations, cal.warnings)
 
 
+# --- Round-off is not an effect: a reflector on the last joint's axis -------------------------------------
+
+
+@pytest.fixture(scope="module")
+def iiwa():
+    return load_profile(PROFILES / "iiwa-tracker.yaml")
+
+
+def test_a_joint_turning_the_target_about_itself_is_held(iiwa) -> None:
+    """The reflector at the flange origin lies on j7's axis: offset(j7) moves no reading (its column is
+    round-off, 1e-17 of the others), so it is held and named, and the rest match the truth."""
+    sim = SimulatedRobot.from_profile(iiwa, seed=3).simulate(60)
+    cal = calibrate(iiwa, sim.data, "offsets")
+    held = {h.parameter: h.message for h in cal.identifiability.held_fixed}
+    assert list(held) == ["j7.offset"], held
+    sentence = (
+        "offset(j7) does not change any prediction with these data (the target lies on its axis): "
+        "held at its base value"
+    )
+    assert held["j7.offset"] == sentence
+    assert sentence in cal.warnings
+    est = {e.name: e for e in cal.parameters}
+    j7 = est["j7.offset"]
+    assert not j7.estimated and j7.std is None and j7.value == j7.base == 0.0
+    truth = {p.name: iiwa.to_display(i, sim.true_params[i]) for i, p in enumerate(iiwa.parameters)}
+    assert truth["j7.offset"] == pytest.approx(0.709)  # the case of the finding: a real offset, unseen
+    others = [e for e in cal.parameters if e.estimated]
+    assert len(others) == 11  # the tracker's pose and five offsets
+    off = {e.name: round((e.value - truth[e.name]) / e.std, 2) for e in others}
+    assert all(abs(z) <= 4 for z in off.values()), off
+    assert cal.identifiability.rank == 11
+
+
+def test_a_weak_but_real_column_is_not_round_off(iiwa) -> None:
+    """Scale-aware, not blind: a column a million times shorter than the others, but a direction of
+    its own, is kept; one at round-off level (1e-14 of them) is held, whatever direction it has."""
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(200, 4)) * [1.0, 3.0, 2.0, 1.0]
+    J[:, 3] *= 1e-6
+    free = [iiwa.param(n) for n in ("j2.offset", "j3.offset", "j4.offset", "j5.offset")]
+    assert find_dependencies(iiwa, J, free) == []
+    J[:, 3] = rng.normal(size=200) * 1e-14
+    deps = find_dependencies(iiwa, J, free)
+    assert [(d.fixed, d.partners) for d in deps] == [(free[3], {})]
+    rep = report(J, rng.normal(size=200), 1.0)
+    assert rep.rank == 3  # the pseudo-inverse would call it 4, with a finite standard deviation
+    assert np.isinf(rep.std[3]) and np.isfinite(rep.std[:3]).all()
+
+
 # --- Monte Carlo: reported standard deviations against the spread of the estimates ------------------------
 
 
@@ -204,3 +259,63 @@ def test_nao_reported_std_matches_monte_carlo(nao, nao_bases) -> None:
     assert len(ratios) == 21
     median = float(np.median(list(ratios.values())))
     assert 0.75 <= median <= 1.25, (median, {n: round(r, 3) for n, r in ratios.items()})
+
+
+# --- A minimal identifiable set (QR with column pivoting) -------------------------------------------------
+
+
+def test_minimal_set_holds_a_near_dependent_parameter_and_names_it(iiwa) -> None:
+    """Pivoted QR keeps one of two columns equal to 1e-6 and names the other with the change that
+    cancels it; a weak-but-independent column (1e-2 of its own) stays at the default cut."""
+    from calib_core.estimation.identifiability import MINIMAL_TOLERANCE, minimal_set
+
+    rng = np.random.default_rng(11)
+    J = rng.normal(size=(300, 3))
+    near = J[:, 0] + 1e-6 * rng.normal(size=300)  # all but ~1e-6 of it is column 0
+    weak = J[:, 1] + 1e-2 * rng.normal(size=300)  # ~1e-2 of it its own: determined, badly
+    J = np.column_stack([J, near, weak])
+    free = [iiwa.param(f"j{k}.offset") for k in range(2, 7)]
+    deps = minimal_set(iiwa, J, free)
+    assert MINIMAL_TOLERANCE == 1e-4  # the structural cut
+    assert len(deps) == 1 and deps[0].fixed in (free[0], free[3])  # one of the twins, the weak one kept
+    other = free[3] if deps[0].fixed == free[0] else free[0]
+    assert deps[0].remainder is None  # 1e-6 is below the structural cut: a strict dependence
+    assert deps[0].partners == {other: pytest.approx(-1.0, rel=1e-3)}
+    first = frozenset({free[3]})  # chosen before any other: then column 0 is the one held
+    assert [d.fixed for d in minimal_set(iiwa, J, free, first)] == [free[0]]
+
+
+def test_minimal_calibration_reports_what_it_held(rn) -> None:
+    """Robonaut full with --minimal: the strict dependencies are held as before (the profile's order),
+    no priors, and the result says it used a minimal set; held-out error as good as the mode's."""
+    sim = SimulatedRobot.from_profile(rn, seed=100).simulate(100)
+    plain = calibrate(rn, sim.data, "full", holdout=0.3, seed=1)
+    cal = calibrate(rn, sim.data, "full", holdout=0.3, seed=1, minimal=True)
+    assert cal.solver.minimal and not plain.solver.minimal
+    assert {h.parameter for h in cal.identifiability.held_fixed} >= {"neck_yaw.d"}
+    assert len(cal.identifiability.free) == len(plain.identifiability.free)
+    info = [d for d in cal.diagnostics if d.code == "minimal-set"]
+    assert info and info[0].severity.value == "info" and "minimal parameter set" in info[0].message
+    held_out = cal.figures["holdout_after"].rms
+    assert held_out <= 1.05 * plain.figures["holdout_after"].rms
+    test = sim.data.select(np.isin(sim.data.frame_ids, cal.frames["holdout"]))
+    e = Problem(rn, test, [], sim.true_params, noise_model=False).predict(sim.true_params) - test.measured
+    floor = float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+    assert held_out <= 1.1 * floor  # against the simulator's truth, not the code's own numbers
+
+
+def test_cli_solve_minimal(iiwa, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`calib solve --minimal` writes a calibration that says so and names what it held."""
+    from app.cli import main
+
+    robot, data, out = str(PROFILES / "iiwa-tracker.yaml"), tmp_path / "day.csv", tmp_path / "cal.json"
+    assert main(["simulate", "--robot", robot, "--configurations", "60", "--out", str(data)]) == 0
+    assert (
+        main(["solve", "--robot", robot, "--mode", "offsets", "--data", str(data), "--out", str(out), "--minimal"]) == 0
+    )
+    printed = capsys.readouterr().out
+    assert "info: minimal parameter set: 11 of the mode's 12 parameters estimated" in printed
+    assert "offset(j7) does not change any prediction" in printed
+    d = json.loads(out.read_text())
+    assert d["solver"]["minimal"] is True
+    assert [h["parameter"] for h in d["identifiability"]["held_fixed"]] == ["j7.offset"]

@@ -31,7 +31,7 @@ from ..model.profile import Mode, Profile
 from .calibration import Calibration, Outlier, parameter_estimate
 from .diagnostics import diagnose
 from .fit import Fit
-from .identifiability import find_dependencies, identifiability_report, report
+from .identifiability import find_dependencies, identifiability_report, minimal_set, report
 from .outliers import OutlierVerdict, inliers, pooled_robust_sigma, problem_outliers, robust_sigma, sort_outliers
 from .problem import Problem
 from .registration import register, registration_params
@@ -53,10 +53,14 @@ def calibrate(
     method: str = "lm",
     robust: bool = True,
     seed: int = 0,
+    minimal: bool = False,
     progress: Callable[[int, float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> Calibration:
-    """Estimate the parameters of `mode` from `data`, starting from `base` (or the nominal model)."""
+    """Estimate the parameters of `mode` from `data`, starting from `base` (or the nominal model).
+
+    `minimal`: estimate a minimal identifiable set of the mode's parameters, chosen by QR with column
+    pivoting at the start values, without the mode's priors; the others are held (and named)."""
     m = profile.mode(mode)
     if method not in METHODS:
         raise InputError(f"unknown method '{method}' ({', '.join(METHODS)})")
@@ -74,7 +78,15 @@ def calibrate(
         # A tracker set-up of its own: "before" is the old model with only the registration fitted.
         p_base = register(profile, train, p_base)
     fit = fit_parameters(
-        profile, train, m, p_base, method=method, robust=robust, progress=progress, should_stop=should_stop
+        profile,
+        train,
+        m,
+        p_base,
+        method=method,
+        robust=robust,
+        minimal=minimal,
+        progress=progress,
+        should_stop=should_stop,
     )
     figs, each = _figures(profile, train, fit, p_base, data.select(test_idx) if len(test_idx) else None, robust)
     solver = SolverReport(
@@ -86,10 +98,13 @@ def calibrate(
         robust=robust,
         cost_history=fit.cost_history,
         sigma=fit.sigma,
+        minimal=minimal,
     )
     if folds >= 2:
         start = time.perf_counter()
-        figs["cv_after"] = cross_validate(profile, train, m, p_base, folds, method, robust, seed, should_stop)
+        figs["cv_after"] = cross_validate(
+            profile, train, m, p_base, folds, method, robust, seed, should_stop, minimal=minimal
+        )
         solver.folds, solver.cv_seconds = folds, time.perf_counter() - start
     frames = {"train": [int(f) for f in train.frame_ids], "holdout": [int(data.frame_ids[i]) for i in test_idx]}
     return _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
@@ -154,18 +169,26 @@ def fit_parameters(
     *,
     method: str = "lm",
     robust: bool = True,
+    minimal: bool = False,
     progress: Callable[[int, float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> Fit:
-    """Steps 1-3 of the module doc on `data`: the estimate, how the solver got there, the scales."""
+    """Steps 1-3 of the module doc on `data`: the estimate, how the solver got there, the scales.
+    `minimal`: see `calibrate`."""
     start = time.perf_counter()
-    problem = Problem(profile, data, list(mode.free), p_base, mode.ties, mode.priors)
+    priors = {} if minimal else mode.priors
+    problem = Problem(profile, data, list(mode.free), p_base, mode.ties, priors)
     initial: tuple[np.ndarray, np.ndarray] | None = problem.residuals_jacobian(problem.x0)
-    deps = find_dependencies(profile, initial[1][: problem.n_data_rows], problem.free)
+    J = initial[1][: problem.n_data_rows]
+    deps = find_dependencies(profile, J, problem.free)
+    if minimal:
+        kept = [k for k, i in enumerate(problem.free) if i not in {d.fixed for d in deps}]
+        first = frozenset(registration_params(profile, data.sensors))
+        deps += minimal_set(profile, J[:, kept], [problem.free[k] for k in kept], first)
     if deps:
         fixed = {d.fixed for d in deps}
         free = [i for i in mode.free if i not in fixed]
-        problem = Problem(profile, data, free, p_base, mode.ties, mode.priors, noise_model=problem.weights)
+        problem = Problem(profile, data, free, p_base, mode.ties, priors, noise_model=problem.weights)
         initial = None
     passes = _Passes(problem, mode, profile, progress, should_stop)
     if method == "nelder-mead":
@@ -285,6 +308,8 @@ def cross_validate(
     robust: bool,
     seed: int,
     should_stop: Callable[[], bool] | None = None,
+    *,
+    minimal: bool = False,
 ) -> Figures:
     """Pooled held-out figures: every configuration predicted by a calibration that did not see it."""
     parts = []
@@ -292,7 +317,14 @@ def cross_validate(
         if len(test_idx) == 0 or len(train_idx) == 0:
             continue
         fit = fit_parameters(
-            profile, data.select(train_idx), mode, p_base, method=method, robust=robust, should_stop=should_stop
+            profile,
+            data.select(train_idx),
+            mode,
+            p_base,
+            method=method,
+            robust=robust,
+            minimal=minimal,
+            should_stop=should_stop,
         )
         test = data.select(test_idx)
         keep = inliers(profile, test, fit.p, fit.sigmas) if robust else None

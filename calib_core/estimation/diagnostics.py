@@ -39,7 +39,19 @@ def diagnose(
         return Diagnostic(Severity.WARNING, code, message)
 
     free = fit.problem.free
-    out = [warn("held-fixed", d.describe(profile)) for d in fit.dependencies]
+    out = [warn("held-fixed", d.describe(profile)) for d in fit.dependencies if d.remainder is None]
+    if solver.minimal:
+        left = [d for d in fit.dependencies if d.remainder is not None]
+        n_mode = len(free) + len(fit.dependencies)
+        out.append(
+            Diagnostic(
+                Severity.INFO,
+                "minimal-set",
+                f"minimal parameter set: {len(free)} of the mode's {n_mode} parameters estimated (QR with column "
+                f"pivoting of these data, no priors), {len(left)} more held than the data strictly require",
+            )
+        )
+        out += [Diagnostic(Severity.INFO, "minimal-set", d.describe(profile)) for d in left]
     out += [warn("weak", w) for w in weak_parameters(profile, rep, free, nuisance)]
     if outliers:
         out.append(

@@ -4,6 +4,11 @@ All of it works on the Jacobian of the whitened residuals with its columns scale
 that metres, degrees and pixels compare. Taking the columns in the mode's order, the kept ones are a
 set of parameters that the data determine; every other column is a combination of those (to
 round-off), and is named with that combination so that a user reads which parameters move together.
+
+A column that is round-off itself (a reflector on the last joint's axis leaves that joint's column
+near 1e-16 of the others) is not scaled up: scaled to unit length, round-off looks like a direction
+of its own, and the pseudo-inverse would report the parameter as determined. Such a column is zero,
+relative to the largest column and to the noise (`zero_columns`).
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 
 from ..model.profile import Profile
 from .reports import Correlation, HeldParameter, IdentifiabilityReport
@@ -20,8 +26,20 @@ from .reports import Correlation, HeldParameter, IdentifiabilityReport
 # that barely move (the Motoman's E axis, jittering by 0.01 deg) leave a remainder near 1e-5, which
 # no data can turn into an estimate (its standard deviation would be inflated 10^4 times).
 DEPENDENCE_TOLERANCE = 1e-4
+# The minimal parameter set keeps a parameter while its unit column has more than this outside the
+# span of the ones kept before it: the structural cut, as FIGAROH's base parameters. A looser cut
+# (0.05: no parameter inflated 20 times, the "weak" warning) held parameters that are off nominal
+# and was worse on held-out data (benchmarks/minimal_set.py).
+MINIMAL_TOLERANCE = DEPENDENCE_TOLERANCE
 CORRELATION_LISTED = 0.9  # pairs listed in the report
 INFLATION_WARNING = 20.0  # sd inflated this much by the others (VIF 400): warned about
+# A column shorter than this share of the longest is round-off (1e-17 to 1e-13 here), not an effect:
+# the weakest real effect in the built-in profiles, a camera's focal length (per px) next to joint
+# angles (per rad), is 2e-5 of the longest.
+ZERO_RELATIVE = 1e-9
+# ... and so is one whose whole effect over all the data, per internal unit (m, rad, px) of the
+# parameter, is below this many noise standard deviations (the columns are whitened).
+ZERO_WHITENED = 1e-9
 
 
 @dataclass
@@ -31,14 +49,24 @@ class Dependency:
 
     fixed: int
     partners: dict[int, float]
+    # Outside the minimal parameter set (not a strict dependence): the share of its unit column that
+    # the kept parameters do not reproduce.
+    remainder: float | None = None
 
     def describe(self, profile: Profile) -> str:
         terms = sorted(self.partners.items(), key=lambda kv: -abs(kv[1]))[:4]
         name = profile.label(self.fixed)
         if not terms:
-            return f"{name} has no effect on any measurement: held at its base value"
+            why = " (the target lies on its axis)" if _turns_a_joint(profile, self.fixed) else ""
+            return f"{name} does not change any prediction with these data{why}: held at its base value"
         others = " and ".join(profile.label(i) for i, _ in terms)
         change = ", ".join(f"{c:+.3g} {profile.unit(i)} on {profile.label(i)}".replace("  ", " ") for i, c in terms)
+        if self.remainder is not None:
+            return (
+                f"{name} is left out of the minimal parameter set: all but {self.remainder:.1%} of its effect on "
+                f"these data is that of {others} (+1 {profile.unit(self.fixed)} on {name} with {change} nearly "
+                f"cancels): {name} held at its base value"
+            )
         return (
             f"{name} and {others} cannot be told apart by these data "
             f"(+1 {profile.unit(self.fixed)} on {name} with {change} changes no prediction): "
@@ -58,9 +86,20 @@ class Report:
     correlation: np.ndarray | None = None
 
 
-def column_scales(J: np.ndarray) -> np.ndarray:
+def _turns_a_joint(profile: Profile, index: int) -> bool:
+    """Whether the parameter is the offset of a revolute joint (a rotation a joint drives)."""
+    return any(op.param == index and op.kind == "r" and op.joint >= 0 for f in profile.frames for op in f.ops)
+
+
+def zero_columns(J: np.ndarray) -> np.ndarray:
+    """Columns of the whitened Jacobian that are round-off, not an effect on any prediction (bool)."""
     norms = np.linalg.norm(J, axis=0)
-    return np.where(norms > 0, norms, 1.0)
+    return norms <= max(ZERO_RELATIVE * norms.max(initial=0.0), ZERO_WHITENED)
+
+
+def column_scales(J: np.ndarray) -> np.ndarray:
+    """Each column's norm, or 1 for a zero column (so that its round-off stays round-off)."""
+    return np.where(zero_columns(J), 1.0, np.linalg.norm(J, axis=0))
 
 
 def find_dependencies(profile: Profile, J: np.ndarray, free: list[int]) -> list[Dependency]:
@@ -74,7 +113,7 @@ def find_dependencies(profile: Profile, J: np.ndarray, free: list[int]) -> list[
         return []
     scale = column_scales(J)
     Js = J / scale
-    zero = np.linalg.norm(J, axis=0) == 0
+    zero = zero_columns(J)
     basis = np.zeros((J.shape[0], 0))
     keep: list[int] = []
     out = []
@@ -86,18 +125,71 @@ def find_dependencies(profile: Profile, J: np.ndarray, free: list[int]) -> list[
             basis = np.column_stack([basis, rest / np.linalg.norm(rest)])
             keep.append(k)
             continue
-        partners: dict[int, float] = {}
-        if not zero[k] and keep:
-            coef, *_ = np.linalg.lstsq(Js[:, keep], c, rcond=None)
-            for a, j in zip(coef, keep, strict=True):
-                if abs(a) > 1e-3:
-                    # J_k / s_k = sum a J_j / s_j, so +1 on p_k and -a s_k / s_j on p_j cancel.
-                    delta = -a * scale[k] / scale[j]
-                    partners[free[j]] = (
-                        delta * _display_per_internal(profile, free[j]) / _display_per_internal(profile, free[k])
-                    )
-        out.append(Dependency(free[k], partners))
+        out.append(Dependency(free[k], {} if zero[k] else _partners(profile, Js, scale, free, k, keep)[0]))
     return out
+
+
+def minimal_set(
+    profile: Profile, J: np.ndarray, free: list[int], first: frozenset[int] = frozenset()
+) -> list[Dependency]:
+    """The free parameters outside a minimal identifiable set, each with the combination nearest to it.
+
+    QR with column pivoting (Businger & Golub) of the unit-scaled whitened Jacobian picks one column
+    after another, each time the one with the most effect the chosen ones lack, and stops where the
+    best remaining one has less than MINIMAL_TOLERANCE of its unit length outside their span. `first`
+    (a tracker's registration: a nuisance every calibration must fit) are chosen before any other.
+    Run it on the columns `find_dependencies` keeps, so that of an exactly dependent set the profile
+    author's choice is held.
+    """
+    if J.shape[1] == 0:
+        return []
+    scale = column_scales(J)
+    Js = J / scale
+    zero = zero_columns(J)
+    forced = [k for k in range(len(free)) if free[k] in first and not zero[k]]
+    rest = [k for k in range(len(free)) if free[k] not in first and not zero[k]]
+    A = Js[:, rest]
+    if forced:
+        Q, _ = np.linalg.qr(Js[:, forced])
+        A = A - Q @ (Q.T @ A)
+    keep = list(forced)
+    if rest:
+        _, R, pivots = scipy.linalg.qr(A, mode="economic", pivoting=True)
+        diag = np.abs(np.diag(R))
+        chosen = int(np.sum(diag > MINIMAL_TOLERANCE))  # of unit columns: no relative scale
+        keep += [rest[i] for i in pivots[:chosen]]
+    keep.sort()  # the mode's order, so that the partners read as in find_dependencies
+    out = []
+    for k in range(len(free)):
+        if k in keep:
+            continue
+        if zero[k]:
+            out.append(Dependency(free[k], {}))
+            continue
+        partners, remainder = _partners(profile, Js, scale, free, k, keep)
+        exact = remainder <= DEPENDENCE_TOLERANCE
+        out.append(Dependency(free[k], partners, None if exact else remainder))
+    return out
+
+
+def _partners(
+    profile: Profile, Js: np.ndarray, scale: np.ndarray, free: list[int], k: int, keep: list[int]
+) -> tuple[dict[int, float], float]:
+    """The change of the kept parameters that best cancels +1 (display unit) on parameter k, and the
+    share of k's unit column they leave (0 for a strict dependence)."""
+    if not keep:
+        return {}, 1.0
+    c = Js[:, k]
+    coef, *_ = np.linalg.lstsq(Js[:, keep], c, rcond=None)
+    partners: dict[int, float] = {}
+    for a, j in zip(coef, keep, strict=True):
+        if abs(a) > 1e-3:
+            # J_k / s_k = sum a J_j / s_j, so +1 on p_k and -a s_k / s_j on p_j cancel.
+            delta = -a * scale[k] / scale[j]
+            partners[free[j]] = (
+                delta * _display_per_internal(profile, free[j]) / _display_per_internal(profile, free[k])
+            )
+    return partners, float(np.linalg.norm(c - Js[:, keep] @ coef))
 
 
 def _display_per_internal(profile: Profile, index: int) -> float:
@@ -146,6 +238,7 @@ def report(J: np.ndarray, r: np.ndarray, sigma: float, clusters: np.ndarray | No
         cov_scaled = sigma**2 * bread
     cov = cov_scaled / np.outer(scale, scale)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    std[zero_columns(J)] = np.inf  # the data say nothing about it (the pseudo-inverse would say 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
     # With unit columns, (J^T J)^-1_ii is the variance inflation factor of parameter i.

@@ -20,7 +20,7 @@ class Severity(Enum):
 class Diagnostic:
     """One finding about a calibration: `code` for programs (`not-converged`, `held-fixed`, `weak`,
     `outliers`, `model-error`, `at-bound`, `holdout-worse`, `registration-misfit`, `noise-excess`,
-    `worse-than-start`), `message` for people."""
+    `worse-than-start`, `minimal-set`), `message` for people."""
 
     severity: Severity
     code: str
@@ -48,6 +48,7 @@ class SolverReport:
     sigma: float | None = None  # scale of the whitened residuals at the solution
     folds: int = 0  # k of the k-fold cross-validation (0: none)
     cv_seconds: float | None = None
+    minimal: bool = False  # a minimal identifiable parameter set, without the mode's priors
 
     @property
     def converged(self) -> bool:
@@ -71,6 +72,7 @@ class SolverReport:
             sigma=None if d.get("sigma") is None else float(d["sigma"]),
             folds=int(d.get("folds", 0)),
             cv_seconds=None if d.get("cv_seconds") is None else float(d["cv_seconds"]),
+            minimal=bool(d.get("minimal", False)),
         )
 
 
