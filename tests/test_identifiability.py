@@ -148,8 +148,8 @@ def test_a_joint_turning_the_target_about_itself_is_held(iiwa) -> None:
     held = {h.parameter: h.message for h in cal.identifiability.held_fixed}
     assert list(held) == ["j7.offset"], held
     sentence = (
-        "offset(j7) does not change any prediction with these data (the target lies on its axis): "
-        "held at its base value"
+        "offset(j7) has no effect on any prediction with these data (turning that joint moves nothing these "
+        "sensors measure: a target on its axis?): held at its base value"
     )
     assert held["j7.offset"] == sentence
     assert sentence in cal.warnings
@@ -315,7 +315,7 @@ def test_cli_solve_minimal(iiwa, tmp_path: Path, capsys: pytest.CaptureFixture[s
     )
     printed = capsys.readouterr().out
     assert "info: minimal parameter set: 11 of the mode's 12 parameters estimated" in printed
-    assert "offset(j7) does not change any prediction" in printed
+    assert "offset(j7) has no effect on any prediction" in printed
     d = json.loads(out.read_text())
     assert d["solver"]["minimal"] is True
     assert [h["parameter"] for h in d["identifiability"]["held_fixed"]] == ["j7.offset"]

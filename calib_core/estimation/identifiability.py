@@ -57,8 +57,10 @@ class Dependency:
         terms = sorted(self.partners.items(), key=lambda kv: -abs(kv[1]))[:4]
         name = profile.label(self.fixed)
         if not terms:
-            why = " (the target lies on its axis)" if _turns_a_joint(profile, self.fixed) else ""
-            return f"{name} does not change any prediction with these data{why}: held at its base value"
+            why = ""
+            if _turns_a_joint(profile, self.fixed):  # the target on its axis, or a motion no sensor measures
+                why = " (turning that joint moves nothing these sensors measure: a target on its axis?)"
+            return f"{name} has no effect on any prediction with these data{why}: held at its base value"
         others = " and ".join(profile.label(i) for i, _ in terms)
         change = ", ".join(f"{c:+.3g} {profile.unit(i)} on {profile.label(i)}".replace("  ", " ") for i, c in terms)
         if self.remainder is not None:
