@@ -4,8 +4,9 @@ autocapture), and Replay, which drives the robot through a list of configuration
 The dry run checks every configuration before anything moves (the peers' users found broken set-ups only
 after the robot had moved through every pose): against the joint limits with the driver's safety margin,
 and whether the believed calibration predicts the target inside the image. A configuration beyond a joint
-limit itself means the list is wrong and refuses the whole replay; one inside the safety margin or with the
-target predicted out of view is skipped with its reason.
+limit itself means the list is wrong and refuses the whole replay; one inside the safety margin (within the
+limits: a pose the robot itself reached, recorded at its limit) is moved the least way out of it, with a note;
+one with the target predicted out of view is skipped with its reason.
 """
 
 from __future__ import annotations
@@ -61,6 +62,26 @@ def capture_frame(store: Store, driver: RobotDriver, session_id: str, index: int
     return save_look(store, session_id, driver.look(), index)
 
 
+def out_of_margin(driver: RobotDriver, q_rad: np.ndarray) -> tuple[np.ndarray, str]:
+    """q, or q with each joint inside the safety margin moved onto its edge, and a note saying so; LimitError
+    when q is beyond a limit itself (the list is wrong: nothing is moved into range)."""
+    try:
+        driver.check(q_rad)
+        return q_rad, ""
+    except LimitError as exc:
+        if exc.beyond or math.isnan(exc.value_deg):
+            raise
+        margin_deg = exc.margin_deg
+    profile = driver.profile
+    lower, upper = profile.joint_limits()
+    m = np.minimum(math.radians(margin_deg), (upper - lower) / 2)
+    moved = np.clip(q_rad, lower + m, upper - m)
+    driver.check(moved)
+    shift = np.degrees(np.abs(moved - q_rad))
+    joints = ", ".join(f"{profile.joints[i].name} {shift[i]:.2f} deg" for i in np.flatnonzero(shift > 0))
+    return moved, f"moved out of the {margin_deg:.1f} deg safety margin: {joints}"
+
+
 def dry_run(
     driver: RobotDriver,
     configurations_rad: np.ndarray,
@@ -71,8 +92,9 @@ def dry_run(
     margin_px: float = DEFAULT_VIEW_MARGIN_PX,
 ) -> list[dict]:
     """Check every configuration, moving nothing. Per configuration: {"index", "target", "ok", "problem",
-    "action"}, action "capture", "skip" (inside the safety margin or not predicted in view) or "refuse"
-    (beyond a joint limit). `index` is the frame index, or the 1-based position without `indices`."""
+    "action", "note"}, action "capture", "skip" (not predicted in view) or "refuse" (beyond a joint limit);
+    `note`: how it is moved out of the safety margin (out_of_margin). `index` is the frame index, or the
+    1-based position without `indices`."""
     q = np.asarray(configurations_rad, dtype=float)
     t = np.asarray(targets, dtype=int)
     if q.ndim != 2 or len(q) != len(t) or (indices is not None and len(indices) != len(q)):
@@ -82,19 +104,23 @@ def dry_run(
     if np.any((t < 0) | (t >= n_targets)):
         raise InputError(f"targets must be in 0..{n_targets - 1} for {profile.name}")
     predictor = SimulatedRobot(profile, np.asarray(believed, dtype=float), margin=margin_px)
-    in_view = predictor.visible(q, t) if len(q) else np.zeros(0, bool)
+    moved, notes, refusals = q.copy(), [""] * len(q), [""] * len(q)
+    for k in range(len(q)):
+        try:
+            moved[k], notes[k] = out_of_margin(driver, q[k])
+        except LimitError as exc:
+            refusals[k] = str(exc)
+    in_view = predictor.visible(moved, t) if len(q) else np.zeros(0, bool)
     rows = []
     for k in range(len(q)):
-        problem, action = "", "capture"
-        try:
-            driver.check(q[k])
-        except LimitError as exc:
-            problem, action = str(exc), "refuse" if exc.beyond else "skip"
-        else:
-            if not in_view[k]:
-                problem, action = f"{profile.targets[t[k]].name} not predicted in view", "skip"
+        problem, action = refusals[k], "refuse" if refusals[k] else "capture"
+        if not problem and not in_view[k]:
+            problem, action = f"{profile.targets[t[k]].name} not predicted in view", "skip"
         index = indices[k] if indices is not None else k + 1
-        rows.append({"index": index, "target": int(t[k]), "ok": not problem, "problem": problem, "action": action})
+        rows.append(
+            {"index": index, "target": int(t[k]), "ok": not problem, "problem": problem, "action": action}
+            | {"note": notes[k]}
+        )
     return rows
 
 
@@ -146,7 +172,7 @@ def replay(
                     )
             else:
                 driver.set_target(int(t[k]))
-                if not driver.move_to(q[k], should_stop=lambda: ctx.cancelled):
+                if not driver.move_to(out_of_margin(driver, q[k])[0], should_stop=lambda: ctx.cancelled):
                     raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
                 _wait_settled(driver, ctx, settle_s, settle_timeout_s)
                 frame = capture_frame(store, driver, session_id, index)

@@ -6,6 +6,7 @@ const $ = (sel) => document.querySelector(sel);
 const state = {
   robots: {},          // name -> /api/robots entry
   robot: null,         // the selected robot: the connected one, or one with real data only (not drivable)
+  sessions: [],        // /api/sessions, newest first
   session: null,       // the selected session (full /api/sessions/{id} answer)
   calibrations: [],    // of the selected session
   review: null,        // the last /api/review answer
@@ -118,6 +119,7 @@ async function init() {
   buildJoints();
   showDrivable();
   await refreshActive();
+  showTab(state.robots[state.robot].drivable ? "observe" : "review");  // the papers' first step
   watchServer(health.instance);
   document.body.dataset.ready = "1";
 }
@@ -158,6 +160,7 @@ async function connect(robot) {
   if (state.robots[robot].drivable) await api("POST", "/robot/connect", { robot });
   state.robot = robot;
   if (state.session && state.session.robot !== robot) closeSession();
+  fillReplaySources();
   buildJoints();
   showDrivable();
   await refreshActive();
@@ -251,19 +254,24 @@ async function stopAll() {
 }
 
 // --- sessions --------------------------------------------------------------------------------
+// Newest first: a session just made or imported is at the top of the list.
 async function loadSessions(selectId) {
-  const list = await api("GET", "/sessions");
+  state.sessions = (await api("GET", "/sessions")).sort((a, b) => b.created.localeCompare(a.created));
   const ul = $("#sessions");
   ul.replaceChildren();
-  const from = $("#replay-from");
-  from.replaceChildren();
-  for (const s of list) {
+  for (const s of state.sessions) {
     const li = el("li", { "data-session": s.id, onclick: () => act(() => openSession(s.id)) },
       el("b", {}, s.name), el("small", {}, ` ${s.robot} · ${s.measured}/${s.frames} frames measured`));
     ul.append(li);
-    from.append(el("option", { value: s.id }, `${s.name} (${s.frames})`));
   }
+  fillReplaySources();
   if (selectId) await openSession(selectId);
+}
+
+// A replay drives the robot in view through configurations of its own sessions only.
+function fillReplaySources() {
+  const mine = state.sessions.filter((s) => s.robot === state.robot);
+  $("#replay-from").replaceChildren(...mine.map((s) => el("option", { value: s.id }, `${s.name} (${s.frames})`)));
 }
 
 async function openSession(id) {
@@ -756,9 +764,12 @@ async function replay(dry) {
   const r = await api("POST", `/sessions/${state.session.id}/replay`, body);
   if (dry) {
     const bad = r.configurations.filter((c) => !c.ok);
+    const moved = r.configurations.filter((c) => c.ok && c.note);
     const box = $("#dry-run-result");
-    box.replaceChildren(el("p", {}, `${r.configurations.length} configurations, ${bad.length} with a problem`));
+    box.replaceChildren(el("p", {}, `${r.configurations.length} configurations, ${bad.length} with a problem` +
+      (moved.length ? `, ${moved.length} moved out of the safety margin` : "")));
     for (const c of bad) box.append(el("p", { class: "warning" }, `#${c.index}: ${c.problem}`));
+    for (const c of moved) box.append(el("p", { class: "note" }, `#${c.index}: ${c.note}`));
     return;
   }
   state.replayJob = r.job;

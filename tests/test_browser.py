@@ -40,6 +40,14 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
         wait_for_scene(page)
 
+        # The page opens on step 1; a replay offers the connected robot's own sessions only, newest first.
+        assert page.is_visible("#tab-observe") and not page.is_visible("#tab-calibrate")
+        robot = server.get("/api/robot").json()["robot"]
+        created = {s["id"]: s["created"] for s in server.get("/api/sessions").json() if s["robot"] == robot}
+        offered = page.eval_on_selector_all("#replay-from option", "os => os.map(o => o.value)")
+        assert set(offered) == set(created) and len(offered) >= 1, (robot, offered)
+        assert [created[i] for i in offered] == sorted(created.values(), reverse=True)
+
         # Open the first-day sample session and run a full calibration with a held-out share.
         page.click("li[data-session='robonaut-a-day1']")
         page.wait_for_selector("#frames tr[data-frame]", state="attached")

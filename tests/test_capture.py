@@ -12,7 +12,8 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from app.capture import AutoCapture, capture_frame, dry_run, replay
+from app.capture import AutoCapture, capture_frame, dry_run, out_of_margin, replay
+from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
 from app.jobs import FINISHED, JobManager
 from app.store import Store
@@ -51,7 +52,7 @@ def nao_plan(nao):
     q, targets = SimulatedRobot.from_profile(nao, seed=7).configurations(12)
     with SimulatedDriver(nao, seed=3) as d:
         rows = dry_run(d, q, targets, nao.nominal())
-    ok = [r["action"] == "capture" for r in rows]
+    ok = [r["action"] == "capture" and not r["note"] for r in rows]  # none moved out of the margin
     assert sum(ok) >= 5
     return q[ok], targets[ok]
 
@@ -110,18 +111,29 @@ def test_dry_run_flags_limits_and_views_before_anything_moves(rn) -> None:
     hidden = random_q[~SimulatedRobot(rn, rn.nominal()).visible(random_q, np.zeros(200, int))][0]
     beyond, in_margin = q_ok[0].copy(), q_ok[0].copy()
     beyond[rn.joint("shoulder_pitch")] = 95 * DEG
-    in_margin[rn.joint("elbow_pitch")] = 119.5 * DEG
+    in_margin[rn.joint("wrist_roll")] = hi[rn.joint("wrist_roll")] - 0.5 * DEG  # the fixture stays in view
     q = np.array([q_ok[0], beyond, in_margin, hidden])
     with SimulatedDriver(rn, seed=3) as d:
         before = d.true_joints_rad()
         rows = dry_run(d, q, np.zeros(4, int), rn.nominal(), indices=[5, 6, 7, 8])
         assert np.array_equal(d.true_joints_rad(), before) and not d.status().moving
     assert [r["index"] for r in rows] == [5, 6, 7, 8]
-    assert [r["action"] for r in rows] == ["capture", "refuse", "skip", "skip"]
-    assert [r["ok"] for r in rows] == [True, False, False, False]
+    assert [r["action"] for r in rows] == ["capture", "refuse", "capture", "skip"]
+    assert [r["ok"] for r in rows] == [True, False, True, False]
     assert rows[1]["problem"] == "shoulder_pitch 95.0 deg is beyond its upper limit 90.0 deg (margin 1.0 deg)"
-    assert "elbow_pitch 119.5 deg is within the 1.0 deg safety margin" in rows[2]["problem"]
+    # Inside the margin but within the limits (the robot reached it): moved onto the margin's edge, said so.
+    assert rows[2]["note"] == "moved out of the 1.0 deg safety margin: wrist_roll 0.50 deg" and not rows[2]["problem"]
     assert rows[3]["problem"] == "fixture not predicted in view"
+    assert [r["note"] for r in rows if r is not rows[2]] == ["", "", ""]
+    with SimulatedDriver(rn, seed=3) as d:
+        moved, note = out_of_margin(d, in_margin)
+        d.check(moved)
+        assert note == rows[2]["note"]
+        wrist = rn.joint("wrist_roll")
+        assert moved[wrist] == pytest.approx(hi[wrist] - DEG)
+        assert np.array_equal(np.delete(moved, wrist), np.delete(in_margin, wrist))
+        with pytest.raises(LimitError, match="beyond its upper limit"):
+            out_of_margin(d, beyond)
 
 
 def test_dry_run_predicts_the_board_with_the_believed_calibration(nao, nao_plan, nao_driver) -> None:
@@ -160,6 +172,25 @@ def test_replay_captures_frames_with_their_statuses(store, jobs, nao, nao_plan, 
     assert (detail["done"], detail["total"], detail["skipped"]) == (4, 4, 1)
     assert detail["measured"] == sum(f.status == "measured" for f in frames)
     assert detail["frame"] == 4 and detail["status"] == frames[3].status
+
+
+def test_replay_drives_a_configuration_inside_the_margin_to_its_edge(store, jobs, rn) -> None:
+    """A recorded pose 0.5 deg inside a joint's 1 deg margin is driven to the margin's edge and captured (it
+    used to be skipped: a third of some sample sessions), never past it."""
+    q_ok, targets = SimulatedRobot.from_profile(rn, seed=11).configurations(1)
+    _, hi = rn.joint_limits()
+    wrist = rn.joint("wrist_roll")
+    q = q_ok[0].copy()
+    q[wrist] = hi[wrist] - 0.5 * DEG
+    sid = store.sessions.create("robonaut-a", "margin", source="capture")
+    with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
+        job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q[None], targets), session_id=sid)
+        snap = _wait(jobs, job)
+        assert snap["state"] == "done", snap["error"]
+        assert d.true_joints_rad()[wrist] <= hi[wrist] - DEG + 1e-9
+    (frame,) = store.sessions.frames(sid)
+    assert frame.status in ("measured", "not found")
+    assert abs(frame.joints_rad[wrist] - (hi[wrist] - DEG)) <= 0.05 * DEG + 1e-12
 
 
 def test_replay_refuses_a_configuration_beyond_a_limit_before_moving(store, jobs, nao, nao_plan, nao_driver) -> None:

@@ -204,6 +204,7 @@ class DryRunRow(BaseModel):
     ok: bool
     problem: str
     action: str  # "capture" | "skip" | "refuse"
+    note: str  # how it is moved out of the safety margin ("": it is not)
 
 
 class DryRun(BaseModel):
