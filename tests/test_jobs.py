@@ -140,7 +140,7 @@ def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(jobs: JobMa
     before = len(jobs.list())
     with pytest.raises(NotFound):
         jobs.submit_calibration("s-nothere", "full", None, 0.0)
-    with pytest.raises(NotFound, match="unknown base calibration 'c-nothere'"):
+    with pytest.raises(NotFound, match="no base calibration 'c-nothere' on this desk"):
         jobs.submit_calibration("robonaut-a-day1", "full", "c-nothere", 0.0)
     assert len(jobs.list()) == before
     nao_cal = wait(jobs, jobs.submit_calibration("nao", "full", None, 0.0))["result"]
