@@ -49,7 +49,7 @@ def import_session_folder(
     s = read_session(folder, profile)
     sid = store.sessions.new_id(session_id)
     data = s.data
-    by_frame = {int(fid): Observations.of(data, c) for c, fid in enumerate(data.frame_ids)}
+    by_frame = {int(fid): obs for fid, obs in zip(data.frame_ids, Observations.each(data), strict=True)}
     records = {fr.frame: fr for fr in s.frames}
     if len(records) != len(s.frames):
         raise InputError("session.json lists a frame number twice", file=str(folder / "session.json"))
@@ -110,9 +110,8 @@ def import_csv(store: Store, robot: str, name: str, text: str, filename: str) ->
     data = parse_dataset(profile, text, filename)
     sid = store.sessions.new_id(None)
     frames = []
-    for c, fid in enumerate(data.frame_ids):
-        obs = Observations.of(data, c)
-        q = np.nan_to_num(data.joints[c])
+    joints = np.nan_to_num(data.joints)  # joints a row did not need: 0
+    for fid, q, obs in zip(data.frame_ids, joints, Observations.each(data), strict=True):
         frames.append(NewFrame(int(fid), q, int(obs.target[0]), "measured", "", {}, {}, obs))
     store.sessions.add_whole(
         sid, robot, name, description=f"imported from {filename}", source="import", truth=None, frames=frames

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
 import math
 import secrets
@@ -73,10 +74,13 @@ class Observations:
     sensor: np.ndarray  # (K,) the sensor of each (its index in the profile)
 
     @classmethod
-    def of(cls, data: Dataset, cfg: int) -> Observations:
-        """The observations of configuration `cfg` of a dataset."""
-        rows = data.cfg == cfg
-        return cls(data.target[rows], data.vertex[rows], data.point[rows], data.measured[rows], data.sensor[rows])
+    def each(cls, data: Dataset) -> list[Observations]:
+        """The observations of each configuration of a dataset, in its order (one pass, not one per
+        configuration)."""
+        order = np.argsort(data.cfg, kind="stable")
+        bounds = np.searchsorted(data.cfg[order], np.arange(data.n_configurations + 1))
+        runs = [order[a:b] for a, b in itertools.pairwise(bounds)]
+        return [cls(data.target[r], data.vertex[r], data.point[r], data.measured[r], data.sensor[r]) for r in runs]
 
 
 @dataclass

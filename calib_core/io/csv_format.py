@@ -84,6 +84,8 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
 
     frames = _Frames()
     obs: dict[str, list] = {k: [] for k in ("cfg", "target", "sensor", "point", "vertex", "measured", "line")}
+    joint_columns = [(profile.joint(jname), c) for jname, c in fmt.joint_columns.items()]
+    needed_by: dict[tuple[int, int], list[tuple[int, str]]] = {}  # (target, sensor): the joint columns it reads
     for ln, fields in body:
         row = Row(name, ln, fields, col)
         fid = _frame_id(row, fmt, len(obs["line"]) + 1)
@@ -93,11 +95,11 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         si = row.choice(fmt.sensor_column, fmt.sensor_values) if fmt.sensor_column else fmt.sensor
         assert ti is not None  # the loader requires a target, a target column or a default
         q = np.full(len(profile.joints), np.nan)
-        needed = profile.joints_between(ti, si)
-        for jname, c in fmt.joint_columns.items():
-            j = profile.joint(jname)
-            if j in needed:
-                q[j] = row.number(c) * joint_factor[j]
+        if (ti, si) not in needed_by:
+            needed = profile.joints_between(ti, si)
+            needed_by[ti, si] = [(j, c) for j, c in joint_columns if j in needed]
+        for j, c in needed_by[ti, si]:
+            q[j] = row.number(c) * joint_factor[j]
         cfg = frames.add(fid, q, row)
         vertex = _vertex(row, fmt, profile, ti)
         if fmt.point_columns:
