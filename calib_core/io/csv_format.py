@@ -19,7 +19,7 @@ from ..dataset import Dataset
 from ..errors import InputError
 from ..model.profile import DataFormat, Profile
 from ..units import ANGLE_IN_RAD, length_factor
-from .rows import Row, table
+from .rows import Row, require_columns, table
 
 
 def read_dataset(profile: Profile, path: str | Path) -> Dataset:
@@ -68,15 +68,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     fmt = profile.data
     header_line, header, body = table(text, name)
     col = {h: i for i, h in enumerate(header)}
-    for c in _required(fmt, col):
-        if c not in col:
-            raise InputError(
-                f"missing column '{c}' in the header (the data format of robot {profile.name}: is the file of"
-                " another robot?)",
-                file=name,
-                line=header_line,
-                column=c,
-            )
+    require_columns(profile.name, _required(fmt, col), col, name, header_line)
     target_column = _target_column(fmt, col)
     joint_factor = joint_factors(profile)
     meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(fmt.measurement_unit, profile.length_unit)

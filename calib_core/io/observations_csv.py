@@ -22,9 +22,8 @@ import math
 import numpy as np
 
 from ..dataset import Dataset
-from ..errors import InputError
 from ..model.profile import Profile
-from .rows import Row, table
+from .rows import Row, require_columns, table
 
 MEASURES = ("m0", "m1", "m2")
 POINT = ("point_x", "point_y", "point_z")
@@ -50,15 +49,8 @@ def parse_observations(profile: Profile, text: str, name: str = "<observations>"
     """A dataset from the observations format; InputError naming file, line and column."""
     header_line, header, body = table(text, name)
     col = {h: i for i, h in enumerate(header)}
-    for c in ("frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names):
-        if c not in col:
-            raise InputError(
-                f"missing column '{c}' in the header (the data format of robot {profile.name}: is the file of"
-                " another robot?)",
-                file=name,
-                line=header_line,
-                column=c,
-            )
+    required = ("frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names)
+    require_columns(profile.name, required, col, name, header_line)
     sensors = {s.name: i for i, s in enumerate(profile.sensors)}
     targets = {t.name: i for i, t in enumerate(profile.targets)}
     frames: dict[int, int] = {}

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Iterable
 
 from ..errors import InputError
 
@@ -28,6 +29,19 @@ def table(text: str, name: str) -> tuple[int, list[str], list[tuple[int, list[st
     if not lines[1:]:
         raise InputError("has a header but no data rows", file=name, line=header_line)
     return header_line, [h.strip() for h in header], lines[1:]
+
+
+def require_columns(robot: str, columns: Iterable[str], col: dict[str, int], name: str, header_line: int) -> None:
+    """InputError for the first column the header lacks, naming the robot whose data format was asked for
+    (a file of another robot is the usual cause)."""
+    for c in columns:
+        if c not in col:
+            raise InputError(
+                f"missing column '{c}' in the header (the data format of robot {robot}: is the file of another robot?)",
+                file=name,
+                line=header_line,
+                column=c,
+            )
 
 
 class Row:
