@@ -127,7 +127,7 @@ def main() -> None:
             left = viewer_count(server)
             time.sleep(2)
             print(
-                f"round {round_}: {args.tabs} tabs open ({len(viewers)} viewers): {open_mb:.0f} MB; closed: "
+                f"round {round_}: {args.tabs} tabs open ({viewers} viewers): {open_mb:.0f} MB; closed: "
                 f"{left} viewer(s) left, {rss_mb(pid):.0f} MB"
             )
         browser.close()

@@ -17,6 +17,7 @@ const state = {
   job: null,           // {id, source} of the job whose progress is shown
   sort: { key: "err_new", dir: -1 },
   events: false,       // the robot's state is streamed (robotEvents)
+  replaySeed: null,    // the seed of the N new configurations a dry run checked (null: a new one next)
 };
 
 // --- HTTP ------------------------------------------------------------------------------------
@@ -759,7 +760,11 @@ async function replay(dry) {
   const source = document.querySelector("input[name=replay-source]:checked").value;
   const body = { dry_run: dry, remeasure: source === "remeasure" };
   if (source === "from") body.from_session = $("#replay-from").value;
-  if (source === "count") body.count = +$("#replay-count").value;
+  if (source === "count") {
+    // New poses each replay, the same ones for a dry run and the replay that follows it.
+    state.replaySeed ??= crypto.getRandomValues(new Uint32Array(1))[0];
+    Object.assign(body, { count: +$("#replay-count").value, seed: state.replaySeed });
+  }
   if ($("#replay-continue").checked) body.resume = true;
   const r = await api("POST", `/sessions/${state.session.id}/replay`, body);
   if (dry) {
@@ -773,6 +778,7 @@ async function replay(dry) {
     return;
   }
   state.replayJob = r.job;
+  state.replaySeed = null;
   await follow(r.job, (j) => {
     $("#replay-progress").value = j.progress;
     const d = j.detail || {};

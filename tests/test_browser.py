@@ -214,6 +214,10 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         page.click("#tabs button[data-tab='replay']")
         page.check("input[name=replay-source][value=count]")
         page.fill("#replay-count", "3")
+        asked: list[dict] = []
+        page.on(
+            "request", lambda r: r.method == "POST" and r.url.endswith("/replay") and asked.append(r.post_data_json)
+        )
         page.click("#dry-run")
         page.wait_for_function("document.querySelector('#dry-run-result').textContent.includes('3 configurations')")
         page.click("#replay-start")
@@ -224,6 +228,13 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         frames = server.get(f"/api/sessions/{sid}").json()["frames"]
         assert [f["index"] for f in frames] == [1, 2, 3, 4]
         assert sum(f["status"] == "measured" for f in frames[1:]) >= 1
+        # The dry run checked the poses the replay drove through; the next plan is new poses.
+        page.click("#dry-run")
+        deadline = time.monotonic() + 10
+        while len(asked) < 3 and time.monotonic() < deadline:
+            page.wait_for_timeout(100)
+        assert [a["dry_run"] for a in asked] == [True, False, True], asked
+        assert asked[0]["seed"] == asked[1]["seed"] != asked[2]["seed"], asked
 
         # Another NAO added to the running desk from the page: listed, connected and drivable at once.
         page.click("#add-robot-toggle")
