@@ -16,7 +16,7 @@ import numpy as np
 
 from calib_core import InputError, SimulatedRobot
 
-from ..capture import dry_run, replay
+from ..capture import dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
 from ..jobs import JobContext, JobManager
 from ..robots import Robots
@@ -57,8 +57,12 @@ class ReplayService:
         if not plan.resume:
             return q, targets, indices
         have = np.array([f.joints_rad for f in self.store.sessions.frames(session_id)]).reshape(-1, q.shape[1])
-        near = np.abs(q[:, None, :] - have[None, :, :]) <= np.radians(RESUME_TOLERANCE_DEG)
-        todo = ~np.all(near, axis=2).any(axis=1)
+        driver = self.robots.driver(self.store.sessions.get(session_id).robot)
+        driven = np.array([_driven(driver, qk) for qk in q]).reshape(q.shape)  # where the replay took each
+        todo = np.ones(len(q), bool)
+        for at in (q, driven):  # a skipped frame records the configuration asked for, a captured one the readings
+            near = np.abs(at[:, None, :] - have[None, :, :]) <= np.radians(RESUME_TOLERANCE_DEG)
+            todo &= ~np.all(near, axis=2).any(axis=1)
         if not todo.any():
             raise InputError(
                 f"nothing to resume: session '{session_id}' has a frame at each of the {len(q)} configurations"
@@ -133,3 +137,12 @@ def _within_limits(driver: RobotDriver, q_rad: np.ndarray) -> bool:
     except LimitError:
         return False
     return True
+
+
+def _driven(driver: RobotDriver, q_rad: np.ndarray) -> np.ndarray:
+    """Where a replay drives the robot for q: out of the safety margin (a pose beyond a limit: q itself,
+    which the dry run refuses anyway)."""
+    try:
+        return out_of_margin(driver, q_rad)[0]
+    except LimitError:
+        return q_rad
