@@ -183,11 +183,22 @@ function closeSession() {
 }
 
 const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "#dry-run", "#replay-start",
-  "#replay-pause", "#replay-resume", "#replay-abort", "#goto", "#new-session button"];
+  "#goto", "#new-session button"];
+
+// Pause while it runs, resume while paused, abort until it ends; no second replay meanwhile.
+function replayControls(job) {
+  const live = Boolean(job) && ["queued", "running"].includes(job.state);
+  const drivable = state.robots[state.robot].drivable;
+  $("#replay-pause").disabled = !live || job.paused;
+  $("#replay-resume").disabled = !live || !job.paused;
+  $("#replay-abort").disabled = !live;
+  for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable;
+}
 
 function showDrivable() {
   const drivable = state.robots[state.robot].drivable;
   for (const sel of MOTION_CONTROLS) $(sel).disabled = !drivable;
+  replayControls(null);
   document.body.dataset.drivable = drivable ? "1" : "0";
   if (!drivable) {
     $("#robot-state").textContent = `${state.robot}: real data only (no robot to drive; import its sessions)`;
@@ -781,10 +792,13 @@ async function replay(dry) {
   state.replaySeed = null;
   await follow(r.job, (j) => {
     $("#replay-progress").value = j.progress;
+    replayControls(j);
     const d = j.detail || {};
     const planning = j.state === "running" && d.phase === "planning" ? " · planning the configurations" : "";
-    $("#replay-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${planning}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
+    const shown = j.paused && j.state === "running" ? "paused" : j.state;
+    $("#replay-state").textContent = `${shown}${j.error ? `: ${j.error}` : ""}${planning}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
   });
+  replayControls(null);
   await loadSessions(state.session.id);
 }
 

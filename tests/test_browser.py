@@ -220,10 +220,20 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         )
         page.click("#dry-run")
         page.wait_for_function("document.querySelector('#dry-run-result').textContent.includes('3 configurations')")
+        assert all(page.is_disabled(f"#replay-{a}") for a in ("pause", "resume", "abort"))  # nothing to pause
         page.click("#replay-start")
+        # While it runs: pause (shown as paused, resume offered, no second replay), then resume.
+        page.wait_for_selector("#replay-pause:enabled", timeout=30_000)
+        assert page.is_disabled("#replay-start") and page.is_disabled("#replay-resume")
+        page.click("#replay-pause")
+        page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('paused')")
+        assert page.is_enabled("#replay-resume") and page.is_disabled("#replay-pause")
+        page.click("#replay-resume")
         page.wait_for_function(
             "document.querySelector('#replay-state').textContent.startsWith('done')", timeout=120_000
         )
+        assert all(page.is_disabled(f"#replay-{a}") for a in ("pause", "resume", "abort"))
+        assert page.is_enabled("#replay-start")
         shot(page, "2-replay")
         frames = server.get(f"/api/sessions/{sid}").json()["frames"]
         assert [f["index"] for f in frames] == [1, 2, 3, 4]
