@@ -37,7 +37,7 @@ from calib_core import (
 from calib_core.dataset import Dataset
 from calib_core.estimation.registration import register, registration_params
 from calib_core.estimation.validation import check_share
-from calib_core.io.csv_format import select_rows
+from calib_core.io.csv_format import readings_beyond_limits, select_rows
 from calib_core.io.session import FrameRecord, write_session
 from calib_core.model.profile import Profile
 from calib_core.units import length_factor
@@ -246,6 +246,14 @@ def _load_robot(args: argparse.Namespace) -> Profile:
     return profile
 
 
+def _read_data(args: argparse.Namespace, profile: Profile) -> Dataset:
+    """--data (its --where rows); readings beyond a joint's limits go to stderr as notes."""
+    data = read_dataset(profile, args.data)
+    for note in readings_beyond_limits(profile, data):
+        print(f"calib {args.command}: note: {note}", file=sys.stderr)
+    return _where(data, args.where)
+
+
 def _solve(args: argparse.Namespace) -> int:
     check_share(args.holdout, "--holdout")
     if args.folds < 0 or args.folds == 1:
@@ -253,7 +261,7 @@ def _solve(args: argparse.Namespace) -> int:
     profile = _load_robot(args)
     profile.mode(args.mode)
     base = _load_calibration(args.base, profile) if args.base else None
-    data = _where(read_dataset(profile, args.data), args.where)
+    data = _read_data(args, profile)
     _check_writable(args.out)
     cal = calibrate(
         profile,
@@ -277,7 +285,7 @@ def _predict(args: argparse.Namespace) -> int:
     profile = _load_robot(args)
     cal = _load_calibration(args.calibration, profile) if args.calibration else None
     p = cal.params(profile) if cal else profile.nominal()
-    data = _where(read_dataset(profile, args.data), args.where)
+    data = _read_data(args, profile)
     _check_writable(args.out)
     if cal is None and registration_params(profile):
         p = register(profile, data, p)  # the nominal model, seen from where the tracker stands
@@ -302,7 +310,7 @@ def _predict(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     profile = load_profile(args.robot)
     cal = _load_calibration(args.calibration, profile)
-    data = _where(read_dataset(profile, args.data), args.where)
+    data = _read_data(args, profile)
     result = evaluate(profile, cal, data, reregister=args.register)
     if args.json:
         _print_json(result.to_dict(), one_line=True)

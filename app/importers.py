@@ -13,10 +13,12 @@ import shutil
 import tempfile
 from collections.abc import Collection
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from calib_core import InputError, Profile, parse_dataset
+from calib_core.io.csv_format import readings_beyond_limits
 from calib_core.io.session import read_session, session_robot
 
 from .store import NewFrame, Observations, Store
@@ -103,7 +105,12 @@ def import_session_folder(
     return sid
 
 
-def import_csv(store: Store, robot: str, name: str, text: str, filename: str) -> str:
+class Imported(NamedTuple):
+    id: str
+    notes: list[str]  # what the data say that the operator should know (readings beyond a joint's limits)
+
+
+def import_csv(store: Store, robot: str, name: str, text: str, filename: str) -> Imported:
     """A session from a CSV in the robot's pinned format; InputError (naming line and column) leaves
     nothing behind, since the rows are inserted only once the whole file has been read."""
     profile = store.sessions.profile(robot)
@@ -116,7 +123,7 @@ def import_csv(store: Store, robot: str, name: str, text: str, filename: str) ->
     store.sessions.add_whole(
         sid, robot, name, description=f"imported from {filename}", source="import", truth=None, frames=frames
     )
-    return sid
+    return Imported(sid, readings_beyond_limits(profile, data))
 
 
 def ensure_samples(store: Store, folder: Path, robots: Collection[str] | None = None) -> list[str]:

@@ -351,10 +351,11 @@ async function importSession(e) {
   e.preventDefault();
   const form = new FormData(e.target);
   form.append("robot", state.robot);
-  const { id } = await api("POST", "/sessions/import", form);
+  const { id, notes } = await api("POST", "/sessions/import", form);
   e.target.reset();
   await loadSessions(id);
-  toast("Imported.", "info");
+  if (notes.length) toast(`Imported, but look: ${notes.join("; ")}`, "error");
+  else toast("Imported.", "info");
 }
 
 // --- jobs: progress by server-sent events ------------------------------------------------------

@@ -95,6 +95,29 @@ def test_importing_a_csv_makes_a_session(client: TestClient) -> None:
     assert all(f["status"] == "measured" for f in s["frames"])
 
 
+def test_a_reading_beyond_a_joint_limit_imports_with_a_note_naming_line_and_column(client: TestClient) -> None:
+    """Not refused (a drifted encoder can read past a limit the joint never passes), never silent either."""
+    lines = (SAMPLES / "robonaut-a-day1" / "data.csv").read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[5] = "95.0"  # shoulder_pitch, whose upper limit is 90 deg
+    lines[3] = ",".join(cells)
+    r = client.post(
+        "/api/sessions/import",
+        data={"robot": "robonaut-a", "name": "one reading past a limit"},
+        files={"data": ("past.csv", io.BytesIO("\n".join(lines).encode()), "text/csv")},
+    )
+    assert r.status_code == 201, r.text
+    assert r.json()["notes"] == [
+        "past.csv, line 4, column 'shoulder_pitch': shoulder_pitch reads 95.00 deg, beyond its upper limit 90.00 deg"
+    ]
+    clean = client.post(
+        "/api/sessions/import",
+        data={"robot": "robonaut-a", "name": "clean"},
+        files={"data": ("day1.csv", (SAMPLES / "robonaut-a-day1" / "data.csv").open("rb"), "text/csv")},
+    )
+    assert clean.status_code == 201 and clean.json()["notes"] == []
+
+
 def test_a_bad_csv_names_line_and_column_and_creates_nothing(client: TestClient) -> None:
     before = len(client.get("/api/sessions").json())
     lines = (SAMPLES / "robonaut-a-day1" / "data.csv").read_text().splitlines()

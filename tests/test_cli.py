@@ -236,6 +236,19 @@ def test_solve_daily_on_a_later_day_with_a_held_out_half(robonaut: dict) -> None
             assert p["value"] == pytest.approx(full[p["name"]]["value"], abs=1e-9), p["name"]
 
 
+def test_a_reading_beyond_a_joint_limit_is_a_note_on_stderr(tmp_path: Path) -> None:
+    lines = (ROOT / "sample_sessions" / "robonaut-a-day1" / "data.csv").read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[5] = "95.0"  # shoulder_pitch, whose upper limit is 90 deg
+    lines[3] = ",".join(cells)
+    (tmp_path / "past.csv").write_text("\n".join(lines) + "\n")
+    proc = ok(calib("predict", "--robot", "robonaut-a", "--data", "past.csv", "--out", "p.csv", cwd=tmp_path))
+    assert (
+        "calib predict: note: past.csv, line 4, column 'shoulder_pitch': shoulder_pitch reads 95.00 deg, beyond its "
+        "upper limit 90.00 deg"
+    ) in proc.stderr
+
+
 def test_a_solve_that_hits_the_iteration_limit_says_it_did_not_converge(tmp_path: Path) -> None:
     """A daily calibration of the first sample day from the nominal model (8 deg off) stops at the
     iteration limit: the summary, the warning and the file say it did not converge."""

@@ -250,7 +250,8 @@ def test_import_csv_round_trips(tmp_path: Path, samples: Path) -> None:
     store = Store(tmp_path)
     profile = load_profile("nao")
     text = (samples / "nao" / "data.csv").read_text()
-    sid = import_csv(store, "nao", "uploaded", text, "nao.csv")
+    sid, notes = import_csv(store, "nao", "uploaded", text, "nao.csv")
+    assert notes == []
     info = store.sessions.get(sid)
     want = parse_dataset(profile, text)
     n = want.n_configurations

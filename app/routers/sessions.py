@@ -46,6 +46,11 @@ class Created(BaseModel):
     id: str
 
 
+class ImportedOut(BaseModel):
+    id: str
+    notes: list[str]  # worth the operator's eye, not refused: readings beyond a joint's limits (file, line, column)
+
+
 class Deleted(BaseModel):
     deleted: str
 
@@ -117,7 +122,7 @@ async def import_session(
     robot: Annotated[str, Form()],
     name: Annotated[str, Form(min_length=1, max_length=200)],
     data: Annotated[UploadFile, File()],
-) -> Created:
+) -> ImportedOut:
     """A session from a CSV in the robot's pinned format; a mistake answers 422 naming line and column."""
     raw = await read_upload(data)
     try:
@@ -126,7 +131,8 @@ async def import_session(
         raise HTTPException(422, f"{data.filename}: not UTF-8 text (byte {exc.start})") from None
     robots.get(robot)
     filename = Path(data.filename or "data.csv").name
-    return Created(id=await asyncio.to_thread(import_csv, store, robot, name, text, filename))
+    imported = await asyncio.to_thread(import_csv, store, robot, name, text, filename)
+    return ImportedOut(id=imported.id, notes=imported.notes)
 
 
 @router.get("/sessions/{session_id}/calibrations")

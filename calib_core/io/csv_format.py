@@ -194,6 +194,35 @@ class _Frames:
         return self.index[fid]
 
 
+def readings_beyond_limits(profile: Profile, data: Dataset, most: int = 5) -> list[str]:
+    """Joint readings outside their joint's limits, as notes naming file, line and column (at most `most`,
+    then how many more). Not refused: a drifted encoder (what a daily calibration corrects) can read past a
+    limit the joint itself never passes; but a profile whose limits or columns are wrong shows here first."""
+    if not len(data.frame_ids) or data.lines is None:
+        return []
+    lo, hi = profile.joint_limits()
+    q = data.joints
+    with np.errstate(invalid="ignore"):
+        beyond = (q < lo - 1e-9) | (q > hi + 1e-9)
+    if not beyond.any():
+        return []
+    _, first = np.unique(data.cfg, return_index=True)  # each configuration's first observation
+    columns = {profile.joint(j): c for j, c in profile.data.joint_columns.items()}
+    notes = []
+    for n, j in np.argwhere(beyond)[:most]:
+        joint = profile.joints[j]
+        side, limit = ("lower", lo[j]) if q[n, j] < lo[j] else ("upper", hi[j])
+        unit = profile.joint_display_unit(j)
+        value, limit = profile.joint_to_display(j, q[n, j]), profile.joint_to_display(j, limit)
+        notes.append(
+            f"{data.source}, line {int(data.lines[first[n]])}, column '{columns.get(j, joint.name)}': "
+            f"{joint.name} reads {value:.2f} {unit}, beyond its {side} limit {limit:.2f} {unit}"
+        )
+    if int(beyond.sum()) > most:
+        notes.append(f"{data.source}: {int(beyond.sum()) - most} more readings beyond their joint's limits")
+    return notes
+
+
 def _frame_id(row: Row, fmt: DataFormat, default: int) -> int:
     if not fmt.frame_column:
         return default
