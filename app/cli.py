@@ -18,9 +18,11 @@ import time
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+import yaml
 
 from calib_core import (
     Calibration,
@@ -39,10 +41,14 @@ from calib_core.estimation.registration import register, registration_params
 from calib_core.estimation.validation import check_share
 from calib_core.io.csv_format import readings_beyond_limits, select_rows
 from calib_core.io.session import FrameRecord, write_session
+from calib_core.model.loader import BUILTIN_PROFILES
 from calib_core.model.profile import Profile
 from calib_core.units import length_factor
 from calib_core.vision.ballfinder import find_sphere
 from calib_core.vision.sandal_board import detect_board
+
+if TYPE_CHECKING:
+    from .desk_config import DeskConfig
 
 
 class _Parser(argparse.ArgumentParser):
@@ -199,10 +205,26 @@ def _parser() -> argparse.ArgumentParser:
         help="the desk configuration: which robots (name, profile, driver); default: the built-in robots, simulated",
     )
     sv.add_argument(
+        "--ros2",
+        action="append",
+        default=[],
+        metavar="CONNECTION.yaml",
+        help="a robot on its ROS 2 graph (specs ros2.md; the ros2 extra); may be given more than once",
+    )
+    sv.add_argument(
         "--new-token",
         action="store_true",
         help="bound off loopback: replace the access token (printed once) with a new one",
     )
+    r2 = sub.add_parser("sim-ros2", help="a simulated robot as a ROS 2 node (the ros2 extra), until interrupted")
+    r2.add_argument("--robot", required=True, help="a built-in robot (nao, motoman) or a profile file")
+    r2.add_argument("--urdf", help="the robot's URDF, for a profile that says urdf: ros2")
+    r2.add_argument("--seed", type=int, default=1, help="the hidden truth's and the noise's seed (default 1)")
+    r2.add_argument("--speed", type=float, default=1.0, help="times the trajectories' timing (default 1)")
+    r2.add_argument("--rate", type=float, default=100.0, help="joint states per second (default 100)")
+    r2.add_argument("--name", help="the robot's name in --connection-out (default: the profile's)")
+    r2.add_argument("--connection-out", metavar="FILE", help="write the desk's connection file for this node")
+    r2.add_argument("--refuse-apply", action="store_true", help="refuse every new robot_description (tests)")
     return p
 
 
@@ -220,6 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "detect-board": _detect_board,
             "import-bag": _import_bag,
             "serve": _serve,
+            "sim-ros2": _sim_ros2,
         }
         return commands[args.command](args)
     except InputError as exc:
@@ -558,6 +581,8 @@ def _serve(args: argparse.Namespace) -> int:
     if not 0.1 <= args.sim_speed <= 100:
         raise InputError(f"--sim-speed {args.sim_speed} must be between 0.1 and 100")
     config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
+    if args.ros2:
+        config = _with_ros2(config, args.ros2, Path(args.data_dir))
     serve(
         args.host,
         args.port,
@@ -567,6 +592,56 @@ def _serve(args: argparse.Namespace) -> int:
         time_scale=args.sim_speed,
         new_token=args.new_token,
     )
+    return 0
+
+
+def _with_ros2(config: DeskConfig | None, files: list[str], data_dir: Path) -> DeskConfig:
+    """The desk's robots and those on ROS 2 graphs, each met and checked on its graph before the desk starts."""
+    from dataclasses import replace
+
+    from .desk_config import RobotConfig, default_config
+    from .drivers.registry import DriverSpec
+    from .ros2 import require
+
+    require()
+    from .ros2.connection import connect, load_connection
+
+    config = config or default_config()
+    conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is met
+    robots = list(config.robots)
+    for conn in conns:
+        if conn.robot in {r.name for r in robots}:
+            raise InputError(f"robot: '{conn.robot}' is on the desk already", file=str(conn.path))
+        ref, options = connect(conn, data_dir)
+        robots.append(RobotConfig(conn.robot, ref, DriverSpec("ros2", options), "config"))
+    return replace(config, robots=tuple(robots), connected=config.connected or conns[0].robot)
+
+
+def _sim_ros2(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from .ros2 import require
+
+    require()
+    from .ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
+
+    if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000:
+        raise InputError("--speed must be in 0.1..100 and --rate in 1..1000")
+    profile, urdf = load_sim_profile(args.robot, None if args.urdf is None else Path(args.urdf))
+    node = SimNode(profile, urdf, seed=args.seed, speed=args.speed, rate_hz=args.rate, refuse_apply=args.refuse_apply)
+    if args.connection_out:
+        ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
+        doc = connection_doc(ref, args.name or profile.name, profile, Topics())
+        write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    domain = os.environ.get("ROS_DOMAIN_ID", "0")
+    print(f"calib sim-ros2: {profile.name} on ROS_DOMAIN_ID={domain} (Ctrl-C ends it)", flush=True)
+    try:
+        done.wait()
+    finally:
+        node.close()
     return 0
 
 

@@ -10,7 +10,7 @@ if ! command -v chromium >/dev/null 2>&1; then
 fi
 python3 -m venv .venv
 .venv/bin/pip install -q --upgrade pip
-.venv/bin/pip install -q -e '.[test]'
+.venv/bin/pip install -q -e '.[test,ros2]'
 .venv/bin/ruff format --check calib_core app tests benchmarks
 .venv/bin/ruff check calib_core app tests benchmarks
 .venv/bin/python -m pytest -q "$@"

@@ -58,6 +58,7 @@ class Applied(BaseModel):
     previous: str | None  # the robot's active calibration before (None: the nominal model)
     robot: str
     recorded: bool  # a history row was added (False: it was already active, pushed to the driver again)
+    deployed: str | None = None  # what the robot's driver did with it (a ROS 2 robot: the parameter it set)
 
 
 @router.post("/calibrations/{cal_id}/apply", responses={409: {"model": ApplyConcerns}})

@@ -10,15 +10,23 @@ history row.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from calib_core import Calibration
 from calib_core.estimation.registration import register
 
 from .. import safety
 from ..robots import Robots
 from ..store import Store
+
+
+@runtime_checkable
+class Deploys(Protocol):
+    """A driver that puts a calibration on the robot (app/drivers/ros2.py); returns what it did, a sentence."""
+
+    def deploy(self, cal_id: str, cal: Calibration) -> str: ...
 
 
 class ApplyService:
@@ -37,12 +45,23 @@ class ApplyService:
                     + (f" (and {len(reasons) - 1} more)" if len(reasons) > 1 else ""),
                     reasons,
                 )
+        deployed = self._deploy(info.robot, cal_id)
         if self.store.calibrations.active(info.robot) == cal_id:  # already active: pushed again, no new row
             self.robots.push_active(info.robot)
-            return {"active": cal_id, "previous": cal_id, "robot": info.robot, "recorded": False}
+            return {"active": cal_id, "previous": cal_id, "robot": info.robot, "recorded": False} | deployed
+        if deployed:
+            note = f"{note} ({deployed['deployed']})" if note else deployed["deployed"]
         active, previous = self.store.calibrations.apply(info.robot, cal_id, note)
         self.robots.push_active(info.robot)
-        return {"active": active, "previous": previous, "robot": info.robot, "recorded": True}
+        return {"active": active, "previous": previous, "robot": info.robot, "recorded": True} | deployed
+
+    def _deploy(self, robot: str, cal_id: str) -> dict[str, str]:
+        """A driver that takes calibrations on the robot itself (a ROS 2 robot's parameter) gets this one first:
+        when that fails (RobotFault: refused, not answering) nothing is recorded and the active one stays."""
+        driver = self.robots.get(robot).driver
+        if not isinstance(driver, Deploys):
+            return {}
+        return {"deployed": driver.deploy(cal_id, self.store.calibrations.load(cal_id))}
 
     def concerns(self, cal_id: str) -> list[str]:
         """Why applying this calibration needs a confirmation (empty: it does not)."""

@@ -31,8 +31,10 @@ JOINT_KINDS = ("revolute", "prismatic")  # a joint entry's `type`: its op rotate
 Step = tuple[str, np.ndarray, str, float, bool]
 
 
-def load_profile(name_or_path: str | Path) -> Profile:
-    """A built-in profile by name (`robonaut-a`, `nao`) or a profile YAML file by path."""
+def load_profile(name_or_path: str | Path, *, urdf: str | Path | None = None) -> Profile:
+    """A built-in profile by name (`robonaut-a`, `nao`) or a profile YAML file by path. `urdf`: the URDF
+    file to use instead of the one its `urdf:` names (a ROS 2 robot's, received from its graph, for a
+    profile that says `urdf: ros2`)."""
     text, source = _read_profile_text(name_or_path)
     try:
         doc = yaml.safe_load(text)
@@ -43,6 +45,8 @@ def load_profile(name_or_path: str | Path) -> Profile:
     if not isinstance(doc, dict):
         raise InputError("a robot profile must be a YAML mapping", file=source)
     try:
+        if "urdf" in doc and urdf is not None:
+            doc = {**doc, "urdf": str(Path(urdf).resolve())}
         if "urdf" in doc:  # frames, joints and default modes from a URDF file
             return compile_urdf_profile(doc, source, lambda d: _Compiler(d, source).compile())
         return _Compiler(doc, source).compile()

@@ -1,0 +1,337 @@
+"""The ROS 2 connection file (specs ros2.md) and what `calib serve --ros2` does with it before the desk starts.
+
+    robot: iiwa                       # the robot's name on the desk
+    profile: iiwa-mocap.yaml          # a profile file (relative to this file) or a built-in profile's name;
+                                      # `urdf: ros2` in it: the URDF received on description_topic
+    description_topic: /robot_description
+    joint_states: /joint_states
+    command: /joint_trajectory_controller/joint_trajectory
+    measurements: {mocap: {topic: /mocap/marker}}       # or {topic: .../image_raw, info: .../camera_info}
+    apply: {node: /robot_state_publisher, parameter: robot_description}   # optional
+
+Extensions of the contract (optional, with their defaults): `wait_s: 30` (how long `calib serve` waits for
+the robot's description and joint states), `timeout_s: 1.0` (joint states older than this: disconnected),
+`tolerance_deg: 0.1` (a move has arrived within this of its target), `measurement_wait_s: 2.0` (how long a
+capture waits for a measurement newer than the settling), `margin_deg: 1.0` (the joint limits' safety
+margin), `apply_timeout_s: 5.0` (the parameter call).
+
+connect() checks everything on the live graph before the desk starts (the description is a URDF the
+profile compiles with, the joint states name every joint of the profile, each topic that exists has the
+type the contract says) and only then writes the received URDF and the profile that uses it into the
+data directory (`ros2/<robot>/`). The URDF first received is the nominal model, kept there: a later start
+that receives the calibrated URDF the desk applied keeps the stored nominal one.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from calib_core import InputError, Profile, load_profile
+from calib_core.files import write_atomic
+from calib_core.model.loader import BUILTIN_PROFILES
+
+from . import require
+
+FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")
+OPTIONS = {
+    "wait_s": 30.0,
+    "timeout_s": 1.0,
+    "tolerance_deg": 0.1,
+    "measurement_wait_s": 2.0,
+    "margin_deg": 1.0,
+    "apply_timeout_s": 5.0,
+}
+URDF_FROM_GRAPH = "ros2"  # a profile's `urdf: ros2`
+TYPES = {
+    "description": "std_msgs/msg/String",
+    "joint_states": "sensor_msgs/msg/JointState",
+    "command": "trajectory_msgs/msg/JointTrajectory",
+    "point": "geometry_msgs/msg/PointStamped",
+    "image": "sensor_msgs/msg/Image",
+    "info": "sensor_msgs/msg/CameraInfo",
+}
+
+
+@dataclass(frozen=True)
+class Measurement:
+    sensor: str
+    topic: str
+    info: str | None = None  # a camera's CameraInfo topic
+
+
+@dataclass(frozen=True)
+class Connection:
+    path: Path
+    robot: str
+    profile: str  # a built-in profile's name or an absolute path
+    description_topic: str
+    joint_states: str
+    command: str
+    measurements: tuple[Measurement, ...]
+    apply_node: str | None = None
+    apply_parameter: str | None = None
+    options: dict[str, float] = field(default_factory=lambda: dict(OPTIONS))
+
+    @property
+    def urdf_from_graph(self) -> bool:
+        """The profile says `urdf: ros2`."""
+        if self.profile in BUILTIN_PROFILES:
+            return False
+        doc = _yaml(Path(self.profile))
+        return isinstance(doc, dict) and doc.get("urdf") == URDF_FROM_GRAPH
+
+    def load_profile(self, urdf: Path | None) -> Profile:
+        """The robot's profile, named after the robot; `urdf`: the URDF received (for `urdf: ros2`)."""
+        if self.urdf_from_graph and urdf is None:
+            raise InputError(f"profile {self.profile} says urdf: ros2 and no URDF was received", file=str(self.path))
+        profile = load_profile(self.profile, urdf=urdf if self.urdf_from_graph else None)
+        return replace(profile, name=self.robot)
+
+
+def load_connection(path: Path) -> Connection:
+    """Read and check a connection file; InputError naming the file and the field."""
+    path = Path(path).resolve()
+    file = str(path)
+    doc = _yaml(path)
+    if not isinstance(doc, dict):
+        raise InputError("a ROS 2 connection file is a YAML mapping (robot, profile, topics)", file=file)
+    unknown = sorted(set(doc) - set(FIELDS) - set(OPTIONS))
+    if unknown:
+        raise InputError(f"{unknown[0]}: no such field (fields: {', '.join(FIELDS + tuple(OPTIONS))})", file=file)
+    from ..validation import check_id
+
+    try:
+        check_id("robot name", doc.get("robot"))
+    except InputError as exc:
+        raise InputError(f"robot: {exc.message}", file=file) from None
+    ref = _text(doc, "profile", file)
+    profile = ref if ref in BUILTIN_PROFILES else str((path.parent / ref).resolve())
+    if profile not in BUILTIN_PROFILES and not Path(profile).is_file():
+        raise InputError(f"profile: {ref} does not exist (relative to this file) and is no built-in profile", file=file)
+    topics = {k: _topic(doc, k, file) for k in ("description_topic", "joint_states", "command")}
+    items = doc.get("measurements")
+    if not isinstance(items, dict) or not items:
+        raise InputError("measurements: expected one entry per sensor, {sensor: {topic: ...}}", file=file)
+    measurements = []
+    for sensor, spec in items.items():
+        where = f"measurements.{sensor}"
+        if not isinstance(spec, dict) or set(spec) - {"topic", "info"} or "topic" not in spec:
+            raise InputError(f"{where}: expected {{topic: ...}} or {{topic: ..., info: ...}}", file=file)
+        info = _topic(spec, "info", file, where) if "info" in spec else None
+        measurements.append(Measurement(str(sensor), _topic(spec, "topic", file, where), info))
+    apply_node = apply_parameter = None
+    if doc.get("apply") is not None:
+        spec = doc["apply"]
+        if not isinstance(spec, dict) or set(spec) != {"node", "parameter"}:
+            raise InputError("apply: expected {node: /robot_state_publisher, parameter: robot_description}", file=file)
+        apply_node = _topic(spec, "node", file, "apply")
+        apply_parameter = _text(spec, "parameter", file, "apply")
+    options = dict(OPTIONS)
+    for key in OPTIONS:
+        if key in doc:
+            value = doc[key]
+            if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < 1e6:
+                raise InputError(f"{key}: expected a positive number, got {value!r}", file=file)
+            options[key] = float(value)
+    conn = Connection(
+        path, doc["robot"], profile, *topics.values(), tuple(measurements), apply_node, apply_parameter, options
+    )
+    _check_sensors(conn, conn.load_profile(None) if not conn.urdf_from_graph else None)
+    return conn
+
+
+def check_against(conn: Connection, profile: Profile) -> None:
+    """The connection's sensors against the robot's profile (InputError naming the field)."""
+    _check_sensors(conn, profile)
+
+
+def _check_sensors(conn: Connection, profile: Profile | None) -> None:
+    if profile is None:
+        return
+    file = str(conn.path)
+    names = [s.name for s in profile.sensors]
+    for m in conn.measurements:
+        if m.sensor not in names:
+            raise InputError(
+                f"measurements.{m.sensor}: no such sensor in the profile (sensors: {', '.join(names)})", file=file
+            )
+        sensor = profile.sensors[names.index(m.sensor)]
+        if sensor.reading == "image" and m.info is None:
+            raise InputError(f"measurements.{m.sensor}: a camera needs `info` (its CameraInfo topic)", file=file)
+        if sensor.reading not in ("image", "direct") or (sensor.reading == "direct" and sensor.dim != 3):
+            raise InputError(
+                f"measurements.{m.sensor}: the ROS 2 driver reads point sensors (PointStamped) and cameras "
+                f"(Image + CameraInfo), not a {sensor.reading} sensor",
+                file=file,
+            )
+    data_sensor = profile.sensors[profile.data.sensor].name
+    if data_sensor not in {m.sensor for m in conn.measurements}:
+        raise InputError(f"measurements: the profile's data sensor '{data_sensor}' needs a topic", file=file)
+
+
+# --- before the desk starts ---------------------------------------------------------------------------------
+
+_pending: dict[str, Any] = {}  # connection path -> (Link, Profile) made by connect(), taken by the driver
+_pending_lock = threading.Lock()
+
+
+def take_pending(path: str) -> Any:
+    """The link connect() opened for this connection file (None when there is none)."""
+    with _pending_lock:
+        return _pending.pop(path, None)
+
+
+def robot_dir(data_dir: Path, robot: str) -> Path:
+    return Path(data_dir) / "ros2" / robot
+
+
+def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str, dict[str, Any]]:
+    """Meet the robot on its graph and check it (InputError naming what is wrong; nothing is written then).
+    Returns the profile reference the desk loads the robot with and the driver's options; the link stays
+    open for the driver."""
+    require()
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from .link import LATCHED_QOS, SENSOR_QOS, Link
+
+    link = Link(f"calib_desk_{_node_name(conn.robot)}")
+    try:
+        got: dict[str, Any] = {}
+        ready = threading.Event()
+
+        def on_description(msg: Any) -> None:
+            got.setdefault("urdf", msg.data)  # the first received is the nominal one
+            ready.set()
+
+        def on_joints(msg: Any) -> None:
+            got["joints"] = list(msg.name)
+            ready.set()
+
+        link.node.create_subscription(String, conn.description_topic, on_description, LATCHED_QOS)
+        link.node.create_subscription(JointState, conn.joint_states, on_joints, SENSOR_QOS)
+        log(f"calib serve: waiting for {conn.robot} on the ROS 2 graph ({conn.description_topic}, {conn.joint_states})")
+        wait_s = conn.options["wait_s"]
+        deadline = time.monotonic() + wait_s
+        while not ("urdf" in got and "joints" in got) and time.monotonic() < deadline:
+            ready.wait(0.05)
+            ready.clear()
+        hint = "is the robot running, with the same ROS_DOMAIN_ID and discovery range as the desk?"
+        if "urdf" not in got:
+            raise InputError(
+                f"no robot description on {conn.description_topic} within {wait_s:g} s: {hint}", file=str(conn.path)
+            )
+        if "joints" not in got:
+            raise InputError(f"no joint states on {conn.joint_states} within {wait_s:g} s: {hint}", file=str(conn.path))
+        folder = robot_dir(data_dir, conn.robot)
+        urdf_text = _nominal(folder, got["urdf"])
+        with tempfile.TemporaryDirectory() as tmp:
+            received = Path(tmp) / "robot_description.urdf"
+            received.write_text(urdf_text, encoding="utf-8")
+            try:
+                profile = conn.load_profile(received)
+            except InputError as exc:
+                if exc.file != str(received):
+                    raise
+                line = f", line {exc.line}" if exc.line else ""
+                raise InputError(
+                    f"the robot description on {conn.description_topic} is not a URDF this robot's profile can use "
+                    f"(the message's text{line}): {exc.message}",
+                    file=str(conn.path),
+                ) from None
+        check_against(conn, profile)
+        missing = [j.name for j in profile.joints if j.name not in got["joints"]]
+        if missing:
+            raise InputError(
+                f"the joint states on {conn.joint_states} name {', '.join(got['joints']) or 'no joint'}; the profile's "
+                f"joint(s) {', '.join(missing)} are not among them (names are matched to the URDF's joints)",
+                file=str(conn.path),
+            )
+        _check_types(conn, link)
+        if conn.urdf_from_graph:
+            nominal = folder / "nominal.urdf"
+            if not nominal.is_file() or nominal.read_text(encoding="utf-8") != urdf_text:
+                write_atomic(nominal, urdf_text)
+            doc = _yaml(Path(conn.profile))
+            doc["urdf"] = "nominal.urdf"
+            write_atomic(folder / "profile.yaml", yaml.safe_dump(doc, sort_keys=False))
+            ref = str(folder / "profile.yaml")
+        else:
+            write_atomic(folder / "nominal.urdf", urdf_text)
+            ref = conn.profile
+    except BaseException:
+        link.close()
+        raise
+    with _pending_lock:
+        _pending[str(conn.path)] = link
+    return ref, {"connection": str(conn.path), "files": str(folder)}
+
+
+def _nominal(folder: Path, received: str) -> str:
+    """The nominal URDF: the one received, unless it is the calibrated URDF this desk applied last (the robot
+    re-publishes what apply set), whose nominal one is kept."""
+    applied, nominal = folder / "applied.urdf", folder / "nominal.urdf"
+    if applied.is_file() and nominal.is_file() and applied.read_text(encoding="utf-8") == received:
+        return nominal.read_text(encoding="utf-8")
+    return received
+
+
+def _check_types(conn: Connection, link: Any) -> None:
+    """Each topic of the connection that the graph knows must carry the contract's type."""
+    types = link.topic_types()
+    want = [
+        ("description_topic", conn.description_topic, TYPES["description"]),
+        ("joint_states", conn.joint_states, TYPES["joint_states"]),
+        ("command", conn.command, TYPES["command"]),
+    ]
+    for m in conn.measurements:
+        kind = "image" if m.info is not None else "point"
+        want.append((f"measurements.{m.sensor}.topic", m.topic, TYPES[kind]))
+        if m.info is not None:
+            want.append((f"measurements.{m.sensor}.info", m.info, TYPES["info"]))
+    for where, topic, expected in want:
+        have = types.get(topic)
+        if have and expected not in have:
+            raise InputError(f"{where}: {topic} carries {', '.join(have)}, not {expected}", file=str(conn.path))
+
+
+def _node_name(robot: str) -> str:
+    return "".join(c if c.isalnum() or c == "_" else "_" for c in robot)
+
+
+def _yaml(path: Path) -> Any:
+    file = str(path)
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("does not exist", file=file) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot be read ({exc.__class__.__name__})", file=file) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise InputError(
+            f"not valid YAML ({getattr(exc, 'problem', exc)})", file=file, line=mark.line + 1 if mark else None
+        ) from None
+
+
+def _text(doc: dict, key: str, file: str, where: str = "") -> str:
+    value = doc.get(key)
+    name = f"{where}.{key}" if where else key
+    if not isinstance(value, str) or not value.strip():
+        raise InputError(f"{name}: expected a name, got {value!r}", file=file)
+    return value.strip()
+
+
+def _topic(doc: dict, key: str, file: str, where: str = "") -> str:
+    value = _text(doc, key, file, where)
+    name = f"{where}.{key}" if where else key
+    if not value.startswith("/") or any(c.isspace() for c in value):
+        raise InputError(f"{name}: expected an absolute ROS 2 name like /joint_states, got {value!r}", file=file)
+    return value

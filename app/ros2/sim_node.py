@@ -1,0 +1,271 @@
+"""A simulated robot as a ROS 2 node (`calib sim-ros2`): what a real robot's graph offers the desk.
+
+It publishes the robot's URDF on /robot_description (transient local, as robot_state_publisher does, and
+again whenever its `robot_description` parameter is set), the encoder readings on /joint_states at
+`rate_hz`, and what its sensor measures: a point sensor's (laser tracker, motion capture) PointStamped in
+metres on /<sensor>/point, or a camera's rendered image and CameraInfo on /<sensor>/image_raw and
+/<sensor>/camera_info. It executes trajectory_msgs/JointTrajectory from
+/joint_trajectory_controller/joint_trajectory as a ros2_control trajectory controller does with positions
+only: linear interpolation from where it stands, each point at its time_from_start (divided by `speed`);
+an empty trajectory stops and holds. A trajectory naming an unknown joint or a point beyond a joint limit
+is refused whole (logged), as a controller refuses it.
+
+Its hidden truth is the profile's simulation (calib_core.sim.SimulatedRobot with `seed`): the desk that
+calibrates it should find those parameters.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from calib_core import InputError, Profile, load_profile
+from calib_core.io.urdf_export import to_urdf
+from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.sim.simulator import SimulatedRobot
+from calib_core.units import length_factor
+from calib_core.vision.sandal_board import render_board_image
+
+from . import require
+
+COMMAND_TOPIC = "/joint_trajectory_controller/joint_trajectory"
+POINT_HZ = 50.0
+IMAGE_HZ = 5.0
+
+
+@dataclass(frozen=True)
+class Topics:
+    description: str = "/robot_description"
+    joint_states: str = "/joint_states"
+    command: str = COMMAND_TOPIC
+
+    @staticmethod
+    def measurement(sensor: str, camera: bool) -> dict[str, str]:
+        if camera:
+            return {"topic": f"/{sensor}/image_raw", "info": f"/{sensor}/camera_info"}
+        return {"topic": f"/{sensor}/point"}
+
+
+def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
+    """The profile (a built-in name or a file; `urdf` for a profile that says `urdf: ros2`) and the URDF
+    text the node publishes (the profile's own URDF, a built-in's shipped one, or one drawn from the model)."""
+    from ..profiles import builtin_urdf
+
+    if robot in BUILTIN_PROFILES:
+        profile = load_profile(robot)
+        shipped = builtin_urdf(robot)
+        return profile, shipped.read_text(encoding="utf-8") if shipped else to_urdf(profile)
+    path = Path(robot)
+    doc = yaml.safe_load(path.read_text(encoding="utf-8")) if path.is_file() else None
+    says = doc.get("urdf") if isinstance(doc, dict) else None
+    if says == "ros2" and urdf is None:
+        raise InputError("the profile says urdf: ros2: give the robot's URDF with --urdf", file=str(path))
+    profile = load_profile(path, urdf=urdf)
+    if isinstance(says, str):
+        source = urdf if urdf is not None else path.parent / says
+        return profile, Path(source).read_text(encoding="utf-8")
+    return profile, to_urdf(profile)
+
+
+def connection_doc(profile_ref: str, robot: str, profile: Profile, topics: Topics) -> dict[str, Any]:
+    """A connection file for the desk that matches this node (`calib sim-ros2 --connection-out`)."""
+    sensor = profile.sensors[profile.data.sensor]
+    return {
+        "robot": robot,
+        "profile": profile_ref,
+        "description_topic": topics.description,
+        "joint_states": topics.joint_states,
+        "command": topics.command,
+        "measurements": {sensor.name: Topics.measurement(sensor.name, sensor.reading == "image")},
+        "apply": {"node": "/robot_state_publisher", "parameter": "robot_description"},
+    }
+
+
+class SimNode:
+    """The simulated robot on the graph, until close()."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        urdf: str,
+        *,
+        seed: int = 1,
+        speed: float = 1.0,
+        rate_hz: float = 100.0,
+        refuse_apply: bool = False,
+        topics: Topics = Topics(),
+    ) -> None:
+        require()
+        from geometry_msgs.msg import PointStamped
+        from rcl_interfaces.msg import SetParametersResult
+        from rclpy.parameter import Parameter
+        from sensor_msgs.msg import CameraInfo, Image, JointState
+        from std_msgs.msg import String
+        from trajectory_msgs.msg import JointTrajectory
+
+        from .link import COMMAND_QOS, LATCHED_QOS, Link
+
+        self.profile = profile
+        self.sim = SimulatedRobot.from_profile(profile, seed=seed)
+        self.speed = float(speed)
+        self.refuse_apply = refuse_apply
+        self.topics = topics
+        from ..drivers.simulated import readable_targets, reads_points
+
+        sensor = profile.sensors[profile.data.sensor]
+        self.camera = sensor.reading == "image"
+        if not self.camera and not reads_points(sensor):
+            raise InputError(f"{profile.name}: its {sensor.name} ({sensor.reading}) cannot be simulated on ROS 2 yet")
+        self.target = (readable_targets(profile) or [0])[0] if not self.camera else 0
+        self._lock = threading.Lock()
+        lo, hi = profile.joint_limits()
+        self._lo, self._hi = lo, hi
+        self._scale = np.array(
+            [length_factor(profile.length_unit, "m") if j.prismatic else 1.0 for j in profile.joints]
+        )
+        self._q = self._home()
+        self._plan: list[tuple[float, np.ndarray]] | None = None  # (s after start, q) from where it stood
+        self._t0 = 0.0
+        self.link = Link("robot_state_publisher", parameter_overrides=[Parameter("robot_description", value=urdf)])
+        node = self.link.node
+        node.declare_parameter("robot_description", urdf)
+        self._description = node.create_publisher(String, topics.description, LATCHED_QOS)
+        self._joints = node.create_publisher(JointState, topics.joint_states, 10)
+        self._string, self._joint_state = String, JointState
+        node.create_subscription(JointTrajectory, topics.command, self._on_trajectory, COMMAND_QOS)
+
+        def check_parameters(params: list[Any]) -> Any:
+            for p in params:
+                if p.name != "robot_description":
+                    continue
+                if self.refuse_apply:
+                    return SetParametersResult(successful=False, reason="this robot takes no new description")
+                text = p.value if isinstance(p.value, str) else ""
+                if "<robot" not in text:
+                    return SetParametersResult(successful=False, reason="not a URDF")
+            return SetParametersResult(successful=True)
+
+        def republish(params: list[Any]) -> None:
+            for p in params:
+                if p.name == "robot_description":
+                    self._description.publish(String(data=p.value))
+
+        node.add_on_set_parameters_callback(check_parameters)
+        node.add_post_set_parameters_callback(republish)
+        self._description.publish(String(data=urdf))
+        measurement = Topics.measurement(sensor.name, self.camera)
+        if self.camera:
+            self._image = node.create_publisher(Image, measurement["topic"], 5)
+            self._info = node.create_publisher(CameraInfo, measurement["info"], 5)
+            self._image_type, self._info_type = Image, CameraInfo
+            node.create_timer(1.0 / IMAGE_HZ, self._publish_image)
+        else:
+            self._point = node.create_publisher(PointStamped, measurement["topic"], 10)
+            self._point_type = PointStamped
+            node.create_timer(1.0 / POINT_HZ, self._publish_point)
+        self._frame = sensor.name
+        node.create_timer(1.0 / rate_hz, self._tick)
+        self.last_refusal = ""
+
+    def _home(self) -> np.ndarray:
+        """A start with the target in view, inside the limits less a degree."""
+        qs, _ = SimulatedRobot.from_profile(self.profile, seed=99, truth=self.sim.true_params).configurations(4)
+        margin = math.radians(1.0)
+        return np.clip(qs[0], self._lo + margin, self._hi - margin) if len(qs) else (self._lo + self._hi) / 2
+
+    # --- commands ---------------------------------------------------------------------------------------
+    def _on_trajectory(self, msg: Any) -> None:
+        names = [j.name for j in self.profile.joints]
+        with self._lock:
+            q = self._position(time.monotonic())
+            if not msg.points:  # stop and hold
+                self._q, self._plan = q, None
+                return
+            unknown = [n for n in msg.joint_names if n not in names]
+            if unknown:
+                return self._refuse(f"unknown joint(s) {', '.join(unknown)}")
+            index = [names.index(n) for n in msg.joint_names]
+            plan: list[tuple[float, np.ndarray]] = [(0.0, q)]
+            for point in msg.points:
+                if len(point.positions) != len(index):
+                    return self._refuse("a point's positions do not match its joint names")
+                goal = plan[-1][1].copy()
+                goal[index] = np.asarray(point.positions, float) * (1 / self._scale[index])
+                if np.any(goal < self._lo) or np.any(goal > self._hi):
+                    return self._refuse("a point beyond a joint limit")
+                t = (point.time_from_start.sec + point.time_from_start.nanosec * 1e-9) / self.speed
+                if t < plan[-1][0]:
+                    return self._refuse("time_from_start goes back")
+                plan.append((t, goal))
+            self._q, self._plan, self._t0 = q, plan, time.monotonic()
+
+    def _refuse(self, why: str) -> None:
+        self.last_refusal = why
+        self.link.node.get_logger().error(f"trajectory refused: {why}")
+
+    def _position(self, now: float) -> np.ndarray:
+        """The true joint angles now (lock held)."""
+        if self._plan is None:
+            return self._q.copy()
+        t = now - self._t0
+        for (t0, q0), (t1, q1) in zip(self._plan, self._plan[1:], strict=False):
+            if t <= t1:
+                s = 1.0 if t1 <= t0 else (t - t0) / (t1 - t0)
+                return q0 + (q1 - q0) * max(0.0, s)
+        return self._plan[-1][1].copy()
+
+    # --- publishing -------------------------------------------------------------------------------------
+    def _tick(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            q = self._position(now)
+            if self._plan is not None and now - self._t0 >= self._plan[-1][0]:
+                self._q, self._plan = q, None
+        msg = self._joint_state()
+        msg.header.stamp = self.link.node.get_clock().now().to_msg()
+        msg.name = [j.name for j in self.profile.joints]
+        msg.position = [float(v) for v in self.sim.readings(q) * self._scale]
+        self._joints.publish(msg)
+
+    def _true_q(self) -> np.ndarray:
+        with self._lock:
+            return self._position(time.monotonic())
+
+    def _publish_point(self) -> None:
+        stamp = self.link.node.get_clock().now().to_msg()
+        q = self._true_q()
+        measured = self.sim.measure(q[None], np.array([self.target])).data.measured[0, :3]
+        msg = self._point_type()
+        msg.header.stamp, msg.header.frame_id = stamp, self._frame
+        x, y, z = measured * length_factor(self.profile.length_unit, "m")
+        msg.point.x, msg.point.y, msg.point.z = float(x), float(y), float(z)
+        self._point.publish(msg)
+
+    def _publish_image(self) -> None:
+        stamp = self.link.node.get_clock().now().to_msg()
+        q = self._true_q()
+        board = render_board_image(self.profile, self.sim.true_params, q, self.target, self.sim.rng)
+        image = np.ascontiguousarray(board.image, dtype=np.uint8)
+        msg = self._image_type()
+        msg.header.stamp, msg.header.frame_id = stamp, self._frame
+        msg.height, msg.width = image.shape[:2]
+        msg.encoding, msg.step = "mono8", image.shape[1]
+        msg.data = image.tobytes()
+        sensor = self.profile.sensors[self.profile.data.sensor]
+        fx, fy, cx, cy = (float(self.sim.true_params[i]) for i in sensor.intrinsics or ())
+        info = self._info_type()
+        info.header = msg.header
+        info.height, info.width = msg.height, msg.width
+        info.k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
+        self._image.publish(msg)
+        self._info.publish(info)
+
+    def close(self) -> None:
+        self.link.close()
