@@ -572,7 +572,6 @@ def _save(path: str, write) -> None:
 
 def _serve(args: argparse.Namespace) -> int:
     from .desk_config import load_desk_config
-    from .server import serve  # the web stack loads only for this subcommand
 
     if not 0 < args.port < 65536:
         raise InputError(f"--port {args.port} is not a TCP port")
@@ -583,6 +582,8 @@ def _serve(args: argparse.Namespace) -> int:
     config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
     if args.ros2:
         config = _with_ros2(config, args.ros2, Path(args.data_dir))
+    from .server import serve  # the web stack loads only for this subcommand, once the robots are checked
+
     serve(
         args.host,
         args.port,

@@ -1,0 +1,226 @@
+"""Shared by the ROS 2 tests and benchmarks/ros2.py: a ROS 2 graph of this run's own (a domain id, on this
+machine only), `calib sim-ros2` and `calib serve --ros2` as separate processes, and a watcher node in this
+process that records every trajectory command and the joint states."""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from browser import Server, free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+ARM_DIR = ROOT / "docs" / "ros2"
+
+
+def graph_env() -> dict[str, str]:
+    """This run's graph: a domain id of its own (parallel runs do not see each other), this machine only."""
+    domain = random.SystemRandom().randint(100, 230)
+    return {"ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+
+
+def calib(*args: str) -> list[str]:
+    """The command line of `calib ARGS` from this checkout."""
+    return [sys.executable, "-m", "app.cli", *args]
+
+
+@dataclass
+class Sim:
+    """`calib sim-ros2` in its own process."""
+
+    args: list[str]
+    env: dict[str, str]
+    process: subprocess.Popen | None = None
+
+    def start(self, timeout_s: float = 60.0) -> Sim:
+        self.process = subprocess.Popen(
+            calib("sim-ros2", *self.args),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, **self.env, "PYTHONUNBUFFERED": "1"},
+        )
+        line = _read_line(self.process, "calib sim-ros2:", timeout_s)
+        if line is None:
+            out = self.process.stdout.read().decode() if self.process.poll() is not None else ""  # type: ignore[union-attr]
+            raise RuntimeError(f"calib sim-ros2 did not start: {out[-2000:]}")
+        return self
+
+    def kill(self) -> None:
+        """Killed as a crash kills it: no goodbye on the graph."""
+        assert self.process is not None
+        self.process.kill()
+        self.process.wait()
+
+    def stop(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+
+
+def arm_sim(env: dict[str, str], *extra: str) -> Sim:
+    """The demo arm (docs/ros2) on the graph, 8 times as fast as its trajectories say."""
+    args = ["--robot", str(ARM_DIR / "arm-mocap.yaml"), "--urdf", str(ARM_DIR / "arm.urdf"), "--speed", "8"]
+    return Sim([*args, *extra], env)
+
+
+def _read_line(proc: subprocess.Popen, prefix: str, timeout_s: float) -> str | None:
+    """The first line of the process's output that starts with prefix (None: it ended or the time ran out)."""
+    found: list[str] = []
+
+    def read() -> None:
+        for raw in proc.stdout:  # type: ignore[union-attr]
+            line = raw.decode(errors="replace")
+            if line.startswith(prefix):
+                found.append(line)
+                return
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(timeout_s)
+    return found[0] if found else None
+
+
+@contextmanager
+def served_ros2(
+    connection: Path, data_dir: Path, env: dict[str, str], *extra: str, timeout_s: float = 90.0
+) -> Iterator[Server]:
+    """`calib serve --ros2 CONNECTION` until the block ends (SIGINT, as Ctrl-C)."""
+    port = free_port()
+    proc = subprocess.Popen(
+        calib("serve", "--port", str(port), "--data-dir", str(data_dir), "--ros2", str(connection), *extra),
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env={**os.environ, **env, "PYTHONUNBUFFERED": "1"},
+    )
+    server = Server(f"http://127.0.0.1:{port}", proc, data_dir)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"calib serve exited: {proc.stdout.read().decode()[-2000:]}")  # type: ignore[union-attr]
+            try:
+                if server.get("/api/health").status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError("calib serve --ros2 did not answer /api/health in time")
+            time.sleep(0.1)
+        yield server
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def wait_job(server: Server, job: str, timeout_s: float = 120.0) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        snapshot = server.get(f"/api/jobs/{job}").json()
+        if snapshot["state"] in ("done", "failed", "cancelled"):
+            return snapshot
+        time.sleep(0.1)
+    raise AssertionError(f"job {job} did not end within {timeout_s} s")
+
+
+@dataclass
+class Command:
+    """A trajectory command as the watcher saw it, with the joint states the robot last published before."""
+
+    joint_names: list[str]
+    points: list[tuple[float, list[float]]]  # (time_from_start s, positions)
+    start: dict[str, float]  # rad
+    received: float  # time.monotonic()
+
+
+@dataclass
+class Watcher:
+    """A node in the test process on the run's graph: every JointTrajectory on `command`, the latest joint
+    states, and every robot_description."""
+
+    command: str = "/joint_trajectory_controller/joint_trajectory"
+    commands: list[Command] = field(default_factory=list)
+    descriptions: list[str] = field(default_factory=list)
+    joints: dict[str, float] = field(default_factory=dict)
+    joints_at: float = 0.0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def start(self) -> Watcher:
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import String
+        from trajectory_msgs.msg import JointTrajectory
+
+        from app.ros2.link import COMMAND_QOS, LATCHED_QOS, SENSOR_QOS, Link
+
+        self.link = Link(f"watcher_{os.getpid()}")
+        node = self.link.node
+        node.create_subscription(JointTrajectory, self.command, self._on_command, COMMAND_QOS)
+        node.create_subscription(JointState, "/joint_states", self._on_joints, SENSOR_QOS)
+        node.create_subscription(String, "/robot_description", self._on_description, LATCHED_QOS)
+        return self
+
+    def _on_command(self, msg: Any) -> None:
+        points = [(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9, list(p.positions)) for p in msg.points]
+        with self.lock:
+            self.commands.append(Command(list(msg.joint_names), points, dict(self.joints), time.monotonic()))
+
+    def _on_joints(self, msg: Any) -> None:
+        with self.lock:
+            self.joints = dict(zip(msg.name, msg.position, strict=False))
+            self.joints_at = time.monotonic()
+
+    def _on_description(self, msg: Any) -> None:
+        with self.lock:
+            self.descriptions.append(msg.data)
+
+    def positions(self, names: list[str]) -> np.ndarray:
+        with self.lock:
+            return np.array([self.joints[n] for n in names])
+
+    def close(self) -> None:
+        self.link.close()
+
+
+def limit_violations(commands: list[Command], profile: Any, margin_deg: float = 1.0) -> list[str]:
+    """Every command point outside the joint limits less the margin, or faster than a velocity limit (from the
+    joint states the robot published before the command; 2% and 1 ms allowed for the time between)."""
+    limits = {j.name: j for j in profile.joints}
+    margin = math.radians(margin_deg)
+    bad = []
+    for n, c in enumerate(commands):
+        previous = c.start
+        t_previous = 0.0
+        for t, positions in c.points:
+            for name, value in zip(c.joint_names, positions, strict=True):
+                j = limits[name]
+                if not j.lower + margin - 1e-9 <= value <= j.upper - margin + 1e-9:
+                    bad.append(f"command {n}: {name} {math.degrees(value):.2f} deg outside the limits less the margin")
+                if name in previous:
+                    need = abs(value - previous[name]) / j.velocity
+                    if need > 1.02 * (t - t_previous) + 1e-3:
+                        bad.append(f"command {n}: {name} needs {need:.3f} s, given {t - t_previous:.3f} s")
+            previous, t_previous = dict(zip(c.joint_names, positions, strict=True)), t
+    return bad

@@ -1,0 +1,239 @@
+"""A robot on its own ROS 2 graph (specs ros2.md), through real DDS between processes: `calib sim-ros2` (the
+demo arm of docs/ros2, its truth hidden in its profile's simulation) in one, `calib serve --ros2` in
+another, a watcher node in this one that checks every trajectory the desk sends against the limits.
+
+One desk and one robot for the module (a desk takes seconds to start); the tests run in file order: a full
+session, a STOP, the robot killed and back (refusing the next apply), then bad graphs that `calib serve`
+refuses before it starts.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import yaml
+
+from app.cli import main
+from calib_core import load_profile
+from calib_core.sim.simulator import SimulatedRobot
+
+HAVE_RCLPY = importlib.util.find_spec("rclpy") is not None
+needs_ros2 = pytest.mark.skipif(
+    not HAVE_RCLPY, reason="rclpy is not installed: the ROS 2 tests need the ros2 extra (pip install -e '.[test,ros2]')"
+)
+if HAVE_RCLPY:
+    from ros2_graph import ARM_DIR, ROOT, Watcher, arm_sim, calib, graph_env, limit_violations, served_ros2, wait_job
+else:
+    ROOT = Path(__file__).resolve().parent.parent
+    ARM_DIR = ROOT / "docs" / "ros2"
+
+TRUTH_TOLERANCE_DEG = 0.02  # the mocap's 0.05 mm noise over 20 configurations: offsets to ~0.005 deg
+
+
+def arm_profile():
+    return load_profile(ARM_DIR / "arm-mocap.yaml", urdf=ARM_DIR / "arm.urdf")
+
+
+@pytest.fixture(scope="module")
+def graph(tmp_path_factory):
+    env = graph_env()
+    with pytest.MonkeyPatch.context() as mp:
+        for key, value in env.items():
+            mp.setenv(key, value)  # the watcher in this process joins the same graph
+        watcher = Watcher().start()
+        sim = arm_sim(env).start()
+        data_dir = tmp_path_factory.mktemp("ros2") / "data"
+        try:
+            with served_ros2(ARM_DIR / "arm-connection.yaml", data_dir, env) as server:
+                yield SimpleNamespace(env=env, watcher=watcher, sim=sim, server=server, data_dir=data_dir)
+        finally:
+            sim.stop()
+            watcher.close()
+
+
+def _frames(server, session: str) -> list[dict]:
+    return server.get(f"/api/sessions/{session}").json()["frames"]
+
+
+@needs_ros2
+def test_session_on_the_graph_recovers_the_truth_and_apply_sets_the_parameter(graph):
+    server, watcher = graph.server, graph.watcher
+    robots = {r["name"]: r for r in server.get("/api/robots").json()}
+    assert robots["arm"]["drivable"] is True
+    session = server.post("/api/sessions", json={"robot": "arm", "name": "on ROS 2"})
+    assert session.status_code == 201
+    sid = session.json()["id"]
+    replay = server.post(f"/api/sessions/{sid}/replay", json={"count": 22})
+    assert replay.status_code == 202
+    job = wait_job(server, replay.json()["job"])
+    assert job["state"] == "done", job
+    frames = _frames(server, sid)
+    assert len(frames) == 22 and all(f["status"] == "measured" for f in frames)
+
+    calibrate = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "offsets"})
+    assert calibrate.status_code == 202
+    job = wait_job(server, calibrate.json()["job"])
+    assert job["state"] == "done", job
+    cal_id = job["result"]
+    cal = server.get(f"/api/calibrations/{cal_id}").json()
+    profile = arm_profile()
+    truth = dict(zip(profile.parameter_names, SimulatedRobot.from_profile(profile, seed=1).true_params, strict=True))
+    found = {p["name"]: p for p in cal["parameters"]}
+    for joint in ("shoulder_lift", "elbow", "wrist_1", "wrist_2"):
+        assert found[joint]["unit"] == "deg"
+        assert abs(found[joint]["value"] - math.degrees(truth[joint])) < TRUTH_TOLERANCE_DEG, (joint, found[joint])
+
+    before = len(watcher.descriptions)
+    applied = server.post(f"/api/calibrations/{cal_id}/apply", json={})
+    assert applied.status_code == 200, applied.text
+    assert "set robot_description of /robot_state_publisher" in applied.json()["deployed"]
+    urdf = (graph.data_dir / "ros2" / "arm" / f"{cal_id}.urdf").read_text(encoding="utf-8")
+    assert (graph.data_dir / "ros2" / "arm" / f"{cal_id}.offsets.yaml").is_file()
+    deadline = time.monotonic() + 5
+    while len(watcher.descriptions) == before and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert watcher.descriptions[-1] == urdf  # set on the node before the answer; it re-published it
+    history = server.get("/api/robot/history", params={"robot": "arm"}).json()
+    assert history[0]["calibration"] == cal_id and "robot_description" in history[0]["note"]
+
+    assert len(watcher.commands) >= 22
+    assert limit_violations(watcher.commands, profile) == []
+
+
+@needs_ros2
+def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
+    server, watcher = graph.server, graph.watcher
+    sid = server.post("/api/sessions", json={"robot": "arm", "name": "stopped"}).json()["id"]
+    job = server.post(f"/api/sessions/{sid}/replay", json={"count": 10, "seed": 3}).json()["job"]
+    deadline = time.monotonic() + 60
+    while len(_frames(server, sid)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    n = len(watcher.commands)
+    while len(watcher.commands) == n and time.monotonic() < deadline:  # the next move has been sent
+        time.sleep(0.005)
+    time.sleep(0.05)  # under way (a move at 8x takes 0.1 to 0.4 s)
+    assert server.post("/api/robot/stop").status_code == 200
+    ended = wait_job(server, job)
+    assert ended["state"] == "cancelled", ended
+    time.sleep(0.3)
+    last = watcher.commands[-1]
+    assert last.points == [] and set(last.joint_names) == {j.name for j in arm_profile().joints}
+    names = [j.name for j in arm_profile().joints]
+    held = watcher.positions(names)
+    time.sleep(0.3)
+    assert np.array_equal(watcher.positions(names), held)  # stopped and holding, not moving on
+    goal = np.array(next(c for c in reversed(watcher.commands) if c.points).points[-1][1])
+    assert np.max(np.abs(held - goal)) > math.radians(0.5)  # stopped short of the target: no jump to it
+    assert len(_frames(server, sid)) >= 2  # what was captured stays
+    assert limit_violations(watcher.commands, arm_profile()) == []
+
+
+@needs_ros2
+def test_robot_killed_mid_replay_fails_the_job_keeps_frames_and_resumes_when_back(graph):
+    server, sim = graph.server, graph.sim
+    sid = server.post("/api/sessions", json={"robot": "arm", "name": "lost"}).json()["id"]
+    plan = {"count": 12, "seed": 5}
+    job = server.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"]
+    deadline = time.monotonic() + 60
+    while len(_frames(server, sid)) < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    sim.kill()
+    ended = wait_job(server, job)
+    assert ended["state"] == "failed"
+    assert "disconnected: no joint states on /joint_states" in ended["error"]
+    kept = len(_frames(server, sid))
+    assert 3 <= kept < 12
+    state = server.get("/api/robot", params={"robot": "arm"}).json()
+    assert state["connected"] is False
+    assert server.post("/api/robot/move", json={"robot": "arm", "joints": {"elbow": 10.0}}).status_code == 503
+
+    graph.sim = sim = arm_sim(graph.env, "--refuse-apply").start()  # back, refusing a new description
+    deadline = time.monotonic() + 30
+    while not server.get("/api/robot", params={"robot": "arm"}).json()["connected"]:
+        assert time.monotonic() < deadline, "the desk did not see the robot come back"
+        time.sleep(0.1)
+    job = server.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"]
+    assert wait_job(server, job)["state"] == "done"
+    assert len(_frames(server, sid)) == 12
+
+    active = server.get("/api/robot/calibration", params={"robot": "arm"}).json()
+    cal_job = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "offsets"}).json()["job"]
+    cal_id = wait_job(server, cal_job)["result"]
+    refused = server.post(f"/api/calibrations/{cal_id}/apply", json={"confirm": True})
+    assert refused.status_code == 503
+    assert "refused to set robot_description (this robot takes no new description)" in refused.json()["detail"]
+    assert server.get("/api/robot/calibration", params={"robot": "arm"}).json() == active  # unchanged
+    assert not (graph.data_dir / "ros2" / "arm" / "applied.urdf").read_text(encoding="utf-8").count(cal_id)
+
+
+BAD = {
+    "not a urdf": ("<html>a web page</html>", ["shoulder_pan"], "String", "not a URDF this robot's profile can use"),
+    "joint names": (None, ["joint_a", "joint_b"], "String", "are not among them"),
+    "topic type": (None, None, "String", "/bad/mocap carries std_msgs/msg/String, not geometry_msgs/msg/PointStamped"),
+}
+
+
+@needs_ros2
+@pytest.mark.parametrize("case", list(BAD))
+def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path, case):
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from app.ros2.link import LATCHED_QOS
+
+    description, joints, _, expected = BAD[case]
+    node = graph.watcher.link.node
+    names = joints or [j.name for j in arm_profile().joints]
+    text = description or (ARM_DIR / "arm.urdf").read_text(encoding="utf-8")
+    publishers = [node.create_publisher(String, "/bad/robot_description", LATCHED_QOS)]
+    publishers[0].publish(String(data=text))
+    states = node.create_publisher(JointState, "/bad/joint_states", 10)
+    publishers.append(states)
+    timer = node.create_timer(0.02, lambda: states.publish(JointState(name=names, position=[0.0] * len(names))))
+    if case == "topic type":
+        publishers.append(node.create_publisher(String, "/bad/mocap", 10))
+    conn = {
+        "robot": "bad",
+        "profile": str(ARM_DIR / "arm-mocap.yaml"),
+        "description_topic": "/bad/robot_description",
+        "joint_states": "/bad/joint_states",
+        "command": "/bad/joint_trajectory",
+        "measurements": {"mocap": {"topic": "/bad/mocap"}},
+        "wait_s": 8,
+    }
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(conn), encoding="utf-8")
+    try:
+        import subprocess
+
+        done = subprocess.run(
+            calib("serve", "--ros2", str(tmp_path / "bad.yaml"), "--data-dir", str(tmp_path / "data")),
+            cwd=ROOT,
+            env={**os.environ, **graph.env},
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        node.destroy_timer(timer)
+        for p in publishers:
+            node.destroy_publisher(p)
+    assert done.returncode == 2, done.stderr
+    assert expected in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "data").exists()  # nothing half-done
+
+
+def test_without_the_extra_serve_ros2_says_to_install_it(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # `import rclpy` fails as where it is not installed
+    code = main(["serve", "--ros2", str(ARM_DIR / "arm-connection.yaml"), "--data-dir", str(tmp_path / "d")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "ROS 2 is not installed here" in err and "pip install -e '.[ros2]'" in err
+    assert not (tmp_path / "d").exists()
