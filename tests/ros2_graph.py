@@ -200,6 +200,24 @@ class Watcher:
         with self.lock:
             return np.array([self.joints[n] for n in names])
 
+    def set_sim_speed(self, speed: float, timeout_s: float = 10.0) -> None:
+        """Set `calib sim-ros2`'s speed parameter (its next trajectories run at that speed)."""
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+
+        client = self.link.node.create_client(SetParameters, "/robot_state_publisher/set_parameters")
+        try:
+            assert client.wait_for_service(timeout_sec=timeout_s)
+            value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(speed))
+            future = client.call_async(SetParameters.Request(parameters=[Parameter(name="speed", value=value)]))
+            deadline = time.monotonic() + timeout_s
+            while not future.done():
+                assert time.monotonic() < deadline, "the simulated robot did not answer"
+                time.sleep(0.01)
+            assert future.result().results[0].successful
+        finally:
+            self.link.node.destroy_client(client)
+
     def close(self) -> None:
         self.link.close()
 

@@ -256,6 +256,10 @@ class Ros2Driver:
         if not stamp > since:
             if math.isnan(stamp):
                 reason = f"no measurement on {topic} (none received within {wait_s:g} s)"
+                carried = self.link.topic_types().get(topic)
+                want = "sensor_msgs/msg/Image" if sensor.reading == "image" else "geometry_msgs/msg/PointStamped"
+                if carried and want not in carried:
+                    reason += f": it carries {', '.join(carried)}, not {want}"
             else:
                 reason = (
                     f"stale measurement on {topic}: the latest is stamped {since - stamp:.3f} s before the settled "

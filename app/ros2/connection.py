@@ -283,9 +283,15 @@ def _nominal(folder: Path, received: str) -> str:
     return received
 
 
-def _check_types(conn: Connection, link: Any) -> None:
-    """Each topic of the connection that the graph knows must carry the contract's type."""
+def _check_types(conn: Connection, link: Any, settle_s: float = 2.0) -> None:
+    """Each topic of the connection that the graph knows must carry the contract's type (the graph is given
+    up to settle_s to show every measurement topic: discovery lags behind the first messages)."""
+    topics = {m.topic for m in conn.measurements} | {m.info for m in conn.measurements if m.info}
+    deadline = time.monotonic() + settle_s
     types = link.topic_types()
+    while not topics <= set(types) and time.monotonic() < deadline:
+        time.sleep(0.05)
+        types = link.topic_types()
     want = [
         ("description_topic", conn.description_topic, TYPES["description"]),
         ("joint_states", conn.joint_states, TYPES["joint_states"]),

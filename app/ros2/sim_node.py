@@ -7,7 +7,7 @@ metres on /<sensor>/point, or a camera's rendered image and CameraInfo on /<sens
 /<sensor>/camera_info. It executes trajectory_msgs/JointTrajectory from
 /joint_trajectory_controller/joint_trajectory as a ros2_control trajectory controller does with positions
 only: linear interpolation from where it stands, each point at its time_from_start (divided by `speed`);
-an empty trajectory stops and holds. A trajectory naming an unknown joint or a point beyond a joint limit
+an empty trajectory stops and holds. Its `speed` parameter may be set while it runs. A trajectory naming an unknown joint or a point beyond a joint limit
 is refused whole (logged), as a controller refuses it.
 
 Its hidden truth is the profile's simulation (calib_core.sim.SimulatedRobot with `seed`): the desk that
@@ -136,6 +136,7 @@ class SimNode:
         self.link = Link("robot_state_publisher", parameter_overrides=[Parameter("robot_description", value=urdf)])
         node = self.link.node
         node.declare_parameter("robot_description", urdf)
+        node.declare_parameter("speed", self.speed)  # the trajectories' timing divided by this, from the next one
         self._description = node.create_publisher(String, topics.description, LATCHED_QOS)
         self._joints = node.create_publisher(JointState, topics.joint_states, 10)
         self._string, self._joint_state = String, JointState
@@ -143,6 +144,8 @@ class SimNode:
 
         def check_parameters(params: list[Any]) -> Any:
             for p in params:
+                if p.name == "speed" and not (isinstance(p.value, float) and 0 < p.value <= 100):
+                    return SetParametersResult(successful=False, reason="speed: a number in (0, 100]")
                 if p.name != "robot_description":
                     continue
                 if self.refuse_apply:
@@ -156,6 +159,8 @@ class SimNode:
             for p in params:
                 if p.name == "robot_description":
                     self._description.publish(String(data=p.value))
+                elif p.name == "speed":
+                    self.speed = float(p.value)
 
         node.add_on_set_parameters_callback(check_parameters)
         node.add_post_set_parameters_callback(republish)
