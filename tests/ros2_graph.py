@@ -20,7 +20,6 @@ from typing import Any
 
 import httpx
 import numpy as np
-
 from browser import Server, free_port
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -51,11 +51,12 @@ def graph(tmp_path_factory):
         watcher = Watcher().start()
         sim = arm_sim(env).start()
         data_dir = tmp_path_factory.mktemp("ros2") / "data"
+        ns = SimpleNamespace(env=env, watcher=watcher, sim=sim, data_dir=data_dir)
         try:
-            with served_ros2(ARM_DIR / "arm-connection.yaml", data_dir, env) as server:
-                yield SimpleNamespace(env=env, watcher=watcher, sim=sim, server=server, data_dir=data_dir)
+            with served_ros2(ARM_DIR / "arm-connection.yaml", data_dir, env) as ns.server:
+                yield ns
         finally:
-            sim.stop()
+            ns.sim.stop()  # the one running now (a test restarts it)
             watcher.close()
 
 

@@ -6,9 +6,9 @@ again whenever its `robot_description` parameter is set), the encoder readings o
 metres on /<sensor>/point, or a camera's rendered image and CameraInfo on /<sensor>/image_raw and
 /<sensor>/camera_info. It executes trajectory_msgs/JointTrajectory from
 /joint_trajectory_controller/joint_trajectory as a ros2_control trajectory controller does with positions
-only: linear interpolation from where it stands, each point at its time_from_start (divided by `speed`);
-an empty trajectory stops and holds. Its `speed` parameter may be set while it runs. A trajectory naming an unknown joint or a point beyond a joint limit
-is refused whole (logged), as a controller refuses it.
+only: linear interpolation from where it stands, each point at its time_from_start (divided by `speed`,
+a parameter that may be set while it runs); an empty trajectory stops and holds. A trajectory naming an
+unknown joint or a point beyond a joint limit is refused whole (logged), as a controller refuses it.
 
 Its hidden truth is the profile's simulation (calib_core.sim.SimulatedRobot with `seed`): the desk that
 calibrates it should find those parameters.
@@ -105,6 +105,7 @@ class SimNode:
         require()
         from geometry_msgs.msg import PointStamped
         from rcl_interfaces.msg import SetParametersResult
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
         from rclpy.parameter import Parameter
         from sensor_msgs.msg import CameraInfo, Image, JointState
         from std_msgs.msg import String
@@ -166,15 +167,17 @@ class SimNode:
         node.add_post_set_parameters_callback(republish)
         self._description.publish(String(data=urdf))
         measurement = Topics.measurement(sensor.name, self.camera)
+        # Rendering takes a few hundred ms: in a group of its own the joint states and commands go on meanwhile.
+        sensing = MutuallyExclusiveCallbackGroup()
         if self.camera:
             self._image = node.create_publisher(Image, measurement["topic"], 5)
             self._info = node.create_publisher(CameraInfo, measurement["info"], 5)
             self._image_type, self._info_type = Image, CameraInfo
-            node.create_timer(1.0 / IMAGE_HZ, self._publish_image)
+            node.create_timer(1.0 / IMAGE_HZ, self._publish_image, callback_group=sensing)
         else:
             self._point = node.create_publisher(PointStamped, measurement["topic"], 10)
             self._point_type = PointStamped
-            node.create_timer(1.0 / POINT_HZ, self._publish_point)
+            node.create_timer(1.0 / POINT_HZ, self._publish_point, callback_group=sensing)
         self._frame = sensor.name
         node.create_timer(1.0 / rate_hz, self._tick)
         self.last_refusal = ""
@@ -254,9 +257,17 @@ class SimNode:
         self._point.publish(msg)
 
     def _publish_image(self) -> None:
+        """A camera image of the board in view, rendered while the robot stands still (a moving robot's would
+        be blurred, and no capture takes it)."""
         stamp = self.link.node.get_clock().now().to_msg()
-        q = self._true_q()
-        board = render_board_image(self.profile, self.sim.true_params, q, self.target, self.sim.rng)
+        with self._lock:
+            if self._plan is not None:
+                return
+            q = self._q.copy()
+        targets = np.arange(len(self.profile.targets))
+        seen = targets[self.sim.visible(np.repeat(q[None], len(targets), axis=0), targets)]
+        target = int(seen[0]) if len(seen) else self.target  # the board in view (NAO: the left or the right foot's)
+        board = render_board_image(self.profile, self.sim.true_params, q, target, self.sim.rng)
         image = np.ascontiguousarray(board.image, dtype=np.uint8)
         msg = self._image_type()
         msg.header.stamp, msg.header.frame_id = stamp, self._frame
