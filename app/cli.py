@@ -222,6 +222,7 @@ def _parser() -> argparse.ArgumentParser:
     r2.add_argument("--seed", type=int, default=1, help="the hidden truth's and the noise's seed (default 1)")
     r2.add_argument("--speed", type=float, default=1.0, help="times the trajectories' timing (default 1)")
     r2.add_argument("--rate", type=float, default=100.0, help="joint states per second (default 100)")
+    r2.add_argument("--namespace", default="", help="every topic and the node under this (/nao: robots side by side)")
     r2.add_argument("--name", help="the robot's name in --connection-out (default: the profile's)")
     r2.add_argument("--connection-out", metavar="FILE", help="write the desk's connection file for this node")
     r2.add_argument("--refuse-apply", action="store_true", help="refuse every new robot_description (tests)")
@@ -629,11 +630,23 @@ def _sim_ros2(args: argparse.Namespace) -> int:
 
     if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000:
         raise InputError("--speed must be in 0.1..100 and --rate in 1..1000")
+    namespace = args.namespace.rstrip("/")
+    if namespace and (not namespace.startswith("/") or not namespace[1:].replace("_", "").replace("/", "").isalnum()):
+        raise InputError(f"--namespace {args.namespace!r}: expected a ROS 2 namespace like /nao")
+    topics = Topics(namespace)
     profile, urdf = load_sim_profile(args.robot, None if args.urdf is None else Path(args.urdf))
-    node = SimNode(profile, urdf, seed=args.seed, speed=args.speed, rate_hz=args.rate, refuse_apply=args.refuse_apply)
+    node = SimNode(
+        profile,
+        urdf,
+        seed=args.seed,
+        speed=args.speed,
+        rate_hz=args.rate,
+        refuse_apply=args.refuse_apply,
+        topics=topics,
+    )
     if args.connection_out:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
-        doc = connection_doc(ref, args.name or profile.name, profile, Topics())
+        doc = connection_doc(ref, args.name or profile.name, profile, topics)
         write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())

@@ -46,6 +46,10 @@ class Sim:
     process: subprocess.Popen | None = None
 
     def start(self, timeout_s: float = 60.0) -> Sim:
+        return self.launch().ready(timeout_s)
+
+    def launch(self) -> Sim:
+        """Started, not waited for (ready())."""
         self.process = subprocess.Popen(
             calib("sim-ros2", *self.args),
             cwd=ROOT,
@@ -53,6 +57,11 @@ class Sim:
             stderr=subprocess.STDOUT,
             env={**os.environ, **self.env, "PYTHONUNBUFFERED": "1"},
         )
+        return self
+
+    def ready(self, timeout_s: float = 60.0) -> Sim:
+        """Once the node is on the graph."""
+        assert self.process is not None
         line = _read_line(self.process, "calib sim-ros2:", timeout_s)
         if line is None:
             out = self.process.stdout.read().decode() if self.process.poll() is not None else ""  # type: ignore[union-attr]

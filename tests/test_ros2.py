@@ -30,7 +30,18 @@ needs_ros2 = pytest.mark.skipif(
     not HAVE_RCLPY, reason="rclpy is not installed: the ROS 2 tests need the ros2 extra (pip install -e '.[test,ros2]')"
 )
 if HAVE_RCLPY:
-    from ros2_graph import ARM_DIR, ROOT, Watcher, arm_sim, calib, graph_env, limit_violations, served_ros2, wait_job
+    from ros2_graph import (
+        ARM_DIR,
+        ROOT,
+        Sim,
+        Watcher,
+        arm_sim,
+        calib,
+        graph_env,
+        limit_violations,
+        served_ros2,
+        wait_job,
+    )
 else:
     ROOT = Path(__file__).resolve().parent.parent
     ARM_DIR = ROOT / "docs" / "ros2"
@@ -49,14 +60,20 @@ def graph(tmp_path_factory):
         for key, value in env.items():
             mp.setenv(key, value)  # the watcher in this process joins the same graph
         watcher = Watcher().start()
+        folder = tmp_path_factory.mktemp("ros2")
+        nao_connection = folder / "nao.yaml"
+        nao_args = ["--robot", "nao", "--namespace", "/nao", "--name", "nao-ros", "--speed", "8"]
+        nao = Sim([*nao_args, "--connection-out", str(nao_connection)], env).launch()
         sim = arm_sim(env).start()
-        data_dir = tmp_path_factory.mktemp("ros2") / "data"
-        ns = SimpleNamespace(env=env, watcher=watcher, sim=sim, data_dir=data_dir)
+        nao.ready()
+        ns = SimpleNamespace(env=env, watcher=watcher, sim=sim, data_dir=folder / "data")
         try:
-            with served_ros2(ARM_DIR / "arm-connection.yaml", data_dir, env) as ns.server:
+            connections = ("--ros2", str(nao_connection))  # a second robot on the same graph, under /nao
+            with served_ros2(ARM_DIR / "arm-connection.yaml", ns.data_dir, env, *connections) as ns.server:
                 yield ns
         finally:
             ns.sim.stop()  # the one running now (a test restarts it)
+            nao.stop()
             watcher.close()
 
 
@@ -107,6 +124,23 @@ def test_session_on_the_graph_recovers_the_truth_and_apply_sets_the_parameter(gr
 
     assert len(watcher.commands) >= 22
     assert limit_violations(watcher.commands, profile) == []
+
+
+@needs_ros2
+def test_a_camera_robot_is_measured_by_the_detectors_in_images_from_its_topics(graph):
+    server = graph.server
+    assert {r["name"]: r["drivable"] for r in server.get("/api/robots").json()}["nao-ros"] is True
+    sid = server.post("/api/sessions", json={"robot": "nao-ros", "name": "camera"}).json()["id"]
+    job = server.post(f"/api/sessions/{sid}/replay", json={"count": 10}).json()["job"]
+    assert wait_job(server, job)["state"] == "done"
+    frames = _frames(server, sid)
+    assert len(frames) == 10 and all(f["status"] == "measured" for f in frames), [f["reason"] for f in frames]
+    job = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "full"}).json()["job"]
+    cal = server.get(f"/api/calibrations/{wait_job(server, job)['result']}").json()
+    # The board corners found by the sandal-board detector in the Image messages, fitted to the
+    # pixel noise (0.3 px) from the nominal model's tens of pixels.
+    assert cal["figures"]["after"]["n"] == 10 * 24  # 24 inner corners a board
+    assert cal["figures"]["before"]["rms"] > 10 and cal["figures"]["after"]["rms"] < 1.0
 
 
 @needs_ros2

@@ -32,11 +32,15 @@ COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 class Link:
     """A node on the graph, spun by a multi-threaded executor in a daemon thread until close()."""
 
-    def __init__(self, node_name: str, *, parameter_overrides: list[Any] | None = None) -> None:
+    def __init__(
+        self, node_name: str, *, namespace: str | None = None, parameter_overrides: list[Any] | None = None
+    ) -> None:
         self.context = Context()
         rclpy.init(context=self.context)
         try:
-            self.node = Node(node_name, context=self.context, parameter_overrides=parameter_overrides or [])
+            self.node = Node(
+                node_name, context=self.context, namespace=namespace, parameter_overrides=parameter_overrides or []
+            )
         except BaseException:
             self.context.try_shutdown()
             raise

@@ -42,15 +42,30 @@ IMAGE_HZ = 5.0
 
 @dataclass(frozen=True)
 class Topics:
-    description: str = "/robot_description"
-    joint_states: str = "/joint_states"
-    command: str = COMMAND_TOPIC
+    """The node's names, all under `namespace` ("" or "/nao": several robots on one graph)."""
 
-    @staticmethod
-    def measurement(sensor: str, camera: bool) -> dict[str, str]:
+    namespace: str = ""
+
+    @property
+    def description(self) -> str:
+        return f"{self.namespace}/robot_description"
+
+    @property
+    def joint_states(self) -> str:
+        return f"{self.namespace}/joint_states"
+
+    @property
+    def command(self) -> str:
+        return f"{self.namespace}{COMMAND_TOPIC}"
+
+    @property
+    def node(self) -> str:
+        return f"{self.namespace}/robot_state_publisher"
+
+    def measurement(self, sensor: str, camera: bool) -> dict[str, str]:
         if camera:
-            return {"topic": f"/{sensor}/image_raw", "info": f"/{sensor}/camera_info"}
-        return {"topic": f"/{sensor}/point"}
+            return {"topic": f"{self.namespace}/{sensor}/image_raw", "info": f"{self.namespace}/{sensor}/camera_info"}
+        return {"topic": f"{self.namespace}/{sensor}/point"}
 
 
 def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
@@ -83,8 +98,8 @@ def connection_doc(profile_ref: str, robot: str, profile: Profile, topics: Topic
         "description_topic": topics.description,
         "joint_states": topics.joint_states,
         "command": topics.command,
-        "measurements": {sensor.name: Topics.measurement(sensor.name, sensor.reading == "image")},
-        "apply": {"node": "/robot_state_publisher", "parameter": "robot_description"},
+        "measurements": {sensor.name: topics.measurement(sensor.name, sensor.reading == "image")},
+        "apply": {"node": topics.node, "parameter": "robot_description"},
     }
 
 
@@ -134,7 +149,11 @@ class SimNode:
         self._q = self._home()
         self._plan: list[tuple[float, np.ndarray]] | None = None  # (s after start, q) from where it stood
         self._t0 = 0.0
-        self.link = Link("robot_state_publisher", parameter_overrides=[Parameter("robot_description", value=urdf)])
+        self.link = Link(
+            "robot_state_publisher",
+            namespace=topics.namespace or None,
+            parameter_overrides=[Parameter("robot_description", value=urdf)],
+        )
         node = self.link.node
         node.declare_parameter("robot_description", urdf)
         node.declare_parameter("speed", self.speed)  # the trajectories' timing divided by this, from the next one
@@ -166,7 +185,7 @@ class SimNode:
         node.add_on_set_parameters_callback(check_parameters)
         node.add_post_set_parameters_callback(republish)
         self._description.publish(String(data=urdf))
-        measurement = Topics.measurement(sensor.name, self.camera)
+        measurement = topics.measurement(sensor.name, self.camera)
         # Rendering takes a few hundred ms: in a group of its own the joint states and commands go on meanwhile.
         sensing = MutuallyExclusiveCallbackGroup()
         if self.camera:
@@ -181,6 +200,7 @@ class SimNode:
         self._frame = sensor.name
         node.create_timer(1.0 / rate_hz, self._tick)
         self.last_refusal = ""
+        self._rendered: tuple[np.ndarray, np.ndarray] | None = None  # (the pose, its image)
 
     def _home(self) -> np.ndarray:
         """A start with the target in view, inside the limits less a degree."""
@@ -264,11 +284,13 @@ class SimNode:
             if self._plan is not None:
                 return
             q = self._q.copy()
-        targets = np.arange(len(self.profile.targets))
-        seen = targets[self.sim.visible(np.repeat(q[None], len(targets), axis=0), targets)]
-        target = int(seen[0]) if len(seen) else self.target  # the board in view (NAO: the left or the right foot's)
-        board = render_board_image(self.profile, self.sim.true_params, q, target, self.sim.rng)
-        image = np.ascontiguousarray(board.image, dtype=np.uint8)
+        if self._rendered is None or not np.array_equal(self._rendered[0], q):  # a still scene: rendered once
+            targets = np.arange(len(self.profile.targets))
+            seen = targets[self.sim.visible(np.repeat(q[None], len(targets), axis=0), targets)]
+            target = int(seen[0]) if len(seen) else self.target  # the board in view (NAO: the left or right foot's)
+            board = render_board_image(self.profile, self.sim.true_params, q, target, self.sim.rng)
+            self._rendered = (q, np.ascontiguousarray(board.image, dtype=np.uint8))
+        image = self._rendered[1]
         msg = self._image_type()
         msg.header.stamp, msg.header.frame_id = stamp, self._frame
         msg.height, msg.width = image.shape[:2]
