@@ -77,15 +77,18 @@ def served(
     calib: Path | None = None,
     cwd: Path | None = None,
     env: dict[str, str] | None = None,
+    command: list[str] | None = None,
+    extra: tuple[str, ...] = (),
 ) -> Iterator[Server]:
     """`calib serve` as a user starts it (bound to `host`, on `port` or a free one), until the block ends.
     `calib`: another installation's command (default: this environment's), run in `cwd` (default: the
-    checkout) with `env` (default: this process's)."""
+    checkout) with `env` (default: this process's); `command`: the whole command instead (a checkout's
+    `python -m app.cli`); `extra`: more options (`--ros2 FILE`)."""
     port = port or free_port()
     calib = calib or Path(sys.executable).parent / "calib"
-    cmd = [str(calib), "serve", "--host", host, "--port", str(port)]
+    cmd = [*(command or [str(calib)]), "serve", "--host", host, "--port", str(port)]
     proc = subprocess.Popen(
-        [*cmd, "--data-dir", str(data_dir), "--sim-speed", str(sim_speed)],
+        [*cmd, "--data-dir", str(data_dir), "--sim-speed", str(sim_speed), *extra],
         cwd=cwd or Path(__file__).resolve().parent.parent,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,

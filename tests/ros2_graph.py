@@ -18,9 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import httpx
 import numpy as np
-from browser import Server, free_port
+from browser import Server, served
 
 ROOT = Path(__file__).resolve().parent.parent
 ARM_DIR = ROOT / "docs" / "ros2"
@@ -108,40 +107,16 @@ def _read_line(proc: subprocess.Popen, prefix: str, timeout_s: float) -> str | N
 
 
 @contextmanager
-def served_ros2(
-    connection: Path, data_dir: Path, env: dict[str, str], *extra: str, timeout_s: float = 90.0
-) -> Iterator[Server]:
-    """`calib serve --ros2 CONNECTION` until the block ends (SIGINT, as Ctrl-C)."""
-    port = free_port()
-    proc = subprocess.Popen(
-        calib("serve", "--port", str(port), "--data-dir", str(data_dir), "--ros2", str(connection), *extra),
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        env={**os.environ, **env, "PYTHONUNBUFFERED": "1"},
-    )
-    server = Server(f"http://127.0.0.1:{port}", proc, data_dir)
-    deadline = time.monotonic() + timeout_s
-    try:
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(f"calib serve exited: {proc.stdout.read().decode()[-2000:]}")  # type: ignore[union-attr]
-            try:
-                if server.get("/api/health").status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError("calib serve --ros2 did not answer /api/health in time")
-            time.sleep(0.1)
+def served_ros2(connection: Path, data_dir: Path, env: dict[str, str], *extra: str) -> Iterator[Server]:
+    """`calib serve --ros2 CONNECTION` of this checkout until the block ends (SIGINT, as Ctrl-C)."""
+    with served(
+        data_dir,
+        timeout_s=90.0,
+        env={**os.environ, **env},
+        command=calib(),
+        extra=("--ros2", str(connection), *extra),
+    ) as server:
         yield server
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def wait_job(server: Server, job: str, timeout_s: float = 120.0) -> dict[str, Any]:

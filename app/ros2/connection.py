@@ -37,6 +37,7 @@ from calib_core import InputError, Profile, load_profile
 from calib_core.files import write_atomic
 from calib_core.model.loader import BUILTIN_PROFILES
 
+from ..desk_config import read_yaml
 from . import require
 
 FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")
@@ -84,7 +85,7 @@ class Connection:
         """The profile says `urdf: ros2`."""
         if self.profile in BUILTIN_PROFILES:
             return False
-        doc = _yaml(Path(self.profile))
+        doc = read_yaml(Path(self.profile), "robot profile")
         return isinstance(doc, dict) and doc.get("urdf") == URDF_FROM_GRAPH
 
     def load_profile(self, urdf: Path | None) -> Profile:
@@ -99,7 +100,7 @@ def load_connection(path: Path) -> Connection:
     """Read and check a connection file; InputError naming the file and the field."""
     path = Path(path).resolve()
     file = str(path)
-    doc = _yaml(path)
+    doc = read_yaml(path, "ROS 2 connection")
     if not isinstance(doc, dict):
         raise InputError("a ROS 2 connection file is a YAML mapping (robot, profile, topics)", file=file)
     unknown = sorted(set(doc) - set(FIELDS) - set(OPTIONS))
@@ -259,7 +260,7 @@ def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str,
             nominal = folder / "nominal.urdf"
             if not nominal.is_file() or nominal.read_text(encoding="utf-8") != urdf_text:
                 write_atomic(nominal, urdf_text)
-            doc = _yaml(Path(conn.profile))
+            doc = read_yaml(Path(conn.profile), "robot profile")
             doc["urdf"] = "nominal.urdf"
             write_atomic(folder / "profile.yaml", yaml.safe_dump(doc, sort_keys=False))
             ref = str(folder / "profile.yaml")
@@ -310,21 +311,6 @@ def _check_types(conn: Connection, link: Any, settle_s: float = 2.0) -> None:
 
 def _node_name(robot: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in robot)
-
-
-def _yaml(path: Path) -> Any:
-    file = str(path)
-    try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("does not exist", file=file) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot be read ({exc.__class__.__name__})", file=file) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise InputError(
-            f"not valid YAML ({getattr(exc, 'problem', exc)})", file=file, line=mark.line + 1 if mark else None
-        ) from None
 
 
 def _text(doc: dict, key: str, file: str, where: str = "") -> str:
