@@ -44,8 +44,10 @@ def main() -> None:
     if job["state"] != "done":
         raise SystemExit(job.get("error"))
     cal = call(args.url, f"/calibrations/{job['result']}")
-    print(f"calibration {cal['id']}: {cal['figures']['before']['rms']:.3f} -> {cal['figures']['after']['rms']:.3f} "
-          f"{cal['figures']['after']['unit']} RMS")
+    print(
+        f"calibration {cal['id']}: {cal['figures']['before']['rms']:.3f} -> {cal['figures']['after']['rms']:.3f} "
+        f"{cal['figures']['after']['unit']} RMS"
+    )
     for p in cal["parameters"]:
         if p["unit"] == "deg" and "." not in p["name"]:
             print(f"  {p['name']}: {p['value']:+.3f} deg")
