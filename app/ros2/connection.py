@@ -231,6 +231,7 @@ def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str,
             )
         if "joints" not in got:
             raise InputError(f"no joint states on {conn.joint_states} within {wait_s:g} s: {hint}", file=str(conn.path))
+        data_dir = Path(data_dir).resolve()
         folder = robot_dir(data_dir, conn.robot)
         urdf_text = _nominal(folder, got["urdf"])
         with tempfile.TemporaryDirectory() as tmp:
@@ -263,7 +264,7 @@ def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str,
             doc = read_yaml(Path(conn.profile), "robot profile")
             doc["urdf"] = "nominal.urdf"
             write_atomic(folder / "profile.yaml", yaml.safe_dump(doc, sort_keys=False))
-            ref = str(folder / "profile.yaml")
+            ref = str((folder / "profile.yaml").relative_to(data_dir))  # the desk loads it relative to its data
         else:
             write_atomic(folder / "nominal.urdf", urdf_text)
             ref = conn.profile
