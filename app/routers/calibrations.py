@@ -58,10 +58,13 @@ class Applied(BaseModel):
     previous: str | None  # the robot's active calibration before (None: the nominal model)
     robot: str
     recorded: bool  # a history row was added (False: it was already active, pushed to the driver again)
-    deployed: str | None = None  # what the robot's driver did with it (a ROS 2 robot: the parameter it set)
+    deployed: str | None = None  # what the driver did with it (a ROS 2 robot: the parameter it set); else absent
 
 
-@router.post("/calibrations/{cal_id}/apply", responses={409: {"model": ApplyConcerns}})
+# `deployed` only when a driver put the calibration on the robot (a ROS 2 robot): other answers stay as they were.
+@router.post(
+    "/calibrations/{cal_id}/apply", responses={409: {"model": ApplyConcerns}}, response_model_exclude_unset=True
+)
 def apply(desk: DeskDep, cal_id: str, body: ApplyRequest | None = None) -> Applied:
     """Make the calibration its robot's active one (recorded, then pushed to the robot's driver). Only the robot
     whose session it was made from takes it."""
