@@ -293,3 +293,53 @@ def test_without_the_extra_serve_ros2_says_to_install_it(tmp_path, monkeypatch, 
     err = capsys.readouterr().err
     assert "ROS 2 is not installed here" in err and "pip install -e '.[ros2]'" in err
     assert not (tmp_path / "d").exists()
+
+
+@needs_ros2
+def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(graph, tmp_path):
+    from geometry_msgs.msg import PointStamped
+
+    from app.drivers import registry
+    from app.drivers.registry import DriverContext, DriverSpec
+
+    conn = yaml.safe_load((ARM_DIR / "arm-connection.yaml").read_text(encoding="utf-8"))
+    conn.update(profile=str(ARM_DIR / "arm-mocap.yaml"), measurements={"mocap": {"topic": "/silent/point"}})
+    conn.update(measurement_wait_s=0.3)
+    del conn["apply"]
+    (tmp_path / "silent.yaml").write_text(yaml.safe_dump(conn), encoding="utf-8")
+    profile = arm_profile()
+    driver = registry.create(
+        DriverSpec("ros2", {"connection": str(tmp_path / "silent.yaml")}), profile, DriverContext()
+    )
+    try:
+        deadline = time.monotonic() + 20
+        while not driver.settled(0.1):
+            assert time.monotonic() < deadline, driver.status().message
+            time.sleep(0.05)
+        look = driver.look()
+        assert look.sighting.status == "not found"
+        assert look.sighting.reason == "no measurement on /silent/point (none received within 0.3 s)"
+        assert np.allclose(look.readings_rad, graph.watcher.positions([j.name for j in profile.joints]), atol=1e-4)
+
+        node = graph.watcher.link.node
+        publisher = node.create_publisher(PointStamped, "/silent/point", 10)
+        old = PointStamped()
+        old.header.stamp = node.get_clock().now().to_msg()
+        old.header.stamp.sec -= 5  # measured five seconds before the robot settled where it stands
+        while publisher.get_subscription_count() == 0:
+            time.sleep(0.02)
+        publisher.publish(old)
+        time.sleep(0.2)
+        look = driver.look()
+        assert look.sighting.status == "not found"
+        assert look.sighting.reason.startswith("stale measurement on /silent/point: the latest is stamped 5.")
+        node.destroy_publisher(publisher)
+    finally:
+        driver.close()
+    assert driver.status().connected is False
+
+
+@needs_ros2
+def test_sim_ros2_says_which_robots_it_cannot_simulate(capsys):
+    assert main(["sim-ros2", "--robot", "robonaut-a"]) == 2
+    assert "robonaut-a: its eye (stereo) cannot be simulated on ROS 2 yet" in capsys.readouterr().err

@@ -67,6 +67,6 @@ class Link:
             return
         self._closed = True
         self.executor.shutdown(timeout_sec=2.0)
+        self._thread.join(timeout=5.0)  # the spin has returned: nothing uses the node any more
         self.node.destroy_node()
         self.context.try_shutdown()
-        self._thread.join(timeout=5.0)
