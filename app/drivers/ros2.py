@@ -39,7 +39,6 @@ MOVE_SLACK_S = 5.0  # a move may overrun its planned duration by this before the
 DURATION_FACTOR = 1.05  # time_from_start this much longer than the fastest the velocity limits allow
 MIN_DURATION_S = 0.1
 STILL_WINDOW_S = 0.15  # joint states unchanged for this long: not moving
-STILL_TOLERANCE_RAD = math.radians(0.005)  # joint readings closer than this are the same
 MATCH_WAIT_S = 3.0  # how long a move waits for the controller to subscribe to the commands
 _POLL_S = 0.005
 
@@ -105,6 +104,7 @@ class Ros2Driver:
         self.files = files
         self.margin_rad = math.radians(conn.options["margin_deg"])
         self.tolerance_rad = math.radians(conn.options["tolerance_deg"])
+        self.still_rad = math.radians(conn.options["still_deg"])  # readings closer than this are the same
         self._scale = np.array(
             [length_factor("m", profile.length_unit) if j.prismatic else 1.0 for j in profile.joints]
         )
@@ -149,7 +149,7 @@ class Ros2Driver:
                 return
             self._mismatch = ""
             q = np.array([msg.position[index[j.name]] for j in self.profile.joints]) * self._scale
-            if self._ref is None or np.max(np.abs(q - self._ref)) > STILL_TOLERANCE_RAD:
+            if self._ref is None or np.max(np.abs(q - self._ref)) > self.still_rad:
                 self._ref = q
                 self._still_since = now
             self._q = q

@@ -11,7 +11,8 @@
 
 Extensions of the contract (optional, with their defaults): `wait_s: 30` (how long `calib serve` waits for
 the robot's description and joint states), `timeout_s: 1.0` (joint states older than this: disconnected),
-`tolerance_deg: 0.1` (a move has arrived within this of its target), `measurement_wait_s: 2.0` (how long a
+`tolerance_deg: 0.1` (a move has arrived within this of its target), `still_deg: 0.005` (joint states that
+change less than this stand still: above the encoders' jitter), `measurement_wait_s: 2.0` (how long a
 capture waits for a measurement newer than the settling), `margin_deg: 1.0` (the joint limits' safety
 margin), `apply_timeout_s: 5.0` (the parameter call).
 
@@ -45,6 +46,7 @@ OPTIONS = {
     "wait_s": 30.0,
     "timeout_s": 1.0,
     "tolerance_deg": 0.1,
+    "still_deg": 0.005,
     "measurement_wait_s": 2.0,
     "margin_deg": 1.0,
     "apply_timeout_s": 5.0,
