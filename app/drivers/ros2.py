@@ -391,16 +391,6 @@ class Ros2Driver:
                 )
         return move.arrived
 
-    def jog(self, joint_name: str, value_deg: float) -> None:
-        """Move one joint to value_deg, the others held where they are headed; does not wait."""
-        with self._lock:
-            self._check_link()
-            assert self._q is not None
-            q = (self._move.goal if self._move is not None else self._q).copy()
-        k = self.profile.joint(joint_name)
-        q[k] = value_deg if self.profile.joints[k].prismatic else math.radians(value_deg)
-        self.move_to(q, wait=False)
-
     def stop(self) -> None:
         """The empty trajectory: the controller stops and holds where it is (never a jump)."""
         msg = self._trajectory_type()

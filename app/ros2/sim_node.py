@@ -199,7 +199,6 @@ class SimNode:
             node.create_timer(1.0 / POINT_HZ, self._publish_point, callback_group=sensing)
         self._frame = sensor.name
         node.create_timer(1.0 / rate_hz, self._tick)
-        self.last_refusal = ""
         self._rendered: tuple[np.ndarray, np.ndarray] | None = None  # (the pose, its image)
 
     def _home(self) -> np.ndarray:
@@ -235,7 +234,6 @@ class SimNode:
             self._q, self._plan, self._t0 = q, plan, time.monotonic()
 
     def _refuse(self, why: str) -> None:
-        self.last_refusal = why
         self.link.node.get_logger().error(f"trajectory refused: {why}")
 
     def _position(self, now: float) -> np.ndarray:
