@@ -66,7 +66,7 @@ class Link:
         if self._closed:
             return
         self._closed = True
-        self.executor.shutdown(timeout_sec=2.0)
-        self._thread.join(timeout=5.0)  # the spin has returned: nothing uses the node any more
+        self.executor.shutdown(timeout_sec=10.0)
+        self._thread.join(timeout=10.0)  # the spin has returned: nothing uses the node any more
         self.node.destroy_node()
         self.context.try_shutdown()
