@@ -6,7 +6,9 @@ own simulator (seeds fixed: the same files every time):
   `calib import-bag`;
 - sample_sessions/depth/robonaut-sphere.npy: the stereo depth (SGBM, float32 m) of the simulated Robonaut's
   sphere, cropped to 160 x 160 px around it, and depth.json beside it: the crop's intrinsics, the nominal
-  model's prediction of the centre (the seed) and the simulator's true centre, for `calib detect-sphere`.
+  model's prediction of the centre (the seed) and the simulator's true centre, for `calib detect-sphere`;
+- the `simulation:` block of sample_sessions/arm/arm.yaml (docs/urdf-robots.md's profile of the arm whose
+  URDF, arm.urdf, tests/test_urdf_import.py writes): the hidden true arm `calib simulate` measures.
 
 Run from the repository's root: `.venv/bin/python scripts/make_samples.py`.
 """
@@ -14,6 +16,7 @@ Run from the repository's root: `.venv/bin/python scripts/make_samples.py`.
 from __future__ import annotations
 
 import json
+import random
 from pathlib import Path
 
 import numpy as np
@@ -77,9 +80,31 @@ def make_depth() -> tuple[Path, dict]:
     return folder / "robonaut-sphere.npy", info
 
 
+def make_arm_truth() -> Path:
+    """The arm's truth: joint offsets drawn with 0.5 deg, joint origins with 0.5 mm and 0.1 deg (seed 4)."""
+    path = OUT / "arm" / "arm.yaml"
+    text = path.read_text(encoding="utf-8").split("simulation:")[0]
+    path.write_text(text, encoding="utf-8")
+    nominal = load_profile(path).params_to_display(load_profile(path).nominal())
+    rng = random.Random(4)
+    joints = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+    truth = {"tracker.x": 2500.0, "tracker.y": 300.0, "tracker.z": -200.0, "tracker.yaw": 170.0}
+    truth |= {"tracker.pitch": 2.0, "tracker.roll": -1.0, "smr.x": 30.3, "smr.y": 9.6, "smr.z": 40.4}
+    truth |= {j: round(nominal[j] + rng.gauss(0, 0.5), 3) for j in joints}
+    for j in joints:
+        truth |= {f"{j}.{k}": round(nominal[f"{j}.{k}"] + rng.gauss(0, 0.5), 3) for k in ("x", "y", "z")}
+        truth |= {f"{j}.{k}": round(nominal[f"{j}.{k}"] + rng.gauss(0, 0.1), 3) for k in ("roll", "pitch", "yaw")}
+    text += "simulation:  # the hidden true arm `calib simulate` measures (mm, deg): "
+    text += "0.5 deg offsets, 0.5 mm / 0.1 deg origin errors\n"
+    text += "  noise: {point: 0.02}\n  truth:\n" + "".join(f"    {k}: {v}\n" for k, v in truth.items())
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
 if __name__ == "__main__":
     bag = make_bag()
     depth, info = make_depth()
+    make_arm_truth()
     for path in (bag, depth):
         size = sum(f.stat().st_size for f in path.rglob("*")) if path.is_dir() else path.stat().st_size
         print(f"{path}: {size / 1024:.0f} KB")

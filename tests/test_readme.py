@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
 BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```", re.S | re.M)
 NOT_RUN = re.compile(r"^(bash scripts/|\.venv/bin/python benchmarks/)", re.M)
 DROPPED = re.compile(r"^(source \.venv/bin/activate|calib serve)\b.*$", re.M)  # the venv is this one
-DOCS = ["README.md", "docs/bag-import.md"]
+DOCS = ["README.md", "docs/bag-import.md", "docs/urdf-robots.md"]
 
 
 def examples(doc: str) -> list[tuple[str, str]]:
