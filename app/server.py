@@ -22,6 +22,7 @@ from fastapi.staticfiles import StaticFiles
 from calib_core import InputError
 
 from . import scene_proxy, security
+from .api_docs import add_docs
 from .desk import SAMPLE_DIR, Desk
 from .desk_config import DeskConfig
 from .drivers import RobotFault
@@ -78,8 +79,9 @@ def create_app(
         finally:
             desk.stop()
 
-    app = FastAPI(title="robot-selfcal dashboard", version=VERSION, lifespan=lifespan)
+    app = FastAPI(title="robot-selfcal dashboard", version=VERSION, lifespan=lifespan, docs_url=None, redoc_url=None)
     app.state.new_token = token
+    add_docs(app)
     app.include_router(api)
     app.include_router(scene_proxy.router)
     _error_handlers(app, desk.scrub)

@@ -80,7 +80,7 @@ def nelder_mead(profile: Profile, data: Dataset, mode: str, base: Calibration | 
     seconds = time.perf_counter() - start
     unit = nm.figures["after"].unit
     return (
-        f"{nm.figures['after'].mean:.3g} {unit} mean in {seconds:.1f} s, {nm.solver['evaluations']} evaluations "
+        f"{nm.figures['after'].mean:.3g} {unit} mean in {seconds:.1f} s, {nm.solver.evaluations} evaluations "
         f"({seconds * 1e3 / lm_ms:.0f}x LM)"
     )
 

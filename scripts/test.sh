@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Installs the test dependencies into .venv (made if missing), Debian's chromium for the browser
-# tests (apt-get, when it is missing), and runs ruff and the whole test suite.
+# Installs the test dependencies into .venv (made if missing; pip runs only when pyproject.toml changed
+# since the last install, scripts/venv.sh), Debian's chromium for the browser tests (apt-get, when it is
+# missing), and runs ruff and the whole test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! command -v chromium >/dev/null 2>&1; then
@@ -8,9 +9,8 @@ if ! command -v chromium >/dev/null 2>&1; then
     $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
 fi
-python3 -m venv .venv
-.venv/bin/pip install -q --upgrade pip
-.venv/bin/pip install -q -e '.[test,ros2]'
+source scripts/venv.sh
+ensure_venv '.[test,ros2]'
 .venv/bin/ruff format --check calib_core app tests benchmarks
 .venv/bin/ruff check calib_core app tests benchmarks
 .venv/bin/python -m pytest -q "$@"

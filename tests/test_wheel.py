@@ -50,9 +50,16 @@ def test_an_installed_wheel_serves_the_page_and_the_samples(tmp_path: Path) -> N
         page = server.get("/")
         assert page.status_code == 200 and "<title>" in page.text and "app.js" in page.text
         assert server.get("/app.js").status_code == 200
+        assert server.get("/vendor/swagger-ui/swagger-ui-bundle.js").status_code == 200  # /docs offline
         sessions = {s["id"]: s for s in server.get("/api/sessions").json()}
         assert set(SAMPLES) <= set(sessions), sessions.keys()
         assert sessions["motoman-left-cube"]["frames"] == 216
         frames = server.get("/api/sessions/robonaut-a-day1").json()["frames"]
         image = next(f["images"]["left"] for f in frames if f["images"])
         assert server.get(image).content[:2] == b"\xff\xd8"  # a sample's JPEG
+    examples = subprocess.run(  # the README's sample inputs are package data too
+        [str(venv / "bin" / "python"), "-c", "import app.sample_sessions as s; print(*s.__path__)"], text=True, **run
+    ).stdout.strip()
+    assert (Path(examples) / "bags" / "nao.bag").is_file() and (
+        Path(examples) / "depth" / "robonaut-sphere.npy"
+    ).is_file()

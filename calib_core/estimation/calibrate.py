@@ -23,7 +23,7 @@ from dataclasses import replace
 from datetime import UTC, datetime
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri  # chdtri(k, 1 - q): the chi-square q quantile
 
 from ..dataset import Dataset
 from ..errors import InputError
@@ -288,7 +288,7 @@ class _Passes:
         if robust and len(problem.free) and problem_outliers(problem, problem.residuals(x)).any():
             r = problem.residuals(x)
             problem.prior_scale = pooled_robust_sigma(problem, r)
-            scale = {b.index: robust_sigma(r[b.rows], b.dim) * np.sqrt(chi2.ppf(0.95, b.dim)) for b in problem.blocks}
+            scale = {b.index: robust_sigma(r[b.rows], b.dim) * np.sqrt(chdtri(b.dim, 0.05)) for b in problem.blocks}
             x = self.run(x, Robust([(b.rows, b.dim, scale[b.index]) for b in problem.blocks]))
             r = problem.residuals(x)
             # Beyond the limit is not enough: only what no smooth model predicts is a gross error.

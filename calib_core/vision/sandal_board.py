@@ -12,7 +12,9 @@ simulated stances): a 25 mm tile is about 40 px wide but only 0.5-9 px tall. Ope
 almost none of them in the raw image, so when the kinematic prediction is known the detector first
 stretches the predicted board region to roughly square tiles (an affine warp, which has no horizon
 to blow up), and finally refines every corner in an image rectified by the homography of the found
-grid, where the tiles are square and each corner window holds just its own two edges.
+grid, where the tiles are square and each corner window holds just its own two edges. Without a
+prediction it looks for the board's bright margin instead (the largest bright four-sided outline at
+two grey-level cuts) and rectifies that quadrilateral by its homography before detecting.
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ SB_TILE_PX = (16.0, 32.0)
 STRETCH_MAX = 12.0
 VIEW_MAX_PX = 1024
 REFINE_TILE_PX = 64
+OUTLINE_TILE_PX = 40  # tile size of a view rectified by the board's bright outline (no prediction)
+OUTLINE_MIN_PX2 = 400.0  # the smallest outline area worth a look
 REFINE_BLUR_PX = 0.5  # smooths sharp edges before the rectifying warp interpolates them
 # A flat board's corners lie on a homography of the lattice; their RMS distance from the best one
 # tracks the true corner error closely (benchmarks/sandal_board.py). Beyond this the corners are a
@@ -256,6 +260,10 @@ def _find_grid(grey: np.ndarray, cols: int, rows: int, predicted: np.ndarray | N
     found, corners = cv2.findChessboardCorners(view, (cols, rows), flags=0)
     if found:
         return corners.reshape(-1, 2) @ back[:, :2].T + back[:, 2], 0
+    if predicted is None:
+        grid = _find_in_outline(grey, cols, rows)
+        if grid is not None:
+            return grid, 0
     view, back = _view(grey, predicted, cols, rows, SB_TILE_PX)
     found, corners, meta = cv2.findChessboardCornersSBWithMeta(view, (3, 3), cv2.CALIB_CB_LARGER)
     if not found:
@@ -268,6 +276,51 @@ def _find_grid(grey: np.ndarray, cols: int, rows: int, predicted: np.ndarray | N
         return corners.transpose(1, 0, 2).reshape(-1, 2), 0
     fits = (h <= rows and w <= cols) or (h <= cols and w <= rows)
     return None, h * w if fits else 0
+
+
+def _find_in_outline(grey: np.ndarray, cols: int, rows: int) -> np.ndarray | None:
+    """The whole grid found in a view rectified by a bright quadrilateral outline (the board's white
+    margin), image px, or None. Seen obliquely, the board's tiles are too flat for OpenCV anywhere in
+    the raw image; the homography of the margin's four corners undoes the perspective."""
+    width, height = (cols + 1 + 2 * QUIET_TILES) * OUTLINE_TILE_PX, (rows + 1 + 2 * QUIET_TILES) * OUTLINE_TILE_PX
+    square = np.float32([[0, 0], [width, 0], [width, height], [0, height]])
+    for outline in _bright_outlines(grey):
+        to_view = cv2.getPerspectiveTransform(outline, square)
+        view = cv2.warpPerspective(grey, to_view, (width, height), flags=cv2.INTER_LINEAR)
+        found, corners = cv2.findChessboardCorners(view, (cols, rows), flags=0)
+        if not found:
+            found, corners, _ = cv2.findChessboardCornersSBWithMeta(view, (cols, rows), 0)
+        if found:
+            return cv2.perspectiveTransform(corners.reshape(-1, 1, 2).astype(float), np.linalg.inv(to_view)).reshape(
+                -1, 2
+            )
+    return None
+
+
+def _bright_outlines(grey: np.ndarray) -> list[np.ndarray]:
+    """Four-sided outlines (4, 2) px of the largest bright regions: above Otsu's cut of the image, and
+    above Otsu's cut of those brighter pixels (a white board on a grey plate on a dark floor)."""
+    smooth = cv2.GaussianBlur(grey, (5, 5), 0)
+    level, _ = cv2.threshold(smooth, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    levels = [level]
+    brighter = smooth[smooth > level]
+    if brighter.size:
+        levels.append(cv2.threshold(brighter.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)[0])
+    outlines = []
+    for cut in levels:
+        _, mask = cv2.threshold(smooth, cut, 255, cv2.THRESH_BINARY)
+        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        for contour in sorted(contours, key=cv2.contourArea, reverse=True)[:2]:
+            if cv2.contourArea(contour) < OUTLINE_MIN_PX2:
+                break
+            hull = cv2.convexHull(contour)
+            for tolerance in (0.02, 0.04, 0.08):  # of the hull's perimeter
+                corners = cv2.approxPolyDP(hull, tolerance * cv2.arcLength(hull, True), True)
+                if len(corners) == 4:
+                    outlines.append(corners.reshape(4, 2).astype(np.float32))
+                    break
+    return outlines
 
 
 def _view(
