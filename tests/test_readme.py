@@ -1,6 +1,6 @@
 """The README's and the docs' examples run as written: every ```bash and ```python block, in order, in a fresh
 folder that has the repository's sample_sessions/ (the examples' paths are relative to a clone's root), with
-`calib` the checkout's. Not run: the set-up commands (scripts/run.sh, scripts/test.sh), the benchmarks (they
+`calib` the checkout's. Not run: the set-up commands (scripts/run.sh, scripts/test.sh, pip), the benchmarks (they
 print figures, in minutes), and `calib serve` itself: the block that starts it has its curl commands sent to
 a `calib serve` this test starts instead."""
 
@@ -18,7 +18,8 @@ from browser import served
 
 ROOT = Path(__file__).resolve().parent.parent
 BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```", re.S | re.M)
-NOT_RUN = re.compile(r"^(bash scripts/|\.venv/bin/python benchmarks/)", re.M)
+# Set-up commands (the ROS 2 blocks too: tests/test_ros2.py runs their two processes) and benchmarks.
+NOT_RUN = re.compile(r"^(bash scripts/|\.venv/bin/python benchmarks/|\.venv/bin/pip install|python3 -m venv)", re.M)
 DROPPED = re.compile(r"^(source \.venv/bin/activate|calib serve)\b.*$", re.M)  # the venv is this one
 DOCS = ["README.md", "docs/bag-import.md", "docs/urdf-robots.md"]
 
