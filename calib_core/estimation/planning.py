@@ -1,0 +1,513 @@
+"""Planning the configurations of a calibration, and predicting its accuracy before the robot moves.
+
+The linearised calibration at the base model (nominal, or the robot's calibration) tells how well a
+set of configurations determines the parameters: each configuration c adds its whitened Jacobian's
+information J_c^T J_c (the sensor's noise model at that configuration: a stereo head's depth noise
+grows with z^2, along the view ray only; a pixel's is the same everywhere), and the covariance of the
+estimate is C = (sum_c J_c^T J_c + priors)^-1 over the mode's identifiable (minimal) parameter set.
+
+From C follows the predicted error of the calibrated model anywhere in the workspace: at an
+observation with prediction Jacobian G (measurement units per parameter), the error covariance is
+G C G^T, so its expected size is sqrt(trace(G C G^T)) (cm, px). Over a set of workspace
+configurations E (random visible ones, the same kind the held-out check draws), the mean of
+trace(G C G^T) is trace(C A) with A = mean G^T G: the task-space (I- or V-optimal) criterion this
+planner minimises. It predicts the held-out error directly; D-optimality (max log det of the
+information, FIGAROH's choice, and Sun & Hollerbach's O1) weighs every parameter direction alike,
+whatever its effect on what the user measures, and O3/O4 look at one singular value only
+(benchmarks/planning.py compares them on held-out error against the simulator's truth).
+
+The search: candidates inside the joint limits less the safety margin and predicted visible with the
+base model (the simulator's checks: field of view, the arm hiding the sphere, a board's obliquity);
+greedy selection with rank-k updates of C (Sherman-Morrison-Woodbury; k the rows of one
+configuration, a board's 48 compressed to at most the parameter count by QR), then Fedorov exchange
+passes that swap a chosen configuration for a candidate while the criterion falls.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.kinematics import sensor_points
+from ..model.profile import Profile
+from ..sim.simulator import SimulatedRobot
+from .calibrate import observed_mode
+from .identifiability import find_dependencies, minimal_set
+from .problem import Problem
+from .registration import registration_params
+
+Criterion = Literal["task", "d", "random"]
+CRITERIA: tuple[str, ...] = ("task", "d", "random")
+
+JOINT_MARGIN_DEG = 1.0  # kept clear of every joint limit (the drivers' default safety margin)
+# Kept clear of the image border: more than the dry run's 10 px, since a plan's configurations lie at the
+# edges of what the sensor sees and a model error of a few cm (a robot never calibrated) moves them.
+VIEW_MARGIN_PX = 40.0
+CANDIDATES = 2000  # candidate configurations drawn (uniform sampling)
+STANCE_BATCHES = 12  # batches of 32 stances per target (a stance structure: NAO)
+WORKSPACE = 300  # configurations the predicted workspace error is averaged over
+EXCHANGE_PASSES = 2
+# Information every parameter starts with, relative to one typical configuration's: it only keeps the
+# greedy start (fewer configurations than parameters) finite; its effect on a plan's figures is below 1e-5.
+REGULARISATION = 1e-6
+
+
+@dataclass
+class ParameterStd:
+    name: str
+    unit: str
+    std: float  # predicted standard deviation, display unit
+
+
+@dataclass
+class AccuracyPrediction:
+    """What a set of configurations predicts about its calibration, from the noise model alone."""
+
+    n: int  # configurations
+    unit: str  # of the workspace error (the measurement's unit: cm, px, m)
+    mean: float  # mean over the workspace of each point's expected error sqrt(trace(G C G^T))
+    rms: float
+    max: float
+    parameters: list[ParameterStd]  # the estimated (identifiable) parameters
+    held: list[str]  # parameters of the mode held at their base value (not identifiable)
+
+    def to_dict(self) -> dict:
+        return {
+            "n": self.n,
+            "unit": self.unit,
+            "mean": self.mean,
+            "rms": self.rms,
+            "max": self.max,
+            "parameters": [vars(p) for p in self.parameters],
+            "held": list(self.held),
+        }
+
+    def __str__(self) -> str:
+        return (
+            f"predicted error over the workspace: mean {self.mean:.3g} {self.unit}, RMS {self.rms:.3g}, "
+            f"max {self.max:.3g} ({self.n} configurations)"
+        )
+
+
+@dataclass
+class Plan:
+    """N configurations to measure (rad, the profile's joint order) and the target each shows."""
+
+    q: np.ndarray
+    targets: np.ndarray
+    criterion: str
+    predicted: AccuracyPrediction
+    history: list[float] = field(default_factory=list)  # predicted mean error after each greedy pick
+    candidates: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class Design:
+    """The linearised calibration over a pool of candidate configurations (module doc)."""
+
+    profile: Profile
+    free: list[int]  # the identifiable parameters (columns)
+    held: list[int]
+    L: np.ndarray  # (N, k, n) each candidate's information factor: L^T L = J_c^T J_c
+    A: np.ndarray  # (n, n) mean G^T G over the workspace observations
+    G: np.ndarray  # (W, dim, n) the workspace observations' prediction Jacobians
+    prior: np.ndarray  # (n, n) information from the mode's priors
+    scale: np.ndarray  # (n,) a typical configuration's information per parameter (for the regularisation)
+    q: np.ndarray  # (N, n_joints) rad
+    targets: np.ndarray  # (N,)
+    unit: str
+
+    def start(self, regularise: bool = True) -> np.ndarray:
+        """The information before any configuration: the priors (and the regularisation)."""
+        return self.prior + (REGULARISATION * np.diag(self.scale) if regularise else 0.0)
+
+    def information(self, rows: np.ndarray) -> np.ndarray:
+        L = self.L[rows].reshape(-1, self.L.shape[2])
+        return L.T @ L
+
+    def predict(self, M: np.ndarray, n: int) -> AccuracyPrediction:
+        """The prediction from an information matrix M over the free parameters."""
+        C = _inverse(M)
+        per_obs = _expected_errors(self.G, C)
+        std = np.sqrt(np.maximum(np.diag(C), 0.0))
+        prof = self.profile
+        params = [
+            ParameterStd(prof.parameters[i].name, prof.unit(i), abs(prof.to_display(i, s)))
+            for i, s in zip(self.free, std, strict=True)
+        ]
+        return AccuracyPrediction(
+            n,
+            self.unit,
+            float(per_obs.mean()),
+            float(np.sqrt(np.mean(per_obs**2))),
+            float(per_obs.max()),
+            params,
+            [prof.parameters[i].name for i in self.held],
+        )
+
+
+def _inverse(M: np.ndarray) -> np.ndarray:
+    try:
+        return np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(M)
+
+
+def _limits_less_margin(profile: Profile, margin_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = profile.joint_limits()
+    m = np.minimum(math.radians(margin_deg), (hi - lo) / 2)
+    return lo + m, hi - m
+
+
+def within_margin(profile: Profile, q: np.ndarray, margin_deg: float = JOINT_MARGIN_DEG) -> np.ndarray:
+    """Whether each configuration (N, n_joints) rad lies inside the joint limits less the margin (N,)."""
+    lo, hi = _limits_less_margin(profile, margin_deg)
+    return np.all((q >= lo - 1e-12) & (q <= hi + 1e-12), axis=1)
+
+
+def candidates(
+    profile: Profile,
+    p_base: np.ndarray,
+    *,
+    seed: int = 0,
+    count: int = CANDIDATES,
+    margin_deg: float = JOINT_MARGIN_DEG,
+    occlusion: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Configurations (N, n_joints) rad and their targets (N,): inside the joint limits less the margin
+    and predicted visible with the base model. A profile with a stance structure (NAO: a leg lifted,
+    the head in its postures aimed at the board) gives that structure's frames; any other, uniform
+    draws. `occlusion=False`: without the costly check that the arm leaves a stereo head's sphere in
+    view (`Visibility` makes it for the configurations a plan picks)."""
+    sim = SimulatedRobot(profile, p_base, margin=VIEW_MARGIN_PX, seed=seed)
+    sampling = profile.simulation.get("sampling", {"kind": "uniform"})
+    if sampling.get("kind") == "contact":
+        raise InputError(f"robot '{profile.name}' is calibrated from contacts with planes: there is nothing to plan")
+    if sampling.get("kind") == "stances":
+        q, targets, _ = sim.stance_frames(max(1, round(STANCE_BATCHES * count / CANDIDATES)))
+    else:
+        lo, hi = _limits_less_margin(profile, margin_deg)
+        target = profile.data.target if profile.data.target is not None else (profile.data.target_default or 0)
+        found: list[np.ndarray] = []
+        for _ in range(50):
+            draw = sim.rng.uniform(lo, hi, (count, len(lo)))
+            found += list(draw[sim.visible(draw, np.full(count, target), occlusion=occlusion)])
+            if len(found) >= count:
+                break
+        q = np.array(found[:count]).reshape(-1, len(lo))
+        targets = np.full(len(q), target)
+    keep = within_margin(profile, q, margin_deg)
+    if keep.sum() == 0:
+        raise InputError(f"no configuration of robot '{profile.name}' is predicted visible within its joint limits")
+    return q[keep], targets[keep]
+
+
+def _dataset(profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> Dataset:
+    """The observations of the data format's sensor that configurations q would give with model p,
+    noise-free (their predictions): one per point of a grid target, else one per configuration."""
+    s = profile.data.sensor
+    counts = np.array([1 if profile.targets[t].grid is None else len(profile.targets[t].grid) for t in targets])
+    x = sensor_points(profile, p, q, targets)
+    k = np.arange(x.shape[1])
+    keep = k[None, :] < counts[:, None]
+    cfg = np.repeat(np.arange(len(q)), counts)
+    vertex = np.concatenate(
+        [np.arange(c) if profile.targets[t].grid is not None else [-1] for t, c in zip(targets, counts, strict=True)]
+    )
+    point = np.full((len(cfg), 3), np.nan)
+    for t in np.unique(targets):
+        grid = profile.targets[t].grid
+        rows = targets[cfg] == t
+        if grid is not None:
+            point[rows] = grid[vertex[rows]]
+    return Dataset(
+        robot=profile.name,
+        frame_ids=np.arange(1, len(q) + 1),
+        joints=q,
+        cfg=cfg,
+        target=targets[cfg],
+        point=point,
+        vertex=vertex.astype(int),
+        measured=profile.sensors[s].predict(p, x[keep])[0],
+        sensor=np.full(len(cfg), s),
+        source="plan",
+    )
+
+
+def _rows_of_first(problem: Problem, n_cfg: int) -> int:
+    """The number of data rows of the first n_cfg configurations (one sensor: its rows are in order)."""
+    if len(problem.blocks) > 1:
+        return problem.n_data_rows
+    b = problem.blocks[0]
+    return int(np.sum(problem.data.cfg[b.obs] < n_cfg)) * b.dim
+
+
+def _per_configuration(problem: Problem, J: np.ndarray, n_cfg: int) -> np.ndarray:
+    """Rows of a (data rows, n) Jacobian grouped by configuration: (n_cfg, r, n), zero-padded."""
+    cfg_of_row = np.concatenate([np.repeat(problem.data.cfg[b.obs], b.dim) for b in problem.blocks])
+    counts = np.bincount(cfg_of_row, minlength=n_cfg)
+    out = np.zeros((n_cfg, counts.max(initial=1), J.shape[1]))
+    order = np.argsort(cfg_of_row, kind="stable")
+    slot = np.arange(len(order)) - np.repeat(np.cumsum(counts) - counts, counts)
+    out[cfg_of_row[order], slot] = J[order]
+    return out
+
+
+def design(
+    profile: Profile,
+    mode: str,
+    p_base: np.ndarray,
+    q: np.ndarray,
+    targets: np.ndarray,
+    *,
+    workspace: tuple[np.ndarray, np.ndarray] | None = None,
+    isotropic: bool = False,
+    seed: int = 0,
+) -> Design:
+    """The linearised calibration in `mode` at p_base over candidate configurations q (rad) with their
+    targets. `workspace`: where the predicted error is averaged (default: WORKSPACE of the candidates);
+    `isotropic`: weigh every measurement alike (to show what ignoring the noise model costs)."""
+    m = profile.mode(mode)
+    data = _dataset(profile, p_base, q, targets)
+    m = observed_mode(profile, data, m)
+    problem = Problem(profile, data, list(m.free), p_base, m.ties, m.priors, noise_model=not isotropic)
+    _, J = problem.residuals_jacobian(problem.x0)
+    J_data = J[: problem.n_data_rows]
+    # Which parameters the data determine is a property of the robot and the workspace: a few hundred
+    # configurations show it as well as thousands (and the QR and least squares cost 20 times less).
+    some = J_data[: _rows_of_first(problem, WORKSPACE)]
+    deps = find_dependencies(profile, some, problem.free)
+    dependent = {d.fixed for d in deps}
+    kept = [k for k, i in enumerate(problem.free) if i not in dependent]
+    first = frozenset(registration_params(profile, data.sensors))
+    deps += minimal_set(profile, some[:, kept], [problem.free[k] for k in kept], first)
+    held = sorted({d.fixed for d in deps})
+    cols = [k for k, i in enumerate(problem.free) if i not in held]
+    free = [problem.free[k] for k in cols]
+    Jc = _per_configuration(problem, J_data[:, cols], len(q))
+    if Jc.shape[1] > len(free):  # more rows than parameters (a board): the same information in fewer
+        Jc = np.linalg.qr(Jc, mode="r")
+    prior_rows = J[problem.n_data_rows :][:, cols]
+    scale = np.einsum("nki,nki->i", Jc, Jc) / len(q)
+    scale = np.where(scale > 0, scale, 1.0)
+    if workspace is None:
+        pick = np.random.default_rng(seed).permutation(len(q))[:WORKSPACE]
+        workspace = (q[pick], targets[pick])
+    G, unit = _workspace_jacobians(profile, m.ties, p_base, free, *workspace)
+    A = np.einsum("wdi,wdj->ij", G, G) / len(G)
+    return Design(profile, free, held, Jc, A, G, prior_rows.T @ prior_rows, scale, q, targets, unit)
+
+
+def _workspace_jacobians(
+    profile: Profile, ties: tuple, p: np.ndarray, free: list[int], q: np.ndarray, targets: np.ndarray
+) -> tuple[np.ndarray, str]:
+    """Each workspace observation's prediction Jacobian (W, dim, n), unweighted, and its unit."""
+    data = _dataset(profile, p, q, targets)
+    problem = Problem(profile, data, free, p, ties, noise_model=False)
+    _, J = problem.residuals_jacobian(problem.x0)
+    blocks = problem.blocks
+    dim = max(b.dim for b in blocks)
+    parts = []
+    for b in blocks:
+        Jb = J[b.rows].reshape(-1, b.dim, len(free))
+        parts.append(np.pad(Jb, ((0, 0), (0, dim - b.dim), (0, 0))))
+    return np.concatenate(parts), blocks[0].sensor.unit
+
+
+class Selection:
+    """Configurations chosen from a design one at a time, with the covariance kept up to date."""
+
+    def __init__(
+        self,
+        d: Design,
+        criterion: Criterion = "task",
+        chosen: Sequence[int] | None = None,
+        admissible: Callable[[int], bool] | None = None,
+    ) -> None:
+        """`admissible`: a last check of a candidate before it is chosen (the costly visibility check)."""
+        self.d = d
+        self.criterion = criterion
+        self.admissible = admissible
+        self.M = d.start()
+        self.extra = np.zeros_like(self.M)  # information of configurations outside the pool (measured frames)
+        self.chosen: list[int] = []
+        self.C = _inverse(self.M)
+        for c in [] if chosen is None else chosen:
+            self.add(int(c))
+
+    def value(self, C: np.ndarray | None = None) -> float:
+        """The criterion (smaller is better): trace(C A), or -log det M (D-optimal) as log det C."""
+        C = self.C if C is None else C
+        if self.criterion == "d":
+            return float(np.linalg.slogdet(C)[1])
+        return float(np.trace(C @ self.d.A))
+
+    def gains(self, C: np.ndarray | None = None) -> np.ndarray:
+        """How much adding each candidate lowers the criterion (N,)."""
+        C = self.C if C is None else C
+        L = self.d.L
+        B = L @ C  # (N, k, n)
+        S = np.eye(L.shape[1]) + B @ L.transpose(0, 2, 1)
+        if self.criterion == "d":
+            return np.linalg.slogdet(S)[1]
+        T = B @ self.d.A @ B.transpose(0, 2, 1)
+        return np.trace(np.linalg.solve(S, T), axis1=1, axis2=2)
+
+    def add(self, c: int) -> None:
+        self.C = _rank_update(self.C, self.d.L[c], +1)
+        self.chosen.append(c)
+
+    def add_information(self, L: np.ndarray) -> None:
+        """A configuration from outside the pool (a frame measured already): its information factor."""
+        self.C = _rank_update(self.C, L, +1)
+        self.extra += L.T @ L
+
+    def best(self, C: np.ndarray | None = None) -> int:
+        """The admissible candidate not chosen yet that lowers the criterion most (-1: none is left)."""
+        g = self.gains(C)
+        g[self.chosen] = -np.inf
+        for c in np.argsort(-g):
+            if not np.isfinite(g[c]):
+                break
+            if self.admissible is None or self.admissible(int(c)):
+                return int(c)
+        return -1
+
+    def exchange(self, passes: int = EXCHANGE_PASSES) -> int:
+        """Fedorov exchange: swap a chosen configuration for a candidate while the criterion falls.
+        Returns the number of swaps."""
+        swaps = 0
+        for _ in range(passes):
+            improved = False
+            for pos in range(len(self.chosen)):
+                c = self.chosen[pos]
+                C_without = _rank_update(self.C, self.d.L[c], -1)
+                j = self.best(C_without)
+                if j < 0 or j == c:
+                    continue
+                before = self.value()
+                C_with = _rank_update(C_without, self.d.L[j], +1)
+                if self.value(C_with) < before - 1e-9 * abs(before):
+                    self.C, self.chosen[pos] = C_with, j
+                    swaps += 1
+                    improved = True
+            if not improved:
+                break
+        # Afresh: many up- and downdates of a nearly singular C (fewer configurations than parameters) drift.
+        self.C = _inverse(self.d.start() + self.d.information(np.array(self.chosen, int)) + self.extra)
+        return swaps
+
+
+class Visibility:
+    """Whether the base model predicts candidate c visible, occlusion by the robot's body included;
+    checked when first asked and remembered."""
+
+    def __init__(self, profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> None:
+        self.sim = SimulatedRobot(profile, p, margin=VIEW_MARGIN_PX)
+        self.q, self.targets = q, targets
+        self.known: dict[int, bool] = {}
+
+    def __call__(self, c: int) -> bool:
+        if c not in self.known:
+            self.known[c] = bool(self.sim.visible(self.q[c : c + 1], self.targets[c : c + 1])[0])
+        return self.known[c]
+
+
+def _rank_update(C: np.ndarray, L: np.ndarray, sign: int) -> np.ndarray:
+    """(C^-1 + sign L^T L)^-1 by Woodbury: adding (+1) or removing (-1) a configuration's information."""
+    B = L @ C
+    S = sign * np.eye(len(L)) + B @ L.T
+    out = C - B.T @ np.linalg.solve(S, B)
+    return (out + out.T) / 2
+
+
+def plan(
+    profile: Profile,
+    mode: str,
+    n: int,
+    p_base: np.ndarray | None = None,
+    *,
+    seed: int = 0,
+    criterion: Criterion = "task",
+    margin_deg: float = JOINT_MARGIN_DEG,
+    exchange: bool = True,
+    isotropic: bool = False,
+    pool: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Plan:
+    """N configurations that make a calibration in `mode` as accurate as the noise model predicts it
+    can be (module doc), from candidates inside the joint limits less `margin_deg` and predicted
+    visible with p_base (default: the nominal model). `criterion`: "task" (the predicted error over
+    the workspace), "d" (D-optimal) or "random" (the first N candidates, for comparison). `pool`:
+    candidate configurations and targets to choose from instead of drawing them."""
+    if criterion not in CRITERIA:
+        raise InputError(f"unknown criterion '{criterion}' ({', '.join(CRITERIA)})")
+    if n < 1:
+        raise InputError(f"--configurations must be at least 1, got {n}")
+    start = time.perf_counter()
+    p = profile.nominal() if p_base is None else p_base
+    profile.mode(mode)  # an unknown mode fails before any sampling
+    q, targets = candidates(profile, p, seed=seed, margin_deg=margin_deg, occlusion=False) if pool is None else pool
+    if n > len(q):
+        raise InputError(f"only {len(q)} candidate configurations are predicted visible: ask for at most {len(q)}")
+    d = design(profile, mode, p, q, targets, isotropic=isotropic, seed=seed)
+    admissible = Visibility(profile, p, q, targets)
+    history: list[float] = []
+    if criterion == "random":
+        order = np.random.default_rng(seed).permutation(len(q))
+        sel = Selection(d, "task", [int(c) for c in order if admissible(int(c))][:n])
+    else:
+        sel = Selection(d, criterion, admissible=admissible)
+        for _ in range(n):
+            c = sel.best()
+            if c < 0:
+                break
+            sel.add(c)
+            history.append(_mean_error(d, sel.C))
+        if exchange:
+            sel.exchange()
+    if len(sel.chosen) < n:
+        raise InputError(
+            f"only {len(sel.chosen)} of the candidate configurations are predicted visible: ask for at most that"
+        )
+    rows = np.array(sel.chosen)
+    predicted = d.predict(d.start(regularise=False) + d.information(rows), n)
+    return Plan(q[rows], targets[rows], criterion, predicted, history, len(q), time.perf_counter() - start)
+
+
+def _mean_error(d: Design, C: np.ndarray) -> float:
+    return float(np.mean(_expected_errors(d.G, C)))
+
+
+def _expected_errors(G: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """sqrt(trace(G_w C G_w^T)) per workspace observation: its expected error size (W,)."""
+    flat = G.reshape(-1, G.shape[2])
+    var = np.sum((flat @ C) * flat, axis=1).reshape(G.shape[:2]).sum(axis=1)
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def predict_accuracy(
+    profile: Profile,
+    mode: str,
+    q: np.ndarray,
+    targets: np.ndarray,
+    p_base: np.ndarray | None = None,
+    *,
+    seed: int = 0,
+) -> AccuracyPrediction:
+    """The predicted standard deviations and workspace error of a calibration in `mode` from
+    configurations q (rad) and their targets (a plan, or a session's frames), before they are measured."""
+    p = profile.nominal() if p_base is None else p_base
+    q = np.asarray(q, dtype=float)
+    if len(q) == 0:
+        raise InputError("no configurations to predict the accuracy of")
+    workspace = candidates(profile, p, seed=seed, count=WORKSPACE)
+    d = design(profile, mode, p, q, np.asarray(targets, int), workspace=workspace, seed=seed)
+    return d.predict(d.start(regularise=False) + d.information(np.arange(len(q))), len(q))
