@@ -5,7 +5,8 @@
     .venv/bin/python benchmarks/planning.py ... --svg docs/planning-robonaut-a.svg   # also draw the curve
 
 Per seed and N, three ways to choose N configurations, each planned with the nominal model (what a robot
-that was never calibrated believes) inside the joint limits less the margin:
+that was never calibrated believes; `--mode daily`: a full calibration of day 1, and the robot of a later day
+with drifted joint offsets, as the paper's section IV-B) inside the joint limits less the margin:
 - random: what replay's "N new configurations" did before (the simulator's sampling: uniform visible
   configurations; NAO: the paper's stances, 3 head postures each);
 - d-optimal: greedy D-optimal selection and exchange from the planner's candidates;
@@ -24,7 +25,7 @@ import time
 
 import numpy as np
 
-from calib_core import SimulatedRobot, calibrate, load_profile
+from calib_core import InputError, SimulatedRobot, calibrate, load_profile
 from calib_core.estimation.planning import JOINT_MARGIN_DEG, candidates, plan, within_margin
 from calib_core.model.profile import Profile
 
@@ -32,11 +33,16 @@ METHODS = {"random": "random", "d": "greedy D-optimal", "task": "planned (task s
 COLOURS = {"random": "#888888", "d": "#1f77b4", "task": "#d62728"}
 
 
-def random_configurations(profile: Profile, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """The simulator's sampling with the nominal model, inside the limits less the margin (as replay did)."""
-    sim = SimulatedRobot(profile, profile.nominal(), seed=seed)
+def random_configurations(profile: Profile, p_base: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's sampling with the base model, inside the limits less the margin (as replay did)."""
     stances = profile.simulation.get("sampling", {}).get("kind") == "stances"
-    q, targets = sim.configurations(n if stances else 2 * n + 10)  # NAO: whole stances, as the paper took them
+    for attempt in range(10):  # NAO: whole stances, as the paper took them; a seed may find too few
+        try:
+            sim = SimulatedRobot(profile, p_base, seed=seed + 1000 * attempt)
+            q, targets = sim.configurations(n if stances else 2 * n + 10)
+            break
+        except InputError:
+            continue
     keep = within_margin(profile, q, JOINT_MARGIN_DEG)
     return q[keep][:n], targets[keep][:n]
 
@@ -47,7 +53,11 @@ def predictions(profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndar
 
 def run(args: argparse.Namespace) -> dict[str, dict[int, list[float]]]:
     profile = load_profile(args.robot)
-    truth = profile.true_params()
+    day1 = SimulatedRobot.from_profile(profile, seed=7)
+    base, p_base, truth = None, profile.nominal(), profile.true_params()
+    if args.mode == "daily":  # the paper's later day: offsets drifted, planned and fitted from a full calibration
+        base = calibrate(profile, day1.simulate(67).data, "full")
+        p_base, truth = base.params(profile), day1.drifted(seed=2).true_params
     held_q, held_t = candidates(profile, truth, seed=10_000, count=300)
     true_pred = predictions(profile, truth, held_q, held_t)
     errors: dict[str, dict[int, list[float]]] = {m: {n: [] for n in args.counts} for m in args.methods}
@@ -59,16 +69,16 @@ def run(args: argparse.Namespace) -> dict[str, dict[int, list[float]]]:
             for seed in range(args.seeds):
                 start = time.perf_counter()
                 if method == "random":
-                    q, targets = random_configurations(profile, n, seed)
+                    q, targets = random_configurations(profile, p_base, n, seed)
                     pred = None
                 else:
-                    planned = plan(profile, args.mode, n, seed=seed, criterion=method)
+                    planned = plan(profile, args.mode, n, p_base, seed=seed, criterion=method)
                     q, targets, pred = planned.q, planned.targets, planned.predicted.rms
                 seconds.append(time.perf_counter() - start)
-                robot = SimulatedRobot.from_profile(profile, seed=1000 + seed)
+                robot = SimulatedRobot.from_profile(profile, seed=1000 + seed, truth=truth)
                 seen = robot.visible(q, targets)
                 data = robot.measure(q[seen], targets[seen]).data
-                cal = calibrate(profile, data, args.mode)
+                cal = calibrate(profile, data, args.mode, base)
                 e = predictions(profile, cal.params(profile), held_q, held_t) - true_pred
                 errors[method][n].append(float(np.sqrt(np.mean(np.sum(e**2, axis=1)))))
                 kept.append(int(seen.sum()))

@@ -8,6 +8,7 @@ beats random configurations from the same candidates on held-out accuracy agains
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 import subprocess
 import sys
@@ -68,7 +69,7 @@ def test_plan_within_limits_less_margin_and_predicted_visible(rn) -> None:
     pred = planned.predicted
     assert pred.unit == "cm" and 0 < pred.mean <= pred.rms <= pred.max
     # The greedy picks lower the predicted error at every step.
-    assert all(b <= a + 1e-12 for a, b in zip(planned.history, planned.history[1:], strict=False))
+    assert all(b <= a + 1e-12 for a, b in itertools.pairwise(planned.history))
 
 
 def test_woodbury_updates_match_the_criterion_recomputed(rn, rn_pool) -> None:

@@ -25,6 +25,7 @@ passes that swap a chosen configuration for a candidate while the criterion fall
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -50,10 +51,17 @@ JOINT_MARGIN_DEG = 1.0  # kept clear of every joint limit (the drivers' default 
 # Kept clear of the image border: more than the dry run's 10 px, since a plan's configurations lie at the
 # edges of what the sensor sees and a model error of a few cm (a robot never calibrated) moves them.
 VIEW_MARGIN_PX = 40.0
-CANDIDATES = 2000  # candidate configurations drawn (uniform sampling)
-STANCE_BATCHES = 12  # batches of 32 stances per target (a stance structure: NAO)
+CANDIDATES = 6000  # candidate configurations drawn (uniform sampling; the costly visibility check is lazy)
+# A stance structure (NAO): at least this many batches of 32 stances per target (about 400 visible frames,
+# each of 48 rows: as much information per candidate as 16 of the 3-row uniform ones), more for a larger count.
+STANCE_BATCHES = 12
+STANCE_CANDIDATES = 400
+MAX_STANCE_BATCHES = 200
 WORKSPACE = 300  # configurations the predicted workspace error is averaged over
 EXCHANGE_PASSES = 2
+# An information matrix (scaled by a typical configuration's) whose smallest eigenvalue is below this share
+# of its largest leaves a parameter direction undetermined: no finite prediction.
+UNDETERMINED = 1e-10
 # Information every parameter starts with, relative to one typical configuration's: it only keeps the
 # greedy start (fewer configurations than parameters) finite; its effect on a plan's figures is below 1e-5.
 REGULARISATION = 1e-6
@@ -78,18 +86,30 @@ class AccuracyPrediction:
     parameters: list[ParameterStd]  # the estimated (identifiable) parameters
     held: list[str]  # parameters of the mode held at their base value (not identifiable)
 
+    @property
+    def determined(self) -> bool:
+        """Whether the configurations determine every estimated parameter (else the figures are inf)."""
+        return math.isfinite(self.mean)
+
     def to_dict(self) -> dict:
+        """JSON-ready: None for an undetermined (infinite) figure."""
+
+        def finite(v: float) -> float | None:
+            return v if math.isfinite(v) else None
+
         return {
             "n": self.n,
             "unit": self.unit,
-            "mean": self.mean,
-            "rms": self.rms,
-            "max": self.max,
-            "parameters": [vars(p) for p in self.parameters],
+            "mean": finite(self.mean),
+            "rms": finite(self.rms),
+            "max": finite(self.max),
+            "parameters": [{"name": p.name, "unit": p.unit, "std": finite(p.std)} for p in self.parameters],
             "held": list(self.held),
         }
 
     def __str__(self) -> str:
+        if not self.determined:
+            return f"{self.n} configurations do not determine every parameter: no prediction of the error"
         return (
             f"predicted error over the workspace: mean {self.mean:.3g} {self.unit}, RMS {self.rms:.3g}, "
             f"max {self.max:.3g} ({self.n} configurations)"
@@ -124,6 +144,9 @@ class Design:
     q: np.ndarray  # (N, n_joints) rad
     targets: np.ndarray  # (N,)
     unit: str
+    p: np.ndarray  # the base model it is linearised at
+    ties: tuple
+    isotropic: bool = False
 
     def start(self, regularise: bool = True) -> np.ndarray:
         """The information before any configuration: the priors (and the regularisation)."""
@@ -133,11 +156,24 @@ class Design:
         L = self.L[rows].reshape(-1, self.L.shape[2])
         return L.T @ L
 
+    def factors(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """Information factors (N, k, n) of configurations outside the pool (frames measured already)."""
+        data = _dataset(self.profile, self.p, q, targets)
+        problem = Problem(self.profile, data, self.free, self.p, self.ties, noise_model=not self.isotropic)
+        _, J = problem.residuals_jacobian(problem.x0)
+        return _compress(_per_configuration(problem, J[: problem.n_data_rows], len(q)))
+
     def predict(self, M: np.ndarray, n: int) -> AccuracyPrediction:
-        """The prediction from an information matrix M over the free parameters."""
-        C = _inverse(M)
-        per_obs = _expected_errors(self.G, C)
-        std = np.sqrt(np.maximum(np.diag(C), 0.0))
+        """The prediction from an information matrix M over the free parameters (inf where the
+        configurations do not determine them all)."""
+        unit_scale = 1.0 / np.sqrt(self.scale)
+        eig = np.linalg.eigvalsh(M * unit_scale[:, None] * unit_scale[None, :])
+        if len(eig) and eig[0] <= UNDETERMINED * max(eig[-1], 1e-300):
+            per_obs, std = np.full(len(self.G), np.inf), np.full(len(self.free), np.inf)
+        else:
+            C = _inverse(M)
+            per_obs = _expected_errors(self.G, C)
+            std = np.sqrt(np.maximum(np.diag(C), 0.0))
         prof = self.profile
         params = [
             ParameterStd(prof.parameters[i].name, prof.unit(i), abs(prof.to_display(i, s)))
@@ -178,22 +214,27 @@ def candidates(
     p_base: np.ndarray,
     *,
     seed: int = 0,
-    count: int = CANDIDATES,
+    count: int | None = None,
     margin_deg: float = JOINT_MARGIN_DEG,
     occlusion: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Configurations (N, n_joints) rad and their targets (N,): inside the joint limits less the margin
     and predicted visible with the base model. A profile with a stance structure (NAO: a leg lifted,
     the head in its postures aimed at the board) gives that structure's frames; any other, uniform
-    draws. `occlusion=False`: without the costly check that the arm leaves a stereo head's sphere in
+    draws. `count`: about how many (default: CANDIDATES, a stance structure STANCE_CANDIDATES).
+    `occlusion=False`: without the costly check that the arm leaves a stereo head's sphere in
     view (`Visibility` makes it for the configurations a plan picks)."""
     sim = SimulatedRobot(profile, p_base, margin=VIEW_MARGIN_PX, seed=seed)
-    sampling = profile.simulation.get("sampling", {"kind": "uniform"})
-    if sampling.get("kind") == "contact":
+    if profile.simulation.get("sampling", {}).get("kind") == "contact":
         raise InputError(f"robot '{profile.name}' is calibrated from contacts with planes: there is nothing to plan")
-    if sampling.get("kind") == "stances":
-        q, targets, _ = sim.stance_frames(max(1, round(STANCE_BATCHES * count / CANDIDATES)))
+    if _stances(profile):
+        count = STANCE_CANDIDATES if count is None else count
+        parts = [sim.stance_frames(1)[:2] for _ in range(STANCE_BATCHES)]
+        while sum(len(p[0]) for p in parts) < count and len(parts) < MAX_STANCE_BATCHES:
+            parts.append(sim.stance_frames(1)[:2])
+        q, targets = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     else:
+        count = CANDIDATES if count is None else count
         lo, hi = _limits_less_margin(profile, margin_deg)
         target = profile.data.target if profile.data.target is not None else (profile.data.target_default or 0)
         found: list[np.ndarray] = []
@@ -208,6 +249,11 @@ def candidates(
     if keep.sum() == 0:
         raise InputError(f"no configuration of robot '{profile.name}' is predicted visible within its joint limits")
     return q[keep], targets[keep]
+
+
+def _stances(profile: Profile) -> bool:
+    """Whether the profile's configurations have a stance structure (NAO: a leg lifted, the head's postures)."""
+    return profile.simulation.get("sampling", {}).get("kind") == "stances"
 
 
 def _dataset(profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> Dataset:
@@ -292,9 +338,7 @@ def design(
     held = sorted({d.fixed for d in deps})
     cols = [k for k, i in enumerate(problem.free) if i not in held]
     free = [problem.free[k] for k in cols]
-    Jc = _per_configuration(problem, J_data[:, cols], len(q))
-    if Jc.shape[1] > len(free):  # more rows than parameters (a board): the same information in fewer
-        Jc = np.linalg.qr(Jc, mode="r")
+    Jc = _compress(_per_configuration(problem, J_data[:, cols], len(q)))
     prior_rows = J[problem.n_data_rows :][:, cols]
     scale = np.einsum("nki,nki->i", Jc, Jc) / len(q)
     scale = np.where(scale > 0, scale, 1.0)
@@ -303,7 +347,19 @@ def design(
         workspace = (q[pick], targets[pick])
     G, unit = _workspace_jacobians(profile, m.ties, p_base, free, *workspace)
     A = np.einsum("wdi,wdj->ij", G, G) / len(G)
-    return Design(profile, free, held, Jc, A, G, prior_rows.T @ prior_rows, scale, q, targets, unit)
+    return Design(
+        profile, free, held, Jc, A, G, prior_rows.T @ prior_rows, scale, q, targets, unit, p_base, m.ties, isotropic
+    )
+
+
+def _compress(Jc: np.ndarray) -> np.ndarray:
+    """The same information J^T J per configuration in as few rows as its rank (a board's 48 rows move
+    only its own leg's parameters and the camera's: 12 of 21): diag(s) V^T of the SVD, zero-padded."""
+    if Jc.shape[1] <= 3:
+        return Jc
+    _, sv, Vt = np.linalg.svd(Jc, full_matrices=False)
+    k = max(1, int(np.sum(sv > 1e-12 * sv.max(initial=0.0), axis=1).max(initial=1)))
+    return sv[:, :k, None] * Vt[:, :k]
 
 
 def _workspace_jacobians(
@@ -454,15 +510,18 @@ def plan(
     start = time.perf_counter()
     p = profile.nominal() if p_base is None else p_base
     profile.mode(mode)  # an unknown mode fails before any sampling
-    q, targets = candidates(profile, p, seed=seed, margin_deg=margin_deg, occlusion=False) if pool is None else pool
+    if pool is None:
+        count = max(STANCE_CANDIDATES if _stances(profile) else CANDIDATES, 3 * n)
+        pool = candidates(profile, p, seed=seed, count=count, margin_deg=margin_deg, occlusion=False)
+    q, targets = pool
     if n > len(q):
         raise InputError(f"only {len(q)} candidate configurations are predicted visible: ask for at most {len(q)}")
     d = design(profile, mode, p, q, targets, isotropic=isotropic, seed=seed)
     admissible = Visibility(profile, p, q, targets)
     history: list[float] = []
     if criterion == "random":
-        order = np.random.default_rng(seed).permutation(len(q))
-        sel = Selection(d, "task", [int(c) for c in order if admissible(int(c))][:n])
+        order = (int(c) for c in np.random.default_rng(seed).permutation(len(q)))
+        sel = Selection(d, "task", list(itertools.islice((c for c in order if admissible(c)), n)))
     else:
         sel = Selection(d, criterion, admissible=admissible)
         for _ in range(n):
@@ -508,6 +567,71 @@ def predict_accuracy(
     q = np.asarray(q, dtype=float)
     if len(q) == 0:
         raise InputError("no configurations to predict the accuracy of")
-    workspace = candidates(profile, p, seed=seed, count=WORKSPACE)
+    workspace = candidates(profile, p, seed=seed, count=WORKSPACE, occlusion=False)
     d = design(profile, mode, p, q, np.asarray(targets, int), workspace=workspace, seed=seed)
     return d.predict(d.start(regularise=False) + d.information(np.arange(len(q))), len(q))
+
+
+class SequentialPlan:
+    """Sequential design: the next configuration from what has been measured so far, until the predicted
+    error over the workspace reaches a target (capture until good enough).
+
+    `proposal()` gives the candidate that lowers the predicted error most; `measured(True)` adds its
+    information, `measured(False)` (not found, skipped) never proposes it again. Frames measured before
+    (`q_done`, `targets_done`) count from the start."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        mode: str,
+        p_base: np.ndarray | None = None,
+        *,
+        seed: int = 0,
+        margin_deg: float = JOINT_MARGIN_DEG,
+        q_done: np.ndarray | None = None,
+        targets_done: np.ndarray | None = None,
+        admissible: Callable[[np.ndarray], bool] | None = None,
+    ) -> None:
+        """`admissible`: a further check of a configuration (rad) before it is proposed (a driver's limits)."""
+        p = profile.nominal() if p_base is None else p_base
+        q, targets = candidates(profile, p, seed=seed, margin_deg=margin_deg, occlusion=False)
+        self.design = design(profile, mode, p, q, targets, seed=seed)
+        visible = Visibility(profile, p, q, targets)
+        self.rejected: set[int] = set()
+
+        def ok(c: int) -> bool:
+            return c not in self.rejected and visible(c) and (admissible is None or admissible(q[c]))
+
+        self.selection = Selection(self.design, "task", admissible=ok)
+        self.n = 0
+        if q_done is not None and len(q_done):
+            for L in self.design.factors(np.asarray(q_done, float), np.asarray(targets_done, int)):
+                self.selection.add_information(L)
+            self.n = len(q_done)
+        self._proposed: int | None = None
+
+    def predicted(self) -> AccuracyPrediction:
+        sel, d = self.selection, self.design
+        return d.predict(d.start(regularise=False) + d.information(np.array(sel.chosen, int)) + sel.extra, self.n)
+
+    def mean_error(self) -> float:
+        """The predicted mean error over the workspace (inf while some parameter is not determined)."""
+        return self.predicted().mean
+
+    def proposal(self) -> tuple[np.ndarray, int] | None:
+        """The next configuration (rad) and its target, or None when no candidate is left."""
+        c = self.selection.best()
+        if c < 0:
+            return None
+        self._proposed = c
+        return self.design.q[c], int(self.design.targets[c])
+
+    def measured(self, ok: bool) -> None:
+        """What became of the last proposal: measured (its information counts) or not."""
+        assert self._proposed is not None, "measured() answers a proposal()"
+        if ok:
+            self.selection.add(self._proposed)
+            self.n += 1
+        else:
+            self.rejected.add(self._proposed)
+        self._proposed = None
