@@ -11,6 +11,8 @@ with drifted joint offsets, as the paper's section IV-B) inside the joint limits
   configurations; NAO: the paper's stances, 3 head postures each);
 - d-optimal: greedy D-optimal selection and exchange from the planner's candidates;
 - planned: the planner (`calib plan`): the task-space criterion, the predicted error over the workspace.
+"plan s" is the wall time to choose them (candidates, visibility, selection), "cpu s" the process's CPU time
+for it (the same on a quiet machine; the wall time grows on a shared one).
 Each set is then measured on the true robot (the profile's hidden truth, the sensor's noise: stereo depth
 noise growing with z^2), configurations the true robot does not show to the sensor lost as a real
 replay loses them, and calibrated with `calibrate` (the defaults of `calib solve`). The error: RMS over
@@ -62,12 +64,14 @@ def run(args: argparse.Namespace) -> dict[str, dict[int, list[float]]]:
     true_pred = predictions(profile, truth, held_q, held_t)
     errors: dict[str, dict[int, list[float]]] = {m: {n: [] for n in args.counts} for m in args.methods}
     print(f"{args.robot} {args.mode}: calibration error against the truth, RMS over {len(held_q)} held-out")
-    print(f"{'N':>5} {'method':22} {'error mean':>11} {'sd':>8} {'kept':>6} {'predicted':>10} {'plan s':>7}")
+    print(
+        f"{'N':>5} {'method':22} {'error mean':>11} {'sd':>8} {'kept':>6} {'predicted':>10} {'plan s':>7} {'cpu s':>6}"
+    )
     for n in args.counts:
         for method in args.methods:
-            kept, predicted, seconds = [], [], []
+            kept, predicted, seconds, cpu = [], [], [], []
             for seed in range(args.seeds):
-                start = time.perf_counter()
+                start, start_cpu = time.perf_counter(), time.process_time()
                 if method == "random":
                     q, targets = random_configurations(profile, p_base, n, seed)
                     pred = None
@@ -75,6 +79,7 @@ def run(args: argparse.Namespace) -> dict[str, dict[int, list[float]]]:
                     planned = plan(profile, args.mode, n, p_base, seed=seed, criterion=method)
                     q, targets, pred = planned.q, planned.targets, planned.predicted.rms
                 seconds.append(time.perf_counter() - start)
+                cpu.append(time.process_time() - start_cpu)
                 robot = SimulatedRobot.from_profile(profile, seed=1000 + seed, truth=truth)
                 seen = robot.visible(q, targets)
                 data = robot.measure(q[seen], targets[seen]).data
@@ -88,7 +93,7 @@ def run(args: argparse.Namespace) -> dict[str, dict[int, list[float]]]:
             shown = f"{np.mean(predicted):10.4f}" if predicted else f"{'-':>10}"
             print(
                 f"{n:5d} {METHODS[method]:22} {np.mean(v):11.4f} {np.std(v):8.4f} {np.mean(kept):6.1f} {shown} "
-                f"{np.mean(seconds):7.2f}",
+                f"{np.mean(seconds):7.2f} {np.mean(cpu):6.2f}",
                 flush=True,
             )
     return errors

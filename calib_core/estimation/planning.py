@@ -3,8 +3,9 @@
 The linearised calibration at the base model (nominal, or the robot's calibration) tells how well a
 set of configurations determines the parameters: each configuration c adds its whitened Jacobian's
 information J_c^T J_c (the sensor's noise model at that configuration: a stereo head's depth noise
-grows with z^2, along the view ray only; a pixel's is the same everywhere), and the covariance of the
-estimate is C = (sum_c J_c^T J_c + priors)^-1 over the mode's identifiable (minimal) parameter set.
+grows with z^2, along the view ray only; a pixel's is the same everywhere; plus the rounding of the
+joint readings, which a configuration's observations share), and the covariance of the estimate is
+C = (sum_c J_c^T J_c + priors)^-1 over the mode's identifiable (minimal) parameter set.
 
 From C follows the predicted error of the calibrated model anywhere in the workspace: at an
 observation with prediction Jacobian G (measurement units per parameter), the error covariance is
@@ -159,9 +160,9 @@ class Design:
     def factors(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """Information factors (N, k, n) of configurations outside the pool (frames measured already)."""
         data = _dataset(self.profile, self.p, q, targets)
-        problem = Problem(self.profile, data, self.free, self.p, self.ties, noise_model=not self.isotropic)
+        problem = Problem(self.profile, data, self.free, self.p, self.ties, noise_model=False)
         _, J = problem.residuals_jacobian(problem.x0)
-        return _compress(_per_configuration(problem, J[: problem.n_data_rows], len(q)))
+        return _compress(_whitened(problem, J[: problem.n_data_rows], self.p, self.isotropic))
 
     def predict(self, M: np.ndarray, n: int) -> AccuracyPrediction:
         """The prediction from an information matrix M over the free parameters (inf where the
@@ -288,23 +289,52 @@ def _dataset(profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray
     )
 
 
-def _rows_of_first(problem: Problem, n_cfg: int) -> int:
-    """The number of data rows of the first n_cfg configurations (one sensor: its rows are in order)."""
-    if len(problem.blocks) > 1:
-        return problem.n_data_rows
-    b = problem.blocks[0]
-    return int(np.sum(problem.data.cfg[b.obs] < n_cfg)) * b.dim
-
-
-def _per_configuration(problem: Problem, J: np.ndarray, n_cfg: int) -> np.ndarray:
-    """Rows of a (data rows, n) Jacobian grouped by configuration: (n_cfg, r, n), zero-padded."""
+def _row_slots(problem: Problem) -> tuple[np.ndarray, np.ndarray, int]:
+    """Each data row's configuration and its position among that configuration's rows, and the most rows
+    any configuration has."""
     cfg_of_row = np.concatenate([np.repeat(problem.data.cfg[b.obs], b.dim) for b in problem.blocks])
-    counts = np.bincount(cfg_of_row, minlength=n_cfg)
-    out = np.zeros((n_cfg, counts.max(initial=1), J.shape[1]))
+    counts = np.bincount(cfg_of_row, minlength=problem.data.n_configurations)
     order = np.argsort(cfg_of_row, kind="stable")
-    slot = np.arange(len(order)) - np.repeat(np.cumsum(counts) - counts, counts)
-    out[cfg_of_row[order], slot] = J[order]
-    return out
+    slot = np.empty(len(order), int)
+    slot[order] = np.arange(len(order)) - np.repeat(np.cumsum(counts) - counts, counts)
+    return cfg_of_row, slot, int(counts.max(initial=1))
+
+
+def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -> np.ndarray:
+    """The data rows of an unweighted Jacobian, grouped by configuration (N, r, n), zero-padded, and
+    whitened by each configuration's whole covariance: the sensor's noise model per observation plus
+    what rounding the joint readings to their encoder step adds, which the observations of one
+    configuration share (a board's 24 vertices move together when a reading is off). `isotropic`:
+    unit covariance instead."""
+    cfg, slot, r = _row_slots(problem)
+    N = problem.data.n_configurations
+    Jc = np.zeros((N, r, J.shape[1]))
+    Jc[cfg, slot] = J
+    if isotropic:
+        return Jc
+    cov = np.zeros((N, r, r))
+    for b in problem.blocks:
+        rows = np.arange(b.rows.start, b.rows.stop).reshape(-1, b.dim)  # (n_obs, dim)
+        block = b.sensor.covariance(p, problem.data.measured[b.obs, : b.dim])
+        c, s = cfg[rows[:, 0]], slot[rows]
+        cov[c[:, None, None], s[:, :, None], s[:, None, :]] = block
+    profile = problem.profile
+    steps = {
+        op.param: profile.joints[op.joint].resolution
+        for f in profile.frames
+        for op in f.ops
+        if op.joint >= 0 and profile.joints[op.joint].resolution > 0
+    }
+    if steps:
+        probe = Problem(profile, problem.data, list(steps), p, noise_model=False)
+        _, Jq = probe.residuals_jacobian(probe.x0)
+        Jqc = np.zeros((N, r, len(steps)))
+        Jqc[cfg, slot] = Jq[: probe.n_data_rows] * np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
+        cov += Jqc @ Jqc.transpose(0, 2, 1)
+    pad = np.ones((N, r), bool)
+    pad[cfg, slot] = False
+    cov[pad.nonzero()[0], pad.nonzero()[1], pad.nonzero()[1]] = 1.0  # rows a configuration lacks: no information
+    return np.linalg.solve(np.linalg.cholesky(cov), Jc)
 
 
 def design(
@@ -324,12 +354,12 @@ def design(
     m = profile.mode(mode)
     data = _dataset(profile, p_base, q, targets)
     m = observed_mode(profile, data, m)
-    problem = Problem(profile, data, list(m.free), p_base, m.ties, m.priors, noise_model=not isotropic)
+    problem = Problem(profile, data, list(m.free), p_base, m.ties, m.priors, noise_model=False)
     _, J = problem.residuals_jacobian(problem.x0)
-    J_data = J[: problem.n_data_rows]
+    Jw = _whitened(problem, J[: problem.n_data_rows], p_base, isotropic)
     # Which parameters the data determine is a property of the robot and the workspace: a few hundred
     # configurations show it as well as thousands (and the QR and least squares cost 20 times less).
-    some = J_data[: _rows_of_first(problem, WORKSPACE)]
+    some = Jw[:WORKSPACE].reshape(-1, Jw.shape[2])
     deps = find_dependencies(profile, some, problem.free)
     dependent = {d.fixed for d in deps}
     kept = [k for k, i in enumerate(problem.free) if i not in dependent]
@@ -338,7 +368,7 @@ def design(
     held = sorted({d.fixed for d in deps})
     cols = [k for k, i in enumerate(problem.free) if i not in held]
     free = [problem.free[k] for k in cols]
-    Jc = _compress(_per_configuration(problem, J_data[:, cols], len(q)))
+    Jc = _compress(Jw[:, :, cols])
     prior_rows = J[problem.n_data_rows :][:, cols]
     scale = np.einsum("nki,nki->i", Jc, Jc) / len(q)
     scale = np.where(scale > 0, scale, 1.0)
