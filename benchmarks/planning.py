@@ -23,6 +23,7 @@ true robot's (no measurement noise: the calibration's own error), in the measure
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import numpy as np
@@ -99,18 +100,22 @@ def run(args: argparse.Namespace) -> dict[str, dict[int, list[float]]]:
     return errors
 
 
-def svg(errors: dict[str, dict[int, list[float]]], title: str, unit: str, path: str) -> None:
-    """The curves (mean, with the spread over seeds as bars of one standard deviation) as a plain SVG."""
+def svg(errors: dict[str, dict[int, list[float]]], title: str, unit: str, path: str, ymax: float | None = None) -> None:
+    """The curves (mean, with the spread over seeds as bars of one standard deviation) as a plain SVG;
+    `ymax`: the axis' top, a point above it drawn at the top with its value."""
     W, H, left, right, top, bottom = 640, 400, 70, 20, 40, 55
     ns = sorted({n for m in errors.values() for n in m})
-    hi = max(np.mean(v) + np.std(v) for m in errors.values() for v in m.values()) * 1.1
+    peak = ymax or max(np.mean(v) + np.std(v) for m in errors.values() for v in m.values())
+    step = 10 ** np.floor(np.log10(peak / 5))
+    step *= next(k for k in (1, 2, 5, 10) if peak / (k * step) <= 6)
+    hi = step * np.ceil(peak / step)
     lo_n, hi_n = min(ns), max(ns)
 
     def x(n: float) -> float:
         return left + (n - lo_n) / max(hi_n - lo_n, 1) * (W - left - right)
 
     def y(e: float) -> float:
-        return H - bottom - e / hi * (H - top - bottom)
+        return H - bottom - min(max(e, 0.0), hi) / hi * (H - top - bottom)
 
     out = [
         f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" font-family="sans-serif" font-size="12">',
@@ -124,10 +129,15 @@ def svg(errors: dict[str, dict[int, list[float]]], title: str, unit: str, path: 
     ]
     for n in ns:
         out.append(f'<text x="{x(n)}" y="{H - bottom + 16}" text-anchor="middle">{n}</text>')
-    for k in range(6):
-        e = hi * k / 5
+    for k in range(int(hi / step + 0.5) + 1):
+        e = step * k
         out.append(f'<line x1="{left - 4}" y1="{y(e)}" x2="{left}" y2="{y(e)}" stroke="black"/>')
         out.append(f'<text x="{left - 6}" y="{y(e) + 4}" text-anchor="end">{e:.3g}</text>')
+    if "random" in errors:  # the goal: random configurations at the largest N
+        most = max(errors["random"])
+        e = float(np.mean(errors["random"][most]))
+        out.append(f'<line x1="{left}" y1="{y(e)}" x2="{W - right}" y2="{y(e)}" stroke="#888" stroke-dasharray="5 4"/>')
+        out.append(f'<text x="{W - right - 4}" y="{y(e) - 5}" text-anchor="end" fill="#555">random, N = {most}</text>')
     for k, (method, per_n) in enumerate(errors.items()):
         colour = COLOURS[method]
         points = [(x(n), y(float(np.mean(v)))) for n, v in sorted(per_n.items())]
@@ -139,6 +149,10 @@ def svg(errors: dict[str, dict[int, list[float]]], title: str, unit: str, path: 
             m, s = float(np.mean(v)), float(np.std(v))
             out.append(f'<line x1="{x(n)}" y1="{y(m - s)}" x2="{x(n)}" y2="{y(m + s)}" stroke="{colour}"/>')
             out.append(f'<circle cx="{x(n)}" cy="{y(m)}" r="3" fill="{colour}"/>')
+            if m > hi:
+                out.append(
+                    f'<text x="{x(n) + 6}" y="{y(m) + 12}" fill="{colour}">{m:.3g} +- {s:.3g} (off the scale)</text>'
+                )
         ly = top + 10 + 18 * k
         out.append(f'<line x1="{W - 210}" y1="{ly}" x2="{W - 185}" y2="{ly}" stroke="{colour}" stroke-width="2"/>')
         out.append(f'<text x="{W - 180}" y="{ly + 4}">{METHODS[method]}</text>')
@@ -155,12 +169,17 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--svg", help="also write the curve as an SVG file")
+    parser.add_argument("--ymax", type=float, help="the SVG's error axis ends here (larger values are labelled)")
+    parser.add_argument("--json", help="also write every seed's error as JSON ({method: {N: [errors]}})")
     args = parser.parse_args()
     errors = run(args)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(errors, f, indent=1)
     if args.svg:
         profile = load_profile(args.robot)
         unit = profile.sensors[profile.data.sensor].unit
-        svg(errors, f"{args.robot} {args.mode}: planned vs random configurations", unit, args.svg)
+        svg(errors, f"{args.robot} {args.mode}: planned vs random configurations", unit, args.svg, args.ymax)
         print(f"wrote {args.svg}")
 
 
