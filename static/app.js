@@ -816,8 +816,10 @@ function replayPlanning(source) {
   return { mode, count: +$("#replay-count").value };
 }
 
-// The target of "capture until" is in the robot's measurement unit; a first value of its scale.
+// The target of "capture until" is in the robot's measurement unit; a first value of its scale when the
+// unit changes (the operator's own value stays while it does not).
 function setUntilUnit(robot) {
+  if ($("#replay-until-unit").textContent === robot.sensor.unit) return;
   $("#replay-until-unit").textContent = robot.sensor.unit;
   $("#replay-until-error").value = { m: 0.0001, mm: 1 }[robot.sensor.unit] ?? 0.1;
 }
@@ -828,7 +830,6 @@ const fmtError = (v, unit) => (v === null || v === undefined ? "not determined y
 function showPredicted(p, mode) {
   const box = $("#replay-predicted");
   if (!p) { box.replaceChildren(); return; }
-  $("#replay-until-unit").textContent = p.unit;
   const worst = [...p.parameters].sort((a, b) => (b.std ?? Infinity) - (a.std ?? Infinity)).slice(0, 3);
   box.replaceChildren(
     el("p", { class: "predicted" }, `Predicted after a ${mode} calibration from the ${p.n} configurations captured: ` +

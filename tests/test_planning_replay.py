@@ -6,31 +6,23 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
+import os
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
+from test_api import wait_job
 
 from app.server import create_app
 
 playwright_api = pytest.importorskip("playwright.sync_api")
+SHOTS = os.environ.get("CALIB_SCREENSHOTS")  # a folder: keep a screenshot of the Replay step
 
 
 @pytest.fixture(scope="module")
 def client(tmp_path_factory: pytest.TempPathFactory) -> TestClient:
     with TestClient(create_app(tmp_path_factory.mktemp("data"), time_scale=50.0)) as c:
         yield c
-
-
-def wait_job(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        j = client.get(f"/api/jobs/{job}").json()
-        if j["state"] not in ("queued", "running", "paused"):
-            return j
-        time.sleep(0.1)
-    raise AssertionError(f"job {job} did not finish: {j}")
 
 
 def test_dry_run_predicts_the_accuracy_of_the_planned_configurations(client: TestClient) -> None:
@@ -84,7 +76,9 @@ def test_until_and_the_prediction_in_the_browser(tmp_path: Path) -> None:
         page.fill("#new-session input[name=name]", "until in the browser")
         page.click("#new-session button[type=submit]")
         page.wait_for_selector("#tab-observe:not([hidden])")
+        page.wait_for_selector("#sessions li.selected")
         page.click("#tabs button[data-tab='replay']")
+        page.wait_for_selector("#tab-replay:not([hidden])")
         assert page.text_content("#replay-until-unit") == "px"
 
         page.check("input[name=replay-source][value=count]")
@@ -109,4 +103,7 @@ def test_until_and_the_prediction_in_the_browser(tmp_path: Path) -> None:
         shown = float(text.split("Predicted error ")[1].split(" px")[0])
         assert shown <= 0.3 and math.isfinite(shown)
         assert page.locator("#replay-predicted svg polyline").count() == 1
+        assert page.input_value("#replay-until-error") == "0.3"  # the operator's target stays after the replay
+        if SHOTS:
+            page.locator("#tab-replay").screenshot(path=str(Path(SHOTS) / "2b-replay-until.png"))
         browser.close()
