@@ -1,5 +1,6 @@
 """Capturing frames: one look now (Observe), automatic capture when the robot has settled (Observe with
-autocapture), and Replay, which drives the robot through a list of configurations after a dry run.
+autocapture), Replay, which drives the robot through a list of configurations after a dry run, and capture
+until good enough, which plans each next configuration from the frames measured so far.
 
 The dry run checks every configuration before anything moves (the peers' users found broken set-ups only
 after the robot had moved through every pose): against the joint limits with the driver's safety margin,
@@ -25,7 +26,10 @@ from .drivers import LimitError, Look, RobotDriver, RobotFault
 from .store import StoreWriteError
 
 if TYPE_CHECKING:
+    from calib_core.estimation.planning import SequentialPlan
+
     from .jobs import JobContext
+    from .services.replay import Until
     from .store import FrameInfo, Store
 
 DEFAULT_MIN_GAP_DEG = 2.0
@@ -197,6 +201,84 @@ def replay(
             f"replay stopped at configuration {k + 1} of {len(plan)}: {exc}; the {done} frames before it are kept"
             + hint
         ) from exc
+    except BaseException:
+        driver.stop()
+        raise
+    return session_id
+
+
+def capture_until(
+    ctx: JobContext,
+    store: Store,
+    driver: RobotDriver,
+    session_id: str,
+    sequence: SequentialPlan,
+    until: Until,
+    believed: np.ndarray,
+    *,
+    settle_s: float = DEFAULT_SETTLE_S,
+    settle_timeout_s: float = 30.0,
+) -> str | None:
+    """Capture until good enough (a thread job; returns the session id): drive to the configuration the
+    sequential plan proposes, capture, and stop once the predicted mean error over the workspace reaches
+    `until.error` or after `until.max` configurations. Each one is dry-run first; one not predicted in view or
+    not found is never proposed again. The progress reports the predicted error after each frame (`predicted`,
+    and `curve`: every value so far)."""
+    _check_robot(store, driver, session_id)
+    unit = sequence.design.unit
+    curve: list[float | None] = []
+
+    def report(k: int, **detail: object) -> float:
+        error = sequence.mean_error()
+        curve.append(error if math.isfinite(error) else None)
+        ctx.progress(
+            min(k / until.max, 1.0),
+            phase="driving",
+            predicted=curve[-1],
+            target_error=until.error,
+            unit=unit,
+            curve=list(curve),
+            done=k,
+            total=until.max,
+            **detail,
+        )
+        return error
+
+    counts = {"measured": 0, "not found": 0, "skipped": 0}
+    error = report(0, measured=0, not_found=0, skipped=0)
+    k = 0
+    try:
+        while k < until.max and not error <= until.error:
+            ctx.checkpoint()
+            proposal = sequence.proposal()
+            if proposal is None:
+                ctx.progress(min(k / until.max, 1.0), stopped="no candidate configuration left")
+                break
+            q, target = proposal
+            row = dry_run(driver, q[None], np.array([target]), believed)[0]
+            if row["action"] != "capture":
+                sequence.measured(False)
+                continue
+            driver.set_target(target)
+            if not driver.move_to(out_of_margin(driver, q)[0], should_stop=lambda: ctx.cancelled):
+                raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
+            _wait_settled(driver, ctx, settle_s, settle_timeout_s)
+            frame = capture_frame(store, driver, session_id)
+            sequence.measured(frame.status == "measured")
+            counts[frame.status] += 1
+            k += 1
+            error = report(
+                k,
+                frame=frame.index,
+                status=frame.status,
+                reason=frame.reason,
+                measured=counts["measured"],
+                not_found=counts["not found"],
+                skipped=counts["skipped"],
+            )
+    except (RobotFault, StoreWriteError) as exc:
+        driver.stop()
+        raise InputError(f"capture stopped after {k} configurations: {exc}; the frames before it are kept") from exc
     except BaseException:
         driver.stop()
         raise

@@ -1,4 +1,4 @@
-"""The `calib` command (specs/cli.md): solve, predict, evaluate, simulate, detect-sphere, detect-board.
+"""The `calib` command (specs/cli.md): solve, predict, plan, evaluate, simulate, detect-sphere, detect-board.
 
 Bad input ends with exit status 2 and a message naming file, line and column; an internal failure
 (a bug) with exit status 1 and one line (set CALIB_DEBUG=1 for the traceback); never a traceback
@@ -39,7 +39,7 @@ from calib_core import (
 from calib_core.dataset import Dataset
 from calib_core.estimation.registration import register, registration_params
 from calib_core.estimation.validation import check_share
-from calib_core.io.csv_format import readings_beyond_limits, select_rows
+from calib_core.io.csv_format import plan_csv, readings_beyond_limits, select_rows
 from calib_core.io.session import FrameRecord, write_session
 from calib_core.model.loader import BUILTIN_PROFILES
 from calib_core.model.profile import Profile
@@ -104,6 +104,24 @@ def _parser() -> argparse.ArgumentParser:
     pr.add_argument("--data", required=True)
     pr.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE", help=WHERE_HELP)
     pr.add_argument("--out", required=True, help="CSV: the input rows plus prediction columns")
+
+    pl = sub.add_parser(
+        "plan", help="choose N configurations that make a calibration as accurate as it can be (before moving)"
+    )
+    pl.add_argument("--robot", required=True, help="built-in profile (robonaut-a, nao, motoman) or a profile YAML")
+    pl.add_argument("--mode", required=True, help="the calibration mode the configurations are for")
+    pl.add_argument("--configurations", required=True, type=int, metavar="N", help="how many to plan")
+    pl.add_argument(
+        "--base", help="calibration JSON the robot runs with (visibility and linearisation; default nominal)"
+    )
+    pl.add_argument("--seed", type=int, default=0, help="seed of the candidate configurations")
+    pl.add_argument(
+        "--criterion",
+        default="task",
+        choices=["task", "d", "random"],
+        help="task: least predicted error over the workspace (default); d: D-optimal; random: a random draw",
+    )
+    pl.add_argument("--out", required=True, help="the plan CSV (joint columns, no measurements)")
 
     ev = sub.add_parser("evaluate", help="the error figures of a calibration on data it was not fitted on")
     ev.add_argument("--robot", required=True)
@@ -236,6 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "solve": _solve,
             "predict": _predict,
             "evaluate": _evaluate,
+            "plan": _plan,
             "export": _export,
             "self-observe": _self_observe,
             "simulate": _simulate,
@@ -328,6 +347,32 @@ def _predict(args: argparse.Namespace) -> int:
         f"{'calibration ' + args.calibration if cal else 'the nominal model'}"
         f"{' (registration fitted to these rows)' if cal is None and registration_params(profile) else ''}: {args.out}"
     )
+    return 0
+
+
+def _plan(args: argparse.Namespace) -> int:
+    from calib_core.estimation.planning import plan
+
+    profile = _load_robot(args)
+    profile.mode(args.mode)
+    if args.configurations < 1:
+        raise InputError(f"--configurations must be at least 1, got {args.configurations}")
+    p_base = _load_calibration(args.base, profile).params(profile) if args.base else None
+    _check_writable(args.out)
+    result = plan(profile, args.mode, args.configurations, p_base, seed=args.seed, criterion=args.criterion)
+    _save(args.out, lambda: write_atomic(Path(args.out), plan_csv(profile, result.q, result.targets)))
+    pred = result.predicted
+    print(
+        f"{profile.name} {args.mode}: {len(result.q)} configurations planned ({result.criterion}) from "
+        f"{result.candidates} candidates within the joint limits less the margin and predicted visible, "
+        f"in {result.seconds:.1f} s"
+    )
+    print(f"  {pred}")
+    worst = sorted(pred.parameters, key=lambda p: -p.std)[:3]
+    print("  largest predicted standard deviations: " + ", ".join(f"{p.name} {p.std:.3g} {p.unit}" for p in worst))
+    if pred.held:
+        print(f"  held at their base values (not identifiable): {', '.join(pred.held)}")
+    print(f"  written: {args.out}")
     return 0
 
 

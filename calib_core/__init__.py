@@ -1,13 +1,14 @@
 """calib_core: kinematic self-calibration of robots that see themselves, usable without the web app.
 
-from calib_core import load_profile, read_dataset, calibrate
+from calib_core import load_profile, read_dataset, calibrate, plan
 profile = load_profile("robonaut-a")
 data = read_dataset(profile, "day1.csv")
 cal = calibrate(profile, data, "full", holdout=0.3)
 print(cal.summary()); cal.save("full.json")
+planned = plan(profile, "full", 32)      # the configurations to measure next, and their predicted accuracy
 
 The subpackages, by concern: `model` (profiles, URDF import, kinematics), `sensors` (measurement
-models), `estimation` (problem, solver, calibration, identifiability, validation, registration),
+models), `estimation` (problem, solver, calibration, identifiability, validation, registration, planning),
 `vision` (detectors and renderers), `sim` (the simulated robot) and `io` (CSV formats, session
 folders, bags, exports). The names below load their module on first use, so `import calib_core`
 stays light (no SciPy or OpenCV until something needs them).
@@ -29,12 +30,16 @@ _EXPORTS = {
     "SimulatedRobot": "sim.simulator",
     "Simulation": "sim.simulator",
     "Evaluation": "estimation.evaluation",
+    "AccuracyPrediction": "estimation.planning",
+    "Plan": "estimation.planning",
     "calibrate": "estimation.calibrate",
     "evaluate": "estimation.evaluation",
     "fit_parameters": "estimation.calibrate",
     "load_profile": "model.loader",
     "merge": "dataset",
     "parse_dataset": "io.csv_format",
+    "plan": "estimation.planning",
+    "predict_accuracy": "estimation.planning",
     "read_dataset": "io.csv_format",
     "register": "estimation.registration",
     "select_rows": "io.csv_format",
@@ -43,10 +48,12 @@ _EXPORTS = {
 }
 __all__ = [
     "SENSOR_MODELS",
+    "AccuracyPrediction",
     "Calibration",
     "Dataset",
     "Evaluation",
     "InputError",
+    "Plan",
     "Problem",
     "Profile",
     "Sensor",
@@ -58,6 +65,8 @@ __all__ = [
     "load_profile",
     "merge",
     "parse_dataset",
+    "plan",
+    "predict_accuracy",
     "read_dataset",
     "register",
     "select_rows",
@@ -80,6 +89,7 @@ if TYPE_CHECKING:
     from .estimation.calibrate import calibrate, fit_parameters
     from .estimation.calibration import Calibration
     from .estimation.evaluation import Evaluation, evaluate
+    from .estimation.planning import AccuracyPrediction, Plan, plan, predict_accuracy
     from .estimation.problem import Problem
     from .estimation.registration import register
     from .files import write_atomic

@@ -297,6 +297,7 @@ async function openSession(id) {
   const mode = $("#mode");
   mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
   mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
+  setUntilUnit(robot);
   await loadCalibrations();
   await loadReview("active", state.calibrations.length ? state.calibrations[0].id : "");
 }
@@ -772,10 +773,10 @@ async function replay(dry) {
   const source = document.querySelector("input[name=replay-source]:checked").value;
   const body = { dry_run: dry, remeasure: source === "remeasure" };
   if (source === "from") body.from_session = $("#replay-from").value;
-  if (source === "count") {
+  if (source === "count" || source === "until") {
     // New poses each replay, the same ones for a dry run and the replay that follows it.
     state.replaySeed ??= crypto.getRandomValues(new Uint32Array(1))[0];
-    Object.assign(body, { count: +$("#replay-count").value, seed: state.replaySeed });
+    Object.assign(body, { seed: state.replaySeed }, replayPlanning(source));
   }
   if ($("#replay-continue").checked) body.resume = true;
   const r = await api("POST", `/sessions/${state.session.id}/replay`, body);
@@ -787,6 +788,7 @@ async function replay(dry) {
       (moved.length ? `, ${moved.length} moved out of the safety margin` : "")));
     for (const c of bad) box.append(el("p", { class: "warning" }, `#${c.index}: ${c.problem}`));
     for (const c of moved) box.append(el("p", { class: "note" }, `#${c.index}: ${c.note}`));
+    showPredicted(r.predicted, r.mode);
     return;
   }
   state.replayJob = r.job;
@@ -798,9 +800,64 @@ async function replay(dry) {
     const planning = j.state === "running" && d.phase === "planning" ? " · planning the configurations" : "";
     const shown = j.paused && j.state === "running" ? "paused" : j.state;
     $("#replay-state").textContent = `${shown}${j.error ? `: ${j.error}` : ""}${planning}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
+    if (d.curve) showUntilProgress(d);
   });
   replayControls(null);
   await loadSessions(state.session.id);
+}
+
+// --- planned configurations: predicted accuracy, capture until good enough -------------------------
+// What a replay of new configurations asks for: N planned for the mode of step 3, or until good enough.
+function replayPlanning(source) {
+  const mode = $("#mode").value || undefined;
+  if (source === "until") {
+    return { mode, until: { error: +$("#replay-until-error").value, max: +$("#replay-until-max").value } };
+  }
+  return { mode, count: +$("#replay-count").value };
+}
+
+// The target of "capture until" is in the robot's measurement unit; a first value of its scale when the
+// unit changes (the operator's own value stays while it does not).
+function setUntilUnit(robot) {
+  if ($("#replay-until-unit").textContent === robot.sensor.unit) return;
+  $("#replay-until-unit").textContent = robot.sensor.unit;
+  $("#replay-until-error").value = { m: 0.0001, mm: 1 }[robot.sensor.unit] ?? 0.1;
+}
+
+const fmtError = (v, unit) => (v === null || v === undefined ? "not determined yet" : `${v.toPrecision(3)} ${unit}`);
+
+// The dry run's prediction: the error a calibration from these configurations would leave over the workspace.
+function showPredicted(p, mode) {
+  const box = $("#replay-predicted");
+  if (!p) { box.replaceChildren(); return; }
+  const worst = [...p.parameters].sort((a, b) => (b.std ?? Infinity) - (a.std ?? Infinity)).slice(0, 3);
+  box.replaceChildren(
+    el("p", { class: "predicted" }, `Predicted after a ${mode} calibration from the ${p.n} configurations captured: ` +
+      `error over the workspace mean ${fmtError(p.mean, p.unit)}, max ${fmtError(p.max, p.unit)}`),
+    el("p", { class: "note" }, "largest predicted standard deviations: " +
+      worst.map((w) => `${w.name} ${w.std === null ? "-" : w.std.toPrecision(2)} ${w.unit}`).join(", ") +
+      (p.held.length ? ` · not identifiable, held: ${p.held.join(", ")}` : "")),
+  );
+}
+
+// Capture until good enough: the predicted error after each frame, falling towards the target.
+function showUntilProgress(d) {
+  const values = d.curve.filter((v) => v !== null);
+  const W = 240, H = 60;
+  const top = Math.max(...values, d.target_error) * 1.05 || 1;
+  const y = (v) => (H - 4 - (v / top) * (H - 8)).toFixed(1);
+  const x = (k) => (4 + (k / Math.max(d.curve.length - 1, 1)) * (W - 8)).toFixed(1);
+  const pts = d.curve.map((v, k) => (v === null ? null : `${x(k)},${y(v)}`)).filter(Boolean).join(" ");
+  const svg = `<svg width="${W}" height="${H}" role="img" aria-label="predicted error after each frame">` +
+    `<line x1="4" x2="${W - 4}" y1="${y(d.target_error)}" y2="${y(d.target_error)}" stroke="#2a2" stroke-dasharray="4 3"/>` +
+    `<polyline fill="none" stroke="#c33" stroke-width="2" points="${pts}"/></svg>`;
+  const box = $("#replay-predicted");
+  box.replaceChildren(el("p", { class: "predicted" }, `Predicted error ${fmtError(d.predicted, d.unit)} ` +
+    `(target ${d.target_error} ${d.unit}) after ${d.done} of at most ${d.total} configurations` +
+    (d.stopped ? ` · ${d.stopped}` : "")));
+  const chart = el("div", { class: "until-chart" });
+  chart.innerHTML = svg;
+  box.append(chart);
 }
 
 init().catch((err) => toast(`The page could not start: ${err.message}`));

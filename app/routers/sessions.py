@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import asyncio
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, File, Form, HTTPException, Response, UploadFile
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
 from ..importers import import_csv
-from ..services.replay import ReplayPlan
+from ..services.replay import ReplayPlan, Until
 from ..validation import ID, IMAGE_NAME
 from .deps import DeskDep, FrameIndex, JobsDep, RobotsDep, StoreDep, ViewerDep, read_upload
 from .models import FrameOut, JobStarted, RobotState, frame_out, robot_state
@@ -195,6 +195,14 @@ def observe(desk: DeskDep, viewer: ViewerDep, session_id: str, body: ObserveRequ
     return Observing(observing=desk.observing())
 
 
+class UntilRequest(BaseModel):
+    """Capture until good enough: stop when the predicted mean error over the workspace reaches `error` (the
+    measurement's unit: cm, px, m) or after `max` configurations."""
+
+    error: float = Field(gt=0)
+    max: int = Field(ge=1, le=2000)
+
+
 class ReplayRequest(BaseModel):
     from_session: str | None = None
     count: int | None = Field(None, ge=1, le=2000)
@@ -202,6 +210,9 @@ class ReplayRequest(BaseModel):
     dry_run: bool = False
     seed: int = Field(0, ge=0, le=2**32 - 1)  # numpy takes non-negative seeds only
     resume: bool = False  # leave out the configurations the session holds a frame at (go on after a fault)
+    mode: str | None = None  # the calibration mode new configurations are planned for (default: full, or the first)
+    planner: Literal["task", "random"] = "task"  # new configurations: planned for accuracy, or random
+    until: UntilRequest | None = None  # plan each next configuration from the frames so far, until good enough
 
 
 class DryRunRow(BaseModel):
@@ -213,15 +224,39 @@ class DryRunRow(BaseModel):
     note: str  # how it is moved out of the safety margin ("": it is not)
 
 
+class PredictedStd(BaseModel):
+    name: str
+    unit: str
+    std: float | None  # predicted standard deviation, display unit (None: not determined)
+
+
+class PredictedAccuracy(BaseModel):
+    """What a calibration from the configurations is predicted to reach, from the noise model alone: the
+    expected error over the workspace (None while the configurations do not determine every parameter)."""
+
+    n: int
+    unit: str
+    mean: float | None
+    rms: float | None
+    max: float | None
+    parameters: list[PredictedStd]
+    held: list[str]  # parameters of the mode the configurations cannot determine (held at their base value)
+
+
 class DryRun(BaseModel):
     ok: bool
     configurations: list[DryRunRow]
+    mode: str | None = None  # the mode the accuracy is predicted for
+    predicted: PredictedAccuracy | None = None  # of a calibration from the configurations it would capture
 
 
 @router.post("/sessions/{session_id}/replay", responses={202: {"model": JobStarted}})
 def start_replay(desk: DeskDep, session_id: str, body: ReplayRequest, response: Response) -> DryRun | JobStarted:
     """A dry run (`dry_run`: every configuration checked, nothing moves) answers 200; a replay 202 with its job."""
-    plan = ReplayPlan(body.from_session, body.count, body.remeasure, body.seed, body.resume)
+    until = None if body.until is None else Until(body.until.error, body.until.max)
+    plan = ReplayPlan(
+        body.from_session, body.count, body.remeasure, body.seed, body.resume, body.mode, body.planner, until
+    )
     if body.dry_run:
         return DryRun.model_validate(desk.replay.dry_run(session_id, plan))
     response.status_code = 202

@@ -1,22 +1,28 @@
 """Replay (SumVisCal / RoboVisCal): drive a robot through configurations and capture a frame at each.
 
 The configurations are another session's, a session's own (re-measure), or N new ones planned with the
-robot's active calibration. A plan from frames is made when the request comes, so its mistakes answer at
-once; N new configurations are planned in the job (NAO: tens of ms each), so the request returns at once
-and the job shows "planning" meanwhile. The dry run (app/capture.py) checks every configuration before
-anything moves; `resume` goes on with a replay a fault or an abort stopped.
+robot's active calibration (for the least predicted error of a calibration in a mode, or at random);
+`until` plans each next configuration from the frames measured so far and stops when the predicted error
+reaches a target. A plan from frames is made when the request comes, so its mistakes answer at once; N new
+configurations are planned in the job (a few seconds), so the request returns at once and the job shows
+"planning" meanwhile. The dry run (app/capture.py) checks every configuration before anything moves and
+predicts the accuracy of a calibration from those it would capture; `resume` goes on with a replay a fault
+or an abort stopped.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from calib_core import InputError, SimulatedRobot
+from calib_core import InputError, Profile, SimulatedRobot
+from calib_core.estimation.planning import Plan, SequentialPlan, predict_accuracy
+from calib_core.estimation.planning import plan as plan_configurations
 
-from ..capture import dry_run, out_of_margin, replay
+from ..capture import capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
 from ..jobs import JobContext, JobManager
 from ..robots import Robots
@@ -26,6 +32,16 @@ from ..store import Store
 # frame's joints are the encoder readings at the commanded configuration (0.1 deg resolution, servo error).
 RESUME_TOLERANCE_DEG = 0.5
 MAX_PLANNED = 2000  # new configurations one replay may plan
+PLANS_KEPT = 8  # recent plans kept, so that a replay after its dry run drives the plan the dry run checked
+
+
+@dataclass(frozen=True)
+class Until:
+    """Capture until good enough: plan each next configuration from the frames measured so far and stop when
+    the predicted mean error over the workspace reaches `error` (the measurement's unit) or after `max` frames."""
+
+    error: float
+    max: int
 
 
 @dataclass(frozen=True)
@@ -38,10 +54,20 @@ class ReplayPlan:
     remeasure: bool = False
     seed: int = 0
     resume: bool = False
+    mode: str | None = None  # the calibration mode new configurations are planned for (default: full, or the first)
+    planner: str = "task"  # new configurations: "task" (planned, calib_core.estimation.planning) or "random"
+    until: Until | None = None  # capture until the predicted error reaches a target (sequential design)
 
     @property
     def from_frames(self) -> bool:
         return self.remeasure or bool(self.from_session)
+
+
+def default_mode(profile: Profile, mode: str | None) -> str:
+    """The mode a replay plans for: the one asked (checked), else `full` when the profile has it, else its first."""
+    if mode is not None:
+        return profile.mode(mode).name
+    return "full" if "full" in profile.modes else next(iter(profile.modes))
 
 
 class ReplayService:
@@ -49,6 +75,8 @@ class ReplayService:
         self.store = store
         self.robots = robots
         self.jobs = jobs
+        self._plans: dict[tuple, Plan] = {}
+        self._lock = threading.Lock()
 
     def configurations(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
         """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
@@ -70,15 +98,31 @@ class ReplayService:
         return q[todo], targets[todo], None
 
     def dry_run(self, session_id: str, plan: ReplayPlan) -> dict[str, Any]:
+        """Every configuration checked, and the accuracy a calibration from those captured is predicted to
+        have (with `until`: the plan of its `max` configurations, and the predicted error after each)."""
         robot = self.store.sessions.get(session_id).robot
+        profile = self.robots.get(robot).profile
+        mode = default_mode(profile, plan.mode)
+        if plan.until is not None:
+            plan = replace(plan, count=plan.until.max, until=None)
         q, targets, _ = self.configurations(session_id, plan)
         _, believed = self.robots.active_params(robot)
         rows = dry_run(self.robots.driver(robot), q, targets, believed)
-        return {"ok": all(r["ok"] for r in rows), "configurations": rows}
+        captured = [k for k, r in enumerate(rows) if r["action"] == "capture"]
+        predicted = None
+        planned = plan.count is not None and not plan.from_frames and plan.planner != "random" and not plan.resume
+        if planned and len(captured) == len(rows) == plan.count:  # the plan's own prediction holds
+            predicted = self._planned(profile, mode, plan.count, believed, plan.seed).predicted.to_dict()
+        elif captured:
+            pred = predict_accuracy(profile, mode, q[captured], targets[captured], believed, seed=plan.seed)
+            predicted = pred.to_dict()
+        return {"ok": all(r["ok"] for r in rows), "configurations": rows, "mode": mode, "predicted": predicted}
 
     def start(self, session_id: str, plan: ReplayPlan) -> str:
         """Queue the replay job; its id."""
         driver = self.robots.driver(self.store.sessions.get(session_id).robot)
+        if plan.until is not None:
+            return self._start_until(session_id, plan, driver)
         ready = self.configurations(session_id, plan) if plan.from_frames else None
         if ready is None:
             self._check(session_id, plan)
@@ -94,6 +138,47 @@ class ReplayService:
             return replay(ctx, self.store, driver, session_id, q, targets, indices)
 
         return self.jobs.submit_thread("replay", run, session_id=session_id)
+
+    def _start_until(self, session_id: str, plan: ReplayPlan, driver: RobotDriver) -> str:
+        assert plan.until is not None
+        session = self.store.sessions.get(session_id)
+        profile = self.robots.get(session.robot).profile
+        mode = default_mode(profile, plan.mode)
+        if plan.resume or plan.from_frames:
+            raise InputError("until plans its own configurations: give it without from_session, remeasure or resume")
+        if not plan.until.error > 0 or not 1 <= plan.until.max <= MAX_PLANNED:
+            raise InputError(f"until needs a positive error and a max between 1 and {MAX_PLANNED}")
+        _, believed = self.robots.active_params(session.robot)
+
+        def run(ctx: JobContext) -> str | None:
+            ctx.progress(0.0, phase="planning")
+            done = [f for f in self.store.sessions.frames(session_id) if f.status == "measured"]
+            sequence = SequentialPlan(
+                profile,
+                mode,
+                believed,
+                seed=plan.seed,
+                q_done=np.array([f.joints_rad for f in done]).reshape(-1, len(profile.joints)),
+                targets_done=np.array([f.target for f in done], int),
+                admissible=lambda q: _within_limits(driver, q),
+            )
+            ctx.checkpoint()
+            return capture_until(ctx, self.store, driver, session_id, sequence, plan.until, believed)
+
+        return self.jobs.submit_thread("replay", run, session_id=session_id)
+
+    def _planned(self, profile: Profile, mode: str, count: int, believed: np.ndarray, seed: int) -> Plan:
+        """A plan (the same request, the same plan: a dry run's plan is the replay's, and is made once)."""
+        key = (profile.name, mode, count, seed, believed.tobytes())
+        with self._lock:
+            if key in self._plans:
+                return self._plans[key]
+        planned = plan_configurations(profile, mode, count, believed, seed=seed, criterion="task")
+        with self._lock:
+            self._plans[key] = planned
+            while len(self._plans) > PLANS_KEPT:
+                self._plans.pop(next(iter(self._plans)))
+        return planned
 
     def _check(self, session_id: str, plan: ReplayPlan) -> int:
         """What can be wrong with a request before any planning: the session, its robot, the options. Returns
@@ -121,12 +206,17 @@ class ReplayService:
             q = np.array([f.joints_rad for f in frames])
             targets = np.array([f.target for f in frames])
             return q, targets, [f.index for f in frames] if plan.remeasure else None
-        # Configurations the robot believes it sees the fixture in: planned with its active model. Twice
-        # as many as asked, since those inside a joint's safety margin are left out.
+        # Configurations the robot believes it sees the target in: with its active model. Random: twice as
+        # many as asked, since those inside a joint's safety margin are left out. Planned: for the least
+        # predicted error of a calibration in the mode, inside the limits less the margin already.
         _, believed = self.robots.active_params(session.robot)
-        planner = SimulatedRobot.from_profile(robot.profile, seed=plan.seed, truth=believed)
-        q, targets = planner.configurations(2 * count + 10)
         driver = self.robots.driver(session.robot)
+        if plan.planner == "random":
+            planner = SimulatedRobot.from_profile(robot.profile, seed=plan.seed, truth=believed)
+            q, targets = planner.configurations(2 * count + 10)
+        else:
+            planned = self._planned(robot.profile, default_mode(robot.profile, plan.mode), count, believed, plan.seed)
+            q, targets = planned.q, planned.targets
         keep = [k for k in range(len(q)) if _within_limits(driver, q[k])][:count]
         return q[keep], targets[keep], None
 

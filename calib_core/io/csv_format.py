@@ -301,3 +301,28 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
 
 def _fmt(v: float) -> str:
     return f"{v:.6f}".rstrip("0").rstrip(".") if v != 0 else "0"
+
+
+def plan_csv(profile: Profile, q: np.ndarray, targets: np.ndarray) -> str:
+    """Planned configurations (rad) as CSV: one row each, numbered from 1 in the frame column, the target
+    column when the format has one (a profile whose frames are stances also names it `leg`, specs/cli.md),
+    then the joint columns in the format's joint unit. No measurement columns: nothing is measured yet."""
+    fmt = profile.data
+    stances = profile.simulation.get("sampling", {}).get("kind") == "stances"
+    header = [fmt.frame_column or "frame"]
+    if fmt.target_column:
+        header += ["leg"] if stances and fmt.target_column != "leg" else []
+        header.append(fmt.target_column)
+    header += list(fmt.joint_columns.values())
+    tnames = {v: k for k, v in fmt.target_values.items()}
+    factor = joint_factors(profile)
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(header)
+    for k, (qk, t) in enumerate(zip(q, targets, strict=True)):
+        row: list[object] = [k + 1]
+        if fmt.target_column:
+            row += [tnames[int(t)]] * (len(header) - 1 - len(fmt.joint_columns))
+        row += [_fmt(qk[profile.joint(j)] / factor[profile.joint(j)]) for j in fmt.joint_columns]
+        w.writerow(row)
+    return out.getvalue()

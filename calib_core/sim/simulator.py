@@ -155,14 +155,10 @@ class SimulatedRobot:
 
     def _stances(self, sampling: dict, n: int | None) -> tuple[np.ndarray, np.ndarray]:
         prof = self.profile
-        lo, hi = prof.joint_limits()
         postures = int(sampling.get("postures", 3))
         per_target = int(sampling.get("stances_per_target", 24))
         if n is not None:
             per_target = max(1, math.ceil(n / (postures * len(sampling["stance"]))))
-        look = prof.joint(sampling["look_at"])
-        post = prof.joint(sampling["posture_joint"])
-        p_lo, p_hi = (math.radians(v) for v in sampling["posture_range"])
         batch = 32  # stances drawn and checked at once
         qs, targets = [], []
         for tname, ranges in sampling["stance"].items():
@@ -171,18 +167,9 @@ class SimulatedRobot:
             for _ in range(per_target * 200 // batch + 1):
                 if got == per_target:
                     break
-                q = np.zeros((batch, len(lo)))
-                for jname, (a, b) in ranges.items():
-                    j = prof.joint(jname)
-                    q[:, j] = self.rng.uniform(max(math.radians(a), lo[j]), min(math.radians(b), hi[j]), batch)
-                pitches = np.linspace(p_lo, p_hi, postures) + self.rng.uniform(-0.02, 0.02, (batch, postures))
-                stances = np.repeat(q, postures, axis=0)  # stance b's postures are rows b * postures ...
-                stances[:, post] = np.clip(pitches.ravel(), lo[post], hi[post])
-                stances[:, look] = self._aim(stances, look, ti)
-                stances[:, look] += self.rng.uniform(-0.05, 0.05, len(stances))
-                stances[:, look] = np.clip(stances[:, look], lo[look], hi[look])
-                seen = self.visible(stances, np.full(len(stances), ti)).reshape(batch, postures).all(axis=1)
-                for b in np.flatnonzero(seen)[: per_target - got]:
+                stances, seen = self._stance_batch(sampling, ranges, ti, batch, postures)
+                whole = seen.reshape(batch, postures).all(axis=1)
+                for b in np.flatnonzero(whole)[: per_target - got]:
                     qs += list(stances[b * postures : (b + 1) * postures])
                     targets += [ti] * postures
                     got += 1
@@ -192,6 +179,46 @@ class SimulatedRobot:
                     "ask for fewer configurations or another seed"
                 )
         return np.array(qs), np.array(targets)
+
+    def stance_frames(self, batches: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Frames of the profile's stance structure, each on its own (a planner picks among them): per
+        target, `batches` x 32 stances in the stance ranges, each in the head postures, aimed at the board.
+        The visible ones: readings (N, n_joints), targets (N,) and each frame's stance id (N,)."""
+        sampling = self.profile.simulation["sampling"]
+        postures = int(sampling.get("postures", 3))
+        batch = 32
+        qs, targets, ids = [], [], []
+        for tname, ranges in sampling["stance"].items():
+            ti = self.profile.target(tname)
+            for _ in range(batches):
+                stances, seen = self._stance_batch(sampling, ranges, ti, batch, postures)
+                qs.append(stances[seen])
+                targets.append(np.full(int(seen.sum()), ti))
+                ids.append(len(ids) * batch + np.flatnonzero(seen) // postures)
+        return np.concatenate(qs), np.concatenate(targets), np.concatenate(ids)
+
+    def _stance_batch(
+        self, sampling: dict, ranges: dict, target: int, batch: int, postures: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """`batch` stances in `ranges`, each in `postures` head postures aimed at the target: the
+        configurations (batch * postures, n_joints), stance b's postures in rows b * postures ..., and
+        whether each is visible."""
+        prof = self.profile
+        lo, hi = prof.joint_limits()
+        look = prof.joint(sampling["look_at"])
+        post = prof.joint(sampling["posture_joint"])
+        p_lo, p_hi = (math.radians(v) for v in sampling["posture_range"])
+        q = np.zeros((batch, len(lo)))
+        for jname, (a, b) in ranges.items():
+            j = prof.joint(jname)
+            q[:, j] = self.rng.uniform(max(math.radians(a), lo[j]), min(math.radians(b), hi[j]), batch)
+        pitches = np.linspace(p_lo, p_hi, postures) + self.rng.uniform(-0.02, 0.02, (batch, postures))
+        stances = np.repeat(q, postures, axis=0)
+        stances[:, post] = np.clip(pitches.ravel(), lo[post], hi[post])
+        stances[:, look] = self._aim(stances, look, target)
+        stances[:, look] += self.rng.uniform(-0.05, 0.05, len(stances))
+        stances[:, look] = np.clip(stances[:, look], lo[look], hi[look])
+        return stances, self.visible(stances, np.full(len(stances), target))
 
     def _aim(self, q: np.ndarray, joint: int, target: int) -> np.ndarray:
         """For each configuration (row of q), the angle of `joint` that puts the target's centre in the
@@ -219,7 +246,9 @@ class SimulatedRobot:
         return candidates[np.argmin(cost.reshape(len(q), len(candidates)), axis=1)]
 
     # --- what the sensor sees ---------------------------------------------------------------------
-    def visible(self, q: np.ndarray, targets: np.ndarray, sensor: int | None = None) -> np.ndarray:
+    def visible(
+        self, q: np.ndarray, targets: np.ndarray, sensor: int | None = None, *, occlusion: bool = True
+    ) -> np.ndarray:
         """Whether a sensor (default: the data format's) sees each configuration's target well enough
         for its detector (N,) bool.
 
@@ -227,7 +256,8 @@ class SimulatedRobot:
         clear of the border). A board shows its face, seen at most MAX_OBLIQUITY_DEG from its normal
         with neighbouring vertices at least MIN_VERTEX_SPACING_PX apart. A stereo head's sphere lies
         whole inside both images, right of the matcher's band without depth, and the arm and hand
-        leave at least MIN_SPHERE_SHARE of its outline free in each camera (`_sees_sphere`)."""
+        leave at least MIN_SPHERE_SHARE of its outline free in each camera (`_sees_sphere`; `occlusion=False`
+        leaves this, the costly part, out: a planner checks it only for the configurations it picks)."""
         prof = self.profile
         s = prof.data.sensor if sensor is None else sensor
         sens = prof.sensors[s]
@@ -241,7 +271,7 @@ class SimulatedRobot:
             if prof.targets[t].grid is not None:
                 ok[rows, :n] &= self._board_ok(sens, x[rows, :n], prof.targets[t].grid_shape)[:, None]
         seen = ok.all(axis=1)
-        if sens.reading == "stereo":
+        if sens.reading == "stereo" and occlusion:
             rows = np.flatnonzero(seen)
             seen[rows] = self._sees_sphere(q[rows])
         return seen

@@ -1,0 +1,667 @@
+"""Planning the configurations of a calibration, and predicting its accuracy before the robot moves.
+
+The linearised calibration at the base model (nominal, or the robot's calibration) tells how well a
+set of configurations determines the parameters: each configuration c adds its whitened Jacobian's
+information J_c^T J_c (the sensor's noise model at that configuration: a stereo head's depth noise
+grows with z^2, along the view ray only; a pixel's is the same everywhere; plus the rounding of the
+joint readings, which a configuration's observations share), and the covariance of the estimate is
+C = (sum_c J_c^T J_c + priors)^-1 over the mode's identifiable (minimal) parameter set.
+
+From C follows the predicted error of the calibrated model anywhere in the workspace: at an
+observation with prediction Jacobian G (measurement units per parameter), the error covariance is
+G C G^T, so its expected size is sqrt(trace(G C G^T)) (cm, px). Over a set of workspace
+configurations E (random visible ones, the same kind the held-out check draws), the mean of
+trace(G C G^T) is trace(C A) with A = mean G^T G: the task-space (I- or V-optimal) criterion this
+planner minimises. It predicts the held-out error directly; D-optimality (max log det of the
+information, FIGAROH's choice, and Sun & Hollerbach's O1) weighs every parameter direction alike,
+whatever its effect on what the user measures, and O3/O4 look at one singular value only
+(benchmarks/planning.py compares them on held-out error against the simulator's truth).
+
+The search: candidates inside the joint limits less the safety margin and predicted visible with the
+base model (the simulator's checks: field of view, the arm hiding the sphere, a board's obliquity);
+greedy selection with rank-k updates of C (Sherman-Morrison-Woodbury; k the rows of one
+configuration, a board's 48 compressed to at most the parameter count by QR), then Fedorov exchange
+passes that swap a chosen configuration for a candidate while the criterion falls.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from ..dataset import Dataset
+from ..errors import InputError
+from ..model.kinematics import sensor_points
+from ..model.profile import Profile
+from ..sim.simulator import SimulatedRobot
+from .calibrate import observed_mode
+from .identifiability import find_dependencies, minimal_set
+from .problem import Problem
+from .registration import registration_params
+
+Criterion = Literal["task", "d", "random"]
+CRITERIA: tuple[str, ...] = ("task", "d", "random")
+
+JOINT_MARGIN_DEG = 1.0  # kept clear of every joint limit (the drivers' default safety margin)
+# Kept clear of the image border: more than the dry run's 10 px, since a plan's configurations lie at the
+# edges of what the sensor sees and a model error of a few cm (a robot never calibrated) moves them.
+VIEW_MARGIN_PX = 40.0
+CANDIDATES = 6000  # candidate configurations drawn (uniform sampling; the costly visibility check is lazy)
+# A stance structure (NAO): at least this many batches of 32 stances per target (about 400 visible frames,
+# each of 48 rows: as much information per candidate as 16 of the 3-row uniform ones), more for a larger count.
+STANCE_BATCHES = 12
+STANCE_CANDIDATES = 400
+MAX_STANCE_BATCHES = 200
+WORKSPACE = 300  # configurations the predicted workspace error is averaged over
+EXCHANGE_PASSES = 2
+# An information matrix (scaled by a typical configuration's) whose smallest eigenvalue is below this share
+# of its largest leaves a parameter direction undetermined: no finite prediction.
+UNDETERMINED = 1e-10
+# Information every parameter starts with, relative to one typical configuration's: it only keeps the
+# greedy start (fewer configurations than parameters) finite; its effect on a plan's figures is below 1e-5.
+REGULARISATION = 1e-6
+
+
+@dataclass
+class ParameterStd:
+    name: str
+    unit: str
+    std: float  # predicted standard deviation, display unit
+
+
+@dataclass
+class AccuracyPrediction:
+    """What a set of configurations predicts about its calibration, from the noise model alone."""
+
+    n: int  # configurations
+    unit: str  # of the workspace error (the measurement's unit: cm, px, m)
+    mean: float  # mean over the workspace of each point's expected error sqrt(trace(G C G^T))
+    rms: float
+    max: float
+    parameters: list[ParameterStd]  # the estimated (identifiable) parameters
+    held: list[str]  # parameters of the mode held at their base value (not identifiable)
+
+    @property
+    def determined(self) -> bool:
+        """Whether the configurations determine every estimated parameter (else the figures are inf)."""
+        return math.isfinite(self.mean)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: None for an undetermined (infinite) figure."""
+
+        def finite(v: float) -> float | None:
+            return v if math.isfinite(v) else None
+
+        return {
+            "n": self.n,
+            "unit": self.unit,
+            "mean": finite(self.mean),
+            "rms": finite(self.rms),
+            "max": finite(self.max),
+            "parameters": [{"name": p.name, "unit": p.unit, "std": finite(p.std)} for p in self.parameters],
+            "held": list(self.held),
+        }
+
+    def __str__(self) -> str:
+        if not self.determined:
+            return f"{self.n} configurations do not determine every parameter: no prediction of the error"
+        return (
+            f"predicted error over the workspace: mean {self.mean:.3g} {self.unit}, RMS {self.rms:.3g}, "
+            f"max {self.max:.3g} ({self.n} configurations)"
+        )
+
+
+@dataclass
+class Plan:
+    """N configurations to measure (rad, the profile's joint order) and the target each shows."""
+
+    q: np.ndarray
+    targets: np.ndarray
+    criterion: str
+    predicted: AccuracyPrediction
+    history: list[float] = field(default_factory=list)  # predicted mean error after each greedy pick
+    candidates: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class Design:
+    """The linearised calibration over a pool of candidate configurations (module doc)."""
+
+    profile: Profile
+    free: list[int]  # the identifiable parameters (columns)
+    held: list[int]
+    L: np.ndarray  # (N, k, n) each candidate's information factor: L^T L = J_c^T J_c
+    A: np.ndarray  # (n, n) mean G^T G over the workspace observations
+    G: np.ndarray  # (W, dim, n) the workspace observations' prediction Jacobians
+    prior: np.ndarray  # (n, n) information from the mode's priors
+    scale: np.ndarray  # (n,) a typical configuration's information per parameter (for the regularisation)
+    q: np.ndarray  # (N, n_joints) rad
+    targets: np.ndarray  # (N,)
+    unit: str
+    p: np.ndarray  # the base model it is linearised at
+    ties: tuple
+    isotropic: bool = False
+
+    def start(self, regularise: bool = True) -> np.ndarray:
+        """The information before any configuration: the priors (and the regularisation)."""
+        return self.prior + (REGULARISATION * np.diag(self.scale) if regularise else 0.0)
+
+    def information(self, rows: np.ndarray) -> np.ndarray:
+        L = self.L[rows].reshape(-1, self.L.shape[2])
+        return L.T @ L
+
+    def factors(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """Information factors (N, k, n) of configurations outside the pool (frames measured already)."""
+        data = _dataset(self.profile, self.p, q, targets)
+        problem = Problem(self.profile, data, self.free, self.p, self.ties, noise_model=False)
+        _, J = problem.residuals_jacobian(problem.x0)
+        return _compress(_whitened(problem, J[: problem.n_data_rows], self.p, self.isotropic))
+
+    def predict(self, M: np.ndarray, n: int) -> AccuracyPrediction:
+        """The prediction from an information matrix M over the free parameters (inf where the
+        configurations do not determine them all)."""
+        unit_scale = 1.0 / np.sqrt(self.scale)
+        eig = np.linalg.eigvalsh(M * unit_scale[:, None] * unit_scale[None, :])
+        if len(eig) and eig[0] <= UNDETERMINED * max(eig[-1], 1e-300):
+            per_obs, std = np.full(len(self.G), np.inf), np.full(len(self.free), np.inf)
+        else:
+            C = _inverse(M)
+            per_obs = _expected_errors(self.G, C)
+            std = np.sqrt(np.maximum(np.diag(C), 0.0))
+        prof = self.profile
+        params = [
+            ParameterStd(prof.parameters[i].name, prof.unit(i), abs(prof.to_display(i, s)))
+            for i, s in zip(self.free, std, strict=True)
+        ]
+        return AccuracyPrediction(
+            n,
+            self.unit,
+            float(per_obs.mean()),
+            float(np.sqrt(np.mean(per_obs**2))),
+            float(per_obs.max()),
+            params,
+            [prof.parameters[i].name for i in self.held],
+        )
+
+
+def _inverse(M: np.ndarray) -> np.ndarray:
+    try:
+        return np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(M)
+
+
+def _limits_less_margin(profile: Profile, margin_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = profile.joint_limits()
+    m = np.minimum(math.radians(margin_deg), (hi - lo) / 2)
+    return lo + m, hi - m
+
+
+def within_margin(profile: Profile, q: np.ndarray, margin_deg: float = JOINT_MARGIN_DEG) -> np.ndarray:
+    """Whether each configuration (N, n_joints) rad lies inside the joint limits less the margin (N,)."""
+    lo, hi = _limits_less_margin(profile, margin_deg)
+    return np.all((q >= lo - 1e-12) & (q <= hi + 1e-12), axis=1)
+
+
+def candidates(
+    profile: Profile,
+    p_base: np.ndarray,
+    *,
+    seed: int = 0,
+    count: int | None = None,
+    margin_deg: float = JOINT_MARGIN_DEG,
+    occlusion: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Configurations (N, n_joints) rad and their targets (N,): inside the joint limits less the margin
+    and predicted visible with the base model. A profile with a stance structure (NAO: a leg lifted,
+    the head in its postures aimed at the board) gives that structure's frames; any other, uniform
+    draws. `count`: about how many (default: CANDIDATES, a stance structure STANCE_CANDIDATES).
+    `occlusion=False`: without the costly check that the arm leaves a stereo head's sphere in
+    view (`Visibility` makes it for the configurations a plan picks)."""
+    sim = SimulatedRobot(profile, p_base, margin=VIEW_MARGIN_PX, seed=seed)
+    if profile.simulation.get("sampling", {}).get("kind") == "contact":
+        raise InputError(f"robot '{profile.name}' is calibrated from contacts with planes: there is nothing to plan")
+    if _stances(profile):
+        count = STANCE_CANDIDATES if count is None else count
+        parts = [sim.stance_frames(1)[:2] for _ in range(STANCE_BATCHES)]
+        while sum(len(p[0]) for p in parts) < count and len(parts) < MAX_STANCE_BATCHES:
+            parts.append(sim.stance_frames(1)[:2])
+        q, targets = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    else:
+        count = CANDIDATES if count is None else count
+        lo, hi = _limits_less_margin(profile, margin_deg)
+        target = profile.data.target if profile.data.target is not None else (profile.data.target_default or 0)
+        found: list[np.ndarray] = []
+        for _ in range(50):
+            draw = sim.rng.uniform(lo, hi, (count, len(lo)))
+            found += list(draw[sim.visible(draw, np.full(count, target), occlusion=occlusion)])
+            if len(found) >= count:
+                break
+        q = np.array(found[:count]).reshape(-1, len(lo))
+        targets = np.full(len(q), target)
+    keep = within_margin(profile, q, margin_deg)
+    if keep.sum() == 0:
+        raise InputError(f"no configuration of robot '{profile.name}' is predicted visible within its joint limits")
+    return q[keep], targets[keep]
+
+
+def _stances(profile: Profile) -> bool:
+    """Whether the profile's configurations have a stance structure (NAO: a leg lifted, the head's postures)."""
+    return profile.simulation.get("sampling", {}).get("kind") == "stances"
+
+
+def _dataset(profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> Dataset:
+    """The observations of the data format's sensor that configurations q would give with model p,
+    noise-free (their predictions): one per point of a grid target, else one per configuration."""
+    s = profile.data.sensor
+    counts = np.array([1 if profile.targets[t].grid is None else len(profile.targets[t].grid) for t in targets])
+    x = sensor_points(profile, p, q, targets)
+    k = np.arange(x.shape[1])
+    keep = k[None, :] < counts[:, None]
+    cfg = np.repeat(np.arange(len(q)), counts)
+    vertex = np.concatenate(
+        [np.arange(c) if profile.targets[t].grid is not None else [-1] for t, c in zip(targets, counts, strict=True)]
+    )
+    point = np.full((len(cfg), 3), np.nan)
+    for t in np.unique(targets):
+        grid = profile.targets[t].grid
+        rows = targets[cfg] == t
+        if grid is not None:
+            point[rows] = grid[vertex[rows]]
+    return Dataset(
+        robot=profile.name,
+        frame_ids=np.arange(1, len(q) + 1),
+        joints=q,
+        cfg=cfg,
+        target=targets[cfg],
+        point=point,
+        vertex=vertex.astype(int),
+        measured=profile.sensors[s].predict(p, x[keep])[0],
+        sensor=np.full(len(cfg), s),
+        source="plan",
+    )
+
+
+def _row_slots(problem: Problem) -> tuple[np.ndarray, np.ndarray, int]:
+    """Each data row's configuration and its position among that configuration's rows, and the most rows
+    any configuration has."""
+    cfg_of_row = np.concatenate([np.repeat(problem.data.cfg[b.obs], b.dim) for b in problem.blocks])
+    counts = np.bincount(cfg_of_row, minlength=problem.data.n_configurations)
+    order = np.argsort(cfg_of_row, kind="stable")
+    slot = np.empty(len(order), int)
+    slot[order] = np.arange(len(order)) - np.repeat(np.cumsum(counts) - counts, counts)
+    return cfg_of_row, slot, int(counts.max(initial=1))
+
+
+def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -> np.ndarray:
+    """The data rows of an unweighted Jacobian, grouped by configuration (N, r, n), zero-padded, and
+    whitened by each configuration's whole covariance: the sensor's noise model per observation plus
+    what rounding the joint readings to their encoder step adds, which the observations of one
+    configuration share (a board's 24 vertices move together when a reading is off). `isotropic`:
+    unit covariance instead."""
+    cfg, slot, r = _row_slots(problem)
+    N = problem.data.n_configurations
+    Jc = np.zeros((N, r, J.shape[1]))
+    Jc[cfg, slot] = J
+    if isotropic:
+        return Jc
+    cov = np.zeros((N, r, r))
+    for b in problem.blocks:
+        rows = np.arange(b.rows.start, b.rows.stop).reshape(-1, b.dim)  # (n_obs, dim)
+        block = b.sensor.covariance(p, problem.data.measured[b.obs, : b.dim])
+        c, s = cfg[rows[:, 0]], slot[rows]
+        cov[c[:, None, None], s[:, :, None], s[:, None, :]] = block
+    profile = problem.profile
+    steps = {
+        op.param: profile.joints[op.joint].resolution
+        for f in profile.frames
+        for op in f.ops
+        if op.joint >= 0 and profile.joints[op.joint].resolution > 0
+    }
+    if steps:
+        probe = Problem(profile, problem.data, list(steps), p, noise_model=False)
+        _, Jq = probe.residuals_jacobian(probe.x0)
+        Jqc = np.zeros((N, r, len(steps)))
+        Jqc[cfg, slot] = Jq[: probe.n_data_rows] * np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
+        cov += Jqc @ Jqc.transpose(0, 2, 1)
+    pad = np.ones((N, r), bool)
+    pad[cfg, slot] = False
+    cov[pad.nonzero()[0], pad.nonzero()[1], pad.nonzero()[1]] = 1.0  # rows a configuration lacks: no information
+    return np.linalg.solve(np.linalg.cholesky(cov), Jc)
+
+
+def design(
+    profile: Profile,
+    mode: str,
+    p_base: np.ndarray,
+    q: np.ndarray,
+    targets: np.ndarray,
+    *,
+    workspace: tuple[np.ndarray, np.ndarray] | None = None,
+    isotropic: bool = False,
+    seed: int = 0,
+) -> Design:
+    """The linearised calibration in `mode` at p_base over candidate configurations q (rad) with their
+    targets. `workspace`: where the predicted error is averaged (default: WORKSPACE of the candidates);
+    `isotropic`: weigh every measurement alike (to show what ignoring the noise model costs)."""
+    m = profile.mode(mode)
+    data = _dataset(profile, p_base, q, targets)
+    m = observed_mode(profile, data, m)
+    problem = Problem(profile, data, list(m.free), p_base, m.ties, m.priors, noise_model=False)
+    _, J = problem.residuals_jacobian(problem.x0)
+    Jw = _whitened(problem, J[: problem.n_data_rows], p_base, isotropic)
+    # Which parameters the data determine is a property of the robot and the workspace: a few hundred
+    # configurations show it as well as thousands (and the QR and least squares cost 20 times less).
+    some = Jw[:WORKSPACE].reshape(-1, Jw.shape[2])
+    deps = find_dependencies(profile, some, problem.free)
+    dependent = {d.fixed for d in deps}
+    kept = [k for k, i in enumerate(problem.free) if i not in dependent]
+    first = frozenset(registration_params(profile, data.sensors))
+    deps += minimal_set(profile, some[:, kept], [problem.free[k] for k in kept], first)
+    held = sorted({d.fixed for d in deps})
+    cols = [k for k, i in enumerate(problem.free) if i not in held]
+    free = [problem.free[k] for k in cols]
+    Jc = _compress(Jw[:, :, cols])
+    prior_rows = J[problem.n_data_rows :][:, cols]
+    scale = np.einsum("nki,nki->i", Jc, Jc) / len(q)
+    scale = np.where(scale > 0, scale, 1.0)
+    if workspace is None:
+        pick = np.random.default_rng(seed).permutation(len(q))[:WORKSPACE]
+        workspace = (q[pick], targets[pick])
+    G, unit = _workspace_jacobians(profile, m.ties, p_base, free, *workspace)
+    A = np.einsum("wdi,wdj->ij", G, G) / len(G)
+    return Design(
+        profile, free, held, Jc, A, G, prior_rows.T @ prior_rows, scale, q, targets, unit, p_base, m.ties, isotropic
+    )
+
+
+def _compress(Jc: np.ndarray) -> np.ndarray:
+    """The same information J^T J per configuration in as few rows as its rank (a board's 48 rows move
+    only its own leg's parameters and the camera's: 12 of 21): diag(s) V^T of the SVD, zero-padded."""
+    if Jc.shape[1] <= 3:
+        return Jc
+    _, sv, Vt = np.linalg.svd(Jc, full_matrices=False)
+    k = max(1, int(np.sum(sv > 1e-12 * sv.max(initial=0.0), axis=1).max(initial=1)))
+    return sv[:, :k, None] * Vt[:, :k]
+
+
+def _workspace_jacobians(
+    profile: Profile, ties: tuple, p: np.ndarray, free: list[int], q: np.ndarray, targets: np.ndarray
+) -> tuple[np.ndarray, str]:
+    """Each workspace observation's prediction Jacobian (W, dim, n), unweighted, and its unit."""
+    data = _dataset(profile, p, q, targets)
+    problem = Problem(profile, data, free, p, ties, noise_model=False)
+    _, J = problem.residuals_jacobian(problem.x0)
+    blocks = problem.blocks
+    dim = max(b.dim for b in blocks)
+    parts = []
+    for b in blocks:
+        Jb = J[b.rows].reshape(-1, b.dim, len(free))
+        parts.append(np.pad(Jb, ((0, 0), (0, dim - b.dim), (0, 0))))
+    return np.concatenate(parts), blocks[0].sensor.unit
+
+
+class Selection:
+    """Configurations chosen from a design one at a time, with the covariance kept up to date."""
+
+    def __init__(
+        self,
+        d: Design,
+        criterion: Criterion = "task",
+        chosen: Sequence[int] | None = None,
+        admissible: Callable[[int], bool] | None = None,
+    ) -> None:
+        """`admissible`: a last check of a candidate before it is chosen (the costly visibility check)."""
+        self.d = d
+        self.criterion = criterion
+        self.admissible = admissible
+        self.M = d.start()
+        self.extra = np.zeros_like(self.M)  # information of configurations outside the pool (measured frames)
+        self.chosen: list[int] = []
+        self.C = _inverse(self.M)
+        for c in [] if chosen is None else chosen:
+            self.add(int(c))
+
+    def value(self, C: np.ndarray | None = None) -> float:
+        """The criterion (smaller is better): trace(C A), or -log det M (D-optimal) as log det C."""
+        C = self.C if C is None else C
+        if self.criterion == "d":
+            return float(np.linalg.slogdet(C)[1])
+        return float(np.trace(C @ self.d.A))
+
+    def gains(self, C: np.ndarray | None = None) -> np.ndarray:
+        """How much adding each candidate lowers the criterion (N,)."""
+        C = self.C if C is None else C
+        L = self.d.L
+        B = L @ C  # (N, k, n)
+        S = np.eye(L.shape[1]) + B @ L.transpose(0, 2, 1)
+        if self.criterion == "d":
+            return np.linalg.slogdet(S)[1]
+        T = B @ self.d.A @ B.transpose(0, 2, 1)
+        return np.trace(np.linalg.solve(S, T), axis1=1, axis2=2)
+
+    def add(self, c: int) -> None:
+        self.C = _rank_update(self.C, self.d.L[c], +1)
+        self.chosen.append(c)
+
+    def add_information(self, L: np.ndarray) -> None:
+        """A configuration from outside the pool (a frame measured already): its information factor."""
+        self.C = _rank_update(self.C, L, +1)
+        self.extra += L.T @ L
+
+    def best(self, C: np.ndarray | None = None) -> int:
+        """The admissible candidate not chosen yet that lowers the criterion most (-1: none is left)."""
+        g = self.gains(C)
+        g[self.chosen] = -np.inf
+        for c in np.argsort(-g):
+            if not np.isfinite(g[c]):
+                break
+            if self.admissible is None or self.admissible(int(c)):
+                return int(c)
+        return -1
+
+    def exchange(self, passes: int = EXCHANGE_PASSES) -> int:
+        """Fedorov exchange: swap a chosen configuration for a candidate while the criterion falls.
+        Returns the number of swaps."""
+        swaps = 0
+        for _ in range(passes):
+            improved = False
+            for pos in range(len(self.chosen)):
+                c = self.chosen[pos]
+                C_without = _rank_update(self.C, self.d.L[c], -1)
+                j = self.best(C_without)
+                if j < 0 or j == c:
+                    continue
+                before = self.value()
+                C_with = _rank_update(C_without, self.d.L[j], +1)
+                if self.value(C_with) < before - 1e-9 * abs(before):
+                    self.C, self.chosen[pos] = C_with, j
+                    swaps += 1
+                    improved = True
+            if not improved:
+                break
+        # Afresh: many up- and downdates of a nearly singular C (fewer configurations than parameters) drift.
+        self.C = _inverse(self.d.start() + self.d.information(np.array(self.chosen, int)) + self.extra)
+        return swaps
+
+
+class Visibility:
+    """Whether the base model predicts candidate c visible, occlusion by the robot's body included;
+    checked when first asked and remembered."""
+
+    def __init__(self, profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> None:
+        self.sim = SimulatedRobot(profile, p, margin=VIEW_MARGIN_PX)
+        self.q, self.targets = q, targets
+        self.known: dict[int, bool] = {}
+
+    def __call__(self, c: int) -> bool:
+        if c not in self.known:
+            self.known[c] = bool(self.sim.visible(self.q[c : c + 1], self.targets[c : c + 1])[0])
+        return self.known[c]
+
+
+def _rank_update(C: np.ndarray, L: np.ndarray, sign: int) -> np.ndarray:
+    """(C^-1 + sign L^T L)^-1 by Woodbury: adding (+1) or removing (-1) a configuration's information."""
+    B = L @ C
+    S = sign * np.eye(len(L)) + B @ L.T
+    out = C - B.T @ np.linalg.solve(S, B)
+    return (out + out.T) / 2
+
+
+def plan(
+    profile: Profile,
+    mode: str,
+    n: int,
+    p_base: np.ndarray | None = None,
+    *,
+    seed: int = 0,
+    criterion: Criterion = "task",
+    margin_deg: float = JOINT_MARGIN_DEG,
+    exchange: bool = True,
+    isotropic: bool = False,
+    pool: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Plan:
+    """N configurations that make a calibration in `mode` as accurate as the noise model predicts it
+    can be (module doc), from candidates inside the joint limits less `margin_deg` and predicted
+    visible with p_base (default: the nominal model). `criterion`: "task" (the predicted error over
+    the workspace), "d" (D-optimal) or "random" (the first N candidates, for comparison). `pool`:
+    candidate configurations and targets to choose from instead of drawing them."""
+    if criterion not in CRITERIA:
+        raise InputError(f"unknown criterion '{criterion}' ({', '.join(CRITERIA)})")
+    if n < 1:
+        raise InputError(f"--configurations must be at least 1, got {n}")
+    start = time.perf_counter()
+    p = profile.nominal() if p_base is None else p_base
+    profile.mode(mode)  # an unknown mode fails before any sampling
+    if pool is None:
+        count = max(STANCE_CANDIDATES if _stances(profile) else CANDIDATES, 3 * n)
+        pool = candidates(profile, p, seed=seed, count=count, margin_deg=margin_deg, occlusion=False)
+    q, targets = pool
+    if n > len(q):
+        raise InputError(f"only {len(q)} candidate configurations are predicted visible: ask for at most {len(q)}")
+    d = design(profile, mode, p, q, targets, isotropic=isotropic, seed=seed)
+    admissible = Visibility(profile, p, q, targets)
+    history: list[float] = []
+    if criterion == "random":
+        order = (int(c) for c in np.random.default_rng(seed).permutation(len(q)))
+        sel = Selection(d, "task", list(itertools.islice((c for c in order if admissible(c)), n)))
+    else:
+        sel = Selection(d, criterion, admissible=admissible)
+        for _ in range(n):
+            c = sel.best()
+            if c < 0:
+                break
+            sel.add(c)
+            history.append(_mean_error(d, sel.C))
+        if exchange:
+            sel.exchange()
+    if len(sel.chosen) < n:
+        raise InputError(
+            f"only {len(sel.chosen)} of the candidate configurations are predicted visible: ask for at most that"
+        )
+    rows = np.array(sel.chosen)
+    predicted = d.predict(d.start(regularise=False) + d.information(rows), n)
+    return Plan(q[rows], targets[rows], criterion, predicted, history, len(q), time.perf_counter() - start)
+
+
+def _mean_error(d: Design, C: np.ndarray) -> float:
+    return float(np.mean(_expected_errors(d.G, C)))
+
+
+def _expected_errors(G: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """sqrt(trace(G_w C G_w^T)) per workspace observation: its expected error size (W,)."""
+    flat = G.reshape(-1, G.shape[2])
+    var = np.sum((flat @ C) * flat, axis=1).reshape(G.shape[:2]).sum(axis=1)
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def predict_accuracy(
+    profile: Profile,
+    mode: str,
+    q: np.ndarray,
+    targets: np.ndarray,
+    p_base: np.ndarray | None = None,
+    *,
+    seed: int = 0,
+) -> AccuracyPrediction:
+    """The predicted standard deviations and workspace error of a calibration in `mode` from
+    configurations q (rad) and their targets (a plan, or a session's frames), before they are measured."""
+    p = profile.nominal() if p_base is None else p_base
+    q = np.asarray(q, dtype=float)
+    if len(q) == 0:
+        raise InputError("no configurations to predict the accuracy of")
+    workspace = candidates(profile, p, seed=seed, count=WORKSPACE, occlusion=False)
+    d = design(profile, mode, p, q, np.asarray(targets, int), workspace=workspace, seed=seed)
+    return d.predict(d.start(regularise=False) + d.information(np.arange(len(q))), len(q))
+
+
+class SequentialPlan:
+    """Sequential design: the next configuration from what has been measured so far, until the predicted
+    error over the workspace reaches a target (capture until good enough).
+
+    `proposal()` gives the candidate that lowers the predicted error most; `measured(True)` adds its
+    information, `measured(False)` (not found, skipped) never proposes it again. Frames measured before
+    (`q_done`, `targets_done`) count from the start."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        mode: str,
+        p_base: np.ndarray | None = None,
+        *,
+        seed: int = 0,
+        margin_deg: float = JOINT_MARGIN_DEG,
+        q_done: np.ndarray | None = None,
+        targets_done: np.ndarray | None = None,
+        admissible: Callable[[np.ndarray], bool] | None = None,
+    ) -> None:
+        """`admissible`: a further check of a configuration (rad) before it is proposed (a driver's limits)."""
+        p = profile.nominal() if p_base is None else p_base
+        q, targets = candidates(profile, p, seed=seed, margin_deg=margin_deg, occlusion=False)
+        self.design = design(profile, mode, p, q, targets, seed=seed)
+        visible = Visibility(profile, p, q, targets)
+        self.rejected: set[int] = set()
+
+        def ok(c: int) -> bool:
+            return c not in self.rejected and visible(c) and (admissible is None or admissible(q[c]))
+
+        self.selection = Selection(self.design, "task", admissible=ok)
+        self.n = 0
+        if q_done is not None and len(q_done):
+            for L in self.design.factors(np.asarray(q_done, float), np.asarray(targets_done, int)):
+                self.selection.add_information(L)
+            self.n = len(q_done)
+        self._proposed: int | None = None
+
+    def predicted(self) -> AccuracyPrediction:
+        sel, d = self.selection, self.design
+        return d.predict(d.start(regularise=False) + d.information(np.array(sel.chosen, int)) + sel.extra, self.n)
+
+    def mean_error(self) -> float:
+        """The predicted mean error over the workspace (inf while some parameter is not determined)."""
+        return self.predicted().mean
+
+    def proposal(self) -> tuple[np.ndarray, int] | None:
+        """The next configuration (rad) and its target, or None when no candidate is left."""
+        c = self.selection.best()
+        if c < 0:
+            return None
+        self._proposed = c
+        return self.design.q[c], int(self.design.targets[c])
+
+    def measured(self, ok: bool) -> None:
+        """What became of the last proposal: measured (its information counts) or not."""
+        assert self._proposed is not None, "measured() answers a proposal()"
+        if ok:
+            self.selection.add(self._proposed)
+            self.n += 1
+        else:
+            self.rejected.add(self._proposed)
+        self._proposed = None

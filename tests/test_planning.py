@@ -1,0 +1,167 @@
+"""Planning configurations (calib_core.estimation.planning, `calib plan`): every planned configuration
+inside the joint limits less the margin and predicted visible; NAO plans within the paper's stance
+structure; the Woodbury updates match the criterion computed afresh; the predicted error matches the
+error calibrations from those configurations actually have against the simulator's truth; and a plan
+beats random configurations from the same candidates on held-out accuracy against the truth.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib_core import SimulatedRobot, calibrate, load_profile, plan, predict_accuracy
+from calib_core.estimation.planning import JOINT_MARGIN_DEG, Selection, candidates, design, within_margin
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def rn():
+    return load_profile("robonaut-a")
+
+
+@pytest.fixture(scope="module")
+def rn_pool(rn):
+    """Candidates planned with the nominal model (a robot never calibrated)."""
+    return candidates(rn, rn.nominal(), seed=3, count=400)
+
+
+@pytest.fixture(scope="module")
+def rn_heldout(rn):
+    """Held-out configurations the true robot shows, and the true model's predictions there."""
+    truth = rn.true_params()
+    q, t = candidates(rn, truth, seed=99, count=150)
+    return q, t, SimulatedRobot(rn, truth, quantise=False).measure(q, t).data.measured
+
+
+def _error_against_truth(profile, p, heldout) -> float:
+    q, t, true_pred = heldout
+    e = SimulatedRobot(profile, p, quantise=False).measure(q, t).data.measured - true_pred
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
+def _calibrated_error(profile, q, targets, seed, heldout, mode="full") -> float:
+    """Measure q on the true robot (losing what it does not show), calibrate, and judge on held-out."""
+    robot = SimulatedRobot.from_profile(profile, seed=seed)
+    seen = robot.visible(q, targets)
+    cal = calibrate(profile, robot.measure(q[seen], targets[seen]).data, mode)
+    return _error_against_truth(profile, cal.params(profile), heldout)
+
+
+def test_plan_within_limits_less_margin_and_predicted_visible(rn) -> None:
+    planned = plan(rn, "full", 12, seed=1)
+    assert planned.q.shape == (12, len(rn.joints))
+    lo, hi = rn.joint_limits()
+    m = np.minimum(math.radians(JOINT_MARGIN_DEG), (hi - lo) / 2)
+    assert np.all(planned.q >= lo + m - 1e-12) and np.all(planned.q <= hi - m + 1e-12)
+    assert within_margin(rn, planned.q).all()
+    believer = SimulatedRobot(rn, rn.nominal(), margin=10.0)
+    assert believer.visible(planned.q, planned.targets).all()
+    assert len({tuple(r) for r in np.round(planned.q, 9)}) == 12  # no configuration twice
+    pred = planned.predicted
+    assert pred.unit == "cm" and 0 < pred.mean <= pred.rms <= pred.max
+    # The greedy picks lower the predicted error at every step.
+    assert all(b <= a + 1e-12 for a, b in itertools.pairwise(planned.history))
+
+
+def test_woodbury_updates_match_the_criterion_recomputed(rn, rn_pool) -> None:
+    q, t = rn_pool
+    d = design(rn, "full", rn.nominal(), q[:120], t[:120])
+    for criterion in ("task", "d"):
+        sel = Selection(d, criterion)
+        chosen = list(range(0, 100, 4))
+        for c in chosen:
+            sel.add(c)
+        gains = sel.gains()
+        before = sel.value()
+        fresh = np.linalg.inv(d.start() + d.information(np.array([*chosen, 61])))
+        assert sel.value(fresh) == pytest.approx(before - gains[61], rel=1e-7, abs=1e-9)
+        sel.exchange()
+        after = np.linalg.inv(d.start() + d.information(np.array(sel.chosen)))
+        assert sel.value(after) == pytest.approx(sel.value(), rel=1e-7)
+        assert sel.value() <= before + 1e-12
+
+
+def test_predicted_error_matches_calibrations_against_the_truth(rn, rn_pool, rn_heldout) -> None:
+    """With the true model as the base, the prediction is the linearised truth: the RMS error of
+    calibrations from the same configurations over noise seeds must match it (within 35 %)."""
+    truth = rn.true_params()
+    q, t = rn_pool
+    q, t = q[SimulatedRobot(rn, truth).visible(q, t)][:30], t[:30]
+    pred = predict_accuracy(rn, "full", q, t, truth, seed=5)
+    errors = []
+    for seed in range(6):
+        data = SimulatedRobot.from_profile(rn, seed=200 + seed).measure(q, t).data
+        errors.append(_error_against_truth(rn, calibrate(rn, data, "full").params(rn), rn_heldout))
+    actual = float(np.sqrt(np.mean(np.square(errors))))
+    assert pred.rms == pytest.approx(actual, rel=0.35), (pred.rms, errors)
+    names = {p.name for p in pred.parameters}
+    assert "shoulder_roll.theta" in names and not names & set(pred.held)
+
+
+def test_plan_beats_random_configurations_against_the_truth(rn, rn_pool, rn_heldout) -> None:
+    """From the same candidates (nominal model), 20 planned configurations give a smaller held-out
+    error against the truth than 20 random ones, over noise seeds and random draws."""
+    planned = plan(rn, "full", 20, pool=rn_pool)
+    ours = [_calibrated_error(rn, planned.q, planned.targets, 300 + s, rn_heldout) for s in range(4)]
+    q, t = rn_pool
+    visible = np.flatnonzero(SimulatedRobot(rn, rn.nominal(), margin=40.0).visible(q, t))
+    drawn = []
+    for s in range(4):
+        pick = np.random.default_rng(s).choice(visible, 20, replace=False)
+        drawn.append(_calibrated_error(rn, q[pick], t[pick], 300 + s, rn_heldout))
+    assert np.mean(ours) < 0.8 * np.mean(drawn), (ours, drawn)
+
+
+def test_nao_plan_stays_within_the_stance_structure() -> None:
+    nao = load_profile("nao")
+    planned = plan(nao, "full", 10, seed=2)
+    sampling = nao.simulation["sampling"]
+    pitch = np.degrees(planned.q[:, nao.joint(sampling["posture_joint"])])
+    lo, hi = sampling["posture_range"]
+    assert np.all((pitch >= lo - 1.2) & (pitch <= hi + 1.2))  # the postures, jittered by 0.02 rad
+    for qk, target in zip(planned.q, planned.targets, strict=True):
+        ranges = sampling["stance"][nao.targets[target].name]
+        for name, (a, b) in ranges.items():
+            assert a - 1e-9 <= math.degrees(qk[nao.joint(name)]) <= b + 1e-9
+        lifted = {nao.joint(n) for n in ranges} | {nao.joint("HeadYaw"), nao.joint("HeadPitch")}
+        assert all(qk[j] == 0.0 for j in range(len(qk)) if j not in lifted)  # the other leg lies still
+    assert SimulatedRobot(nao, nao.nominal(), margin=10.0).visible(planned.q, planned.targets).all()
+    assert set(planned.targets.tolist()) == {0, 1}  # both boards: each foot's mounting is a parameter
+    assert planned.predicted.unit == "px"
+
+
+def test_cli_plan_writes_the_configurations(tmp_path) -> None:
+    out = tmp_path / "plan.csv"
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
+    args = [sys.executable, "-m", "app.cli", "plan", "--robot", "nao", "--mode", "full"]
+    proc = subprocess.run(
+        [*args, "--configurations", "6", "--seed", "4", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "predicted error over the workspace" in proc.stdout
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 6 and [r["frame"] for r in rows] == [str(k) for k in range(1, 7)]
+    assert {r["leg"] for r in rows} <= {"left", "right"}
+    assert "u" not in rows[0] and -38.5 <= float(rows[0]["HeadPitch"]) <= 29.5  # degrees, no measurements
+    bad = subprocess.run(
+        [*args[:-1], "weekly", "--configurations", "6", "--out", str(tmp_path / "x.csv")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert bad.returncode == 2 and "unknown mode 'weekly'" in bad.stderr and "Traceback" not in bad.stderr
+    assert not (tmp_path / "x.csv").exists()
