@@ -6,16 +6,24 @@
             robot/...              URDF at the old calibration's parameters (ViserUrdf)
             ghost/...              the same, translucent: shown instead of `robot` in the overlay (built
                                    when the overlay is first asked for: a third copy costs the browser)
-            frame/measured         the selected frame: measured points, red
-            frame/predicted        its predictions, blue (green on the new side)
-            frame/lines            prediction -> measurement, one segment per point
-            all/measured|predicted|lines   every frame at once: sent at load, toggled by show_all
+            frame                  the selected frame's marks, lifted toward the camera (`_Marks`)
+                measured           its measurements: hollow red rings facing the camera
+                predicted          its predictions: smaller filled dots, blue (green on the new side)
+                lines              prediction -> measurement, one segment per point
+            all/measured|predicted|lines   every frame at once, smaller: sent at load, toggled by show_all
     /review/new                    the same, right copy, green (no ghost)
     /live                          Observe: one copy driven by the live joint stream, in the left place
 
 Each side's URDF is generated from that side's parameters (`Review.urdf`), so both copies take the
 same joint readings and still differ where the calibrations differ. The scene keeps its own registry
 of the nodes it made (viser has no public listing) and reports it through `state()`.
+
+Readable at a glance: a measurement is a ring and a prediction a smaller dot inside it, so a good
+calibration's dot shows inside its ring instead of being covered by a mark of the same size; a sphere
+fixture (drawn by the URDF at the prediction) shows inside the ring, its dot lifted onto the sphere's
+front; the new side's marks sit a hair nearer the camera than the old side's, so in the overlay and in
+"all frames" coinciding marks do not flicker (z-fighting). Each copy's label sits above the selected
+frame's marks, and selecting a frame turns every browser's camera onto those marks (keeping its direction).
 
 A scene draws on a target: one browser's viser client (the desk: each viewer's own scene, app/viewers.py;
 viser sends client-scoped nodes to that browser only) or the server (every browser).
@@ -54,11 +62,18 @@ PARTS = ("measured", "predicted", "lines")
 RED = (255, 0, 0)
 SIDE_COLOR = {"old": (0, 0, 255), "new": (0, 200, 0)}
 LABELS = {"old": "old calibration", "new": "new calibration", "live": "live: active calibration"}
+OVERLAY_LABELS = {"old": "old calibration (translucent)", "new": "new calibration"}
 GHOST_RGBA = (0.45, 0.55, 1.0, 0.35)  # the old copy in the overlay: translucent, tinted like its points
-DEFAULT_POINT_M = 0.01
-LINE_PER_POINT = 0.06  # line thickness as a share of the point size
-ALL_SCALE = 0.3  # marker size of the all-frames view, relative to the one-frame view
-LABEL_LIFT_M = 0.08  # the old label's lift in the overlay, where both labels would coincide
+DEFAULT_RING_M = 0.01  # a measurement's ring (diameter) when the target says nothing of its size
+DOT_PER_RING = 0.22  # a prediction's dot, as a share of the ring's diameter (viser draws it about twice that)
+RING_LINE = 0.05  # a ring's line thickness, as a share of its diameter
+RESIDUAL_LINE = 0.25  # a residual line's thickness, as a share of the dot
+RING_SEGMENTS = {"frame": 20, "all": 8}  # segments per ring
+ALL_SCALE = 0.5  # mark size of the all-frames view, relative to the one-frame view
+NEW_NEARER = 0.15  # the new side's marks nearer the camera than the old side's, in dots
+VIEW_DIRECTION = np.array([np.cos(np.radians(20.0)), 0.0, np.sin(np.radians(20.0))])  # app/framing.py's
+LABEL_LIFT_M = 0.08  # the old label's lift above the robot in the overlay, where both labels would coincide
+FRAME_VIEW_SHARE = 0.15  # a selected frame's view spans at least this share of the robot's size
 
 
 class LookLike(Protocol):
@@ -83,6 +98,16 @@ class _Copy:
     root: str
     node: viser.FrameHandle
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
+
+
+@dataclass(frozen=True)
+class _Marks:
+    """How a robot's marks are drawn (m): the ring's and the dot's diameters, and how far the marks are lifted
+    toward the camera (onto a sphere fixture's front, where the URDF's sphere would hide them)."""
+
+    ring_m: float
+    dot_m: float
+    lift_m: float
 
 
 def display_rotation(profile: Profile) -> np.ndarray:
@@ -130,6 +155,11 @@ class ReviewScene:
         self._lock = threading.RLock()
         self._nodes: dict[str, viser.SceneNodeHandle] = {}
         self._counts: dict[str, int] = {}  # points or segments node -> how many it really holds
+        self._rings: dict[str, np.ndarray] = {}  # a marks group -> its ring's segments about the origin
+        self._centres: dict[str, np.ndarray] = {}  # a group's rings node -> the measurements it rings
+        self._frame_marks: dict[str, np.ndarray] = {}  # a frame group -> its marks now (base frame, m)
+        self._R = np.eye(3)  # the review copies' base turned upright in the world
+        self._marks = _Marks(DEFAULT_RING_M, DOT_PER_RING * DEFAULT_RING_M, 0.0)
         self._copies: dict[str, _Copy] = {}
         self._builds = 0  # URDF copies built: names each build's node
         self._profile: Profile | None = None
@@ -187,15 +217,16 @@ class ReviewScene:
                 self._update_lines(f"{base}/lines", predicted, measured)
             self.live = False
             if len(review.indices):
-                self.select(int(review.indices[0]))
+                self.select(int(review.indices[0]), aim=not switched)
             else:
                 self._refresh()
             if switched:
                 self._reframe()
 
     # --- interaction ----------------------------------------------------------------------------
-    def select(self, index: int) -> None:
-        """Show frame `index` (its frame number): both URDF configurations and the frame's points."""
+    def select(self, index: int, *, aim: bool = True) -> None:
+        """Show frame `index` (its frame number): both URDF configurations and the frame's marks; `aim`: turn
+        every browser's camera onto the marks (keeping its direction)."""
         with self._lock:
             if self.review is None:
                 raise ValueError("no review is loaded: load(review) first")
@@ -209,6 +240,8 @@ class ReviewScene:
                 self.index = int(index)
                 self.live = False
                 self._refresh()
+            if aim:
+                self._aim()
 
     def show_all(self, on: bool) -> None:
         """Every frame's points at once (on), or the selected frame's only."""
@@ -241,7 +274,7 @@ class ReviewScene:
                 self._frame("/live", visible=False)
                 self._frame("/live/base", wxyz=_wxyz(R))
                 self._label("/live/label", LABELS["live"], (0.0, 0.0, top + 0.1))
-                self._add_parts("/live/base/frame", SIDE_COLOR["old"], _point_size(profile))
+                self._add_parts("/live/base/frame", SIDE_COLOR["old"], _marks(profile), "frame", R)
             copy = self._ensure_copy("live", "/live/base/robot", profile, text, None)
             with self.target.atomic():
                 self._set_joints(copy, geometry.joints_rad)
@@ -297,17 +330,18 @@ class ReviewScene:
         self._separation_m = float(span[1] + 0.25 * max(span.max(), 0.2))
         self._label_z_m = float(high[2] + 0.1 * max(span[2], 0.2))
         self._centre_m = (low + high) / 2
-        size = _point_size(profile)
+        self._R = R
+        self._marks = marks = _marks(profile)
         for side in SIDES:
             root = f"/review/{side}"
             self._frame(root)
             self._frame(f"{root}/base", wxyz=_wxyz(R))
             self._label(f"{root}/label", LABELS[side], (float(self._centre_m[0]), 0.0, self._label_z_m))
             for group in ("frame", "all"):
-                # Every frame at once: smaller markers, or the cloud hides the robot.
-                self._add_parts(
-                    f"{root}/base/{group}", SIDE_COLOR[side], size if group == "frame" else ALL_SCALE * size
-                )
+                # Every frame at once: smaller marks, or they hide the robot.
+                scale = 1.0 if group == "frame" else ALL_SCALE
+                m = _Marks(scale * marks.ring_m, scale * marks.dot_m, marks.lift_m)
+                self._add_parts(f"{root}/base/{group}", SIDE_COLOR[side], m, group, R, nearer=side == "new")
         zero = np.zeros((1, len(profile.joints)))
         self._extent_m = _box(_corners(frame_bounds_m(profile, profile.nominal(), zero)) @ R.T)
 
@@ -324,20 +358,23 @@ class ReviewScene:
             for name in [n for n in self._counts if n.startswith("/live/")]:
                 self._update_points(name, np.zeros((0, 3)))
         self._live_robot = None
+        self._frame_marks.clear()
         self.review = None
         self.index = None
         self.live = False
         return True
 
-    def _reframe(self) -> None:
-        """Every browser's camera on the copies shown, each its nominal extent where the layout puts it."""
+    def _reframe(self, *, keep: bool = False) -> None:
+        """Every browser's camera on the copies shown, each its nominal extent where the layout puts it, and
+        their labels; `keep`: each camera keeps its direction."""
         roots = (
             ["/live"]
             if self.live
             else ["/review/old"] + (["/review/new"] if self._nodes["/review/new"].visible else [])
         )
         boxes = [self._extent_m + np.asarray(self._nodes[r].position, float) for r in roots]
-        self.camera.frame(framing(_box(np.concatenate(boxes))))
+        labels = [np.asarray(self._nodes[f"{r}/label"].position, float) + self._nodes[r].position for r in roots]
+        self.camera.frame(framing(_box(np.concatenate([*boxes, np.array(labels)])), keep=keep))
 
     def _ensure_side(self, profile: Profile, side: str, text: str) -> None:
         self._ensure_copy(side, f"/review/{side}/base/robot", profile, text, None)
@@ -387,6 +424,8 @@ class ReviewScene:
         predicted = geometry.predicted_m[side]
         measured = geometry.measured_m[side]
         got = np.isfinite(measured).all(axis=1)
+        marks = np.concatenate([predicted, measured[got]])
+        self._frame_marks[base] = marks[np.isfinite(marks).all(axis=1)]
         self._update_points(f"{base}/predicted", predicted)
         self._update_points(f"{base}/measured", measured[got])
         self._update_lines(f"{base}/lines", predicted[got], measured[got])
@@ -410,9 +449,10 @@ class ReviewScene:
         if "/review/old/base/ghost" in self._nodes:
             self._nodes["/review/old/base/robot"].visible = not self.overlay
             self._nodes["/review/old/base/ghost"].visible = self.overlay
-        lift = LABEL_LIFT_M if self.overlay else 0.0
-        self._nodes["/review/old/label"].position = (float(self._centre_m[0]), 0.0, self._label_z_m + lift)
         framed = self.review is not None and self.index is not None
+        for side in SIDES:
+            self._nodes[f"/review/{side}/label"].text = (OVERLAY_LABELS if self.overlay else LABELS)[side]  # type: ignore[attr-defined]
+            self._nodes[f"/review/{side}/label"].position = self._label_position(side, framed and not self.all)
         for side in SIDES:
             for part in PARTS:
                 for group, on in (("frame", framed and not self.all), ("all", self.review is not None and self.all)):
@@ -422,6 +462,45 @@ class ReviewScene:
             for part in PARTS:
                 name = f"/live/base/frame/{part}"
                 self._nodes[name].visible = self._counts[name] > 0
+
+    def _label_position(self, side: str, at_marks: bool) -> tuple[float, float, float]:
+        """Where a copy's label goes (relative to its root): just above the selected frame's marks, where the
+        camera looks (`_aim`), or above the robot; in the overlay the old one higher (both would coincide)."""
+        marks = self._frame_marks.get(f"/review/{side}/base/frame", np.zeros((0, 3)))
+        if at_marks and len(marks):
+            world = self._marks_world(side, marks, relative=True)
+            lift = 1.2 * self._marks.ring_m if self.overlay and side == "old" else 0.0
+            top = float(world[:, 2].max()) + 0.8 * self._marks.ring_m + lift
+            x, y = (world[:, :2].min(axis=0) + world[:, :2].max(axis=0)) / 2
+            return float(x), float(y), top
+        lift = LABEL_LIFT_M if self.overlay and side == "old" else 0.0
+        return float(self._centre_m[0]), 0.0, self._label_z_m + lift
+
+    def _marks_world(self, side: str, points_m: np.ndarray, *, relative: bool = False) -> np.ndarray:
+        """A side's frame marks (base frame, m) in the world, or relative to the side's root."""
+        base = f"/review/{side}/base/frame"
+        local = points_m + np.asarray(self._nodes[base].position, float)
+        root = np.zeros(3) if relative else np.asarray(self._nodes[f"/review/{side}"].position, float)
+        return local @ self._R.T + root
+
+    def _aim(self) -> None:
+        """Every browser's camera onto the selected frame's marks and labels, from where it looks now, close
+        enough to read them but never closer than FRAME_VIEW_SHARE of the robot's size."""
+        shown = [s for s in SIDES if self._nodes[f"/review/{s}"].visible]
+        points = []
+        for side in shown:
+            marks = self._frame_marks.get(f"/review/{side}/base/frame", np.zeros((0, 3)))
+            if len(marks):
+                points.append(self._marks_world(side, marks))
+                label = np.asarray(self._nodes[f"/review/{side}/label"].position, float)
+                points.append((label + np.asarray(self._nodes[f"/review/{side}"].position, float))[None])
+        if self.all:
+            self._reframe(keep=True)
+            return
+        if not points:
+            return
+        robot = float(np.linalg.norm(self._extent_m[1] - self._extent_m[0])) / 2
+        self.camera.frame(framing(_box(np.concatenate(points)), min_radius_m=FRAME_VIEW_SHARE * robot, keep=True))
 
     # --- nodes ----------------------------------------------------------------------------------
     def _frame(self, name: str, *, wxyz: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0), visible: bool = True) -> None:
@@ -436,34 +515,64 @@ class ReviewScene:
         self._nodes[name].text = text  # type: ignore[attr-defined]
         self._nodes[name].position = position
 
-    def _add_parts(self, base: str, color: tuple[int, int, int], size_m: float) -> None:
-        """A group's red measured and coloured predicted points (float32: float16 would hide
-        millimetre residuals) and its lines, empty and hidden; viser gets one placeholder point."""
+    def _add_parts(
+        self,
+        base: str,
+        color: tuple[int, int, int],
+        marks: _Marks,
+        group: str,
+        R_world_base: np.ndarray,
+        *,
+        nearer: bool = False,
+    ) -> None:
+        """A group's red measurement rings, coloured prediction dots (float32: float16 would hide millimetre
+        residuals) and residual lines, empty and hidden (viser gets one placeholder each). The group's node
+        is lifted toward the camera (`marks.lift_m`, and a little more for the `nearer` side); its rings face
+        the camera's direction (R_world_base: the base's turn in the world)."""
+        lift = marks.lift_m + (NEW_NEARER * marks.dot_m if nearer else 0.0)
+        toward = R_world_base.T @ VIEW_DIRECTION  # the view direction in the base frame
         self._frame(base)
-        for part, c in (("measured", RED), ("predicted", color)):
-            self._nodes[f"{base}/{part}"] = self.target.scene.add_point_cloud(
-                f"{base}/{part}",
-                np.zeros((1, 3), np.float32),
-                np.array(c, np.uint8),
-                point_size=size_m,
-                point_shape="circle",
-                precision="float32",
-                point_shading="flat",
-                visible=False,
-            )
-            self._counts[f"{base}/{part}"] = 0
+        self._nodes[base].position = tuple(float(v) for v in lift * toward)
+        self._rings[base] = _ring(toward, R_world_base.T[:, 2], marks.ring_m / 2, RING_SEGMENTS[group])
+        self._nodes[f"{base}/measured"] = self.target.scene.add_line_segments(
+            f"{base}/measured",
+            np.zeros((1, 2, 3), np.float32),
+            np.array(RED, np.uint8),
+            thickness=RING_LINE * marks.ring_m,
+            visible=False,
+        )
+        self._nodes[f"{base}/predicted"] = self.target.scene.add_point_cloud(
+            f"{base}/predicted",
+            np.zeros((1, 3), np.float32),
+            np.array(color, np.uint8),
+            point_size=marks.dot_m,
+            point_shape="circle",
+            precision="float32",
+            point_shading="flat",
+            visible=False,
+        )
         self._nodes[f"{base}/lines"] = self.target.scene.add_line_segments(
             f"{base}/lines",
             np.zeros((1, 2, 3), np.float32),
             np.array(color, np.uint8),
-            thickness=LINE_PER_POINT * size_m,
+            thickness=RESIDUAL_LINE * marks.dot_m,
             visible=False,
         )
-        self._counts[f"{base}/lines"] = 0
+        for part in PARTS:
+            self._counts[f"{base}/{part}"] = 0
+        self._centres[f"{base}/measured"] = np.zeros((0, 3))
 
     def _update_points(self, name: str, points: np.ndarray) -> None:
-        """New points for a cloud; an empty one keeps its old points (viser needs one) and is hidden."""
-        if len(points):
+        """New points for a cloud (or centres for a group's rings); an empty one keeps its old points (viser
+        needs one) and is hidden."""
+        group = name.rsplit("/", 1)[0]
+        if name.endswith("/measured") and group in self._rings:
+            centres = np.asarray(points, float).reshape(-1, 3)
+            self._centres[name] = centres
+            if len(centres):
+                rings = centres[:, None, None, :] + self._rings[group][None]
+                self._nodes[name].points = rings.reshape(-1, 2, 3).astype(np.float32)  # type: ignore[attr-defined]
+        elif len(points):
             self._nodes[name].points = np.asarray(points, np.float32)  # type: ignore[attr-defined]
         self._counts[name] = len(points)
 
@@ -485,7 +594,10 @@ class ReviewScene:
             "position": [float(v) for v in h.position],
             "wxyz": [float(v) for v in h.wxyz],
         }
-        if isinstance(h, viser.PointCloudHandle | viser.LineSegmentsHandle):
+        if name in self._centres:  # a group's measurement rings: their centres
+            held = self._centres[name][: self._counts[name]].tolist()
+            out |= {"kind": "rings", "color": [int(v) for v in np.asarray(h.colors).reshape(-1, 3)[0]], "points": held}
+        elif isinstance(h, viser.PointCloudHandle | viser.LineSegmentsHandle):
             kind, key = ("points", "points") if isinstance(h, viser.PointCloudHandle) else ("lines", "segments")
             held = h.points[: self._counts[name]].astype(float).tolist()
             out |= {"kind": kind, "color": [int(v) for v in np.asarray(h.colors).reshape(-1, 3)[0]], key: held}
@@ -511,13 +623,28 @@ def _corners(bounds_m: np.ndarray) -> np.ndarray:
     return np.array([[bounds_m[i, 0], bounds_m[j, 1], bounds_m[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
 
 
-def _point_size(profile: Profile) -> float:
-    """Markers sized to the target: a ring around a sphere fixture (the URDF draws the sphere, which
-    would hide a smaller marker at its centre), or 0.4 of a board's grid step."""
+def _marks(profile: Profile) -> _Marks:
+    """Marks sized to the target: a ring just outside a sphere fixture (the URDF draws the sphere at the
+    prediction: it shows inside the ring, the dot lifted onto its front), or about half a board's grid step
+    (neighbouring corners' rings do not touch)."""
     to_m = length_factor(profile.length_unit, "m")
     target = profile.targets[profile.data.target if profile.data.target is not None else 0]
     if target.radius is not None:
-        return 2.4 * target.radius * to_m
+        r = target.radius * to_m
+        return _Marks(2.8 * r, 0.5 * r, 1.05 * r)
+    ring = DEFAULT_RING_M
     if target.grid is not None and len(target.grid) > 1:
-        return 0.4 * float(np.linalg.norm(target.grid[1] - target.grid[0])) * to_m
-    return DEFAULT_POINT_M
+        ring = 0.45 * float(np.linalg.norm(target.grid[1] - target.grid[0])) * to_m
+    return _Marks(ring, DOT_PER_RING * ring, 0.0)
+
+
+def _ring(toward: np.ndarray, up: np.ndarray, radius_m: float, n: int) -> np.ndarray:
+    """(n, 2, 3) segments of a circle of `radius_m` about the origin, in the plane facing `toward` (unit)."""
+    side = np.cross(up, toward)
+    if np.linalg.norm(side) < 1e-9:
+        side = np.cross(np.eye(3)[int(np.argmin(np.abs(toward)))], toward)
+    side /= np.linalg.norm(side)
+    rise = np.cross(toward, side)
+    angles = np.linspace(0.0, 2 * np.pi, n + 1)
+    circle = radius_m * (np.cos(angles)[:, None] * side + np.sin(angles)[:, None] * rise)
+    return np.stack([circle[:-1], circle[1:]], axis=1)

@@ -270,7 +270,7 @@ def _in_client(page, prefix: str) -> bool:
 
 def _shown_box(scene: ReviewScene) -> np.ndarray:
     """The world box of the copies the scene shows: the robot's frame origins at the nominal model and zero
-    joint angles, turned upright and placed where each copy's root is."""
+    joint angles, turned upright and placed where each copy's root is, and their labels (kept on-screen)."""
     state = scene.state()
     profile = load_profile(state["robot"])
     zero = np.zeros((1, len(profile.joints)))
@@ -278,7 +278,8 @@ def _shown_box(scene: ReviewScene) -> np.ndarray:
     corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     corners = corners @ display_rotation(profile).T
     roots = [r for r in ("/review/old", "/review/new", "/live") if r in state["nodes"] and state["nodes"][r]["shown"]]
-    points = np.concatenate([corners + state["nodes"][r]["position"] for r in roots])
+    labels = [np.add(state["nodes"][f"{r}/label"]["position"], state["nodes"][r]["position"])[None] for r in roots]
+    points = np.concatenate([corners + state["nodes"][r]["position"] for r in roots] + labels)
     return np.stack([points.min(axis=0), points.max(axis=0)])
 
 
