@@ -626,7 +626,7 @@ def _corners(bounds_m: np.ndarray) -> np.ndarray:
 def _marks(profile: Profile) -> _Marks:
     """Marks sized to the target: a ring just outside a sphere fixture (the URDF draws the sphere at the
     prediction: it shows inside the ring, the dot lifted onto its front), or about half a board's grid step
-    (neighbouring corners' rings do not touch)."""
+    (neighbouring corners' rings do not touch), lifted off the board."""
     to_m = length_factor(profile.length_unit, "m")
     target = profile.targets[profile.data.target if profile.data.target is not None else 0]
     if target.radius is not None:
@@ -635,7 +635,7 @@ def _marks(profile: Profile) -> _Marks:
     ring = DEFAULT_RING_M
     if target.grid is not None and len(target.grid) > 1:
         ring = 0.45 * float(np.linalg.norm(target.grid[1] - target.grid[0])) * to_m
-    return _Marks(ring, DOT_PER_RING * ring, 0.0)
+    return _Marks(ring, DOT_PER_RING * ring, 0.6 * ring)  # lifted off a board, which would cut the rings
 
 
 def _ring(toward: np.ndarray, up: np.ndarray, radius_m: float, n: int) -> np.ndarray:

@@ -309,6 +309,38 @@ def _fits(report: tuple, box: np.ndarray) -> bool:
     return bool(np.allclose(look_at, box.mean(axis=0), atol=1e-4) and just_fits <= distance <= 1.5 * just_fits)
 
 
+def _marks_and_labels(scene: ReviewScene) -> np.ndarray:
+    """(N, 3) world points: the selected frame's marks on both copies and the copies' labels."""
+    state = scene.state()
+    R = display_rotation(load_profile(state["robot"]))
+    out = []
+    for side in ("old", "new"):
+        root = np.asarray(state["nodes"][f"/review/{side}"]["position"])
+        group = f"/review/{side}/base/frame"
+        lift = np.asarray(state["nodes"][group]["position"])
+        for part in ("measured", "predicted"):
+            out.append((np.asarray(state["nodes"][f"{group}/{part}"]["points"]) + lift) @ R.T + root)
+        out.append((np.asarray(state["nodes"][f"/review/{side}/label"]["position"]) + root)[None])
+    return np.concatenate(out)
+
+
+def _aimed(reports: list, since: float, points: np.ndarray, timeout_s: float = 30.0) -> tuple:
+    """Wait until a browser reports, after `since`, a camera that has every point inside its field of view."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        latest = {r[1]: r for r in reports if r[0] > since}
+        for r in latest.values():
+            _, _, look_at, position, fov, width, height = r
+            axis = (look_at - position) / np.linalg.norm(look_at - position)
+            rays = (points - position) / np.linalg.norm(points - position, axis=1)[:, None]
+            half = min(fov, 2 * np.arctan(np.tan(fov / 2) * width / height)) / 2
+            if np.all(np.arccos(np.clip(rays @ axis, -1, 1)) < half):
+                return r
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no browser camera shows the selected frame's marks: {latest}")
+        time.sleep(0.1)
+
+
 def _distance(report: tuple) -> float:
     return float(np.linalg.norm(np.asarray(report[3]) - report[2]))
 
@@ -348,6 +380,12 @@ def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
             assert _in_client(page, f"{robonaut['old']}/visual/shoulder_roll/")  # the arm with its sphere
             robonaut_distance = _distance(_framed(reports, 0.0, _shown_box(scene)))
 
+            # Selecting a frame turns the camera onto its marks and labels, closer than the whole robots.
+            since = time.time()
+            scene.select(3)
+            aimed = _aimed(reports, since, _marks_and_labels(scene))
+            assert _distance(aimed) < 0.8 * robonaut_distance
+
             since = time.time()
             scene.load(build("nao", 3, new=False))
             nao = scene.state()["urdf"]["old"]["node"]
@@ -374,3 +412,112 @@ def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
             browser.close()
     finally:
         server.stop()
+
+
+def _calibrate(server, body: dict) -> str:
+    """Run a calibration of Robonaut day 1 through the API; its id."""
+    job = server.post("/api/sessions/robonaut-a-day1/calibrations", json=body).json()["job"]
+    deadline = time.monotonic() + 120
+    while (j := server.get(f"/api/jobs/{job}").json())["state"] in ("queued", "running"):
+        assert time.monotonic() < deadline, j
+        time.sleep(0.3)
+    assert j["state"] == "done", j
+    return j["result"]
+
+
+# A pixel of a split-view canvas (CSS px from its top-left): [r, g, b].
+PIXEL = "([id, x, y]) => { const c = document.querySelector(id); const k = c.width / c.clientWidth;" \
+    " return Array.from(c.getContext('2d').getImageData(Math.round(x * k), Math.round(y * k), 1, 1).data.slice(0, 3)); }"
+
+
+def test_the_review_reads_at_a_glance(tmp_path: Path) -> None:
+    """Robonaut day 1 with a full calibration: rings for measurements with the new calibration's green dot visible
+    inside them (3-D and 2-D), new-minus-old per frame with better/worse, stepping in the list's order, a scene
+    that keeps its size while the rest loads, a zoomable 2-D view, distinct words for the solver's start and the
+    old calibration, the Apply panel and the header agreeing, a history that says what each apply was."""
+    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
+        full = _calibrate(server, {"mode": "full", "holdout": 0.3})
+        daily = _calibrate(server, {"mode": "daily", "base": full, "holdout": 0.0})  # the one under review
+        assert server.post(f"/api/calibrations/{full}/apply", json={"note": "", "confirm": True}).status_code == 200
+        browser = launch(pw)
+        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        wait_for_scene(page)
+        scene_height = page.eval_on_selector("#scene-wrap", "e => e.getBoundingClientRect().height")
+        page.click("li[data-session='robonaut-a-day1']")
+        page.wait_for_selector("#parameters tr td", state="attached")
+        page.click("#tabs button[data-tab='review']")
+        page.select_option("#review-old", "")  # against the nominal model
+        page.select_option("#review-new", daily)
+        with page.expect_response(lambda r: r.url.endswith("/api/review/frame")):
+            page.click("#review-load")
+        page.wait_for_selector("#warnings p", state="attached")  # warnings below the scene
+        assert page.eval_on_selector("#scene-wrap", "e => e.getBoundingClientRect().height") == scene_height
+        assert page.text_content("#scene-ms") == ""  # timings only with ?debug
+        headers = page.eval_on_selector_all("#parameters th", "hs => hs.map(h => h.textContent)")
+        assert headers[1:3] == ["start", "calibrated"], headers
+
+        # Per frame: new minus old, better or worse, in the list and in the frame's summary.
+        asked = {"session": "robonaut-a-day1", "old": None, "new": daily}
+        table = {r["index"]: r for r in server.post("/api/review", json=asked).json()["table"]}
+        rows = page.eval_on_selector_all(
+            "#frames tr[data-frame]", "rs => rs.map(r => [+r.dataset.frame, r.lastChild.dataset.verdict])"
+        )
+        assert len(rows) == len(table) and sum(v == "better" for _, v in rows) > 0.8 * len(rows), rows
+        first = rows[0][0]
+        page.wait_for_function(f"document.querySelector('#frame-summary').dataset.frame === '{first}'")
+        assert "(better)" in page.text_content("#frame-summary")
+
+        # Stepping follows the list's order (worst first), whatever the frame numbers.
+        page.click("#step-fwd")
+        page.wait_for_function(f"document.querySelector('#split-new').dataset.frame === '{rows[1][0]}'")
+        page.click("#frames th[data-sort='index']")  # frame number, descending
+        ordered = page.eval_on_selector_all("#frames tr[data-frame]", "rs => rs.map(r => +r.dataset.frame)")
+        at = ordered.index(rows[1][0])
+        page.click("#step-fwd")
+        page.wait_for_function(f"document.querySelector('#split-new').dataset.frame === '{ordered[at + 1]}'")
+
+        # 2-D: the measured sphere is a hollow red ring with the prediction's dot showing, not a red disc on top.
+        page.click(f"#frames tr[data-frame='{first}']")
+        page.wait_for_function(f"document.querySelector('#split-new').dataset.frame === '{first}'")
+        server.post("/api/review", json=asked)  # the default viewer: the same review as the page's
+        marks = server.get(f"/api/review/marks/{first}").json()
+        box = page.eval_on_selector("#split-new", "c => [c.clientWidth, c.clientHeight]")
+        s = min(box[0] / marks["width"], box[1] / marks["height"])
+        (u, v), (pu, pv) = marks["measured"][0], marks["new"][0]
+        ring = page.evaluate(PIXEL, ["#split-new", box[0] / 2 + (u - marks["width"] / 2) * s + 6, box[1] / 2 + (v - marks["height"] / 2) * s])
+        dot = page.evaluate(PIXEL, ["#split-new", box[0] / 2 + (pu - marks["width"] / 2) * s, box[1] / 2 + (pv - marks["height"] / 2) * s])
+        assert ring[0] > 150 and ring[0] > ring[1] + 80, ring  # anti-aliased red
+        assert dot[1] > 140 and dot[0] < 80, dot  # green, not covered by the red measurement
+
+        # 2-D zoom and magnified residuals, said on the view.
+        page.hover("#split-new")
+        page.mouse.wheel(0, -300)
+        page.wait_for_function("document.querySelector('#zoom-level').textContent !== 'zoom 1.0x'")
+        page.select_option("#magnify", "10")
+
+        # 3-D: the new calibration's green dot shows in the one-frame view.
+        page.wait_for_timeout(1500)
+        png = page.locator("#scene").screenshot()
+        for name, rgb in PAPER_COLOURS.items():
+            assert colour_pixels(png, rgb) > 20, f"no {name} marks in the 3-D view"
+        shot(page, "4-review")
+
+        # Apply the one under review, then re-apply the earlier one from the history: header and panel agree.
+        page.click("#tabs button[data-tab='apply']")
+        assert page.text_content("#apply-what").strip() == daily
+        page.on("dialog", lambda d: d.accept())  # a calibration worse than the active one asks first
+        page.click("#apply")
+        for cal in (daily, full):
+            page.wait_for_function(f"document.querySelector('#active-cal').dataset.id === {cal!r}")
+            page.wait_for_function(f"document.querySelector('#apply-active').dataset.id === {cal!r}")
+            if cal == daily:
+                page.click(f"#history tr[data-calibration='{full}'] button")
+        history = page.eval_on_selector_all("#history tr[data-calibration]", "rs => rs.map(r => r.textContent)")
+        assert len(history) == 3 and all("after" in h for h in history), history
+        assert "full" in history[0] and "daily" in history[1]
+        fits = "bs => bs.length > 0 && bs.every(b => b.getBoundingClientRect().right <= b.closest('aside').getBoundingClientRect().right)"
+        assert page.eval_on_selector_all("#history button", fits)
+        shot(page, "5-apply")
+        browser.close()
