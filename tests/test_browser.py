@@ -426,8 +426,11 @@ def _calibrate(server, body: dict) -> str:
 
 
 # A pixel of a split-view canvas (CSS px from its top-left): [r, g, b].
-PIXEL = "([id, x, y]) => { const c = document.querySelector(id); const k = c.width / c.clientWidth;" \
-    " return Array.from(c.getContext('2d').getImageData(Math.round(x * k), Math.round(y * k), 1, 1).data.slice(0, 3)); }"
+PIXEL = (
+    "([id, x, y]) => { const c = document.querySelector(id); const k = c.width / c.clientWidth;"
+    " const d = c.getContext('2d').getImageData(Math.round(x * k), Math.round(y * k), 1, 1).data;"
+    " return Array.from(d.slice(0, 3)); }"
+)
 
 
 def test_the_review_reads_at_a_glance(tmp_path: Path) -> None:
@@ -486,8 +489,14 @@ def test_the_review_reads_at_a_glance(tmp_path: Path) -> None:
         box = page.eval_on_selector("#split-new", "c => [c.clientWidth, c.clientHeight]")
         s = min(box[0] / marks["width"], box[1] / marks["height"])
         (u, v), (pu, pv) = marks["measured"][0], marks["new"][0]
-        ring = page.evaluate(PIXEL, ["#split-new", box[0] / 2 + (u - marks["width"] / 2) * s + 6, box[1] / 2 + (v - marks["height"] / 2) * s])
-        dot = page.evaluate(PIXEL, ["#split-new", box[0] / 2 + (pu - marks["width"] / 2) * s, box[1] / 2 + (pv - marks["height"] / 2) * s])
+        ring = page.evaluate(
+            PIXEL,
+            ["#split-new", box[0] / 2 + (u - marks["width"] / 2) * s + 6, box[1] / 2 + (v - marks["height"] / 2) * s],
+        )
+        dot = page.evaluate(
+            PIXEL,
+            ["#split-new", box[0] / 2 + (pu - marks["width"] / 2) * s, box[1] / 2 + (pv - marks["height"] / 2) * s],
+        )
         assert ring[0] > 150 and ring[0] > ring[1] + 80, ring  # anti-aliased red
         assert dot[1] > 140 and dot[0] < 80, dot  # green, not covered by the red measurement
 
@@ -517,7 +526,10 @@ def test_the_review_reads_at_a_glance(tmp_path: Path) -> None:
         history = page.eval_on_selector_all("#history tr[data-calibration]", "rs => rs.map(r => r.textContent)")
         assert len(history) == 3 and all("after" in h for h in history), history
         assert "full" in history[0] and "daily" in history[1]
-        fits = "bs => bs.length > 0 && bs.every(b => b.getBoundingClientRect().right <= b.closest('aside').getBoundingClientRect().right)"
+        fits = (
+            "bs => bs.length > 0 && bs.every(b =>"
+            " b.getBoundingClientRect().right <= b.closest('aside').getBoundingClientRect().right)"
+        )
         assert page.eval_on_selector_all("#history button", fits)
         shot(page, "5-apply")
         browser.close()

@@ -113,7 +113,9 @@ def test_display_bodies_keep_the_kinematics_and_look_like_a_robot(name: str) -> 
         spheres = [v.geometry.sphere.radius for v in body.link_map[frame].visuals if v.geometry.sphere]
         assert max(spheres) > 2 * max(limbs), (frame, spheres)
     for frame in (f.name for f in profile.frames if f.registration):  # the tracker stays a small marker
-        assert all(v.geometry.sphere is None or v.geometry.sphere.radius <= JOINT_SPHERE for v in body.link_map[frame].visuals)
+        assert all(
+            v.geometry.sphere is None or v.geometry.sphere.radius <= JOINT_SPHERE for v in body.link_map[frame].visuals
+        )
 
 
 def _stream(text: str) -> io.StringIO:

@@ -18,11 +18,10 @@ import math
 import os
 import tempfile
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from dataclasses import dataclass
 
 from ..model.kinematics import axis_angle, forward
 from ..model.profile import Op, Profile
