@@ -537,13 +537,7 @@ class ReviewScene:
         self._frame(base)
         self._nodes[base].position = tuple(float(v) for v in lift * toward)
         self._rings[base] = _ring(toward, R_world_base.T[:, 2], marks.ring_m / 2, RING_SEGMENTS[group])
-        self._nodes[f"{base}/measured"] = self.target.scene.add_line_segments(
-            f"{base}/measured",
-            np.zeros((1, 2, 3), np.float32),
-            np.array(RED, np.uint8),
-            thickness=RING_LINE * marks.ring_m,
-            visible=False,
-        )
+        self._add_segments(f"{base}/measured", RED, RING_LINE * marks.ring_m)
         self._nodes[f"{base}/predicted"] = self.target.scene.add_point_cloud(
             f"{base}/predicted",
             np.zeros((1, 3), np.float32),
@@ -554,16 +548,16 @@ class ReviewScene:
             point_shading="flat",
             visible=False,
         )
-        self._nodes[f"{base}/lines"] = self.target.scene.add_line_segments(
-            f"{base}/lines",
-            np.zeros((1, 2, 3), np.float32),
-            np.array(color, np.uint8),
-            thickness=RESIDUAL_LINE * marks.dot_m,
-            visible=False,
-        )
+        self._add_segments(f"{base}/lines", color, RESIDUAL_LINE * marks.dot_m)
         for part in PARTS:
             self._counts[f"{base}/{part}"] = 0
         self._centres[f"{base}/measured"] = np.zeros((0, 3))
+
+    def _add_segments(self, name: str, color: tuple[int, int, int], thickness_m: float) -> None:
+        """An empty, hidden line-segments node (one placeholder segment)."""
+        self._nodes[name] = self.target.scene.add_line_segments(
+            name, np.zeros((1, 2, 3), np.float32), np.array(color, np.uint8), thickness=thickness_m, visible=False
+        )
 
     def _update_points(self, name: str, points: np.ndarray) -> None:
         """New points for a cloud (or centres for a group's rings); an empty one keeps its old points (viser

@@ -175,9 +175,11 @@ def step(server, browser, viewers: int, steps: int) -> None:
     of them steps through the frames: the time until its 2-D view and its 3-D scene show each next frame."""
     job = wait(server, server.post("/api/sessions/nao/calibrations", json={"mode": "full"}).json()["job"])
     assert job["state"] == "done", job
-    context = browser.new_context(viewport={"width": 240, "height": 180})  # the other tabs: small, still drawing
+    # The other tabs: small (still drawing), each a browser context of its own, as tabs of separate browsers are
+    # (one context's tabs share chromium's six connections per host, which their event streams hold).
+    contexts = [browser.new_context(viewport={"width": 240, "height": 180}) for _ in range(viewers - 1)]
     others = []
-    for _ in range(viewers - 1):
+    for context in contexts:
         page = context.new_page()
         page.set_default_timeout(180_000)
         page.goto(server.url)
@@ -206,7 +208,8 @@ def step(server, browser, viewers: int, steps: int) -> None:
     print(f"  3-D scene updated in the browser: {figures(three_d)}")
     print(f"  both: {figures(both)}")
     page.close()
-    context.close()
+    for context in contexts:
+        context.close()
 
 
 if __name__ == "__main__":
