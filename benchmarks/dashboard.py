@@ -152,7 +152,7 @@ def main() -> None:
 # viser client: the new copy's prediction node got new points) both show the next frame; ms for each.
 STEP = """async (node) => {
   const tree = document.querySelector('#scene').contentWindow.__viserSceneTree;
-  const points = () => { const n = tree.getState()[node]; return n && n.props ? n.props.points : undefined; };
+  const points = () => { const n = tree.getState()[node]; return n && n.message.props.points; };
   const before = [document.querySelector('#split-new').dataset.frame, points()];
   const t0 = performance.now();
   document.querySelector('#step-fwd').click();

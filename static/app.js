@@ -515,7 +515,10 @@ async function selectFrame(index) {
   state.frame = index;
   $("#frame-slider").value = state.frameOrder.indexOf(index);
   $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
-  for (const tr of document.querySelectorAll("#frames tr[data-frame]")) tr.classList.toggle("selected", +tr.dataset.frame === index);
+  for (const tr of document.querySelectorAll("#frames tr[data-frame]")) {
+    tr.classList.toggle("selected", +tr.dataset.frame === index);
+    if (+tr.dataset.frame === index) tr.scrollIntoView({ block: "nearest" });
+  }
   renderFrameSummary(index);
   if (selecting) {
     pending = index;
@@ -523,9 +526,12 @@ async function selectFrame(index) {
   }
   selecting = true;
   try {
-    const r = await api("POST", "/review/frame", { index, all: $("#all-frames").checked, overlay: $("#overlay").checked });
+    // The scene and the 2-D view at once: neither waits for the other.
+    const [r] = await Promise.all([
+      api("POST", "/review/frame", { index, all: $("#all-frames").checked, overlay: $("#overlay").checked }),
+      drawSplit(index),
+    ]);
     if (DEBUG) $("#scene-ms").textContent = `scene ${r.server_ms.toFixed(1)} ms`;
-    await drawSplit(index);
   } catch (err) {
     toast(err.message);
   } finally {
