@@ -33,6 +33,7 @@ class Framing:
     direction: np.ndarray
     radius_m: float  # of the box's bounding sphere
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    keep: bool = False  # a browser's camera keeps its own direction (a selected frame: turn, do not swing round)
 
     def distance(self, fov_rad: float = DEFAULT_FOV_RAD, aspect: float = 1.0) -> float:
         """From the look-at point to the camera: the bounding sphere inside the vertical field of view
@@ -47,12 +48,13 @@ class Framing:
         return self.look_at + self.distance(fov_rad, aspect) * self.direction
 
 
-def framing(box_m: np.ndarray) -> Framing:
-    """The framing of a (2, 3) min/max box in the world (z up)."""
+def framing(box_m: np.ndarray, *, min_radius_m: float = MIN_RADIUS_M, keep: bool = False) -> Framing:
+    """The framing of a (2, 3) min/max box in the world (z up), its bounding sphere at least `min_radius_m`;
+    `keep`: each browser's camera keeps its direction."""
     box = np.asarray(box_m, dtype=float).reshape(2, 3)
     e = math.radians(ELEVATION_DEG)
-    radius = max(float(np.linalg.norm(box[1] - box[0])) / 2, MIN_RADIUS_M)
-    return Framing(box, box.mean(axis=0), np.array([math.cos(e), 0.0, math.sin(e)]), radius)
+    radius = max(float(np.linalg.norm(box[1] - box[0])) / 2, min_radius_m, MIN_RADIUS_M)
+    return Framing(box, box.mean(axis=0), np.array([math.cos(e), 0.0, math.sin(e)]), radius, keep=keep)
 
 
 def camera_reported(camera: viser.CameraHandle) -> bool:
@@ -135,6 +137,10 @@ class ClientFraming:
             self._framed[client.client_id] = version
             aspect = cam.image_width / cam.image_height if cam.image_height else 1.0
             position = f.position(cam.fov, aspect)
+            if f.keep:
+                seen = np.asarray(cam.position, float) - np.asarray(cam.look_at, float)
+                if np.linalg.norm(seen) > 1e-9:
+                    position = f.look_at + f.distance(cam.fov, aspect) * seen / np.linalg.norm(seen)
             cam.up_direction = f.up
             cam.position = position  # moves the look-at point along with it
             cam.look_at = f.look_at

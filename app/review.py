@@ -103,7 +103,7 @@ class Review:
         self.sensor_index = sensor
         self.sensor = profile.sensors[sensor]
         self.unit = self.sensor.unit
-        self.urdf = {side: to_urdf(profile, s.p) for side, s in sides.items()}
+        self.urdf = {side: to_urdf(profile, s.p, bodies=True) for side, s in sides.items()}
 
     @classmethod
     def build(

@@ -1,8 +1,11 @@
-"""Dashboard figures (issue 4): page ready time, frame-scrub latency on a 1000-frame session, and
-the server's memory with the three sample sessions open. Starts `calib serve` as a user would,
-drives it over HTTP and, for the page, through a headless Debian chromium.
+"""Dashboard figures (issues 4 and 13): page ready time, a frame step in the page until both the 2-D view and
+the 3-D scene show the new frame (with other viewers open), frame-scrub latency on a 1000-frame session, and
+the server's memory with the three sample sessions open. Starts `calib serve` as a user would, drives it over
+HTTP and, for the page, through a headless Debian chromium.
 
-    .venv/bin/python benchmarks/dashboard.py [--frames 1000] [--selects 200]
+    .venv/bin/python benchmarks/dashboard.py [--frames 1000] [--selects 200] [--viewers 10] [--steps 40] [--quick]
+
+--quick: page ready and the frame step only (no memory figures, no 1000-frame session).
 """
 
 from __future__ import annotations
@@ -60,6 +63,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--selects", type=int, default=200)
+    ap.add_argument(
+        "--viewers", type=int, default=10, help="tabs open on the desk while stepping (the stepping one too)"
+    )
+    ap.add_argument("--steps", type=int, default=40)
+    ap.add_argument("--quick", action="store_true", help="page ready and the frame step only")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp, served(Path(tmp) / "data") as server:
         pid = server.process.pid
@@ -75,20 +83,25 @@ def main() -> None:
             page = browser.new_page(viewport={"width": 1500, "height": 1000})
             t0 = time.perf_counter()
             page.goto(server.url)
-            page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+            page.wait_for_selector("body[data-ready='1']", timeout=180_000)
             ready.append((time.perf_counter() - t0) * 1e3)
             wait_for_scene(page)
             drawn.append((time.perf_counter() - t0) * 1e3)
             page.close()
         print(f"page ready (controls usable): {figures(ready)}")
         print(f"page ready with the 3-D view drawn: {figures(drawn)}")
+        step(server, browser, args.viewers, args.steps)
+        if args.quick:
+            browser.close()
+            pw.stop()
+            return
 
         # A tab left open: the reviews and selects below are its viewer's, drawn into its connected scene
         # (a request without X-Viewer addresses the default viewer, which no browser shows).
         known = {v["id"] for v in server.get("/api/viewers").json()}
         tab = browser.new_page(viewport={"width": 1500, "height": 1000})
         tab.goto(server.url)
-        tab.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        tab.wait_for_selector("body[data-ready='1']", timeout=180_000)
         wait_for_scene(tab)
         (opened,) = [v["id"] for v in server.get("/api/viewers").json() if v["connected"] and v["id"] not in known]
         viewer = {"X-Viewer": opened}
@@ -133,6 +146,70 @@ def main() -> None:
         print(f"machine load average (1 min) at the end: {Path('/proc/loadavg').read_text().split()[0]}")
         browser.close()
         pw.stop()
+
+
+# In the page: click "next frame", then until the 2-D view (its canvas' frame) and the 3-D scene (the iframe's
+# viser client: the new copy's prediction node got new points) both show the next frame; ms for each.
+STEP = """async (node) => {
+  const tree = document.querySelector('#scene').contentWindow.__viserSceneTree;
+  const points = () => { const n = tree.getState()[node]; return n && n.message.props.points; };
+  const before = [document.querySelector('#split-new').dataset.frame, points()];
+  const t0 = performance.now();
+  document.querySelector('#step-fwd').click();
+  let t2d = null, t3d = null;
+  await new Promise((done) => {
+    const tick = () => {
+      const now = performance.now();
+      if (t2d === null && document.querySelector('#split-new').dataset.frame !== before[0]) t2d = now;
+      if (t3d === null && points() !== before[1]) t3d = now;
+      if ((t2d !== null && t3d !== null) || now - t0 > 10000) done(); else setTimeout(tick, 0);
+    };
+    tick();
+  });
+  return [t2d - t0, t3d - t0];
+}"""
+
+
+def step(server, browser, viewers: int, steps: int) -> None:
+    """NAO's sample session with a calibration, reviewed in `viewers` tabs (each its own viewer and scene); one
+    of them steps through the frames: the time until its 2-D view and its 3-D scene show each next frame."""
+    job = wait(server, server.post("/api/sessions/nao/calibrations", json={"mode": "full"}).json()["job"])
+    assert job["state"] == "done", job
+    # The other tabs: small (still drawing), each a browser context of its own, as tabs of separate browsers are
+    # (one context's tabs share chromium's six connections per host, which their event streams hold).
+    contexts = [browser.new_context(viewport={"width": 240, "height": 180}) for _ in range(viewers - 1)]
+    others = []
+    for context in contexts:
+        page = context.new_page()
+        page.set_default_timeout(180_000)
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=180_000)
+        page.click("li[data-session='nao']")
+        others.append(page)
+    for page in others:
+        page.wait_for_selector("#frames tr[data-frame]", state="attached", timeout=180_000)
+    page = browser.new_page(viewport={"width": 1500, "height": 1000})
+    page.goto(server.url)
+    page.wait_for_selector("body[data-ready='1']", timeout=180_000)
+    wait_for_scene(page)
+    page.click("li[data-session='nao']")
+    page.wait_for_selector("#split-new[data-frame]", state="attached", timeout=180_000)
+    page.wait_for_timeout(1000)
+    connected = sum(v["connected"] for v in server.get("/api/viewers").json())
+    two_d, three_d, both = [], [], []
+    for _ in range(steps):
+        a, b = page.evaluate(STEP, "/review/new/base/frame/predicted")
+        two_d.append(a)
+        three_d.append(b)
+        both.append(max(a, b))
+        page.wait_for_timeout(50)
+    print(f"frame step in the page, NAO, {connected} viewers connected:")
+    print(f"  2-D view drawn: {figures(two_d)}")
+    print(f"  3-D scene updated in the browser: {figures(three_d)}")
+    print(f"  both: {figures(both)}")
+    page.close()
+    for context in contexts:
+        context.close()
 
 
 if __name__ == "__main__":

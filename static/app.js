@@ -3,6 +3,7 @@
 // shows it and sends the operator's actions.
 
 const $ = (sel) => document.querySelector(sel);
+const DEBUG = new URLSearchParams(location.search).has("debug");  // timings on the page (`?debug=1`)
 const state = {
   robots: {},          // name -> /api/robots entry
   robot: null,         // the selected robot: the connected one, or one with real data only (not drivable)
@@ -176,6 +177,8 @@ function closeSession() {
     const canvas = $(sel);
     canvas.getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
   }
+  split.marks = null;
+  $("#frame-summary").replaceChildren();
   $("#frame-label").textContent = "frame —";
   $("#frame-slider").max = 0;
   $("#split").hidden = !state.robots[state.robot].sensor.image;  // a laser tracker has no image to mark
@@ -237,6 +240,7 @@ function wire() {
   $("#overlay").addEventListener("change", () => selectFrame(state.frame));
   $("#all-frames").addEventListener("change", () => selectFrame(state.frame));
   $("#apply").addEventListener("click", () => act(applyNew));
+  wireSplit();
   $("#goto").addEventListener("click", () => act(async () => {
     if (!state.session || state.frame === null) throw new Error("select a frame first");
     await api("POST", `/sessions/${state.session.id}/frames/${state.frame}/goto`);
@@ -421,22 +425,20 @@ async function loadReview(old, neu, sensor = null) {
   $("#review-sensor-label").hidden = state.review.sensors.length < 2;
   const rows = state.review.table;
   state.sort = { key: state.newCal ? "err_new" : "err_old", dir: -1 };
-  state.frameOrder = rows.map((r) => r.index);
   const slider = $("#frame-slider");
   slider.max = Math.max(0, rows.length - 1);
   renderFrames();
   renderSummary();
   await renderParameters();
   renderApply();
-  const worst = sortedRows()[0];
-  if (worst) await selectFrame(worst.index);
+  if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
 }
 
-function sortedRows() {
+function sortedRows(rows = state.review.table) {
   const { key, dir } = state.sort;
   const v = (r) => (r[key] === null || r[key] === undefined ? -Infinity : r[key]);
   // dir -1: largest first (worst first for errors); frames without an error go last either way.
-  return [...state.review.table].sort((a, b) => {
+  return [...rows].sort((a, b) => {
     const va = v(a);
     const vb = v(b);
     if (va === vb) return a.index - b.index;
@@ -447,24 +449,63 @@ function sortedRows() {
   });
 }
 
+// A frame's new-minus-old error (null without both) and its word: better (the new calibration's error is
+// smaller), worse, or same (within 1% of the old error).
+const change = (r) => (r.err_old === null || r.err_new === null || r.err_new === undefined ? null : r.err_new - r.err_old);
+const verdict = (r) => {
+  const d = change(r);
+  if (d === null) return "";
+  return Math.abs(d) <= 0.01 * Math.abs(r.err_old) ? "same" : d < 0 ? "better" : "worse";
+};
+
+// The frame list, sorted; stepping (◀ ▶|, the slider, play) follows its order.
 function renderFrames() {
   const t = $("#frames");
   const u = unit();
-  const cols = [["index", "frame"], ["status", "status"], ["err_old", `old ${u}`], ["err_new", `new ${u}`]];
+  const cols = [["index", "frame"], ["status", "status"], ["err_old", `old ${u}`], ["err_new", `new ${u}`],
+    ["change", `new−old ${u}`]];
+  const withChange = state.review.table.map((r) => ({ ...r, change: change(r) }));
   t.replaceChildren(el("tr", {}, ...cols.map(([k, label]) => el("th", {
+    "data-sort": k,
     onclick: () => {
       state.sort = { key: k, dir: state.sort.key === k ? -state.sort.dir : -1 };
       renderFrames();
+      if (state.frame !== null) $("#frame-slider").value = state.frameOrder.indexOf(state.frame);
     },
   }, label + (state.sort.key === k ? (state.sort.dir < 0 ? " ▼" : " ▲") : "")))));
-  for (const r of sortedRows()) {
+  const rows = sortedRows(withChange);
+  state.frameOrder = rows.map((r) => r.index);
+  for (const r of rows) {
+    const v = verdict(r);
     t.append(el("tr", {
       "data-frame": r.index,
       class: `${r.index === state.frame ? "selected" : ""} ${r.heldout ? "heldout" : ""}`,
       onclick: () => selectFrame(r.index),
     }, el("td", {}, r.index + (r.heldout ? "*" : "")), el("td", {}, r.status), el("td", {}, fmt(r.err_old)),
-    el("td", {}, fmt(r.err_new))));
+    el("td", {}, fmt(r.err_new)), el("td", { class: v, "data-verdict": v }, r.change === null ? "—" : signed(r.change))));
   }
+}
+
+const signed = (v) => (v > 0 ? "+" : v < 0 ? "−" : "±") + fmt(Math.abs(v));
+
+// The selected frame's figures: old and new error, their difference, better or worse.
+function renderFrameSummary(index) {
+  const r = state.review && state.review.table.find((x) => x.index === index);
+  const box = $("#frame-summary");
+  if (!r) {
+    box.replaceChildren();
+    return;
+  }
+  const u = unit();
+  const v = verdict(r);
+  const parts = [el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`), ` ${r.status} · old calibration `,
+    el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
+  if (state.review.new) {
+    parts.push(" · new calibration ", el("span", { class: "green" }, `${fmt(r.err_new)} ${u}`));
+    if (v) parts.push(" · ", el("span", { class: v, "data-verdict": v }, `${signed(change(r))} ${u} (${v})`));
+  }
+  box.replaceChildren(...parts);
+  box.dataset.frame = index;
 }
 
 // Latest wins: while a scene update is in flight only the newest request waits behind it.
@@ -475,16 +516,23 @@ async function selectFrame(index) {
   state.frame = index;
   $("#frame-slider").value = state.frameOrder.indexOf(index);
   $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
-  for (const tr of document.querySelectorAll("#frames tr[data-frame]")) tr.classList.toggle("selected", +tr.dataset.frame === index);
+  for (const tr of document.querySelectorAll("#frames tr[data-frame]")) {
+    tr.classList.toggle("selected", +tr.dataset.frame === index);
+    if (+tr.dataset.frame === index) tr.scrollIntoView({ block: "nearest" });
+  }
+  renderFrameSummary(index);
   if (selecting) {
     pending = index;
     return;
   }
   selecting = true;
   try {
-    const r = await api("POST", "/review/frame", { index, all: $("#all-frames").checked, overlay: $("#overlay").checked });
-    $("#scene-ms").textContent = `scene ${r.server_ms.toFixed(1)} ms`;
-    await drawSplit(index);
+    // The scene and the 2-D view at once: neither waits for the other.
+    const [r] = await Promise.all([
+      api("POST", "/review/frame", { index, all: $("#all-frames").checked, overlay: $("#overlay").checked }),
+      drawSplit(index),
+    ]);
+    if (DEBUG) $("#scene-ms").textContent = `scene ${r.server_ms.toFixed(1)} ms`;
   } catch (err) {
     toast(err.message);
   } finally {
@@ -531,59 +579,189 @@ function loadImage(url) {
   return images.get(url);
 }
 
+// The 2-D split view: the frame's image at full size, both halves zoomed and panned together (wheel, drag,
+// the buttons), measurements as red rings with their point numbers, predictions as dots in the side's colour,
+// residuals as lines, optionally magnified (said on the view).
+const split = { marks: null, img: null, zoom: 1, cx: null, cy: null, drag: null };
+
 async function drawSplit(index) {
   const robot = state.review && state.robots[state.review.robot];
   $("#split").hidden = Boolean(robot && !robot.sensor.image);  // a laser tracker has no image to mark
   if ($("#split").hidden) return;
   const m = await api("GET", `/review/marks/${index}`);
   const img = m.image ? await loadImage(m.image) : null;
+  if (!split.marks || split.marks.width !== m.width || split.marks.height !== m.height) fitSplit(m);
+  Object.assign(split, { marks: m, img });
+  redrawSplit();
+}
+
+function fitSplit(m) {
+  Object.assign(split, { zoom: 1, cx: (m.width || 640) / 2, cy: (m.height || 480) / 2 });
+}
+
+function redrawSplit() {
+  const m = split.marks;
+  if (!m) return;
   const found = (m.measured || []).some((p) => p);
   for (const [id, predicted, colour] of [["#split-old", m.old, "#0050ff"], ["#split-new", m.new, "#00b000"]]) {
     const canvas = $(id);
-    drawMarks(canvas, img, m, predicted, colour, found);
-    canvas.dataset.frame = index;
+    drawMarks(canvas, split.img, m, predicted, colour, found);
+    canvas.dataset.frame = m.index;
     canvas.dataset.status = found ? "measured" : "not found";
   }
+  $("#zoom-level").textContent = `zoom ${split.zoom.toFixed(split.zoom < 10 ? 1 : 0)}x`;
+}
+
+// Image px -> canvas (CSS px) transform: the image fitted to the canvas, times the zoom, about (cx, cy).
+function splitTransform(canvas, m) {
+  const w = m.width || 640;
+  const h = m.height || 480;
+  const s = Math.min(canvas.clientWidth / w, canvas.clientHeight / h) * split.zoom;
+  return { s, x0: canvas.clientWidth / 2 - split.cx * s, y0: canvas.clientHeight / 2 - split.cy * s, w, h };
 }
 
 // Points are [u, v] px or null (not measured; a prediction behind the camera): nulls are not drawn.
 function drawMarks(canvas, img, m, predicted, colour, found) {
+  const dpr = window.devicePixelRatio || 1;
+  const cw = canvas.clientWidth;
+  const ch = canvas.clientHeight;
+  if (canvas.width !== Math.round(cw * dpr) || canvas.height !== Math.round(ch * dpr)) {
+    canvas.width = Math.round(cw * dpr);
+    canvas.height = Math.round(ch * dpr);
+  }
   const ctx = canvas.getContext("2d");
-  const w = m.width || 640;
-  const h = m.height || 480;
-  const s = Math.min(canvas.width / w, canvas.height / h);
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
   ctx.fillStyle = "#222";
-  ctx.fillRect(0, 0, canvas.width, canvas.height);
-  if (img) ctx.drawImage(img, 0, 0, w * s, h * s);
-  const dot = (p, c, r) => {
-    ctx.beginPath();
-    ctx.arc(p[0] * s, p[1] * s, r, 0, 2 * Math.PI);
-    ctx.fillStyle = c;
-    ctx.fill();
-  };
+  ctx.fillRect(0, 0, cw, ch);
+  const { s, x0, y0, w, h } = splitTransform(canvas, m);
+  const at = (p) => [x0 + p[0] * s, y0 + p[1] * s];
+  ctx.imageSmoothingEnabled = split.zoom < 4;  // zoomed in: the pixels as they are
+  if (img) ctx.drawImage(img, x0, y0, w * s, h * s);
+  else {
+    ctx.strokeStyle = "#555";
+    ctx.strokeRect(x0, y0, w * s, h * s);
+  }
   const measured = m.measured || [];
+  const mag = +$("#magnify").value || 1;
   if (predicted) {
     ctx.strokeStyle = colour;
-    ctx.lineWidth = 1;
+    ctx.lineWidth = 1.5;
     predicted.forEach((p, i) => {
-      if (!p || !measured[i]) return;
+      const q = measured[i];
+      if (!p || !q) return;
+      const [mx, my] = at(q);
       ctx.beginPath();
-      ctx.moveTo(p[0] * s, p[1] * s);
-      ctx.lineTo(measured[i][0] * s, measured[i][1] * s);
+      ctx.moveTo(mx, my);
+      ctx.lineTo(mx + (p[0] - q[0]) * mag * s, my + (p[1] - q[1]) * mag * s);
       ctx.stroke();
     });
-    for (const p of predicted) if (p) dot(p, colour, 3);
+    ctx.fillStyle = colour;
+    for (const p of predicted) {
+      if (!p) continue;
+      const [x, y] = at(p);
+      ctx.beginPath();
+      ctx.arc(x, y, 2.5, 0, 2 * Math.PI);
+      ctx.fill();
+    }
   }
-  for (const p of measured) if (p) dot(p, "#ff0000", 3);
-  ctx.fillStyle = "#ccc";
-  if (!predicted) ctx.fillText("no calibration on this side", 8, 16);
-  if (!found) ctx.fillText("not found: the detector found no fixture in this frame", 8, predicted ? 16 : 32);
+  ctx.strokeStyle = "#ff2020";
+  ctx.lineWidth = 2;
+  for (const p of measured) {
+    if (!p) continue;
+    const [x, y] = at(p);
+    ctx.beginPath();
+    ctx.arc(x, y, 6, 0, 2 * Math.PI);
+    ctx.stroke();
+  }
+  if ($("#indices").checked && spaced(measured, s)) {
+    ctx.font = "10px sans-serif";
+    ctx.lineWidth = 3;
+    ctx.strokeStyle = "rgba(0,0,0,0.8)";
+    ctx.fillStyle = "#fff";
+    measured.forEach((p, i) => {
+      if (!p) return;
+      const [x, y] = at(p);
+      ctx.strokeText(String(i), x + 6, y - 6);
+      ctx.fillText(String(i), x + 6, y - 6);
+    });
+  }
+  ctx.font = "12px sans-serif";
+  ctx.fillStyle = "#eee";
+  const notes = [];
+  if (!predicted) notes.push("no calibration on this side");
+  if (!found) notes.push("not found: the detector found no fixture in this frame");
+  notes.forEach((t, k) => ctx.fillText(t, 8, 16 + 16 * k));
+  if (mag > 1 && predicted) {
+    ctx.fillStyle = "#ffd24a";
+    ctx.font = "bold 13px sans-serif";
+    const label = `residuals x${mag}`;
+    ctx.fillText(label, cw - ctx.measureText(label).width - 8, 18);
+  }
+}
+
+// Point numbers only where they do not cover each other: the closest two measurements at least 14 px apart.
+function spaced(points, s) {
+  const ps = points.filter((p) => p);
+  if (ps.length < 2) return ps.length === 1;
+  let closest = Infinity;
+  for (let i = 0; i < ps.length; i++) {
+    for (let j = i + 1; j < ps.length; j++) closest = Math.min(closest, Math.hypot(ps[i][0] - ps[j][0], ps[i][1] - ps[j][1]));
+  }
+  return closest * s >= 14;
+}
+
+function zoomSplit(factor, canvas = $("#split-old"), cssX = null, cssY = null) {
+  const m = split.marks;
+  if (!m) return;
+  const before = splitTransform(canvas, m);
+  const x = cssX ?? canvas.clientWidth / 2;
+  const y = cssY ?? canvas.clientHeight / 2;
+  const u = (x - before.x0) / before.s;  // the image point under the cursor stays there
+  const v = (y - before.y0) / before.s;
+  split.zoom = Math.min(Math.max(split.zoom * factor, 1), 64);
+  const after = splitTransform(canvas, m);
+  split.cx += (u - (x - after.x0) / after.s);
+  split.cy += (v - (y - after.y0) / after.s);
+  redrawSplit();
+}
+
+function wireSplit() {
+  $("#zoom-in").addEventListener("click", () => zoomSplit(2));
+  $("#zoom-out").addEventListener("click", () => zoomSplit(0.5));
+  $("#zoom-fit").addEventListener("click", () => {
+    if (split.marks) fitSplit(split.marks);
+    redrawSplit();
+  });
+  $("#magnify").addEventListener("change", redrawSplit);
+  $("#indices").addEventListener("change", redrawSplit);
+  for (const canvas of [$("#split-old"), $("#split-new")]) {
+    canvas.addEventListener("wheel", (e) => {
+      e.preventDefault();
+      const r = canvas.getBoundingClientRect();
+      zoomSplit(e.deltaY < 0 ? 1.25 : 0.8, canvas, e.clientX - r.left, e.clientY - r.top);
+    }, { passive: false });
+    canvas.addEventListener("pointerdown", (e) => {
+      split.drag = { x: e.clientX, y: e.clientY };
+      canvas.setPointerCapture(e.pointerId);
+    });
+    canvas.addEventListener("pointermove", (e) => {
+      if (!split.drag || !split.marks) return;
+      const { s } = splitTransform(canvas, split.marks);
+      split.cx -= (e.clientX - split.drag.x) / s;
+      split.cy -= (e.clientY - split.drag.y) / s;
+      split.drag = { x: e.clientX, y: e.clientY };
+      redrawSplit();
+    });
+    canvas.addEventListener("pointerup", () => (split.drag = null));
+  }
+  window.addEventListener("resize", redrawSplit);
 }
 
 function renderSummary() {
   const s = state.review.summary;
   const u = s.unit;
-  const cols = [["old", "old"], ["new", "new"], ["heldout_old", "held-out old"], ["heldout_new", "held-out new"]]
+  const cols = [["old", "old calibration"], ["new", "new calibration"], ["heldout_old", "held-out, old"],
+    ["heldout_new", "held-out, new"]]
     .filter(([k]) => s[k]);
   const t = $("#summary");
   t.replaceChildren(el("tr", {}, el("th", {}, `error (${u})`), ...cols.map(([, l]) => el("th", {}, l))));
@@ -612,13 +790,66 @@ async function renderParameters() {
   if (cal.outliers.length) {
     w.append(el("p", {}, `Outliers left out: ${cal.outliers.map((o) => `frame ${o.frame} (${fmt(o.error, 2)} ${o.unit})`).join(", ")}`));
   }
-  t.append(el("tr", {}, ...["parameter", "old", "new", "change", "std", "unit"].map((h) => el("th", {}, h))));
+  // "start": where the solver started (the nominal model or the calibration it was based on), not the review's
+  // old calibration.
+  t.append(el("tr", {}, ...[["parameter", ""], ["start", "the value the calibration started from"],
+    ["calibrated", "the value it found"], ["change", "calibrated − start"], ["std", ""], ["unit", ""]]
+    .map(([h, title]) => el("th", { title }, h))));
   for (const p of cal.parameters) {
     if (!p.estimated && Math.abs(p.value - p.base) < 1e-12) continue;
     t.append(el("tr", { class: p.estimated ? "" : "fixed", title: p.note || "" },
       el("td", {}, p.label), el("td", {}, fmt(p.base, 4)), el("td", {}, fmt(p.value, 4)),
       el("td", {}, fmt(p.value - p.base, 4)), el("td", {}, p.std === null ? "held" : fmt(p.std, 4)), el("td", {}, p.unit)));
   }
+}
+
+// Round tick values covering [lo, hi]: about n of them, steps of 1, 2 or 5 times a power of ten.
+function ticks(lo, hi, n = 4) {
+  if (!(hi > lo)) return [lo];
+  const raw = (hi - lo) / n;
+  const p = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 5, 10].map((k) => k * p).find((k) => k >= raw);
+  const out = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9 * step; v += step) out.push(+v.toPrecision(12));
+  return out;
+}
+
+// Axes of a chart in the box (left, top) .. (right, bottom): tick values and a label on each axis.
+function axes(ctx, box, xt, yt, xLabel, yLabel) {
+  const { left, top, right, bottom, x, y } = box;
+  ctx.strokeStyle = "#888";
+  ctx.fillStyle = "#444";
+  ctx.lineWidth = 1;
+  ctx.font = "10px sans-serif";
+  ctx.beginPath();
+  ctx.moveTo(left, top);
+  ctx.lineTo(left, bottom);
+  ctx.lineTo(right, bottom);
+  ctx.stroke();
+  ctx.textAlign = "center";
+  for (const [v, text] of xt) {
+    ctx.beginPath();
+    ctx.moveTo(x(v), bottom);
+    ctx.lineTo(x(v), bottom + 3);
+    ctx.stroke();
+    ctx.fillText(text, x(v), bottom + 13);
+  }
+  ctx.fillText(xLabel, (left + right) / 2, bottom + 25);
+  ctx.textAlign = "right";
+  for (const [v, text] of yt) {
+    ctx.beginPath();
+    ctx.moveTo(left - 3, y(v));
+    ctx.lineTo(left, y(v));
+    ctx.stroke();
+    ctx.fillText(text, left - 5, y(v) + 3);
+  }
+  ctx.save();
+  ctx.translate(10, (top + bottom) / 2);
+  ctx.rotate(-Math.PI / 2);
+  ctx.textAlign = "center";
+  ctx.fillText(yLabel, 0, 0);
+  ctx.restore();
+  ctx.textAlign = "left";
 }
 
 function drawHistogram(canvas, hist) {
@@ -628,38 +859,43 @@ function drawHistogram(canvas, hist) {
   const n = hist.edges.length - 1;
   const series = [["old", "#0050ff"], ["new", "#00b000"]].filter(([k]) => hist[k]);
   const top = Math.max(1, ...series.flatMap(([k]) => hist[k]));
-  const bw = (canvas.width - 20) / n;
+  const lo = hist.edges[0];
+  const hi = hist.edges[n];
+  const box = { left: 46, top: 8, right: canvas.width - 10, bottom: canvas.height - 30 };
+  box.x = (v) => box.left + ((v - lo) / (hi - lo)) * (box.right - box.left);
+  box.y = (v) => box.bottom - (v / top) * (box.bottom - box.top);
+  const bw = (box.right - box.left) / n;
   series.forEach(([k, c], si) => {
     ctx.fillStyle = c;
     hist[k].forEach((v, i) => {
-      const bh = (v / top) * (canvas.height - 20);
-      ctx.fillRect(10 + i * bw + (si * bw) / series.length, canvas.height - 12 - bh, bw / series.length - 1, bh);
+      const bh = box.bottom - box.y(v);
+      ctx.fillRect(box.left + i * bw + (si * bw) / series.length, box.bottom - bh, bw / series.length - 1, bh);
     });
   });
-  ctx.fillStyle = "#444";
-  ctx.font = "10px sans-serif";
-  ctx.fillText(`${fmt(hist.edges[0], 2)}`, 4, canvas.height - 1);
-  ctx.fillText(`${fmt(hist.edges[n], 2)} ${unit()}`, canvas.width - 60, canvas.height - 1);
+  const yt = ticks(0, top, 3).filter((v) => Number.isInteger(v)).map((v) => [v, String(v)]);
+  axes(ctx, box, ticks(lo, hi, 5).map((v) => [v, fmt(v, 2)]), yt, `error (${unit()})`, "observations");
 }
 
+// The solver's cost per iteration, on a log scale.
 function drawCurve(canvas, ys) {
   const ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   if (ys.length < 1) return;
   const ls = ys.map((y) => Math.log10(Math.max(y, 1e-300)));
-  const lo = Math.min(...ls);
-  const hi = Math.max(...ls);
-  ctx.strokeStyle = "#333";
+  const lo = Math.floor(Math.min(...ls));
+  const hi = Math.max(Math.ceil(Math.max(...ls)), lo + 1);
+  const last = Math.max(1, ls.length - 1);
+  const box = { left: 46, top: 8, right: canvas.width - 10, bottom: canvas.height - 30 };
+  box.x = (i) => box.left + (i / last) * (box.right - box.left);
+  box.y = (l) => box.bottom - ((l - lo) / (hi - lo)) * (box.bottom - box.top);
+  ctx.strokeStyle = "#1d5bd8";
+  ctx.lineWidth = 1.5;
   ctx.beginPath();
-  ls.forEach((l, i) => {
-    const x = 10 + (i / Math.max(1, ls.length - 1)) * (canvas.width - 20);
-    const y = 10 + (hi === lo ? 0.5 : (hi - l) / (hi - lo)) * (canvas.height - 20);
-    if (i) ctx.lineTo(x, y);
-    else ctx.moveTo(x, y);
-  });
+  ls.forEach((l, i) => (i ? ctx.lineTo(box.x(i), box.y(l)) : ctx.moveTo(box.x(i), box.y(l))));
   ctx.stroke();
-  ctx.fillStyle = "#444";
-  ctx.fillText("log cost", 12, 12);
+  const xt = ticks(0, last, 4).filter((v) => Number.isInteger(v)).map((v) => [v, String(v)]);
+  const yt = ticks(lo, hi, 3).filter((v) => Number.isInteger(v)).map((v) => [v, `1e${v}`]);
+  axes(ctx, box, xt, yt, "iteration", "cost");
 }
 
 // --- apply -----------------------------------------------------------------------------------
@@ -702,17 +938,29 @@ async function applied(r) {
   toast(r.recorded ? "Applied to the robot." : "Already the active calibration: sent to the robot again.", "info");
 }
 
+// The header and the Apply panel both say which calibration the robot runs; the history says for each apply
+// when, which mode, and the mean error before and after (held out too) on the calibration's own session.
 async function refreshActive() {
   const a = await api("GET", `/robot/calibration?robot=${state.robot}`);
-  $("#active-cal").textContent = a.id ? `${a.id} (${a.mode})` : "nominal model";
+  const active = a.id ? `${a.id} (${a.mode})` : "nominal model";
+  $("#active-cal").textContent = active;
   $("#active-cal").dataset.id = a.id || "";
+  $("#apply-active").textContent = active;
+  $("#apply-active").dataset.id = a.id || "";
   const t = $("#history");
-  t.replaceChildren(el("tr", {}, ...["applied", "calibration", "mode", "session", "after", ""].map((h) => el("th", {}, h))));
-  for (const h of await api("GET", `/robot/history?robot=${state.robot}`)) {
-    t.append(el("tr", {}, el("td", {}, h.time.replace("T", " ").slice(0, 19)), el("td", {}, h.calibration),
-      el("td", {}, h.mode || ""), el("td", {}, h.session || ""),
-      el("td", {}, h.figures && h.figures.after ? fmt(h.figures.after.mean) : ""),
-      el("td", {}, el("button", { onclick: () => act(async () => {
+  t.replaceChildren(el("tr", {}, ...["applied", "calibration and its mean error", ""].map((h) => el("th", {}, h))));
+  const history = await api("GET", `/robot/history?robot=${state.robot}`);
+  for (const [k, h] of history.entries()) {
+    const f = h.figures || {};
+    const u = (f.after && f.after.unit) || "";
+    const errors = [f.before && `before ${fmt(f.before.mean)}`, f.after && `after ${fmt(f.after.mean)}`,
+      f.holdout_after && `held out ${fmt(f.holdout_after.mean)}`].filter(Boolean).join(" → ");
+    const current = k === 0 && h.calibration === a.id;  // the newest apply: what the robot runs
+    t.append(el("tr", { "data-calibration": h.calibration, title: h.note || "" },
+      el("td", {}, h.time.replace("T", " ").slice(0, 16)),
+      el("td", {}, el("b", {}, h.mode || "—"), ` ${errors}${u ? ` ${u}` : ""}`, el("br", {}),
+        el("small", {}, `${h.calibration}${h.session ? ` · ${h.session}` : ""}`)),
+      el("td", {}, current ? el("small", {}, "active") : el("button", { class: "small", onclick: () => act(async () => {
         const r = await applyCalibration(h.calibration, "re-applied from history");
         if (r) await applied(r);
       }) }, "re-apply"))));

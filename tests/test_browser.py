@@ -32,13 +32,27 @@ def shot(page, name: str) -> None:
         page.screenshot(path=str(Path(SHOTS) / f"{name}.png"))
 
 
+# A pixel of a split-view canvas (CSS px from its top-left): [r, g, b].
+PIXEL = (
+    "([id, x, y]) => { const c = document.querySelector(id); const k = c.width / c.clientWidth;"
+    " const d = c.getContext('2d').getImageData(Math.round(x * k), Math.round(y * k), 1, 1).data;"
+    " return Array.from(d.slice(0, 3)); }"
+)
+
+
 def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
+    """The operator's path: calibrate, review, apply. The review reads at a glance: rings for measurements with
+    the new calibration's green dot visible inside them (3-D and 2-D), new-minus-old per frame with better/worse,
+    stepping in the list's order, a scene that keeps its size while the rest loads, a zoomable 2-D view, distinct
+    words for the solver's start and the old calibration; after the apply the panel and the header agree and the
+    history says what the apply was."""
     with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
         browser = launch(pw)
         page = browser.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
         wait_for_scene(page)
+        scene_height = page.eval_on_selector("#scene-wrap", "e => e.getBoundingClientRect().height")
 
         # The page opens on step 1; a replay offers the connected robot's own sessions only, newest first.
         assert page.is_visible("#tab-observe") and not page.is_visible("#tab-calibrate")
@@ -68,29 +82,76 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         held = page.text_content("#summary tr[data-figure='mean'] td[data-col='heldout_new']")
         assert float(held) < 0.3 * old
 
-        # Scrub to another frame: the label, the slider and the scene follow.
-        first_label = page.text_content("#frame-label")
-        page.click("#step-fwd")
-        page.wait_for_function(f"document.querySelector('#frame-label').textContent !== {first_label!r}")
-        page.wait_for_function("document.querySelector('#scene-ms').textContent.includes('ms')")
-        page.locator("#all-frames").check()
-        page.wait_for_timeout(1500)
+        # The scene kept its size while the warnings and the table loaded below it; no timings for operators.
+        page.wait_for_selector("#warnings p", state="attached")
+        assert page.eval_on_selector("#scene-wrap", "e => e.getBoundingClientRect().height") == scene_height
+        assert page.text_content("#scene-ms") == ""  # timings only with ?debug
+        headers = page.eval_on_selector_all("#parameters th", "hs => hs.map(h => h.textContent)")
+        assert headers[1:3] == ["start", "calibrated"], headers
 
-        # The 3-D view really draws the papers' colours.
+        # Per frame: new minus old, better or worse, in the list and in the frame's summary.
+        rows = page.eval_on_selector_all(
+            "#frames tr[data-frame]", "rs => rs.map(r => [+r.dataset.frame, r.lastChild.dataset.verdict])"
+        )
+        assert sum(v == "better" for _, v in rows) > 0.8 * len(rows), rows
+        first = rows[0][0]
+        page.wait_for_function(f"document.querySelector('#frame-summary').dataset.frame === '{first}'")
+        assert "(better)" in page.text_content("#frame-summary")
+
+        # Stepping follows the list's order (worst first), whatever the frame numbers; sorted again, the new order.
+        page.click("#step-fwd")
+        page.wait_for_function(f"document.querySelector('#split-new').dataset.frame === '{rows[1][0]}'")
+        page.click("#frames th[data-sort='index']")  # frame number, descending
+        ordered = page.eval_on_selector_all("#frames tr[data-frame]", "rs => rs.map(r => +r.dataset.frame)")
+        page.click("#step-fwd")
+        after = ordered[ordered.index(rows[1][0]) + 1]
+        page.wait_for_function(f"document.querySelector('#split-new').dataset.frame === '{after}'")
+
+        # 2-D: the measured sphere is a hollow red ring with the prediction's dot showing, not a red disc on top.
+        page.click(f"#frames tr[data-frame='{first}']")
+        page.wait_for_function(f"document.querySelector('#split-new').dataset.frame === '{first}'")
+        new_id = page.text_content("#apply-what").strip()
+        server.post("/api/review", json={"session": "robonaut-a-day1", "new": new_id})  # the default viewer's
+        marks = server.get(f"/api/review/marks/{first}").json()
+        width, height = page.eval_on_selector("#split-new", "c => [c.clientWidth, c.clientHeight]")
+        s = min(width / marks["width"], height / marks["height"])
+
+        def at(p: list[float], dx: float = 0.0) -> list:
+            return [
+                "#split-new",
+                width / 2 + (p[0] - marks["width"] / 2) * s + dx,
+                height / 2 + (p[1] - marks["height"] / 2) * s,
+            ]
+
+        ring = page.evaluate(PIXEL, at(marks["measured"][0], 6))
+        dot = page.evaluate(PIXEL, at(marks["new"][0]))
+        assert ring[0] > 150 and ring[0] > ring[1] + 80, ring  # anti-aliased red
+        assert dot[1] > 140 and dot[0] < 80, dot  # green, not covered by the red measurement
+
+        # 2-D zoom and magnified residuals.
+        page.hover("#split-new")
+        page.mouse.wheel(0, -300)
+        page.wait_for_function("document.querySelector('#zoom-level').textContent !== 'zoom 1.0x'")
+        page.select_option("#magnify", "10")
+
+        # 3-D: the paper's colours, the new calibration's green dot visible in the one-frame view.
+        page.wait_for_timeout(1500)
         png = page.locator("#scene").screenshot()
         for name, rgb in PAPER_COLOURS.items():
             assert colour_pixels(png, rgb) > 20, f"no {name} marks in the 3-D view"
         shot(page, "4-review")
 
-        # Apply: the robot's active calibration changes to the new one, here and on the server.
+        # Apply: the robot's active calibration changes to the new one, here, in the Apply panel and on the server.
         page.click("#tabs button[data-tab='apply']")
-        new_id = page.text_content("#apply-what").strip()
         assert re.fullmatch(r"c-[0-9a-f]{8}", new_id), new_id
         page.click("#apply")
         page.wait_for_function(f"document.querySelector('#active-cal').dataset.id === {new_id!r}")
+        page.wait_for_function(f"document.querySelector('#apply-active').dataset.id === {new_id!r}")
         assert new_id != before_active
         assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == new_id
-        page.wait_for_selector("#history tr td", state="attached")
+        page.wait_for_selector(f"#history tr[data-calibration='{new_id}']", state="attached")
+        history = page.text_content(f"#history tr[data-calibration='{new_id}']")
+        assert "full" in history and "before" in history and "after" in history, history
         shot(page, "5-apply")
         browser.close()
 
@@ -270,7 +331,7 @@ def _in_client(page, prefix: str) -> bool:
 
 def _shown_box(scene: ReviewScene) -> np.ndarray:
     """The world box of the copies the scene shows: the robot's frame origins at the nominal model and zero
-    joint angles, turned upright and placed where each copy's root is."""
+    joint angles, turned upright and placed where each copy's root is, and their labels (kept on-screen)."""
     state = scene.state()
     profile = load_profile(state["robot"])
     zero = np.zeros((1, len(profile.joints)))
@@ -278,7 +339,8 @@ def _shown_box(scene: ReviewScene) -> np.ndarray:
     corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     corners = corners @ display_rotation(profile).T
     roots = [r for r in ("/review/old", "/review/new", "/live") if r in state["nodes"] and state["nodes"][r]["shown"]]
-    points = np.concatenate([corners + state["nodes"][r]["position"] for r in roots])
+    labels = [np.add(state["nodes"][f"{r}/label"]["position"], state["nodes"][r]["position"])[None] for r in roots]
+    points = np.concatenate([corners + state["nodes"][r]["position"] for r in roots] + labels)
     return np.stack([points.min(axis=0), points.max(axis=0)])
 
 
@@ -306,6 +368,38 @@ def _fits(report: tuple, box: np.ndarray) -> bool:
     just_fits = radius / np.sin(min(fov, horizontal) / 2)
     distance = np.linalg.norm(np.asarray(position) - look_at)
     return bool(np.allclose(look_at, box.mean(axis=0), atol=1e-4) and just_fits <= distance <= 1.5 * just_fits)
+
+
+def _marks_and_labels(scene: ReviewScene) -> np.ndarray:
+    """(N, 3) world points: the selected frame's marks on both copies and the copies' labels."""
+    state = scene.state()
+    R = display_rotation(load_profile(state["robot"]))
+    out = []
+    for side in ("old", "new"):
+        root = np.asarray(state["nodes"][f"/review/{side}"]["position"])
+        group = f"/review/{side}/base/frame"
+        lift = np.asarray(state["nodes"][group]["position"])
+        for part in ("measured", "predicted"):
+            out.append((np.asarray(state["nodes"][f"{group}/{part}"]["points"]) + lift) @ R.T + root)
+        out.append((np.asarray(state["nodes"][f"/review/{side}/label"]["position"]) + root)[None])
+    return np.concatenate(out)
+
+
+def _aimed(reports: list, since: float, points: np.ndarray, timeout_s: float = 30.0) -> tuple:
+    """Wait until a browser reports, after `since`, a camera that has every point inside its field of view."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        latest = {r[1]: r for r in reports if r[0] > since}
+        for r in latest.values():
+            _, _, look_at, position, fov, width, height = r
+            axis = (look_at - position) / np.linalg.norm(look_at - position)
+            rays = (points - position) / np.linalg.norm(points - position, axis=1)[:, None]
+            half = min(fov, 2 * np.arctan(np.tan(fov / 2) * width / height)) / 2
+            if np.all(np.arccos(np.clip(rays @ axis, -1, 1)) < half):
+                return r
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no browser camera shows the selected frame's marks: {latest}")
+        time.sleep(0.1)
 
 
 def _distance(report: tuple) -> float:
@@ -346,6 +440,12 @@ def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
             page.wait_for_function(HOLDS, arg=f"{robonaut['old']}/visual/", timeout=60_000)
             assert _in_client(page, f"{robonaut['old']}/visual/shoulder_roll/")  # the arm with its sphere
             robonaut_distance = _distance(_framed(reports, 0.0, _shown_box(scene)))
+
+            # Selecting a frame turns the camera onto its marks and labels, closer than the whole robots.
+            since = time.time()
+            scene.select(3)
+            aimed = _aimed(reports, since, _marks_and_labels(scene))
+            assert _distance(aimed) < 0.8 * robonaut_distance
 
             since = time.time()
             scene.load(build("nao", 3, new=False))

@@ -54,7 +54,7 @@ def robonaut() -> Review:
 
 def _points(state: dict, name: str) -> np.ndarray:
     node = state["nodes"][name]
-    return np.array(node["points"] if node["kind"] == "points" else node["segments"])
+    return np.array(node["points"] if "points" in node else node["segments"])
 
 
 def test_select_shows_the_frame_on_both_copies(server: viser.ViserServer, robonaut: Review) -> None:
@@ -240,6 +240,6 @@ def test_switching_robots_removes_everything_the_previous_one_showed(
         assert set(c["joints"]) == set(nao.profile.joint_names)
         assert all(server.scene.get_handle_by_name(n) is not None for n in _link_nodes(nao.urdf["old"], c["node"]))
     # Robonaut's detection and points went with it: the only points shown are NAO's frame on the old side.
-    shown = {n for n, v in state["nodes"].items() if v["kind"] in ("points", "lines") and v["shown"]}
+    shown = {n for n, v in state["nodes"].items() if v["kind"] in ("points", "lines", "rings") and v["shown"]}
     assert shown == {f"/review/old/base/frame/{part}" for part in ("measured", "predicted", "lines")}
     assert len(_points(state, "/review/old/base/frame/measured")) == 24

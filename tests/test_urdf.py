@@ -6,6 +6,7 @@ yourdfpy is an independent URDF reader, so agreement checks the op folding, the 
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ import pytest
 import yaml
 import yourdfpy
 
-from calib_core.io.urdf_export import to_urdf, write_urdf
+from calib_core.io.urdf_export import JOINT_SPHERE, to_urdf, write_urdf
 from calib_core.model.kinematics import forward
 from calib_core.model.loader import BUILTIN_PROFILES, load_profile
 from calib_core.model.profile import Profile
@@ -89,3 +90,33 @@ def test_standard_dh_frames_get_an_intermediate_link(tmp_path: Path) -> None:
     urdf = _load(path)
     assert "wrist_pitch__wrist_pitch" in urdf.link_map
     _assert_matches_forward(profile, urdf, p)
+
+
+@pytest.mark.parametrize("name", ["robonaut-a", "nao", "motoman"])
+def test_display_bodies_keep_the_kinematics_and_look_like_a_robot(name: str) -> None:
+    """bodies=True (the desk's 3-D view) changes what is drawn, never where: the same joints and origins; limbs
+    thicker than the export's wire in proportion to the robot, a torso box on the base, a head on each sensor the
+    robot carries, and no limb to an external device (the Motoman's laser tracker)."""
+    profile = load_profile(name)
+    plain = yourdfpy.URDF.load(_stream(to_urdf(profile)), build_scene_graph=False, load_meshes=False)
+    body = yourdfpy.URDF.load(_stream(to_urdf(profile, bodies=True)), build_scene_graph=True, load_meshes=False)
+    _assert_matches_forward(profile, body, profile.nominal())
+    assert {j: tuple(plain.joint_map[j].origin.ravel()) for j in plain.joint_map} == {
+        j: tuple(body.joint_map[j].origin.ravel()) for j in body.joint_map
+    }
+    limbs = [v.geometry.cylinder.radius for link in body.link_map.values() for v in link.visuals if v.geometry.cylinder]
+    assert max(limbs) > 0.005 and max(limbs) <= 0.06
+    base_boxes = [v for v in body.link_map[profile.base].visuals if v.geometry.box is not None]
+    assert base_boxes and np.prod(base_boxes[0].geometry.box.size) > 1e-4  # a torso, not a speck
+    on_robot = {profile.frames[s.frame].name for s in profile.sensors if not profile.frames[s.frame].registration}
+    for frame in on_robot:
+        spheres = [v.geometry.sphere.radius for v in body.link_map[frame].visuals if v.geometry.sphere]
+        assert max(spheres) > 2 * max(limbs), (frame, spheres)
+    for frame in (f.name for f in profile.frames if f.registration):  # the tracker stays a small marker
+        assert all(
+            v.geometry.sphere is None or v.geometry.sphere.radius <= JOINT_SPHERE for v in body.link_map[frame].visuals
+        )
+
+
+def _stream(text: str) -> io.StringIO:
+    return io.StringIO(text)
