@@ -139,8 +139,10 @@ async def add_robot(
             raise InputError("give the profile either as a file (profile_file) or by name (profile), not both")
         urdf = None
         if urdf_file is not None:
-            urdf = (file_name(urdf_file.filename, "robot.urdf"), await read_upload(urdf_file))
-        files = ProfileFiles(file_name(profile_file.filename, "profile.yaml"), await read_upload(profile_file), urdf)
+            urdf = (file_name(urdf_file.filename, "robot.urdf"), await read_upload(desk, urdf_file))
+        files = ProfileFiles(
+            file_name(profile_file.filename, "profile.yaml"), await read_upload(desk, profile_file), urdf
+        )
     elif urdf_file is not None:
         raise InputError("a URDF goes with its profile: upload the profile (profile_file) too")
     elif profile and not is_builtin(profile) and not desk.loopback:
