@@ -33,7 +33,17 @@ from .safety import ConfirmationRequired
 from .store import StoreWriteError
 from .viewers import TooManyViewers
 
-STATIC_DIR = Path(str(resources.files("app.static")))  # package data, in a wheel as in a checkout
+
+def _static_dir() -> Path:
+    """The page: package data, in a wheel as in a checkout; a checkout run through PYTHONPATH (a git worktree
+    beside an editable install of another) serves its own static/, not the installed checkout's."""
+    checkout = Path(__file__).resolve().parent.parent
+    if (checkout / "pyproject.toml").is_file() and (checkout / "static" / "index.html").is_file():
+        return checkout / "static"
+    return Path(str(resources.files("app.static")))
+
+
+STATIC_DIR = _static_dir()
 SHUTDOWN_WAIT_S = 3
 log = logging.getLogger("calib.server")
 

@@ -719,14 +719,46 @@ async function refreshActive() {
 }
 
 // --- observe and replay ----------------------------------------------------------------------
+// The joint sliders show the configuration the operator asks for, within the joint limits less the driver's
+// safety margin (the server refuses a move closer to a limit). Moving one sends the whole configuration the
+// sliders show: a joint still on its way keeps its target, not the reading it had when another slider moved.
 function buildJoints() {
   const t = $("#joints");
   t.replaceChildren();
-  for (const j of state.robots[state.robot].joints) {
-    const slider = el("input", { type: "range", min: j.lower_deg, max: j.upper_deg, step: 0.1, "data-joint": j.name });
-    slider.disabled = !state.robots[state.robot].drivable;
-    slider.addEventListener("change", () => act(() => api("POST", "/robot/move", { joints: { [j.name]: +slider.value } })));
+  const robot = state.robots[state.robot];
+  state.driving = null;
+  for (const j of robot.joints) {
+    const revolute = j.lower_deg !== null;
+    const m = revolute ? Math.min(robot.margin_deg || 0, (j.upper_deg - j.lower_deg) / 2) : 0;
+    const slider = el("input", { type: "range", min: j.lower_deg + m, max: j.upper_deg - m, step: 0.1, "data-joint": j.name });
+    slider.disabled = !robot.drivable || !revolute;
+    slider.addEventListener("change", moveToSliders);
     t.append(el("tr", {}, el("td", {}, j.name), el("td", {}, slider), el("td", { "data-reading": j.name }, "—")));
+  }
+}
+
+const SLIDERS_FOLLOW_AFTER_MS = 300;  // a move's answer comes before its first "moving" state: wait that long
+
+async function moveToSliders() {
+  const joints = {};
+  for (const s of document.querySelectorAll("input[data-joint]")) if (!s.disabled) joints[s.dataset.joint] = +s.value;
+  state.driving = { since: Infinity };  // the sliders show the target, not the readings, until the robot stops
+  try {
+    await api("POST", "/robot/move", { joints });
+    state.driving = { since: performance.now() };
+  } catch (err) {
+    state.driving = null;
+    slidersToReadings(true);
+    toast(`Move refused: ${err.message}`);
+  }
+}
+
+// The sliders follow the robot's readings while the page is not driving it (a wander, a replay, another tab);
+// `all`: the slider in the operator's hand too.
+function slidersToReadings(all = false) {
+  for (const [name, deg] of Object.entries(state.readings || {})) {
+    const slider = document.querySelector(`input[data-joint="${name}"]`);
+    if (slider && deg !== null && (all || document.activeElement !== slider)) slider.value = deg;
   }
 }
 
@@ -739,12 +771,14 @@ function robotEvents() {
     if (r.robot !== state.robot) return;
     $("#robot-state").textContent = `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`;
     $("#robot-state").className = `pill ${r.moving ? "moving" : ""}`;
+    state.readings = r.joints;
     for (const [name, deg] of Object.entries(r.joints)) {
       const cell = document.querySelector(`[data-reading="${name}"]`);
       if (cell) cell.textContent = deg === null ? "—" : `${deg.toFixed(1)}°`;
-      const slider = document.querySelector(`input[data-joint="${name}"]`);
-      if (slider && document.activeElement !== slider && deg !== null) slider.value = deg;
     }
+    const d = state.driving;
+    if (d && !r.moving && performance.now() - d.since > SLIDERS_FOLLOW_AFTER_MS) state.driving = null;
+    if (!state.driving) slidersToReadings();
     const o = r.observing;
     $("#observe-state").textContent = o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "";
   };

@@ -373,3 +373,60 @@ def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
             browser.close()
     finally:
         server.stop()
+
+
+def test_joint_sliders_send_the_whole_configuration_within_the_margin_and_revert_on_a_refusal(
+    tmp_path: Path,
+) -> None:
+    """A second slider moved while the first joint still moves: both joints arrive (each slider sends the whole
+    configuration the sliders show, not the others' mid-motion readings); the sliders end at the limits less
+    the driver's margin; a refused move puts the sliders back to the robot's readings with the server's reason."""
+    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
+        browser = launch(pw)
+        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        robot = server.get("/api/robot").json()
+        info = {r["name"]: r for r in server.get("/api/robots").json()}[robot["robot"]]
+        margin = info["margin_deg"]
+        assert margin > 0
+        for j in info["joints"]:
+            lo, hi = (float(page.get_attribute(f"input[data-joint='{j['name']}']", a)) for a in ("min", "max"))
+            m = min(margin, (j["upper_deg"] - j["lower_deg"]) / 2)
+            assert (lo, hi) == pytest.approx((j["lower_deg"] + m, j["upper_deg"] - m)), j["name"]
+        page.wait_for_function("document.querySelector('#robot-state').textContent.endsWith('still')")
+        (a, b) = [j for j in info["joints"] if j["upper_deg"] - j["lower_deg"] > 60][:2]
+        start = server.get("/api/robot").json()["joints"]
+        goal = {}
+        for j in (a, b):  # 25 deg towards the farther limit: a second or so of motion
+            up = j["upper_deg"] - start[j["name"]] > start[j["name"]] - j["lower_deg"]
+            goal[j["name"]] = round(start[j["name"]] + (25.0 if up else -25.0), 1)
+        slide = "([s, v]) => { const e = document.querySelector(`input[data-joint='${s}']`); e.value = v;"
+        slide += " e.dispatchEvent(new Event('change')); }"
+        page.evaluate(slide, [a["name"], goal[a["name"]]])
+        page.wait_for_timeout(150)
+        page.evaluate(slide, [b["name"], goal[b["name"]]])
+        deadline = time.monotonic() + 20
+        while True:
+            state = server.get("/api/robot").json()
+            if not state["moving"] and all(abs(state["joints"][n] - g) < 0.3 for n, g in goal.items()):
+                break
+            assert time.monotonic() < deadline, (goal, state["joints"], state["moving"])
+            time.sleep(0.1)
+        page.wait_for_timeout(500)  # the sliders show the configuration reached
+        for n, g in goal.items():
+            assert float(page.input_value(f"input[data-joint='{n}']")) == pytest.approx(g, abs=0.3), n
+
+        # A move the server refuses: its reason is shown and the sliders go back to the readings.
+        reason = "shoulder_roll 88.0 deg is within the 2.0 deg safety margin of its upper limit (test)"
+        page.route(
+            "**/api/robot/move",
+            lambda route: route.fulfill(status=422, content_type="application/json", body=f'{{"detail": "{reason}"}}'),
+        )
+        page.evaluate(slide, [a["name"], goal[a["name"]] - 10])
+        page.wait_for_function("r => document.querySelector('#toast').textContent.includes(r)", arg=reason)
+        page.wait_for_function(
+            "([s, v]) => Math.abs(+document.querySelector(`input[data-joint='${s}']`).value - v) < 0.11",
+            arg=[a["name"], state["joints"][a["name"]]],
+        )
+        browser.close()

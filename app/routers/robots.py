@@ -68,6 +68,7 @@ class RobotOut(BaseModel):
     simulated: bool  # its driver is the simulated robot
     origin: str  # "builtin" (the desk's defaults), "config" (its configuration file), "api" (added here)
     joints: list[JointOut]
+    margin_deg: float | None = None  # its driver's safety margin: no move closer to a joint limit (None: no driver)
     modes: list[ModeOut]
     targets: list[str]
     sensor: SensorOut
@@ -102,6 +103,7 @@ def robot_out(robot: Robot) -> RobotOut:
         simulated=robot.simulated,
         origin=robot.origin,
         joints=[_joint_out(p, k) for k in range(len(p.joints))],
+        margin_deg=None if robot.driver is None else math.degrees(robot.driver.margin_rad),
         notes=list(p.notes),
         modes=[ModeOut(name=m.name, description=m.description) for m in p.modes.values()],
         targets=[t.name for t in p.targets],
