@@ -52,10 +52,15 @@ class ReplayService:
 
     def configurations(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
         """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
+        return self.planned(session_id, plan)[:3]
+
+    def planned(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray]:
+        """configurations(), and which of them were measured in the session they come from (bool; new
+        configurations: none), so that the dry run trusts their measurement over a prediction."""
         count = self._check(session_id, plan)
-        q, targets, indices = self._plan(session_id, plan, count)
+        q, targets, indices, seen = self._plan(session_id, plan, count)
         if not plan.resume:
-            return q, targets, indices
+            return q, targets, indices, seen
         have = np.array([f.joints_rad for f in self.store.sessions.frames(session_id)]).reshape(-1, q.shape[1])
         driver = self.robots.driver(self.store.sessions.get(session_id).robot)
         driven = np.array([_driven(driver, qk) for qk in q]).reshape(q.shape)  # where the replay took each
@@ -67,31 +72,31 @@ class ReplayService:
             raise InputError(
                 f"nothing to resume: session '{session_id}' has a frame at each of the {len(q)} configurations"
             )
-        return q[todo], targets[todo], None
+        return q[todo], targets[todo], None, seen[todo]
 
     def dry_run(self, session_id: str, plan: ReplayPlan) -> dict[str, Any]:
         robot = self.store.sessions.get(session_id).robot
-        q, targets, _ = self.configurations(session_id, plan)
+        q, targets, _, seen = self.planned(session_id, plan)
         _, believed = self.robots.active_params(robot)
-        rows = dry_run(self.robots.driver(robot), q, targets, believed)
+        rows = dry_run(self.robots.driver(robot), q, targets, believed, seen=seen)
         return {"ok": all(r["ok"] for r in rows), "configurations": rows}
 
     def start(self, session_id: str, plan: ReplayPlan) -> str:
         """Queue the replay job; its id."""
         driver = self.robots.driver(self.store.sessions.get(session_id).robot)
-        ready = self.configurations(session_id, plan) if plan.from_frames else None
+        ready = self.planned(session_id, plan) if plan.from_frames else None
         if ready is None:
             self._check(session_id, plan)
 
         def run(ctx: JobContext) -> str | None:
             if ready is None:
                 ctx.progress(0.0, phase="planning")
-                q, targets, indices = self.configurations(session_id, plan)
+                q, targets, indices, seen = self.planned(session_id, plan)
                 ctx.checkpoint()
                 ctx.progress(0.0, phase="driving")
             else:
-                q, targets, indices = ready
-            return replay(ctx, self.store, driver, session_id, q, targets, indices)
+                q, targets, indices, seen = ready
+            return replay(ctx, self.store, driver, session_id, q, targets, indices, seen=seen)
 
         return self.jobs.submit_thread("replay", run, session_id=session_id)
 
@@ -108,7 +113,9 @@ class ReplayService:
             raise InputError(f"give from_session, remeasure, or a count of configurations between 1 and {MAX_PLANNED}")
         return plan.count
 
-    def _plan(self, session_id: str, plan: ReplayPlan, count: int) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
+    def _plan(
+        self, session_id: str, plan: ReplayPlan, count: int
+    ) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray]:
         session = self.store.sessions.get(session_id)
         robot = self.robots.get(session.robot)
         if plan.from_frames:
@@ -120,7 +127,8 @@ class ReplayService:
                 raise InputError(f"session '{source.id}' has no frames to replay")
             q = np.array([f.joints_rad for f in frames])
             targets = np.array([f.target for f in frames])
-            return q, targets, [f.index for f in frames] if plan.remeasure else None
+            seen = np.array([f.status == "measured" for f in frames], dtype=bool)
+            return q, targets, [f.index for f in frames] if plan.remeasure else None, seen
         # Configurations the robot believes it sees the fixture in: planned with its active model. Twice
         # as many as asked, since those inside a joint's safety margin are left out.
         _, believed = self.robots.active_params(session.robot)
@@ -128,7 +136,7 @@ class ReplayService:
         q, targets = planner.configurations(2 * count + 10)
         driver = self.robots.driver(session.robot)
         keep = [k for k in range(len(q)) if _within_limits(driver, q[k])][:count]
-        return q[keep], targets[keep], None
+        return q[keep], targets[keep], None, np.zeros(len(keep), bool)
 
 
 def _within_limits(driver: RobotDriver, q_rad: np.ndarray) -> bool:
