@@ -471,6 +471,10 @@ let selecting = false;
 let pending = null;
 async function selectFrame(index) {
   if (index === undefined || index === null) return;
+  if (state.reviewStale) {  // frames captured since the review was loaded: the server's review is made anew
+    state.reviewStale = false;
+    await act(() => loadReview(...state.reviewAsked));
+  }
   state.frame = index;
   $("#frame-slider").value = state.frameOrder.indexOf(index);
   $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
@@ -780,6 +784,8 @@ function robotEvents() {
     if (d && !r.moving && performance.now() - d.since > SLIDERS_FOLLOW_AFTER_MS) state.driving = null;
     if (!state.driving) slidersToReadings();
     const o = r.observing;
+    if (o && state.session && o.session === state.session.id && o.captured > (state.autoCaptured || 0)) showNewFrames(o.session);
+    state.autoCaptured = o ? o.captured : 0;
     $("#observe-state").textContent = o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "";
   };
   es.onerror = () => {
@@ -825,16 +831,67 @@ async function replay(dry) {
   }
   state.replayJob = r.job;
   state.replaySeed = null;
+  const sid = state.session.id;
+  const watching = () => $("#observe-on").checked || $("#autocapture").checked;
+  // The 3-D robot follows the robot while the replay drives it (the live view), whether or not "Watch live" is on.
+  if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: true, autocapture: false }));
+  let done = 0;
   await follow(r.job, (j) => {
     $("#replay-progress").value = j.progress;
     replayControls(j);
     const d = j.detail || {};
+    if ((d.done || 0) > done) {
+      done = d.done;
+      showNewFrames(sid);
+    }
     const planning = j.state === "running" && d.phase === "planning" ? " · planning the configurations" : "";
     const shown = j.paused && j.state === "running" ? "paused" : j.state;
     $("#replay-state").textContent = `${shown}${j.error ? `: ${j.error}` : ""}${planning}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
   });
   replayControls(null);
+  if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: false }));
   await loadSessions(state.session.id);
+}
+
+// Frames captured while the page looks on (a replay, auto-capture) join the frame list at once: fetched with
+// the session, shown without errors (none computed yet) until the review is next loaded. Latest wins.
+let refreshing = null;
+async function showNewFrames(sid) {
+  if (refreshing) {
+    refreshing.again = true;
+    return;
+  }
+  refreshing = { again: false };
+  try {
+    do {
+      refreshing.again = false;
+      if (!state.session || state.session.id !== sid) return;
+      const s = await api("GET", `/sessions/${sid}`);
+      if (!state.session || state.session.id !== sid) return;
+      state.session = s;
+      const li = document.querySelector(`#sessions li[data-session="${sid}"] small`);
+      if (li) li.textContent = ` ${s.robot} · ${s.measured}/${s.frames.length} frames measured`;
+      if (!state.review || state.review.session !== sid) continue;
+      const rows = new Map(state.review.table.map((row) => [row.index, row]));
+      let changed = false;
+      for (const f of s.frames) {
+        const row = rows.get(f.index);
+        if (row && row.status === f.status) continue;
+        if (row) Object.assign(row, { status: f.status, err_old: null, err_new: null });
+        else state.review.table.push({ index: f.index, status: f.status, err_old: null, err_new: null, heldout: false });
+        changed = true;
+      }
+      if (!changed) continue;
+      state.reviewStale = true;  // the server's review lacks them: selecting one loads the review again
+      state.frameOrder = state.review.table.map((row) => row.index);
+      $("#frame-slider").max = Math.max(0, state.frameOrder.length - 1);
+      renderFrames();
+    } while (refreshing.again);
+  } catch (err) {
+    toast(err.message);
+  } finally {
+    refreshing = null;
+  }
 }
 
 init().catch((err) => toast(`The page could not start: ${err.message}`));

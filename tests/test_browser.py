@@ -228,9 +228,18 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('paused')")
         assert page.is_enabled("#replay-resume") and page.is_disabled("#replay-pause")
         page.click("#replay-resume")
+        # Watch live is off, yet the 3-D robot follows the replay; each frame joins the list as it is captured.
+        viewers = server.get("/api/viewers").json()
+        assert any(v["live"] for v in viewers if v["connected"]), viewers
+        page.wait_for_function(
+            "document.querySelectorAll('#frames tr[data-frame]').length >= 2"
+            " && !document.querySelector('#replay-state').textContent.startsWith('done')",
+            timeout=60_000,
+        )
         page.wait_for_function(
             "document.querySelector('#replay-state').textContent.startsWith('done')", timeout=120_000
         )
+        assert not any(v["live"] for v in server.get("/api/viewers").json())  # as it was before the replay
         assert all(page.is_disabled(f"#replay-{a}") for a in ("pause", "resume", "abort"))
         assert page.is_enabled("#replay-start")
         shot(page, "2-replay")
