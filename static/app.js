@@ -180,25 +180,41 @@ function closeSession() {
   $("#frame-slider").max = 0;
   $("#split").hidden = !state.robots[state.robot].sensor.image;  // a laser tracker has no image to mark
   renderApply();
+  jobControls();
 }
 
 const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "#dry-run", "#replay-start",
   "#goto", "#new-session button"];
 
-// Pause while it runs, resume while paused, abort until it ends; no second replay meanwhile.
+// Pause while it runs, resume while paused, abort until it ends; no second replay meanwhile, none without a
+// session to replay into.
 function replayControls(job) {
+  state.replaySnap = job;
   const live = Boolean(job) && ["queued", "running"].includes(job.state);
   const drivable = state.robots[state.robot].drivable;
   $("#replay-pause").disabled = !live || job.paused;
   $("#replay-resume").disabled = !live || !job.paused;
   $("#replay-abort").disabled = !live;
-  for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable;
+  for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable || !state.session;
+}
+
+// The other buttons that start or stop work are enabled only when they can act: Calibrate with a session of
+// measured frames and no calibration of the page running, Cancel while one runs, Capture with a session and a
+// robot standing still (no capture in flight), Stop while the desk has a robot to stop.
+function jobControls() {
+  const drivable = state.robots[state.robot].drivable;
+  const calibrating = Boolean(state.job && state.job.live);
+  $("#calibrate-start").disabled = !state.session || !state.session.measured || calibrating;
+  $("#calibrate-cancel").disabled = !calibrating;
+  $("#capture").disabled = !drivable || !state.session || Boolean(state.moving) || Boolean(state.capturing);
+  $("#stop").disabled = !Object.values(state.robots).some((r) => r.drivable);
+  replayControls(state.replaySnap);
 }
 
 function showDrivable() {
   const drivable = state.robots[state.robot].drivable;
   for (const sel of MOTION_CONTROLS) $(sel).disabled = !drivable;
-  replayControls(null);
+  jobControls();
   document.body.dataset.drivable = drivable ? "1" : "0";
   if (!drivable) {
     $("#robot-state").textContent = `${state.robot}: real data only (no robot to drive; import its sessions)`;
@@ -223,7 +239,7 @@ function wire() {
     try {
       await startCalibration();
     } finally {
-      button.disabled = false;
+      jobControls();
     }
   }));
   $("#calibrate-cancel").addEventListener("click", () => state.job && act(() => api("POST", `/jobs/${state.job.id}/cancel`)));
@@ -297,6 +313,7 @@ async function openSession(id) {
   const mode = $("#mode");
   mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
   mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
+  jobControls();
   await loadCalibrations();
   await loadReview("active", state.calibrations.length ? state.calibrations[0].id : "");
 }
@@ -386,8 +403,11 @@ async function startCalibration() {
   const base = baseValue === "active" ? (await api("GET", `/robot/calibration?robot=${state.session.robot}`)).id : baseValue || null;
   const body = { mode: $("#mode").value, base, holdout: +$("#holdout").value };
   const { job } = await api("POST", `/sessions/${state.session.id}/calibrations`, body);
-  state.job = { id: job };
+  state.job = { id: job, live: true };
+  jobControls();
   const done = await follow(job, (j) => {
+    state.job.live = ["queued", "running"].includes(j.state);
+    jobControls();
     $("#job-progress").value = j.progress;
     $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}` +
       (j.cost && j.cost.length ? ` · iteration ${j.cost.length - 1}, cost ${j.cost[j.cost.length - 1].toExponential(3)}` : "");
@@ -694,8 +714,16 @@ async function applyCalibration(id, note) {
 }
 
 async function applyNew() {
-  const r = await applyCalibration(state.newCal, "");
-  if (r) await applied(r);
+  if (state.applying) return;  // a double click: one apply
+  state.applying = true;
+  $("#apply").disabled = true;
+  try {
+    const r = await applyCalibration(state.newCal, "");
+    if (r) await applied(r);
+  } finally {
+    state.applying = false;
+    renderApply();
+  }
 }
 
 async function applied(r) {
@@ -775,6 +803,10 @@ function robotEvents() {
     if (r.robot !== state.robot) return;
     $("#robot-state").textContent = `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`;
     $("#robot-state").className = `pill ${r.moving ? "moving" : ""}`;
+    if (Boolean(state.moving) !== r.moving) {
+      state.moving = r.moving;
+      jobControls();
+    }
     state.readings = r.joints;
     for (const [name, deg] of Object.entries(r.joints)) {
       const cell = document.querySelector(`[data-reading="${name}"]`);
@@ -802,7 +834,16 @@ async function setObserve() {
 
 async function captureNow() {
   if (!state.session) throw new Error("select or create a session first");
-  const { frame } = await api("POST", `/sessions/${state.session.id}/capture`);
+  if (state.capturing) return;  // a double click: one frame
+  state.capturing = true;
+  jobControls();
+  let frame;
+  try {
+    ({ frame } = await api("POST", `/sessions/${state.session.id}/capture`));
+  } finally {
+    state.capturing = false;
+    jobControls();
+  }
   toast(`Frame ${frame.index}: ${frame.status}${frame.reason && frame.reason !== "ok" ? ` (${frame.reason})` : ""}`, "info");
   await loadSessions(state.session.id);
 }

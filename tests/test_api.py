@@ -385,6 +385,26 @@ def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None
     assert off["observing"] is None
 
 
+def test_a_replay_asked_twice_is_one_job_and_another_replay_of_the_robot_waits(client: TestClient) -> None:
+    """A double click on Start (or two tabs): one replay; a different replay of the same robot while it drives is
+    refused naming the job; once that one is aborted, it starts."""
+    sid = client.post("/api/sessions", json={"robot": "nao", "name": "replayed twice"}).json()["id"]
+    ask = {"from_session": "nao"}
+    first = client.post(f"/api/sessions/{sid}/replay", json=ask)
+    again = client.post(f"/api/sessions/{sid}/replay", json=ask)
+    assert first.status_code == again.status_code == 202 and first.json() == again.json()
+    job = first.json()["job"]
+    other = client.post(f"/api/sessions/{sid}/replay", json={"count": 2})
+    assert other.status_code == 422
+    assert other.json()["detail"] == f"a replay (job {job}) is driving nao: wait for it to end, or abort it first"
+    assert client.post(f"/api/jobs/{job}/cancel").status_code == 200
+    assert wait_job(client, job)["state"] == "cancelled"
+    assert client.post(f"/api/jobs/{job}/cancel").json()["state"] == "cancelled"  # once more: nothing changes
+    later = client.post(f"/api/sessions/{sid}/replay", json={"count": 2})
+    assert later.status_code == 202 and later.json()["job"] != job
+    assert wait_job(client, later.json()["job"])["state"] == "done"
+
+
 def test_a_replay_beyond_the_limits_is_refused_before_moving(client: TestClient) -> None:
     profile = load_profile("robonaut-a")
     lines = (SAMPLES / "robonaut-a-day1" / "data.csv").read_text().splitlines()

@@ -9,6 +9,7 @@ anything moves; `resume` goes on with a replay a fault or an abort stopped.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -49,6 +50,8 @@ class ReplayService:
         self.store = store
         self.robots = robots
         self.jobs = jobs
+        self._starting = threading.Lock()
+        self._driving: dict[str, tuple[str, str, ReplayPlan]] = {}  # robot: its latest replay (job, session, plan)
 
     def configurations(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
         """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
@@ -82,7 +85,22 @@ class ReplayService:
         return {"ok": all(r["ok"] for r in rows), "configurations": rows}
 
     def start(self, session_id: str, plan: ReplayPlan) -> str:
-        """Queue the replay job; its id."""
+        """Queue the replay job; its id. The same request while its replay is queued or running (a double
+        click, a second tab) is that replay; another replay of the same robot meanwhile is refused."""
+        robot = self.store.sessions.get(session_id).robot
+        with self._starting:
+            running = self._driving.get(robot)
+            if running is not None and self.jobs.get(running[0])["state"] in ("queued", "running"):
+                if running[1:] == (session_id, plan):
+                    return running[0]
+                raise InputError(
+                    f"a replay (job {running[0]}) is driving {robot}: wait for it to end, or abort it first"
+                )
+            job_id = self._start(session_id, plan)
+            self._driving[robot] = (job_id, session_id, plan)
+            return job_id
+
+    def _start(self, session_id: str, plan: ReplayPlan) -> str:
         driver = self.robots.driver(self.store.sessions.get(session_id).robot)
         ready = self.planned(session_id, plan) if plan.from_frames else None
         if ready is None:
