@@ -7,8 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 DEFAULT_MAX_UPLOAD_BYTES = 20 * 1024 * 1024
-# 96,000 Robonaut observations (3 coordinates each): imported in 7 s, calibrated (full, 20% held out) in 148 s
-# with the server and its worker at 1.5 GB at most (benchmarks/big_session.py, 2 cores).
+# 96,000 Robonaut observations (3 coordinates each): imported in 8 s, calibrated (full, 20% held out) in 66 s
+# (148 s on a busy machine) with the server and its worker at 1.5 GB at most (benchmarks/big_session.py, 2 cores).
 DEFAULT_MAX_ROWS = 100_000
 
 

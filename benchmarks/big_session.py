@@ -4,6 +4,7 @@ the server with its worker processes.
 
     .venv/bin/python benchmarks/big_session.py                  # 96,000 simulated Robonaut frames
     .venv/bin/python benchmarks/big_session.py --rows 5000 --timeout 120
+    .venv/bin/python benchmarks/big_session.py --cancel-after 20   # how soon a cancel ends the job
 
 Samples the resident memory of the server and every process under it every 0.1 s. Stops (and says so) when
 the calibration has not ended after --timeout seconds or the processes pass --max-gb together.
@@ -83,6 +84,7 @@ def main() -> None:
     ap.add_argument("--holdout", type=float, default=0.2)
     ap.add_argument("--timeout", type=float, default=300.0, help="give up on the calibration after this, s")
     ap.add_argument("--max-gb", type=float, default=8.0, help="give up when the processes pass this, GB")
+    ap.add_argument("--cancel-after", type=float, help="cancel the calibration this long after it started, s")
     args = ap.parse_args()
 
     profile = load_profile("robonaut-a")
@@ -124,7 +126,15 @@ def main() -> None:
             if r.status_code != 202:
                 return
             job = r.json()["job"]
+            cancelled_at = None
             while True:
+                if (
+                    args.cancel_after is not None
+                    and cancelled_at is None
+                    and time.perf_counter() - t0 > args.cancel_after
+                ):
+                    cancelled_at = time.perf_counter()
+                    server.post(f"/api/jobs/{job}/cancel")
                 snap = server.get(f"/api/jobs/{job}").json()
                 if snap["state"] not in ("queued", "running"):
                     break
@@ -135,6 +145,11 @@ def main() -> None:
                     break
                 time.sleep(0.2)
             snap = server.get(f"/api/jobs/{job}").json()
+            if cancelled_at is not None:
+                print(
+                    f"cancelled {args.cancel_after:g} s after the start: "
+                    f"ended {time.perf_counter() - cancelled_at:.2f} s later"
+                )
             print(
                 f"calibration job: {snap['state']} after {time.perf_counter() - t0:.1f} s, "
                 f"peak {memory.peak_mb:.0f} MB (server and workers); error: {snap['error']}; "

@@ -409,7 +409,8 @@ async function startCalibration() {
     state.job.live = ["queued", "running"].includes(j.state);
     jobControls();
     $("#job-progress").value = j.progress;
-    $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}` +
+    const loading = j.state === "queued" && j.detail && j.detail.phase === "loading" ? " · reading the session's frames" : "";
+    $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${loading}` +
       (j.cost && j.cost.length ? ` · iteration ${j.cost.length - 1}, cost ${j.cost[j.cost.length - 1].toExponential(3)}` : "");
     drawCurve($("#cost-curve"), j.cost || []);
   });

@@ -540,6 +540,7 @@ def test_sigterm_stops_calib_serve_promptly_with_jobs_running(tmp_path: Path) ->
     finally:
         if server.process.poll() is None:
             _kill(server)
+    print(f"\nSIGTERM with a calibration and a replay running: calib serve stopped in {took:.2f} s")
     assert took < 8.0, f"calib serve took {took:.1f} s to stop on SIGTERM"
     store = Store(data)
     assert store.jobs.get(replay_job)["state"] == "cancelled" and store.jobs.get(cal_job)["state"] == "cancelled"
