@@ -91,7 +91,7 @@ def main() -> None:
     sim = SimulatedRobot.from_profile(profile, seed=5).simulate(args.rows)
     csv = to_csv(profile, sim.data).encode()
     print(f"{args.rows} frames of robonaut-a: CSV of {len(csv) / 1e6:.1f} MB")
-    with tempfile.TemporaryDirectory() as tmp, served(Path(tmp) / "data") as server:
+    with tempfile.TemporaryDirectory() as tmp, served(Path(tmp) / "data", timeout_s=180) as server:
         pid = server.process.pid
         time.sleep(2.0)  # the worker process warms up
         memory = PeakMemory(pid, args.max_gb * 1024)
