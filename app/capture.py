@@ -4,7 +4,8 @@ until good enough, which plans each next configuration from the frames measured 
 
 The dry run checks every configuration before anything moves (the peers' users found broken set-ups only
 after the robot had moved through every pose): against the joint limits with the driver's safety margin,
-and whether the believed calibration predicts the target inside the image. A configuration beyond a joint
+and whether the believed calibration predicts the target inside the image (a configuration measured in the
+session it comes from was seen: its own measurement is trusted over the prediction). A configuration beyond a joint
 limit itself means the list is wrong and refuses the whole replay; one inside the safety margin (within the
 limits: a pose the robot itself reached, recorded at its limit) is moved the least way out of it, with a note;
 one with the target predicted out of view is skipped with its reason.
@@ -93,15 +94,19 @@ def dry_run(
     believed: np.ndarray,
     *,
     indices: list[int] | None = None,
+    seen: np.ndarray | None = None,
     margin_px: float = DEFAULT_VIEW_MARGIN_PX,
 ) -> list[dict]:
     """Check every configuration, moving nothing. Per configuration: {"index", "target", "ok", "problem",
     "action", "note"}, action "capture", "skip" (not predicted in view) or "refuse" (beyond a joint limit);
     `note`: how it is moved out of the safety margin (out_of_margin). `index` is the frame index, or the
-    1-based position without `indices`."""
+    1-based position without `indices`. `seen` (bool per configuration): measured in the session it comes from,
+    so in view whatever the believed calibration predicts (a model off by a few degrees predicts a target near
+    the image border outside it)."""
     q = np.asarray(configurations_rad, dtype=float)
     t = np.asarray(targets, dtype=int)
-    if q.ndim != 2 or len(q) != len(t) or (indices is not None and len(indices) != len(q)):
+    seen_ = np.zeros(len(q), bool) if seen is None else np.asarray(seen, dtype=bool)
+    if q.ndim != 2 or len(q) != len(t) or (indices is not None and len(indices) != len(q)) or len(seen_) != len(q):
         raise ValueError("configurations, targets and indices must have one entry per configuration")
     profile = driver.profile
     n_targets = len(profile.targets)
@@ -114,7 +119,9 @@ def dry_run(
             moved[k], notes[k] = out_of_margin(driver, q[k])
         except LimitError as exc:
             refusals[k] = str(exc)
-    in_view = predictor.visible(moved, t) if len(q) else np.zeros(0, bool)
+    in_view = seen_.copy()
+    if not seen_.all():
+        in_view[~seen_] = predictor.visible(moved[~seen_], t[~seen_])
     rows = []
     for k in range(len(q)):
         problem, action = refusals[k], "refuse" if refusals[k] else "capture"
@@ -137,6 +144,7 @@ def replay(
     targets: np.ndarray,
     indices: list[int] | None = None,
     *,
+    seen: np.ndarray | None = None,
     believed: np.ndarray | None = None,
     settle_s: float = DEFAULT_SETTLE_S,
     settle_timeout_s: float = 30.0,
@@ -145,8 +153,9 @@ def replay(
 
     `indices`: the frame index each configuration is stored under (re-measure: a session's own indices, so
     its frames are replaced); None appends. The dry run comes first, with the robot's believed calibration
-    unless `believed` is given. A skipped configuration is recorded as a "skipped" frame unless the session
-    already holds a frame with its index (re-measure keeps the old one). On cancel, a stop or any failure the
+    unless `believed` is given; `seen`: which configurations were measured where they come from (dry_run). A
+    skipped configuration is recorded as a "skipped" frame unless the session already holds a frame with its
+    index (re-measure keeps the old one). On cancel, a stop or any failure the
     robot is stopped; frames captured so far stay. A robot fault (disconnected, not responding) or a data
     directory that cannot be written fails the job naming the configuration it stopped at.
     """
@@ -154,7 +163,7 @@ def replay(
     q = np.asarray(configurations_rad, dtype=float)
     t = np.asarray(targets, dtype=int)
     p = driver.believed_params() if believed is None else np.asarray(believed, dtype=float)
-    plan = dry_run(driver, q, t, p, indices=indices)
+    plan = dry_run(driver, q, t, p, indices=indices, seen=seen)
     refused = [r for r in plan if r["action"] == "refuse"]
     if refused:
         more = f" (and {len(refused) - 1} more)" if len(refused) > 1 else ""

@@ -47,6 +47,8 @@ from calib_core.units import length_factor
 from calib_core.vision.ballfinder import find_sphere
 from calib_core.vision.sandal_board import detect_board
 
+from .limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
+
 if TYPE_CHECKING:
     from .desk_config import DeskConfig
 
@@ -228,6 +230,18 @@ def _parser() -> argparse.ArgumentParser:
         default=[],
         metavar="CONNECTION.yaml",
         help="a robot on its ROS 2 graph (specs ros2.md; the ros2 extra); may be given more than once",
+    )
+    sv.add_argument(
+        "--max-upload-mb",
+        type=float,
+        default=DEFAULT_MAX_UPLOAD_BYTES / (1024 * 1024),
+        help="the largest file an import or a robot's upload may be, MB (default %(default)g)",
+    )
+    sv.add_argument(
+        "--max-rows",
+        type=int,
+        default=DEFAULT_MAX_ROWS,
+        help="the most rows a CSV import, and observations a calibration, may have (default %(default)d)",
     )
     sv.add_argument(
         "--new-token",
@@ -625,6 +639,11 @@ def _serve(args: argparse.Namespace) -> int:
         raise InputError(f"--viser-port {args.viser_port} is not a TCP port")
     if not 0.1 <= args.sim_speed <= 100:
         raise InputError(f"--sim-speed {args.sim_speed} must be between 0.1 and 100")
+    if not 0.001 <= args.max_upload_mb <= 10_000:
+        raise InputError(f"--max-upload-mb {args.max_upload_mb:g} must be between 0.001 and 10000")
+    if args.max_rows < 1:
+        raise InputError(f"--max-rows {args.max_rows} must be at least 1")
+    limits = Limits(upload_bytes=int(args.max_upload_mb * 1024 * 1024), rows=args.max_rows)
     config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
     if args.ros2:
         config = _with_ros2(config, args.ros2, Path(args.data_dir))
@@ -638,6 +657,7 @@ def _serve(args: argparse.Namespace) -> int:
         config=config,
         time_scale=args.sim_speed,
         new_token=args.new_token,
+        limits=limits,
     )
     return 0
 

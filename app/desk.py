@@ -24,6 +24,7 @@ from .desk_config import DeskConfig, default_config
 from .drivers.registry import DriverContext, DriverSpec
 from .importers import ensure_samples
 from .jobs import JobManager
+from .limits import Limits
 from .robots import Robot, Robots
 from .scene import configure
 from .scene_proxy import ViserClients
@@ -50,9 +51,11 @@ class Desk:
         workers: int = 1,
         loopback: bool = True,
         viewer_linger_s: float = LINGER_S,
+        limits: Limits | None = None,
     ) -> None:
         """`loopback`: the desk is reached from this machine only, so a request may name a file on it.
-        `viser_port`: the viser server's port on 127.0.0.1 (0: any free one)."""
+        `viser_port`: the viser server's port on 127.0.0.1 (0: any free one). `limits`: what one request may ask
+        (app/limits.py)."""
         self.data_dir = Path(data_dir)
         self.config = config or default_config()
         self.sample_dir = sample_dir
@@ -61,6 +64,7 @@ class Desk:
         self.time_scale = time_scale
         self.workers = workers
         self.loopback = loopback
+        self.limits = limits or Limits()
         self.scrub = security.Scrubber(server_paths(self.data_dir))  # every error text the desk shows
         self.connected: str | None = None
         self._observer: Observer | None = None
@@ -73,7 +77,7 @@ class Desk:
         self.robots.start(self.config)
         if self.sample_dir is not None and self.sample_dir.is_dir():
             ensure_samples(self.store, self.sample_dir, self.robots.names())
-        self.jobs = JobManager(self.store, workers=self.workers, scrub=self.scrub)
+        self.jobs = JobManager(self.store, workers=self.workers, scrub=self.scrub, max_rows=self.limits.rows)
         drivable = [r.name for r in self.robots.all() if r.drivable]
         self.connected = self.config.connected or (drivable[0] if drivable else None)
         self.viser = viser.ViserServer(host="127.0.0.1", port=self.viser_port, verbose=False)

@@ -37,12 +37,12 @@ from functools import partial
 from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
-from calib_core import Calibration, InputError, calibrate
+from calib_core import Calibration, InputError, Profile, calibrate
 from calib_core.estimation.calibrate import METHODS
 from calib_core.estimation.solver import Cancelled
-from calib_core.estimation.validation import holdout_split
 
 from .errors import NotFound
+from .limits import DEFAULT_MAX_ROWS
 from .store import StoreWriteError
 from .store.db import jsonable
 
@@ -182,6 +182,7 @@ class _Job:
     pid: int | None = None
     kill_reason: str | None = None  # set when the server kills the worker on purpose
     resent: bool = False  # handed to a new worker once, its first having died before it started the job
+    preparing: bool = False  # its payload is still being built (_prepare): not yet queued for a worker
 
 
 @dataclass
@@ -200,16 +201,19 @@ class JobManager:
         timeout_s: float = 1800.0,
         cancel_grace_s: float = 5.0,
         scrub: Callable[[str], str] | None = None,
+        max_rows: int = DEFAULT_MAX_ROWS,
     ) -> None:
-        """`workers` calibration processes. A worker still running after `timeout_s`, or `cancel_grace_s`
-        after its job was cancelled, is killed (the job fails, or ends cancelled) and replaced. `scrub`
-        takes the server's paths out of a failed job's message (the one the HTTP errors go through)."""
+        """`workers` calibration processes. A worker still running after `timeout_s`, or `cancel_grace_s` after its
+        job was cancelled, is killed (the job fails, or ends cancelled) and replaced. `scrub` takes the server's
+        paths out of a failed job's message (the one the HTTP errors go through). A calibration of more than
+        `max_rows` observations is refused."""
         if workers < 1:
             raise ValueError("at least one worker")
         self.store = store
         self._scrub = scrub or (lambda text: text)
         self.timeout_s = timeout_s
         self.cancel_grace_s = cancel_grace_s
+        self.max_rows = max_rows
         self._lock = threading.RLock()
         self._submitting = threading.Lock()  # a calibration request: checked against the live jobs, then queued
         self._save_lock = threading.Lock()
@@ -226,6 +230,9 @@ class JobManager:
         self.store.jobs.fail_interrupted()
         self._pump = threading.Thread(target=self._pump_messages, name="jobs-progress", daemon=True)
         self._pump.start()
+        self._loads: queue.SimpleQueue[tuple[_Job, Callable[[], Any]] | None] = queue.SimpleQueue()
+        self._loader = threading.Thread(target=self._load_payloads, name="jobs-load", daemon=True)
+        self._loader.start()
 
     # --- submitting ---------------------------------------------------------------------------------
     def submit_calibration(
@@ -251,7 +258,10 @@ class JobManager:
     def _submit_calibration(
         self, session_id: str, mode: str, base_id: str | None, holdout: float, folds: int, method: str
     ) -> str:
-        payload = self.calibration_payload(session_id, mode, base_id, holdout, folds=folds, method=method)
+        """Checks what can be checked from the request and the counts of the session's rows, then creates
+        the job; loading the data, the held-out split and the solve, which all grow with the data, run in
+        the job (the request answers at once, and the job can be cancelled throughout)."""
+        profile, base, measured = self.check_calibration(session_id, mode, base_id, holdout, folds=folds, method=method)
 
         def finish(result: dict, job_id: str) -> str:
             cal = Calibration.from_dict(result)
@@ -274,22 +284,29 @@ class JobManager:
             return cal_id
 
         detail = {
-            "robot": payload["profile"].name,
+            "robot": profile.name,
             "mode": mode,
             "base": base_id,
             "holdout": holdout,
             "folds": folds,
             "method": method,
-            "frames": int(payload["data"].n_configurations),
+            "frames": measured,
+            "phase": "loading",
         }
-        return self.submit_process(
-            "calibration", calibration_worker, payload, session_id=session_id, finish=finish, detail=detail
-        )
+        job = self._create("calibration", session_id, detail, process=True)
+        job.fn, job.finish, job.preparing = calibration_worker, finish, True
 
-    def calibration_payload(
+        def prepare() -> dict:
+            return self.calibration_payload(session_id, mode, base, holdout, folds=folds, method=method)
+
+        self._loads.put((job, prepare))
+        return job.snap["id"]
+
+    def check_calibration(
         self, session_id: str, mode: str, base_id: str | None, holdout: float, *, folds: int = 0, method: str = "lm"
-    ) -> dict:
-        """Check a calibration request and gather the plain data its worker needs."""
+    ) -> tuple[Profile, dict | None, int]:
+        """Check a calibration request against its options and the counts of the session's rows, reading no
+        more than those: (profile, base calibration as a dictionary or None, measured frames)."""
         session = self.store.sessions.get(session_id)
         profile = self.store.sessions.profile(session.robot)
         m = profile.mode(mode)
@@ -310,19 +327,44 @@ class JobManager:
             if info.robot != profile.name:
                 raise InputError(f"base calibration '{base_id}' is for robot '{info.robot}', not '{profile.name}'")
             base = self.store.calibrations.load(base_id).to_dict()
+        counts = self.store.sessions.observation_counts(session_id)
+        n_observations = sum(counts.values())
+        if session.measured == 0 or n_observations == 0:
+            raise InputError(f"session '{session_id}' has no measured frames to calibrate on")
+        if n_observations > self.max_rows:
+            raise InputError(
+                f"session '{session_id}' has {n_observations:,} observations; a calibration takes at most "
+                f"{self.max_rows:,} (the desk's row limit, calib serve --max-rows): calibrate on a part of it"
+            )
+        sensor_dim = {s: profile.sensors[profile.data.sensor if s is None else s].dim for s in counts}
+        if sum(n * sensor_dim[s] for s, n in counts.items()) < len(m.free):
+            raise InputError(
+                f"{session.measured} measured frames cannot determine the {len(m.free)} parameters "
+                f"of mode '{mode}': measure more frames"
+            )
+        train = session.measured - round(holdout * session.measured)
+        if folds > train:
+            raise InputError(f"{folds} folds need at least {folds} training frames, not {train}")
+        return profile, base, session.measured
+
+    def calibration_payload(
+        self,
+        session_id: str,
+        mode: str,
+        base: dict | None,
+        holdout: float,
+        *,
+        folds: int = 0,
+        method: str = "lm",
+    ) -> dict:
+        """The plain data a calibration's worker needs (the session's measured frames read from the store);
+        `base`: the base calibration as a dictionary. Whether the training share can determine the mode's
+        parameters is the worker's check (calibrate), since the held-out split grows with the data."""
+        session = self.store.sessions.get(session_id)
+        profile = self.store.sessions.profile(session.robot)
         data = self.store.sessions.dataset(session_id, profile)
         if data.n_configurations == 0:
             raise InputError(f"session '{session_id}' has no measured frames to calibrate on")
-        train = data.select(holdout_split(data, holdout)[0]) if holdout > 0 else data
-        dim = data.measured.shape[1]
-        if train.n_observations * dim < len(m.free):
-            held = f" (after holding out {holdout:.0%})" if holdout > 0 else ""
-            raise InputError(
-                f"{train.n_configurations} measured frames{held} cannot determine the {len(m.free)} parameters "
-                f"of mode '{mode}': measure more frames"
-            )
-        if folds > train.n_configurations:
-            raise InputError(f"{folds} folds need at least {folds} training frames, not {train.n_configurations}")
         return {
             "profile": profile,
             "session": session_id,
@@ -333,6 +375,40 @@ class JobManager:
             "method": method,
             "data": replace(data, header=[], rows=[]),  # the worker needs the arrays only
         }
+
+    def _load_payloads(self) -> None:
+        """One thread builds the process jobs' payloads in the order they were submitted, so that they reach
+        the workers in that order."""
+        while (item := self._loads.get()) is not None:
+            self._prepare(*item)
+
+    def _prepare(self, job: _Job, build: Callable[[], Any]) -> None:
+        """Build a process job's payload, then queue it for a worker (unless it was cancelled meanwhile:
+        cancel() finished it at once)."""
+        job_id = job.snap["id"]
+        if job.snap["state"] in FINISHED:
+            return
+        try:
+            payload = build()
+        except (InputError, NotFound, StoreWriteError) as exc:
+            payload, error = None, _one_line(str(exc))
+        except Exception as exc:
+            log.exception("job %s: its data could not be loaded", job_id)
+            payload, error = None, internal_error(exc)
+        with self._changed:
+            job.preparing = False
+            wanted = job.snap["state"] not in FINISHED and not job.cancel_requested and not self._closed
+            if payload is not None and wanted:
+                job.payload = payload
+                job.snap["detail"]["phase"] = "solving"
+                self._touch(job)
+                self._pending.append(job_id)
+        if payload is None:
+            self._finish(job, "failed", error=error)
+        elif wanted:
+            self._dispatch()
+        else:
+            self._finish(job, "cancelled")
 
     def submit_process(
         self,
@@ -400,8 +476,8 @@ class JobManager:
                 return
             job.cancel_requested = True
             job.cancel_at = time.monotonic()
-            waiting = job_id in self._pending
-            if waiting:
+            waiting = job_id in self._pending or job.preparing
+            if job_id in self._pending:
                 self._pending.remove(job_id)
             self._changed.notify_all()
         if waiting:
@@ -435,6 +511,7 @@ class JobManager:
             if job.snap["state"] not in FINISHED:
                 job.kill_reason = "cancelled"
                 _kill(job.pid)
+        self._loads.put(None)
         for slot in self._slots:
             slot.executor.shutdown(wait=True, cancel_futures=True)
         self._pump.join(timeout=2.0)

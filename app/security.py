@@ -43,6 +43,8 @@ from urllib.parse import parse_qs
 from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException
 
+from .limits import DEFAULT_MAX_UPLOAD_BYTES as MAX_UPLOAD_BYTES
+
 TOKEN_FILE = "access-token.json"
 TOKEN_FORMAT = "calib-access-token/1"
 READ_COOKIE = "calib_read"
@@ -51,7 +53,6 @@ GUARDED_PREFIXES = ("/api", "/scene")
 SAFE_METHODS = frozenset({"GET", "HEAD"})
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_BODY_BYTES = 1024 * 1024
-MAX_UPLOAD_BYTES = 20 * 1024 * 1024
 FORM_OVERHEAD_BYTES = 64 * 1024
 UPLOAD_PATHS = frozenset({"/api/sessions/import", "/api/robots"})
 

@@ -27,13 +27,24 @@ from .desk import SAMPLE_DIR, Desk
 from .desk_config import DeskConfig
 from .drivers import RobotFault
 from .errors import NotFound
+from .limits import Limits
 from .routers import api
 from .routers.robots import VERSION
 from .safety import ConfirmationRequired
 from .store import StoreWriteError
 from .viewers import TooManyViewers
 
-STATIC_DIR = Path(str(resources.files("app.static")))  # package data, in a wheel as in a checkout
+
+def _static_dir() -> Path:
+    """The page: package data, in a wheel as in a checkout; a checkout run through PYTHONPATH (a git worktree
+    beside an editable install of another) serves its own static/, not the installed checkout's."""
+    checkout = Path(__file__).resolve().parent.parent
+    if (checkout / "pyproject.toml").is_file() and (checkout / "static" / "index.html").is_file():
+        return checkout / "static"
+    return Path(str(resources.files("app.static")))
+
+
+STATIC_DIR = _static_dir()
 SHUTDOWN_WAIT_S = 3
 log = logging.getLogger("calib.server")
 
@@ -49,12 +60,15 @@ def create_app(
     workers: int = 1,
     trusted_hosts: Iterable[str] | None = None,
     new_token: bool = False,
+    limits: Limits | None = None,
 ) -> FastAPI:
     """`config`: the robots (None: the built-in ones). `host`: the address the server is bound to; off loopback
     every /api request but /api/health, and the scene under /scene, need the access token (app/security.py);
     `app.state.new_token` is the token made at this start (shown once), None when one was stored before.
     `viser_port`: the viser server's port, on 127.0.0.1 whatever `host` is (0: any free one). `trusted_hosts`:
-    the Host names answered (None: any)."""
+    the Host names answered (None: any). `limits`: the size of an upload and the rows of an import or a
+    calibration (None: app/limits.py's defaults)."""
+    limits = limits or Limits()
     tokens = None
     token = None
     if not security.is_loopback(host):
@@ -68,6 +82,7 @@ def create_app(
         time_scale=time_scale,
         workers=workers,
         loopback=security.is_loopback(host),
+        limits=limits,
     )
 
     @asynccontextmanager
@@ -85,7 +100,7 @@ def create_app(
     app.include_router(api)
     app.include_router(scene_proxy.router)
     _error_handlers(app, desk.scrub)
-    app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts)
+    app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts, max_upload_bytes=limits.upload_bytes)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
 
@@ -144,6 +159,7 @@ def serve(
     config: DeskConfig | None = None,
     time_scale: float = 1.0,
     new_token: bool = False,
+    limits: Limits | None = None,
 ) -> None:
     import uvicorn
 
@@ -156,6 +172,7 @@ def serve(
         time_scale=time_scale,
         trusted_hosts=security.LOOPBACK_NAMES if loopback else None,
         new_token=new_token,
+        limits=limits,
     )
     url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/"
     token = app.state.new_token

@@ -183,25 +183,41 @@ function closeSession() {
   $("#frame-slider").max = 0;
   $("#split").hidden = !state.robots[state.robot].sensor.image;  // a laser tracker has no image to mark
   renderApply();
+  jobControls();
 }
 
 const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "#dry-run", "#replay-start",
   "#goto", "#new-session button"];
 
-// Pause while it runs, resume while paused, abort until it ends; no second replay meanwhile.
+// Pause while it runs, resume while paused, abort until it ends; no second replay meanwhile, none without a
+// session to replay into.
 function replayControls(job) {
+  state.replaySnap = job;
   const live = Boolean(job) && ["queued", "running"].includes(job.state);
   const drivable = state.robots[state.robot].drivable;
   $("#replay-pause").disabled = !live || job.paused;
   $("#replay-resume").disabled = !live || !job.paused;
   $("#replay-abort").disabled = !live;
-  for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable;
+  for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable || !state.session;
+}
+
+// The other buttons that start or stop work are enabled only when they can act: Calibrate with a session of
+// measured frames and no calibration of the page running, Cancel while one runs, Capture with a session and a
+// robot standing still (no capture in flight), Stop while the desk has a robot to stop.
+function jobControls() {
+  const drivable = state.robots[state.robot].drivable;
+  const calibrating = Boolean(state.job && state.job.live);
+  $("#calibrate-start").disabled = !state.session || !state.session.measured || calibrating;
+  $("#calibrate-cancel").disabled = !calibrating;
+  $("#capture").disabled = !drivable || !state.session || Boolean(state.moving) || Boolean(state.capturing);
+  $("#stop").disabled = !Object.values(state.robots).some((r) => r.drivable);
+  replayControls(state.replaySnap);
 }
 
 function showDrivable() {
   const drivable = state.robots[state.robot].drivable;
   for (const sel of MOTION_CONTROLS) $(sel).disabled = !drivable;
-  replayControls(null);
+  jobControls();
   document.body.dataset.drivable = drivable ? "1" : "0";
   if (!drivable) {
     $("#robot-state").textContent = `${state.robot}: real data only (no robot to drive; import its sessions)`;
@@ -226,7 +242,7 @@ function wire() {
     try {
       await startCalibration();
     } finally {
-      button.disabled = false;
+      jobControls();
     }
   }));
   $("#calibrate-cancel").addEventListener("click", () => state.job && act(() => api("POST", `/jobs/${state.job.id}/cancel`)));
@@ -302,6 +318,7 @@ async function openSession(id) {
   mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
   mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
   setUntilUnit(robot);
+  jobControls();
   await loadCalibrations();
   await loadReview("active", state.calibrations.length ? state.calibrations[0].id : "");
 }
@@ -391,10 +408,14 @@ async function startCalibration() {
   const base = baseValue === "active" ? (await api("GET", `/robot/calibration?robot=${state.session.robot}`)).id : baseValue || null;
   const body = { mode: $("#mode").value, base, holdout: +$("#holdout").value };
   const { job } = await api("POST", `/sessions/${state.session.id}/calibrations`, body);
-  state.job = { id: job };
+  state.job = { id: job, live: true };
+  jobControls();
   const done = await follow(job, (j) => {
+    state.job.live = ["queued", "running"].includes(j.state);
+    jobControls();
     $("#job-progress").value = j.progress;
-    $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}` +
+    const loading = j.state === "queued" && j.detail && j.detail.phase === "loading" ? " · reading the session's frames" : "";
+    $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${loading}` +
       (j.cost && j.cost.length ? ` · iteration ${j.cost.length - 1}, cost ${j.cost[j.cost.length - 1].toExponential(3)}` : "");
     drawCurve($("#cost-curve"), j.cost || []);
   });
@@ -513,6 +534,10 @@ let selecting = false;
 let pending = null;
 async function selectFrame(index) {
   if (index === undefined || index === null) return;
+  if (state.reviewStale) {  // frames captured since the review was loaded: the server's review is made anew
+    state.reviewStale = false;
+    await act(() => loadReview(...state.reviewAsked));
+  }
   state.frame = index;
   $("#frame-slider").value = state.frameOrder.indexOf(index);
   $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
@@ -927,8 +952,16 @@ async function applyCalibration(id, note) {
 }
 
 async function applyNew() {
-  const r = await applyCalibration(state.newCal, "");
-  if (r) await applied(r);
+  if (state.applying) return;  // a double click: one apply
+  state.applying = true;
+  $("#apply").disabled = true;
+  try {
+    const r = await applyCalibration(state.newCal, "");
+    if (r) await applied(r);
+  } finally {
+    state.applying = false;
+    renderApply();
+  }
 }
 
 async function applied(r) {
@@ -968,14 +1001,46 @@ async function refreshActive() {
 }
 
 // --- observe and replay ----------------------------------------------------------------------
+// The joint sliders show the configuration the operator asks for, within the joint limits less the driver's
+// safety margin (the server refuses a move closer to a limit). Moving one sends the whole configuration the
+// sliders show: a joint still on its way keeps its target, not the reading it had when another slider moved.
 function buildJoints() {
   const t = $("#joints");
   t.replaceChildren();
-  for (const j of state.robots[state.robot].joints) {
-    const slider = el("input", { type: "range", min: j.lower_deg, max: j.upper_deg, step: 0.1, "data-joint": j.name });
-    slider.disabled = !state.robots[state.robot].drivable;
-    slider.addEventListener("change", () => act(() => api("POST", "/robot/move", { joints: { [j.name]: +slider.value } })));
+  const robot = state.robots[state.robot];
+  state.driving = null;
+  for (const j of robot.joints) {
+    const revolute = j.lower_deg !== null;
+    const m = revolute ? Math.min(robot.margin_deg || 0, (j.upper_deg - j.lower_deg) / 2) : 0;
+    const slider = el("input", { type: "range", min: j.lower_deg + m, max: j.upper_deg - m, step: 0.1, "data-joint": j.name });
+    slider.disabled = !robot.drivable || !revolute;
+    slider.addEventListener("change", moveToSliders);
     t.append(el("tr", {}, el("td", {}, j.name), el("td", {}, slider), el("td", { "data-reading": j.name }, "—")));
+  }
+}
+
+const SLIDERS_FOLLOW_AFTER_MS = 300;  // a move's answer comes before its first "moving" state: wait that long
+
+async function moveToSliders() {
+  const joints = {};
+  for (const s of document.querySelectorAll("input[data-joint]")) if (!s.disabled) joints[s.dataset.joint] = +s.value;
+  state.driving = { since: Infinity };  // the sliders show the target, not the readings, until the robot stops
+  try {
+    await api("POST", "/robot/move", { joints });
+    state.driving = { since: performance.now() };
+  } catch (err) {
+    state.driving = null;
+    slidersToReadings(true);
+    toast(`Move refused: ${err.message}`);
+  }
+}
+
+// The sliders follow the robot's readings while the page is not driving it (a wander, a replay, another tab);
+// `all`: the slider in the operator's hand too.
+function slidersToReadings(all = false) {
+  for (const [name, deg] of Object.entries(state.readings || {})) {
+    const slider = document.querySelector(`input[data-joint="${name}"]`);
+    if (slider && deg !== null && (all || document.activeElement !== slider)) slider.value = deg;
   }
 }
 
@@ -988,13 +1053,21 @@ function robotEvents() {
     if (r.robot !== state.robot) return;
     $("#robot-state").textContent = `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`;
     $("#robot-state").className = `pill ${r.moving ? "moving" : ""}`;
+    if (Boolean(state.moving) !== r.moving) {
+      state.moving = r.moving;
+      jobControls();
+    }
+    state.readings = r.joints;
     for (const [name, deg] of Object.entries(r.joints)) {
       const cell = document.querySelector(`[data-reading="${name}"]`);
       if (cell) cell.textContent = deg === null ? "—" : `${deg.toFixed(1)}°`;
-      const slider = document.querySelector(`input[data-joint="${name}"]`);
-      if (slider && document.activeElement !== slider && deg !== null) slider.value = deg;
     }
+    const d = state.driving;
+    if (d && !r.moving && performance.now() - d.since > SLIDERS_FOLLOW_AFTER_MS) state.driving = null;
+    if (!state.driving) slidersToReadings();
     const o = r.observing;
+    if (o && state.session && o.session === state.session.id && o.captured > (state.autoCaptured || 0)) showNewFrames(o.session);
+    state.autoCaptured = o ? o.captured : 0;
     $("#observe-state").textContent = o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "";
   };
   es.onerror = () => {
@@ -1011,7 +1084,16 @@ async function setObserve() {
 
 async function captureNow() {
   if (!state.session) throw new Error("select or create a session first");
-  const { frame } = await api("POST", `/sessions/${state.session.id}/capture`);
+  if (state.capturing) return;  // a double click: one frame
+  state.capturing = true;
+  jobControls();
+  let frame;
+  try {
+    ({ frame } = await api("POST", `/sessions/${state.session.id}/capture`));
+  } finally {
+    state.capturing = false;
+    jobControls();
+  }
   toast(`Frame ${frame.index}: ${frame.status}${frame.reason && frame.reason !== "ok" ? ` (${frame.reason})` : ""}`, "info");
   await loadSessions(state.session.id);
 }
@@ -1041,16 +1123,26 @@ async function replay(dry) {
   }
   state.replayJob = r.job;
   state.replaySeed = null;
+  const sid = state.session.id;
+  const watching = () => $("#observe-on").checked || $("#autocapture").checked;
+  // The 3-D robot follows the robot while the replay drives it (the live view), whether or not "Watch live" is on.
+  if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: true, autocapture: false }));
+  let done = 0;
   await follow(r.job, (j) => {
     $("#replay-progress").value = j.progress;
     replayControls(j);
     const d = j.detail || {};
+    if ((d.done || 0) > done) {
+      done = d.done;
+      showNewFrames(sid);
+    }
     const planning = j.state === "running" && d.phase === "planning" ? " · planning the configurations" : "";
     const shown = j.paused && j.state === "running" ? "paused" : j.state;
     $("#replay-state").textContent = `${shown}${j.error ? `: ${j.error}` : ""}${planning}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
     if (d.curve) showUntilProgress(d);
   });
   replayControls(null);
+  if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: false }));
   await loadSessions(state.session.id);
 }
 
@@ -1106,6 +1198,46 @@ function showUntilProgress(d) {
   const chart = el("div", { class: "until-chart" });
   chart.innerHTML = svg;
   box.append(chart);
+}
+
+// Frames captured while the page looks on (a replay, auto-capture) join the frame list at once: fetched with
+// the session, shown without errors (none computed yet) until the review is next loaded. Latest wins.
+let refreshing = null;
+async function showNewFrames(sid) {
+  if (refreshing) {
+    refreshing.again = true;
+    return;
+  }
+  refreshing = { again: false };
+  try {
+    do {
+      refreshing.again = false;
+      if (!state.session || state.session.id !== sid) return;
+      const s = await api("GET", `/sessions/${sid}`);
+      if (!state.session || state.session.id !== sid) return;
+      state.session = s;
+      const li = document.querySelector(`#sessions li[data-session="${sid}"] small`);
+      if (li) li.textContent = ` ${s.robot} · ${s.measured}/${s.frames.length} frames measured`;
+      if (!state.review || state.review.session !== sid) continue;
+      const rows = new Map(state.review.table.map((row) => [row.index, row]));
+      let changed = false;
+      for (const f of s.frames) {
+        const row = rows.get(f.index);
+        if (row && row.status === f.status) continue;
+        if (row) Object.assign(row, { status: f.status, err_old: null, err_new: null });
+        else state.review.table.push({ index: f.index, status: f.status, err_old: null, err_new: null, heldout: false });
+        changed = true;
+      }
+      if (!changed) continue;
+      state.reviewStale = true;  // the server's review lacks them: selecting one loads the review again
+      renderFrames();  // the frame list's order is the stepping order
+      $("#frame-slider").max = Math.max(0, state.frameOrder.length - 1);
+    } while (refreshing.again);
+  } catch (err) {
+    toast(err.message);
+  } finally {
+    refreshing = null;
+  }
 }
 
 init().catch((err) => toast(`The page could not start: ${err.message}`));

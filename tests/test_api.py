@@ -21,6 +21,7 @@ from fastapi.testclient import TestClient
 from test_viewers import browser
 
 from app.drivers.simulated import can_simulate
+from app.limits import Limits
 from app.server import create_app
 from calib_core import load_profile, parse_dataset, to_csv
 
@@ -93,6 +94,50 @@ def test_importing_a_csv_makes_a_session(client: TestClient) -> None:
     s = client.get(f"/api/sessions/{r.json()['id']}").json()
     assert len(s["frames"]) == len(text.decode().strip().splitlines()) - 1
     assert all(f["status"] == "measured" for f in s["frames"])
+
+
+def test_an_import_or_a_calibration_beyond_the_desks_limits_is_refused_up_front_naming_the_limit(
+    client: TestClient,
+) -> None:
+    """Bounded work: the desk's limits (calib serve --max-upload-mb, --max-rows) refuse a file or a session too big
+    for it before anything is parsed, solved or stored."""
+    desk = client.app.state.desk
+    text = (SAMPLES / "robonaut-a-day1" / "data.csv").read_bytes()
+    n_rows = len(text.decode().strip().splitlines()) - 1
+    before = len(client.get("/api/sessions").json())
+    limits, max_rows = desk.limits, desk.jobs.max_rows
+    try:
+        desk.limits = Limits(upload_bytes=limits.upload_bytes, rows=n_rows - 1)
+        r = client.post(
+            "/api/sessions/import",
+            data={"robot": "robonaut-a", "name": "too many rows"},
+            files={"data": ("day1.csv", io.BytesIO(text), "text/csv")},
+        )
+        assert r.status_code == 413
+        assert (
+            r.json()["detail"]
+            == f"day1.csv: {n_rows} rows; an import takes at most {n_rows - 1} (the desk's row limit, --max-rows)"
+        )
+        desk.limits = Limits(upload_bytes=2048, rows=limits.rows)
+        r = client.post(
+            "/api/sessions/import",
+            data={"robot": "robonaut-a", "name": "too large"},
+            files={"data": ("day1.csv", io.BytesIO(text), "text/csv")},
+        )
+        assert r.status_code == 413
+        assert r.json()["detail"] == "day1.csv: larger than 0.00195312 MB (the desk's upload limit, --max-upload-mb)"
+        assert len(client.get("/api/sessions").json()) == before
+        desk.jobs.max_rows = n_rows - 1
+        jobs_before = len(client.get("/api/jobs").json())
+        r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "full"})
+        assert r.status_code == 422
+        assert r.json()["detail"] == (
+            f"session 'robonaut-a-day1' has {n_rows} observations; a calibration takes at most {n_rows - 1} "
+            "(the desk's row limit, calib serve --max-rows): calibrate on a part of it"
+        )
+        assert len(client.get("/api/jobs").json()) == jobs_before
+    finally:
+        desk.limits, desk.jobs.max_rows = limits, max_rows
 
 
 def test_a_reading_beyond_a_joint_limit_imports_with_a_note_naming_line_and_column(client: TestClient) -> None:
@@ -338,6 +383,26 @@ def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None
     assert on["observing"]["session"] == sid
     off = client.post(f"/api/sessions/{sid}/observe", json={"on": False}).json()
     assert off["observing"] is None
+
+
+def test_a_replay_asked_twice_is_one_job_and_another_replay_of_the_robot_waits(client: TestClient) -> None:
+    """A double click on Start (or two tabs): one replay; a different replay of the same robot while it drives is
+    refused naming the job; once that one is aborted, it starts."""
+    sid = client.post("/api/sessions", json={"robot": "nao", "name": "replayed twice"}).json()["id"]
+    ask = {"from_session": "nao"}
+    first = client.post(f"/api/sessions/{sid}/replay", json=ask)
+    again = client.post(f"/api/sessions/{sid}/replay", json=ask)
+    assert first.status_code == again.status_code == 202 and first.json() == again.json()
+    job = first.json()["job"]
+    other = client.post(f"/api/sessions/{sid}/replay", json={"count": 2})
+    assert other.status_code == 422
+    assert other.json()["detail"] == f"a replay (job {job}) is driving nao: wait for it to end, or abort it first"
+    assert client.post(f"/api/jobs/{job}/cancel").status_code == 200
+    assert wait_job(client, job)["state"] == "cancelled"
+    assert client.post(f"/api/jobs/{job}/cancel").json()["state"] == "cancelled"  # once more: nothing changes
+    later = client.post(f"/api/sessions/{sid}/replay", json={"count": 2})
+    assert later.status_code == 202 and later.json()["job"] != job
+    assert wait_job(client, later.json()["job"])["state"] == "done"
 
 
 def test_a_replay_beyond_the_limits_is_refused_before_moving(client: TestClient) -> None:

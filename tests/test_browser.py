@@ -62,6 +62,10 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         assert set(offered) == set(created) and len(offered) >= 1, (robot, offered)
         assert [created[i] for i in offered] == sorted(created.values(), reverse=True)
 
+        # No session yet: nothing to calibrate, capture or replay into; Stop is always there.
+        assert all(page.is_disabled(b) for b in ("#calibrate-start", "#calibrate-cancel", "#capture", "#replay-start"))
+        assert page.is_enabled("#stop")
+
         # Open the first-day sample session and run a full calibration with a held-out share.
         page.click("li[data-session='robonaut-a-day1']")
         page.wait_for_selector("#frames tr[data-frame]", state="attached")
@@ -70,8 +74,11 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         page.fill("#holdout", "0.3")
         shot(page, "3-calibrate")
         before_active = page.get_attribute("#active-cal", "data-id")
+        assert page.is_enabled("#calibrate-start") and page.is_disabled("#calibrate-cancel")
         page.click("#calibrate-start")
         page.wait_for_function("document.querySelector('#job-state').textContent.startsWith('done')", timeout=120_000)
+        page.wait_for_selector("#calibrate-start:enabled")
+        assert page.is_disabled("#calibrate-cancel")  # nothing left to cancel
         page.wait_for_selector("#tab-review:not([hidden])")
         page.wait_for_selector("#parameters tr td", state="attached")
 
@@ -289,9 +296,23 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('paused')")
         assert page.is_enabled("#replay-resume") and page.is_disabled("#replay-pause")
         page.click("#replay-resume")
+        # Watch live is off, yet the 3-D robot follows the replay; each frame joins the list as it is captured.
+        deadline = time.monotonic() + 10
+        while not any(v["live"] for v in server.get("/api/viewers").json() if v["connected"]):
+            assert time.monotonic() < deadline, "the replay is not shown live"
+            time.sleep(0.05)
+        page.wait_for_function(
+            "document.querySelectorAll('#frames tr[data-frame]').length >= 2"
+            " && !document.querySelector('#replay-state').textContent.startsWith('done')",
+            timeout=60_000,
+        )
         page.wait_for_function(
             "document.querySelector('#replay-state').textContent.startsWith('done')", timeout=120_000
         )
+        deadline = time.monotonic() + 10
+        while any(v["live"] for v in server.get("/api/viewers").json()):  # off again, as before the replay
+            assert time.monotonic() < deadline, "still shown live after the replay"
+            time.sleep(0.05)
         assert all(page.is_disabled(f"#replay-{a}") for a in ("pause", "resume", "abort"))
         assert page.is_enabled("#replay-start")
         shot(page, "2-replay")
@@ -314,7 +335,8 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         page.click("#add-robot button[type=submit]")
         page.wait_for_function("document.querySelector('#robot-select').value === 'nao-2'")
         page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao-2: ')")
-        assert page.is_enabled("#capture") and page.is_enabled("#new-session button")
+        assert page.is_enabled("#new-session button") and page.is_enabled("#observe-on")
+        assert page.is_disabled("#capture")  # no session of nao-2 to capture into yet
         added = {r["name"]: r for r in server.get("/api/robots").json()}["nao-2"]
         assert (added["model"], added["drivable"], added["simulated"]) == ("nao", True, True)
         assert server.get("/api/robot").json()["robot"] == "nao-2"
@@ -473,3 +495,60 @@ def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
             browser.close()
     finally:
         server.stop()
+
+
+def test_joint_sliders_send_the_whole_configuration_within_the_margin_and_revert_on_a_refusal(
+    tmp_path: Path,
+) -> None:
+    """A second slider moved while the first joint still moves: both joints arrive (each slider sends the whole
+    configuration the sliders show, not the others' mid-motion readings); the sliders end at the limits less
+    the driver's margin; a refused move puts the sliders back to the robot's readings with the server's reason."""
+    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
+        browser = launch(pw)
+        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        robot = server.get("/api/robot").json()
+        info = {r["name"]: r for r in server.get("/api/robots").json()}[robot["robot"]]
+        margin = info["margin_deg"]
+        assert margin > 0
+        for j in info["joints"]:
+            lo, hi = (float(page.get_attribute(f"input[data-joint='{j['name']}']", a)) for a in ("min", "max"))
+            m = min(margin, (j["upper_deg"] - j["lower_deg"]) / 2)
+            assert (lo, hi) == pytest.approx((j["lower_deg"] + m, j["upper_deg"] - m)), j["name"]
+        page.wait_for_function("document.querySelector('#robot-state').textContent.endsWith('still')")
+        (a, b) = [j for j in info["joints"] if j["upper_deg"] - j["lower_deg"] > 60][:2]
+        start = server.get("/api/robot").json()["joints"]
+        goal = {}
+        for j in (a, b):  # 25 deg towards the farther limit: a second or so of motion
+            up = j["upper_deg"] - start[j["name"]] > start[j["name"]] - j["lower_deg"]
+            goal[j["name"]] = round(start[j["name"]] + (25.0 if up else -25.0), 1)
+        slide = "([s, v]) => { const e = document.querySelector(`input[data-joint='${s}']`); e.value = v;"
+        slide += " e.dispatchEvent(new Event('change')); }"
+        page.evaluate(slide, [a["name"], goal[a["name"]]])
+        page.wait_for_timeout(150)
+        page.evaluate(slide, [b["name"], goal[b["name"]]])
+        deadline = time.monotonic() + 20
+        while True:
+            state = server.get("/api/robot").json()
+            if not state["moving"] and all(abs(state["joints"][n] - g) < 0.3 for n, g in goal.items()):
+                break
+            assert time.monotonic() < deadline, (goal, state["joints"], state["moving"])
+            time.sleep(0.1)
+        page.wait_for_timeout(500)  # the sliders show the configuration reached
+        for n, g in goal.items():
+            assert float(page.input_value(f"input[data-joint='{n}']")) == pytest.approx(g, abs=0.3), n
+
+        # A move the server refuses: its reason is shown and the sliders go back to the readings.
+        reason = "shoulder_roll 88.0 deg is within the 2.0 deg safety margin of its upper limit (test)"
+        page.route(
+            "**/api/robot/move",
+            lambda route: route.fulfill(status=422, content_type="application/json", body=f'{{"detail": "{reason}"}}'),
+        )
+        page.evaluate(slide, [a["name"], goal[a["name"]] - 10])
+        page.wait_for_function("r => document.querySelector('#toast').textContent.includes(r)", arg=reason)
+        page.wait_for_function(
+            "([s, v]) => Math.abs(+document.querySelector(`input[data-joint='${s}']`).value - v) < 0.11",
+            arg=[a["name"], state["joints"][a["name"]]],
+        )
+        browser.close()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +19,10 @@ from app.drivers.simulated import SimulatedDriver
 from app.jobs import FINISHED, JobManager
 from app.store import Store
 from calib_core import InputError, SimulatedRobot, load_profile
+from calib_core.io.session import read_session
 
 DEG = math.pi / 180
+SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 
 
 @pytest.fixture(scope="module")
@@ -134,6 +137,24 @@ def test_dry_run_flags_limits_and_views_before_anything_moves(rn) -> None:
         assert np.array_equal(np.delete(moved, wrist), np.delete(in_margin, wrist))
         with pytest.raises(LimitError, match="beyond its upper limit"):
             out_of_margin(d, beyond)
+
+
+def test_dry_run_trusts_a_frames_own_measurement_over_the_prediction(rn) -> None:
+    """The day-1 sample re-measured on the robot as it is: a configuration measured in its session was seen,
+    whatever the nominal model predicts (it put 29 of its 67 frames out of view); one without a measurement
+    keeps the prediction."""
+    folder = SAMPLES / "robonaut-a-day1"
+    frames = read_session(folder, rn).frames
+    q = np.radians([[f.joints_deg[n] for n in rn.joint_names] for f in frames])
+    seen = np.array([f.status == "measured" for f in frames])
+    targets = np.zeros(len(q), int)
+    with SimulatedDriver(rn, seed=3) as d:
+        predicted = dry_run(d, q, targets, rn.nominal())
+        trusted = dry_run(d, q, targets, rn.nominal(), seen=seen)
+    assert sum(r["action"] == "skip" for r, s in zip(predicted, seen, strict=True) if s) > 20
+    assert all(r["action"] == "capture" and r["ok"] for r, s in zip(trusted, seen, strict=True) if s)
+    unseen = [k for k in range(len(q)) if not seen[k]]
+    assert unseen and [trusted[k] for k in unseen] == [predicted[k] for k in unseen]
 
 
 def test_dry_run_predicts_the_board_with_the_believed_calibration(nao, nao_plan, nao_driver) -> None:

@@ -514,3 +514,33 @@ def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
         assert on_disk == referenced, s.id
     assert not [p for p in data.rglob("*") if p.name.endswith(".tmp") or p.name.startswith(".s-")]
     store.close()
+
+
+def test_sigterm_stops_calib_serve_promptly_with_jobs_running(tmp_path: Path) -> None:
+    """SIGTERM (a service manager's stop) with a calibration solving in its worker and a replay driving the robot:
+    the server exits within seconds, leaves no process behind, and the jobs are stored as cancelled."""
+    data, log = tmp_path / "data", tmp_path / "serve.log"
+    server = _serve(data, log)
+    try:
+        sid = server.post("/api/sessions", json={"robot": "nao", "name": "stopped"}).json()["id"]
+        replay_job = server.post(f"/api/sessions/{sid}/replay", json={"from_session": "nao"}).json()["job"]
+        cal_job = server.post("/api/sessions/nao/calibrations", json={"mode": "full", "folds": 20}).json()["job"]
+        deadline = time.monotonic() + 60
+        while {server.get(f"/api/jobs/{j}").json()["state"] for j in (replay_job, cal_job)} != {"running"}:
+            assert time.monotonic() < deadline, "the jobs did not start"
+            time.sleep(0.05)
+        children = _descendants(server.process.pid) if PROC else {}
+        t0 = time.monotonic()
+        server.process.send_signal(signal.SIGTERM)
+        server.process.wait(timeout=30)
+        took = time.monotonic() - t0
+        while left := {pid for pid, start in children.items() if _alive(pid, start)}:
+            assert time.monotonic() < t0 + 10, f"still running after the server stopped: {left}"
+            time.sleep(0.05)
+    finally:
+        if server.process.poll() is None:
+            _kill(server)
+    print(f"\nSIGTERM with a calibration and a replay running: calib serve stopped in {took:.2f} s")
+    assert took < 8.0, f"calib serve took {took:.1f} s to stop on SIGTERM"
+    store = Store(data)
+    assert store.jobs.get(replay_job)["state"] == "cancelled" and store.jobs.get(cal_job)["state"] == "cancelled"

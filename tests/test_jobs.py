@@ -157,6 +157,34 @@ def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(jobs: JobMa
         jobs.submit_calibration(sid, "full", None, 0.0)
 
 
+def test_a_calibration_request_answers_before_its_data_are_read_and_cancels_while_they_are(
+    jobs: JobManager, store: Store, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Reading the session, the held-out split and the solve grow with the data: they run in the job, so the
+    request answers at once (a 96,000-frame session held it for minutes) and the job can be cancelled while
+    the data are still being read."""
+    release = threading.Event()
+    read = store.sessions.dataset
+
+    def slow_read(*args, **kwargs):
+        release.wait(10)
+        return read(*args, **kwargs)
+
+    monkeypatch.setattr(store.sessions, "dataset", slow_read)
+    t0 = time.monotonic()
+    loading = jobs.submit_calibration("robonaut-a-day1", "daily", None, 0.5)
+    after = jobs.submit_calibration("robonaut-a-day1", "daily", None, 0.25)
+    assert time.monotonic() - t0 < 2.0
+    snap = jobs.get(loading)
+    assert (snap["state"], snap["detail"]["phase"], snap["detail"]["frames"]) == ("queued", "loading", 64)
+    jobs.cancel(loading)
+    assert jobs.get(loading)["state"] == "cancelled"  # at once, not when the read ends
+    release.set()
+    done = wait(jobs, after)
+    assert done["state"] == "done" and done["detail"]["phase"] == "solving", done["error"]
+    assert jobs.get(loading)["state"] == "cancelled"
+
+
 def test_cancel_a_running_and_a_queued_job(jobs: JobManager, store: Store) -> None:
     n_cals = len(store.calibrations.list())
     running = slow_job(jobs)

@@ -268,3 +268,30 @@ def test_viewers_are_listed_and_the_scene_is_no_api(client: TestClient) -> None:
     assert listed[0]["id"] == "default" and all(set(v) >= {"id", "connected", "session", "index"} for v in listed)
     paths = client.app.openapi()["paths"]
     assert "/api/viewers" in paths and not any(p.startswith("/scene") for p in paths)
+
+
+def test_the_live_robot_follows_the_robot_while_it_moves(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Observe shows the robot at its readings mid-motion (a replay, the sliders), not only once it stands still:
+    the live copy passes through poses between the start and the goal."""
+    desk: Desk = client.app.state.desk
+    with browser(client, "follower"):
+        assert client.post("/api/robot/connect", json={"robot": "nao"}, headers=tab("follower")).status_code == 200
+        driver = desk.robots.driver("nao")
+        monkeypatch.setattr(driver, "time_scale", 0.25)  # a move of a second or two
+        client.post("/api/sessions/nao/observe", json={"on": True}, headers=tab("follower"))
+        viewer = desk.viewers.get("follower")
+        wait_until(lambda: viewer.scene.state()["live"], what="the live view")
+        profile = driver.profile
+        k = profile.joint("HeadYaw")
+        start = driver.read_joints()
+        goal = start.copy()
+        lo, hi = profile.joint_limits()
+        goal[k] = hi[k] - 0.1 if start[k] < 0 else lo[k] + 0.1
+        driver.move_to(goal, wait=False)
+        shown = set()
+        while driver.status().moving:
+            shown.add(round(viewer.scene.state()["urdf"]["live"]["joints"][profile.joints[k].name], 3))
+            time.sleep(0.03)
+        client.post("/api/sessions/nao/observe", json={"on": False}, headers=tab("follower"))
+    between = {x for x in shown if min(abs(x - start[k]), abs(x - goal[k])) > 0.05}
+    assert len(between) >= 3, (start[k], goal[k], sorted(shown))

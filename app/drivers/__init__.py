@@ -94,6 +94,7 @@ class Look:
 
 class RobotDriver(Protocol):
     profile: Profile
+    margin_rad: float  # the safety margin: no move is commanded closer than this to a joint limit
 
     def status(self) -> RobotStatus: ...
 

@@ -11,7 +11,6 @@ from fastapi import Path as PathParam
 from ..desk import Desk
 from ..jobs import JobManager
 from ..robots import Robots
-from ..security import MAX_UPLOAD_BYTES
 from ..store import Store
 from ..validation import FRAME_MAX, FRAME_MIN
 from ..viewers import VIEWER_PATTERN, Viewer
@@ -57,9 +56,12 @@ ViewerDep = Annotated[Viewer, Depends(get_viewer)]
 FrameIndex = Annotated[int, PathParam(ge=FRAME_MIN, le=FRAME_MAX, description="a frame number")]
 
 
-async def read_upload(upload: UploadFile) -> bytes:
-    """An uploaded file whole, refused (413) beyond MAX_UPLOAD_BYTES before it is all read."""
-    raw = await upload.read(MAX_UPLOAD_BYTES + 1)
-    if len(raw) > MAX_UPLOAD_BYTES:
-        raise HTTPException(413, f"{upload.filename}: larger than {MAX_UPLOAD_BYTES // (1024 * 1024)} MB")
+async def read_upload(desk: Desk, upload: UploadFile) -> bytes:
+    """An uploaded file whole, refused (413) beyond the desk's upload limit before it is all read."""
+    limit = desk.limits.upload_bytes
+    raw = await upload.read(limit + 1)
+    if len(raw) > limit:
+        raise HTTPException(
+            413, f"{upload.filename}: larger than {desk.limits.upload_text} (the desk's upload limit, --max-upload-mb)"
+        )
     return raw

@@ -68,6 +68,7 @@ class RobotOut(BaseModel):
     simulated: bool  # its driver is the simulated robot
     origin: str  # "builtin" (the desk's defaults), "config" (its configuration file), "api" (added here)
     joints: list[JointOut]
+    margin_deg: float | None = None  # its driver's safety margin: no move closer to a joint limit (None: no driver)
     modes: list[ModeOut]
     targets: list[str]
     sensor: SensorOut
@@ -102,6 +103,7 @@ def robot_out(robot: Robot) -> RobotOut:
         simulated=robot.simulated,
         origin=robot.origin,
         joints=[_joint_out(p, k) for k in range(len(p.joints))],
+        margin_deg=None if robot.driver is None else math.degrees(robot.driver.margin_rad),
         notes=list(p.notes),
         modes=[ModeOut(name=m.name, description=m.description) for m in p.modes.values()],
         targets=[t.name for t in p.targets],
@@ -139,8 +141,10 @@ async def add_robot(
             raise InputError("give the profile either as a file (profile_file) or by name (profile), not both")
         urdf = None
         if urdf_file is not None:
-            urdf = (file_name(urdf_file.filename, "robot.urdf"), await read_upload(urdf_file))
-        files = ProfileFiles(file_name(profile_file.filename, "profile.yaml"), await read_upload(profile_file), urdf)
+            urdf = (file_name(urdf_file.filename, "robot.urdf"), await read_upload(desk, urdf_file))
+        files = ProfileFiles(
+            file_name(profile_file.filename, "profile.yaml"), await read_upload(desk, profile_file), urdf
+        )
     elif urdf_file is not None:
         raise InputError("a URDF goes with its profile: upload the profile (profile_file) too")
     elif profile and not is_builtin(profile) and not desk.loopback:

@@ -117,20 +117,29 @@ def delete_session(store: StoreDep, session_id: str) -> Deleted:
 
 @router.post("/sessions/import", status_code=201)
 async def import_session(
+    desk: DeskDep,
     store: StoreDep,
     robots: RobotsDep,
     robot: Annotated[str, Form()],
     name: Annotated[str, Form(min_length=1, max_length=200)],
     data: Annotated[UploadFile, File()],
 ) -> ImportedOut:
-    """A session from a CSV in the robot's pinned format; a mistake answers 422 naming line and column."""
-    raw = await read_upload(data)
+    """A session from a CSV in the robot's pinned format; a mistake answers 422 naming line and column, a file
+    beyond the desk's limits (its size, its rows) 413 naming the limit."""
+    raw = await read_upload(desk, data)
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise HTTPException(422, f"{data.filename}: not UTF-8 text (byte {exc.start})") from None
     robots.get(robot)
     filename = Path(data.filename or "data.csv").name
+    rows = text.count("\n") - 1 + (not text.endswith("\n"))  # less the header: at least the rows a parse would read
+    if rows > desk.limits.rows:
+        raise HTTPException(
+            413,
+            f"{filename}: {rows:,} rows; an import takes at most {desk.limits.rows:,} "
+            "(the desk's row limit, --max-rows)",
+        )
     imported = await asyncio.to_thread(import_csv, store, robot, name, text, filename)
     return ImportedOut(id=imported.id, notes=imported.notes)
 

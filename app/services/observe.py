@@ -1,7 +1,8 @@
 """Observe (the paper's GenVisCalData): watch the robot while someone else drives it.
 
 At a few Hz, look through the cameras when the robot stands still and show the detection beside the
-prediction of the active calibration; with autocapture, keep the good settled frames (app/capture.py's
+prediction of the active calibration; while it moves (a replay, the sliders, someone else), show the robot at
+its readings ten times a second, without a look; with autocapture, keep the good settled frames (app/capture.py's
 AutoCapture). One robot is observed at a time; its live view goes to the viewers watching (app/viewers.py).
 """
 
@@ -24,6 +25,7 @@ from ..scene import LookLike
 from ..store import Store
 
 OBSERVE_PERIOD_S = 0.5
+MOVING_PERIOD_S = 0.1  # the live robot follows a moving robot at this period (a pose costs a few ms, a look more)
 MIN_REGISTRATION_FRAMES = 3  # measured frames an external tracker's pose is fitted on (3 points not on one line)
 
 
@@ -57,6 +59,8 @@ class Observer:
         self._thread = threading.Thread(target=self._run, name="observe", daemon=True)
         self._last: dict[str, Any] = {"session": session_id, "autocapture": autocapture, "captured": 0}
         self._registration: tuple[tuple, np.ndarray | None] | None = None  # (frames and calibration, fitted p)
+        self._period = OBSERVE_PERIOD_S
+        self._seen: Look | None = None  # the latest look: its target's points stand in while the robot moves
 
     def start(self) -> None:
         self._thread.start()
@@ -69,7 +73,7 @@ class Observer:
         return dict(self._last)
 
     def _run(self) -> None:
-        while not self._stop.wait(OBSERVE_PERIOD_S):
+        while not self._stop.wait(self._period):
             try:
                 self._tick()
             except Exception as exc:  # a failed look must not end observing; it is shown instead
@@ -85,11 +89,15 @@ class Observer:
                 self._last["last_frame"] = frame.index
             if self.auto.last_look is not before:
                 look = self.auto.last_look  # one render per tick: reuse the look autocapture made
+        if look is None and not self.driver.settled(0.2):
+            self._last["detection"] = "moving"
+            self._period = MOVING_PERIOD_S
+            self._show_moving()
+            return
+        self._period = OBSERVE_PERIOD_S
         if look is None:
-            if not self.driver.settled(0.2):
-                self._last["detection"] = "moving"
-                return
             look = self.driver.look()
+        self._seen = look
         self._last["detection"] = look.sighting.status
         self._last["reason"] = look.sighting.reason
         p, registered = self._live_params()
@@ -97,6 +105,17 @@ class Observer:
             look = Look(look.readings_rad, look.target, replace(look.sighting, measured=None), look.images)
             self._last["reason"] = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
         self.live.show_live(self.driver.profile, look, p)
+
+    def _show_moving(self) -> None:
+        """The robot at its readings now, with the prediction of the target last looked at and nothing
+        measured (a look mid-motion would show a blurred pose)."""
+        st = self.driver.status()
+        seen = self._seen
+        if seen is None or seen.target != st.target:
+            seen = self._seen = self.driver.look()
+        sighting = replace(seen.sighting, status="moving", reason="moving", measured=None)
+        p, _ = self._live_params()
+        self.live.show_live(self.driver.profile, Look(st.joints_rad, st.target, sighting, {}), p)
 
     def _live_params(self) -> tuple[np.ndarray, bool]:
         """The active calibration, seeing an external tracker (if any) through a registration fitted on this

@@ -77,13 +77,20 @@ class ReplayService:
         self.jobs = jobs
         self._plans: dict[tuple, Plan] = {}
         self._lock = threading.Lock()
+        self._starting = threading.Lock()
+        self._driving: dict[str, tuple[str, str, ReplayPlan]] = {}  # robot: its latest replay (job, session, plan)
 
     def configurations(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
         """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
+        return self.planned(session_id, plan)[:3]
+
+    def planned(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray]:
+        """configurations(), and which of them were measured in the session they come from (bool; new
+        configurations: none), so that the dry run trusts their measurement over a prediction."""
         count = self._check(session_id, plan)
-        q, targets, indices = self._plan(session_id, plan, count)
+        q, targets, indices, seen = self._plan(session_id, plan, count)
         if not plan.resume:
-            return q, targets, indices
+            return q, targets, indices, seen
         have = np.array([f.joints_rad for f in self.store.sessions.frames(session_id)]).reshape(-1, q.shape[1])
         driver = self.robots.driver(self.store.sessions.get(session_id).robot)
         driven = np.array([_driven(driver, qk) for qk in q]).reshape(q.shape)  # where the replay took each
@@ -95,7 +102,7 @@ class ReplayService:
             raise InputError(
                 f"nothing to resume: session '{session_id}' has a frame at each of the {len(q)} configurations"
             )
-        return q[todo], targets[todo], None
+        return q[todo], targets[todo], None, seen[todo]
 
     def dry_run(self, session_id: str, plan: ReplayPlan) -> dict[str, Any]:
         """Every configuration checked, and the accuracy a calibration from those captured is predicted to
@@ -105,9 +112,9 @@ class ReplayService:
         mode = default_mode(profile, plan.mode)
         if plan.until is not None:
             plan = replace(plan, count=plan.until.max, until=None)
-        q, targets, _ = self.configurations(session_id, plan)
+        q, targets, _, seen = self.planned(session_id, plan)
         _, believed = self.robots.active_params(robot)
-        rows = dry_run(self.robots.driver(robot), q, targets, believed)
+        rows = dry_run(self.robots.driver(robot), q, targets, believed, seen=seen)
         captured = [k for k, r in enumerate(rows) if r["action"] == "capture"]
         predicted = None
         planned = plan.count is not None and not plan.from_frames and plan.planner != "random" and not plan.resume
@@ -119,23 +126,38 @@ class ReplayService:
         return {"ok": all(r["ok"] for r in rows), "configurations": rows, "mode": mode, "predicted": predicted}
 
     def start(self, session_id: str, plan: ReplayPlan) -> str:
-        """Queue the replay job; its id."""
+        """Queue the replay job; its id. The same request while its replay is queued or running (a double
+        click, a second tab) is that replay; another replay of the same robot meanwhile is refused."""
+        robot = self.store.sessions.get(session_id).robot
+        with self._starting:
+            running = self._driving.get(robot)
+            if running is not None and self.jobs.get(running[0])["state"] in ("queued", "running"):
+                if running[1:] == (session_id, plan):
+                    return running[0]
+                raise InputError(
+                    f"a replay (job {running[0]}) is driving {robot}: wait for it to end, or abort it first"
+                )
+            job_id = self._start(session_id, plan)
+            self._driving[robot] = (job_id, session_id, plan)
+            return job_id
+
+    def _start(self, session_id: str, plan: ReplayPlan) -> str:
         driver = self.robots.driver(self.store.sessions.get(session_id).robot)
         if plan.until is not None:
             return self._start_until(session_id, plan, driver)
-        ready = self.configurations(session_id, plan) if plan.from_frames else None
+        ready = self.planned(session_id, plan) if plan.from_frames else None
         if ready is None:
             self._check(session_id, plan)
 
         def run(ctx: JobContext) -> str | None:
             if ready is None:
                 ctx.progress(0.0, phase="planning")
-                q, targets, indices = self.configurations(session_id, plan)
+                q, targets, indices, seen = self.planned(session_id, plan)
                 ctx.checkpoint()
                 ctx.progress(0.0, phase="driving")
             else:
-                q, targets, indices = ready
-            return replay(ctx, self.store, driver, session_id, q, targets, indices)
+                q, targets, indices, seen = ready
+            return replay(ctx, self.store, driver, session_id, q, targets, indices, seen=seen)
 
         return self.jobs.submit_thread("replay", run, session_id=session_id)
 
@@ -193,7 +215,9 @@ class ReplayService:
             raise InputError(f"give from_session, remeasure, or a count of configurations between 1 and {MAX_PLANNED}")
         return plan.count
 
-    def _plan(self, session_id: str, plan: ReplayPlan, count: int) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
+    def _plan(
+        self, session_id: str, plan: ReplayPlan, count: int
+    ) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray]:
         session = self.store.sessions.get(session_id)
         robot = self.robots.get(session.robot)
         if plan.from_frames:
@@ -205,7 +229,8 @@ class ReplayService:
                 raise InputError(f"session '{source.id}' has no frames to replay")
             q = np.array([f.joints_rad for f in frames])
             targets = np.array([f.target for f in frames])
-            return q, targets, [f.index for f in frames] if plan.remeasure else None
+            seen = np.array([f.status == "measured" for f in frames], dtype=bool)
+            return q, targets, [f.index for f in frames] if plan.remeasure else None, seen
         # Configurations the robot believes it sees the target in: with its active model. Random: twice as
         # many as asked, since those inside a joint's safety margin are left out. Planned: for the least
         # predicted error of a calibration in the mode, inside the limits less the margin already.
@@ -218,7 +243,7 @@ class ReplayService:
             planned = self._planned(robot.profile, default_mode(robot.profile, plan.mode), count, believed, plan.seed)
             q, targets = planned.q, planned.targets
         keep = [k for k in range(len(q)) if _within_limits(driver, q[k])][:count]
-        return q[keep], targets[keep], None
+        return q[keep], targets[keep], None, np.zeros(len(keep), bool)
 
 
 def _within_limits(driver: RobotDriver, q_rad: np.ndarray) -> bool:

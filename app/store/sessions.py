@@ -344,6 +344,17 @@ class SessionRepository:
             out.setdefault(int(r["idx"]), {})[r["sensor"]] = int(r["n"])
         return out
 
+    def observation_counts(self, session_id: str) -> dict[int | None, int]:
+        """How many observations the session's measured frames hold, per sensor (profile index; None: the
+        data sensor): what a calibration of it would read, counted without reading it."""
+        self.get(session_id)
+        rows = self.db.all(
+            "SELECT o.sensor, COUNT(*) AS n FROM observations o JOIN frames f ON f.session_id = o.session_id "
+            "AND f.idx = o.idx WHERE o.session_id = ? AND f.status = 'measured' GROUP BY o.sensor",
+            (session_id,),
+        )
+        return {r["sensor"]: int(r["n"]) for r in rows}
+
     # --- what the sweep keeps -----------------------------------------------------------------------
     def ids(self) -> set[str]:
         return {r["id"] for r in self.db.all("SELECT id FROM sessions")}
