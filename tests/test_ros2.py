@@ -131,7 +131,9 @@ def test_a_camera_robot_is_measured_by_the_detectors_in_images_from_its_topics(g
     server = graph.server
     assert {r["name"]: r["drivable"] for r in server.get("/api/robots").json()}["nao-ros"] is True
     sid = server.post("/api/sessions", json={"robot": "nao-ros", "name": "camera"}).json()["id"]
-    job = server.post(f"/api/sessions/{sid}/replay", json={"count": 10}).json()["job"]
+    # Random poses the robot believes it sees its board in: this checks the images through the detectors;
+    # planned poses (the default) lean to the edge of the view, where a robot that is off loses a few.
+    job = server.post(f"/api/sessions/{sid}/replay", json={"count": 10, "planner": "random"}).json()["job"]
     assert wait_job(server, job)["state"] == "done"
     frames = _frames(server, sid)
     assert len(frames) == 10 and all(f["status"] == "measured" for f in frames), [f["reason"] for f in frames]
