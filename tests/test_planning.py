@@ -18,7 +18,15 @@ import numpy as np
 import pytest
 
 from calib_core import SimulatedRobot, calibrate, load_profile, plan, predict_accuracy
-from calib_core.estimation.planning import JOINT_MARGIN_DEG, Selection, candidates, design, within_margin
+from calib_core.estimation.planning import (
+    JOINT_MARGIN_DEG,
+    Selection,
+    candidates,
+    design,
+    plan_margins,
+    within_margin,
+)
+from calib_core.sim.simulator import MIN_SPHERE_SHARE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,7 +71,9 @@ def test_plan_within_limits_less_margin_and_predicted_visible(rn) -> None:
     m = np.minimum(math.radians(JOINT_MARGIN_DEG), (hi - lo) / 2)
     assert np.all(planned.q >= lo + m - 1e-12) and np.all(planned.q <= hi - m + 1e-12)
     assert within_margin(rn, planned.q).all()
-    believer = SimulatedRobot(rn, rn.nominal(), margin=10.0)
+    margin_px, share = plan_margins(rn)  # a stereo head's plan keeps more clear than its detector needs
+    assert margin_px > 10.0 and share > MIN_SPHERE_SHARE
+    believer = SimulatedRobot(rn, rn.nominal(), margin=margin_px, sphere_share=share)
     assert believer.visible(planned.q, planned.targets).all()
     assert len({tuple(r) for r in np.round(planned.q, 9)}) == 12  # no configuration twice
     pred = planned.predicted

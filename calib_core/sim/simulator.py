@@ -83,6 +83,7 @@ class SimulatedRobot:
     margin: float = 10.0  # px kept clear of the image border
     seed: int = 0
     point_noise: float = 0.0  # profile length unit per axis: a point sensor without a camera (a laser tracker)
+    sphere_share: float = MIN_SPHERE_SHARE  # of the sphere's outline each stereo camera must see (`visible`)
     rng: np.random.Generator = field(init=False)
 
     def __post_init__(self) -> None:
@@ -119,6 +120,7 @@ class SimulatedRobot:
             self.margin,
             seed,
             self.point_noise,
+            self.sphere_share,
         )
 
     # --- configurations ---------------------------------------------------------------------------
@@ -256,7 +258,7 @@ class SimulatedRobot:
         clear of the border). A board shows its face, seen at most MAX_OBLIQUITY_DEG from its normal
         with neighbouring vertices at least MIN_VERTEX_SPACING_PX apart. A stereo head's sphere lies
         whole inside both images, right of the matcher's band without depth, and the arm and hand
-        leave at least MIN_SPHERE_SHARE of its outline free in each camera (`_sees_sphere`; `occlusion=False`
+        leave at least `sphere_share` of its outline free in each camera (`_sees_sphere`; `occlusion=False`
         leaves this, the costly part, out: a planner checks it only for the configurations it picks)."""
         prof = self.profile
         s = prof.data.sensor if sensor is None else sensor
@@ -312,7 +314,7 @@ class SimulatedRobot:
                 & (v_min >= m)
                 & (v_max <= head.height_px - 1 - m)
             )
-        return inside & (view.visible.min(axis=1) >= MIN_SPHERE_SHARE)
+        return inside & (view.visible.min(axis=1) >= self.sphere_share)
 
     # --- measuring --------------------------------------------------------------------------------
     def measure(
