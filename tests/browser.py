@@ -128,6 +128,22 @@ def launch(playwright):
     return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
 
 
+def new_nao_session(browser, url: str, name: str) -> tuple:
+    """A page at the desk with the simulated NAO connected and a new capture session of that name selected
+    (the page on step 1, Observe); the page and the session's id."""
+    page = browser.new_page(viewport={"width": 1500, "height": 1000})
+    page.goto(url)
+    page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+    page.select_option("#robot-select", "nao")
+    page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao')", timeout=60_000)
+    page.click("#new-session-toggle")
+    page.fill("#new-session input[name=name]", name)
+    page.click("#new-session button[type=submit]")
+    page.wait_for_selector("#tab-observe:not([hidden])")
+    page.wait_for_selector("#sessions li.selected")
+    return page, page.get_attribute("#sessions li.selected", "data-session")
+
+
 def colour_pixels(png: bytes, rgb: tuple[int, int, int], tol: int = 70) -> int:
     """How many pixels of a screenshot are within `tol` of a colour (per channel)."""
     import cv2

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
-from browser import PAPER_COLOURS, colour_pixels, launch, served, wait_for_scene
+from browser import PAPER_COLOURS, colour_pixels, launch, new_nao_session, served, wait_for_scene
 from test_scene import URDF_DIR, build
 
 from app.review import frame_bounds_m
@@ -256,18 +256,8 @@ def test_a_frame_whose_detection_failed_shows_as_not_found(tmp_path: Path) -> No
 def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
     with served(tmp_path / "data", sim_speed=10.0) as server, playwright_api.sync_playwright() as pw:
         browser = launch(pw)
-        page = browser.new_page(viewport={"width": 1500, "height": 1000})
-        page.goto(server.url)
-        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
-        page.select_option("#robot-select", "nao")
-        page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao')")
-
         # A new capture session; Observe: watch live, capture one frame on a click.
-        page.click("#new-session-toggle")
-        page.fill("#new-session input[name=name]", "browser session")
-        page.click("#new-session button[type=submit]")
-        page.wait_for_selector("#tab-observe:not([hidden])")
-        sid = page.get_attribute("#sessions li.selected", "data-session")
+        page, sid = new_nao_session(browser, server.url, "browser session")
         page.locator("#observe-on").check()
         page.click("#capture")
         page.wait_for_function(
@@ -277,16 +267,17 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         shot(page, "1-observe")
         page.locator("#observe-on").uncheck()
 
-        # Replay: a dry run of three new configurations, then drive through them.
+        # Replay: a dry run of six new configurations, then drive through them (enough that the pause below
+        # lands before the last frame: a pause that comes after it finds the replay done).
         page.click("#tabs button[data-tab='replay']")
         page.check("input[name=replay-source][value=count]")
-        page.fill("#replay-count", "3")
+        page.fill("#replay-count", "6")
         asked: list[dict] = []
         page.on(
             "request", lambda r: r.method == "POST" and r.url.endswith("/replay") and asked.append(r.post_data_json)
         )
         page.click("#dry-run")
-        page.wait_for_function("document.querySelector('#dry-run-result').textContent.includes('3 configurations')")
+        page.wait_for_function("document.querySelector('#dry-run-result').textContent.includes('6 configurations')")
         assert all(page.is_disabled(f"#replay-{a}") for a in ("pause", "resume", "abort"))  # nothing to pause
         page.click("#replay-start")
         # While it runs: pause (shown as paused, resume offered, no second replay), then resume.
@@ -317,7 +308,7 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         assert page.is_enabled("#replay-start")
         shot(page, "2-replay")
         frames = server.get(f"/api/sessions/{sid}").json()["frames"]
-        assert [f["index"] for f in frames] == [1, 2, 3, 4]
+        assert [f["index"] for f in frames] == [1, 2, 3, 4, 5, 6, 7]
         assert sum(f["status"] == "measured" for f in frames[1:]) >= 1
         # The dry run checked the poses the replay drove through; the next plan is new poses.
         page.click("#dry-run")

@@ -62,21 +62,12 @@ def test_capture_until_the_predicted_error_reaches_the_target(client: TestClient
 
 
 def test_until_and_the_prediction_in_the_browser(tmp_path: Path) -> None:
-    from browser import launch, served
+    from browser import launch, new_nao_session, served
 
     with served(tmp_path / "data", sim_speed=20.0) as server, playwright_api.sync_playwright() as pw:
         browser = launch(pw)
-        page = browser.new_page(viewport={"width": 1500, "height": 1000})
-        page.goto(server.url)
-        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
-        page.select_option("#robot-select", "nao")
-        page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao')", timeout=60_000)
+        page, _ = new_nao_session(browser, server.url, "until in the browser")
         page.set_default_timeout(60_000)
-        page.click("#new-session-toggle")
-        page.fill("#new-session input[name=name]", "until in the browser")
-        page.click("#new-session button[type=submit]")
-        page.wait_for_selector("#tab-observe:not([hidden])")
-        page.wait_for_selector("#sessions li.selected")
         page.click("#tabs button[data-tab='replay']")
         page.wait_for_selector("#tab-replay:not([hidden])")
         assert page.text_content("#replay-until-unit") == "px"
