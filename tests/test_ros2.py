@@ -13,6 +13,7 @@ import importlib.util
 import math
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -255,7 +256,18 @@ def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path, case):
     publishers[0].publish(String(data=text))
     states = node.create_publisher(JointState, "/bad/joint_states", 10)
     publishers.append(states)
-    timer = node.create_timer(0.02, lambda: states.publish(JointState(name=names, position=[0.0] * len(names))))
+    # Published from a thread of the test's own, not a timer added to the running executor (a timer added
+    # from another thread may wait for the executor to wake: no joint states for the desk, a flaky test).
+    publishing = threading.Event()
+    publishing.set()
+
+    def publish() -> None:
+        while publishing.is_set():
+            states.publish(JointState(name=names, position=[0.0] * len(names)))
+            time.sleep(0.02)
+
+    thread = threading.Thread(target=publish, daemon=True)
+    thread.start()
     if case == "topic type":
         publishers.append(node.create_publisher(String, "/bad/mocap", 10))
     conn = {
@@ -280,7 +292,8 @@ def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path, case):
             timeout=60,
         )
     finally:
-        node.destroy_timer(timer)
+        publishing.clear()
+        thread.join(timeout=2)
         for p in publishers:
             node.destroy_publisher(p)
     assert done.returncode == 2, done.stderr
