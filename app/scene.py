@@ -56,6 +56,7 @@ from calib_core.vision.sighting import Sighting
 
 from .framing import ClientFraming, Target, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
+from .robot_look import LinkVisual, RobotLook, robot_look, without_bodies
 
 SIDES = ("old", "new")
 PARTS = ("measured", "predicted", "lines")
@@ -99,6 +100,7 @@ class _Copy:
     root: str
     node: viser.FrameHandle
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
+    looks: dict[str, LinkVisual]  # the robot's own visuals (app/robot_look.py): viser node -> visual
 
 
 @dataclass(frozen=True)
@@ -299,7 +301,7 @@ class ReviewScene:
         "lines", "label"), visible, shown (it and its ancestors visible), position, wxyz (relative to
         its parent), and color + points (N, 3) / segments (N, 2, 3) of what it really holds, or text}};
         urdf: {copy ("old", "ghost", "new", "live"): {root, node (the URDF's nodes hang under it), shown,
-        joints: {name: rad}}}; camera: the
+        joints: {name: rad}, looks: {node: {link, what, faces}} (a URDF robot's own visuals)}}; camera: the
         framing of the robot shown and each browser's camera (app.framing.ClientFraming.state)."""
         with self._lock:
             return {
@@ -316,6 +318,9 @@ class ReviewScene:
                         "node": c.node.name,
                         "shown": self._shown(c.root),
                         "joints": dict(zip(c.urdf.actuated_joint_names, map(float, c.urdf.cfg), strict=True)),
+                        "looks": {
+                            name: {"link": v.link, "what": v.what, "faces": len(v.faces)} for name, v in c.looks.items()
+                        },
                     }
                     for slot, c in self._copies.items()
                 },
@@ -402,8 +407,10 @@ class ReviewScene:
         current = self._copies.get(slot)
         if current is not None and current.text == text:
             return current
-        urdf = yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=True, load_meshes=True)
-        if urdf.scene is None or not urdf.scene.geometry:
+        look = robot_look(profile) if GENERATED in text else None  # a URDF robot's own visuals
+        shown = text if look is None else without_bodies(text, look.links)
+        urdf = yourdfpy.URDF.load(io.StringIO(shown), build_scene_graph=True, load_meshes=True)
+        if (urdf.scene is None or not urdf.scene.geometry) and not (look and look.visuals):
             raise ValueError(f"the URDF of the '{slot}' copy has no visual geometry to show")
         self._frame(root)
         if current is not None:
@@ -412,8 +419,36 @@ class ReviewScene:
         node = self.target.scene.add_frame(f"{root}/u{self._builds}", show_axes=False)
         handle = ViserUrdf(self.target, urdf, root_node_name=node.name, mesh_color_override=rgba)
         order = [profile.joint(name) for name in urdf.actuated_joint_names]
-        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order)
+        looks = {} if look is None else self._add_look(urdf, f"{node.name}/visual", look, rgba)
+        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order, looks)
         return self._copies[slot]
+
+    def _add_look(
+        self, urdf: yourdfpy.URDF, visual_root: str, look: RobotLook, rgba: tuple[float, ...] | None
+    ) -> dict[str, LinkVisual]:
+        """A URDF robot's own visuals, each under its link's node of the copy (ViserUrdf's frame of the link, which
+        update_cfg poses): sent once per copy, moved with the link at every frame step. `rgba`: the copy's colour
+        instead of the visuals' own (the overlay's ghost)."""
+        links = {link: _link_node(urdf.scene, link, visual_root) for link in {v.link for v in look.visuals}}
+        added: dict[str, LinkVisual] = {}
+        for k, visual in enumerate(look.visuals):
+            parent = links.get(visual.link)
+            if parent is None:  # a link the profile left out (below a planar or mimic joint)
+                continue
+            color: tuple[float, ...] = tuple(visual.rgb) if rgba is None else tuple(rgba[:3])
+            opacity = visual.opacity if rgba is None else rgba[3]
+            name = f"{parent}/look{k}"
+            self.target.scene.add_mesh_simple(
+                name,
+                visual.vertices,
+                visual.faces,
+                color=color,  # type: ignore[arg-type]
+                opacity=None if opacity >= 1.0 else float(opacity),
+                wxyz=_wxyz(visual.T_link_visual[:3, :3]),
+                position=tuple(float(v) for v in visual.T_link_visual[:3, 3]),
+            )
+            added[name] = visual
+        return added
 
     def _drop_copy(self, slot: str) -> None:
         """Remove a copy's URDF from viser: its build node and every node under it."""
@@ -603,6 +638,19 @@ class ReviewScene:
         else:
             out |= {"kind": "frame"}
         return out
+
+
+def _link_node(scene: Any, link: str, visual_root: str) -> str | None:
+    """The viser node of a link in a ViserUrdf copy (its frames are named by the links from the root down to
+    the link, under `visual_root`); None for a link the URDF does not have."""
+    parents = scene.graph.transforms.parents
+    names = []
+    while link != scene.graph.base_frame:
+        if link not in parents:
+            return None
+        names.append(link)
+        link = parents[link]
+    return "/".join([visual_root, *reversed(names)])
 
 
 def _wxyz(R: np.ndarray) -> tuple[float, float, float, float]:
