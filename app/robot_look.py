@@ -133,7 +133,8 @@ def read_look(path: Path, max_faces: int = MAX_FACES) -> RobotLook | None:
         return None
     read = sum(len(v.faces) for v in visuals)
     if read > max_faces:
-        visuals = [_thinned(v, max(12, int(max_faces * len(v.faces) / read))) for v in visuals]
+        cap = face_cap([len(v.faces) for v in visuals], max_faces)
+        visuals = [_thinned(v, cap) for v in visuals]
     problems = tuple(f"{why} (link '{link}')" for link, whys in failed.items() for why in whys)
     warning = None
     if failed:
@@ -204,11 +205,14 @@ def mesh_file(given: str, folder: Path) -> Path | None:
 def _own_rgba(mesh: trimesh.Trimesh) -> tuple[float, ...] | None:
     """A mesh file's main colour (a DAE's material, an OBJ's), RGBA 0-1; None for a file without one (STL)."""
     try:
-        visual = mesh.visual.to_color() if mesh.visual.kind == "texture" else mesh.visual
-        if visual.kind is None:
+        if mesh.visual.kind == "texture":  # the material's colour: sampling the texture takes long
+            rgba = mesh.visual.material.main_color
+        elif mesh.visual.kind is None:
             return None
-        return tuple(float(v) / 255.0 for v in visual.main_color)
-    except Exception:  # a texture trimesh cannot sample: the URDF's colour or the default
+        else:
+            rgba = mesh.visual.main_color
+        return tuple(float(v) / 255.0 for v in rgba)
+    except Exception:  # a visual trimesh cannot say a colour of: the URDF's colour or the default
         return None
 
 
@@ -235,37 +239,56 @@ def _thinned(visual: LinkVisual, max_faces: int) -> LinkVisual:
     return LinkVisual(visual.link, visual.T_link_visual, vertices, faces, visual.rgb, visual.opacity, visual.what)
 
 
+def face_cap(counts: list[int], max_faces: int) -> int:
+    """The most triangles any one mesh may keep so that all keep at most `max_faces` together: the small ones
+    keep theirs, only the biggest are thinned (to the same size)."""
+    counts = sorted(counts)
+    left = max_faces
+    for k, n in enumerate(counts):
+        if n * (len(counts) - k) > left:
+            return max(left // (len(counts) - k), 12)
+        left -= n
+    return counts[-1] if counts else max_faces
+
+
 def cluster_vertices(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
     """A coarser mesh with at most `max_faces` triangles: vertices merged per cell of a grid (their mean), the
-    triangles that collapse dropped. The cell is the smallest, found by bisection, that keeps few enough:
-    crude next to quadric decimation, but enough for a display and needs no library."""
+    triangles that collapse dropped. The cell is about the smallest that keeps few enough (a geometric
+    bisection from the cell the surface area suggests): crude next to quadric decimation, but enough for a
+    display and it needs no library."""
     v = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
     low = v.min(axis=0)
     size = float(np.max(v.max(axis=0) - low)) or 1.0
+    area = float(
+        np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1).sum()
+    )
+    cell = float(np.sqrt(max(area, 1e-12) / max(max_faces, 1)))  # about two triangles per occupied cell
 
     def clustered(cell: float) -> tuple[np.ndarray, np.ndarray]:
-        keys = np.floor((v - low) / cell).astype(np.int64)
-        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        f = inverse[faces]
-        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
-        f = f[np.unique(np.sort(f, axis=1), axis=0, return_index=True)[1]]
-        means = np.zeros((len(first), 3))
-        np.add.at(means, inverse, v)
-        means /= np.bincount(inverse, minlength=len(first))[:, None]
-        return means, f
+        k = np.floor((v - low) / cell).astype(np.int64)
+        n = int(size / cell) + 2
+        _, inverse = np.unique((k[:, 0] * n + k[:, 1]) * n + k[:, 2], return_inverse=True)
+        f = inverse.reshape(-1)[faces]  # corners in their order: sorting them would turn triangles inside out
+        o = np.sort(f, axis=1)
+        kept = (o[:, 0] != o[:, 1]) & (o[:, 1] != o[:, 2])
+        f, o = f[kept], o[kept]
+        m = int(inverse.max()) + 1
+        _, first = np.unique((o[:, 0] * m + o[:, 1]) * m + o[:, 2], return_index=True)  # one of each triangle
+        means = np.zeros((m, 3))
+        np.add.at(means, inverse.reshape(-1), v)
+        return means / np.bincount(inverse.reshape(-1), minlength=m)[:, None], f[first]
 
-    fine, coarse = 0.0, size  # a cell of the mesh's size keeps nothing
-    best = clustered(coarse)
-    for _ in range(16):
-        cell = (fine + coarse) / 2 if fine > 0 else coarse / 2
+    fine, coarse, best = 0.0, None, None
+    while best is None or (fine > 0 and coarse / fine > 1.05):
         out = clustered(cell)
         if len(out[1]) <= max_faces:
             coarse, best = cell, out
         else:
             fine = cell
-        if fine > 0 and coarse - fine < 0.02 * coarse:
-            break
+        cell = np.sqrt(fine * coarse) if fine > 0 and coarse else cell * 1.5 if coarse is None else cell / 1.5
+        if coarse is not None and fine == 0 and cell < size * 1e-6:
+            break  # even the finest cell keeps few enough
     means, f = best
     used, f = np.unique(f, return_inverse=True)
     return means[used].astype(np.float32), f.reshape(-1, 3).astype(np.uint32)

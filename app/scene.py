@@ -100,6 +100,7 @@ class _Copy:
     root: str
     node: viser.FrameHandle
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
+    joint_unit: np.ndarray  # per URDF actuated joint: its reading's unit in the URDF's (a prismatic one's, in m)
     looks: dict[str, LinkVisual]  # the robot's own visuals (app/robot_look.py): viser node -> visual
 
 
@@ -419,8 +420,10 @@ class ReviewScene:
         node = self.target.scene.add_frame(f"{root}/u{self._builds}", show_axes=False)
         handle = ViserUrdf(self.target, urdf, root_node_name=node.name, mesh_color_override=rgba)
         order = [profile.joint(name) for name in urdf.actuated_joint_names]
+        to_m = length_factor(profile.length_unit, "m")
+        unit = np.array([to_m if profile.joints[j].prismatic else 1.0 for j in order])
         looks = {} if look is None else self._add_look(urdf, f"{node.name}/visual", look, rgba)
-        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order, looks)
+        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order, unit, looks)
         return self._copies[slot]
 
     def _add_look(
@@ -455,8 +458,8 @@ class ReviewScene:
         self._copies.pop(slot).node.remove()
 
     def _set_joints(self, copy: _Copy, q_rad: np.ndarray) -> None:
-        """Drive a copy with readings in the profile's joint order."""
-        copy.handle.update_cfg(np.asarray(q_rad, float)[copy.joint_order])
+        """Drive a copy with readings in the profile's joint order (rad, a prismatic joint's in its length unit)."""
+        copy.handle.update_cfg(np.asarray(q_rad, float)[copy.joint_order] * copy.joint_unit)
 
     def _show_frame(self, base: str, geometry: FrameGeometry, side: str) -> None:
         predicted = geometry.predicted_m[side]

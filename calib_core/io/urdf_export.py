@@ -1,8 +1,8 @@
 """A profile's frame tree as URDF: a display model, or the robot with corrected joint origins.
 
-URDF can only say "fixed origin, then rotate about an axis", so each frame's ops are folded: the
-fixed ops up to the jointed op, and the joint's offset itself, become the revolute joint's
-<origin> (drivers ignore <calibration>, so the offset must live there). Fixed ops after the joint
+URDF can only say "fixed origin, then rotate about (or slide along) an axis", so each frame's ops are
+folded: the fixed ops up to the jointed op, and the joint's offset itself, become the revolute (prismatic)
+joint's <origin> (drivers ignore <calibration>, so the offset must live there). Fixed ops after the joint
 (standard DH) go into an extra fixed joint to the frame's link, so that every profile frame is a
 link at exactly that frame's pose. The link structure depends on the profile only, never on p, so
 nominal and calibrated exports of one robot differ in numbers only.
@@ -79,8 +79,8 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None, *, bodies: bool = Fal
         drawn = THIN if frame.registration else style  # an external device is no limb of the robot
         T = np.eye(4)
         jointed = [k for k, op in enumerate(frame.ops) if op.joint >= 0]
-        if len(jointed) > 1 or any(frame.ops[k].kind != "r" for k in jointed):
-            raise ValueError(f"frame '{frame.name}': URDF needs one revolute op per frame")
+        if len(jointed) > 1:
+            raise ValueError(f"frame '{frame.name}': URDF needs one joint op per frame")
         for k, op in enumerate(frame.ops):
             T = T @ _op_matrix(op, p[op.param], scale)
             if op.joint < 0:
@@ -93,15 +93,16 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None, *, bodies: bool = Fal
             shared = joint.name in driven
             name = f"{joint.name}__{frame.name}" if shared else joint.name
             driven.add(joint.name)
-            el = _joint(robot, name, "revolute", links[parent], child, T, drawn)
+            el = _joint(robot, name, "prismatic" if op.kind == "t" else "revolute", links[parent], child, T, drawn)
             ET.SubElement(el, "axis", xyz=urdf_numbers(op.vector))
+            unit = scale if op.kind == "t" else 1.0  # a prismatic joint's limits are lengths (the URDF's in m)
             ET.SubElement(
                 el,
                 "limit",
-                lower=_num(joint.lower),
-                upper=_num(joint.upper),
+                lower=_num(joint.lower * unit),
+                upper=_num(joint.upper * unit),
                 effort=_num(EFFORT),
-                velocity=_num(joint.velocity),
+                velocity=_num(joint.velocity * unit),
             )
             if shared:
                 ET.SubElement(el, "mimic", joint=joint.name, multiplier="1.0", offset="0.0")
