@@ -74,12 +74,14 @@ class RobotLook:
 
 _lock = threading.Lock()
 _looks: dict[tuple, RobotLook | None] = {}
+_paths: dict[tuple, Path | None] = {}  # (profile source, its version) -> the URDF it names
+_reading: dict[tuple, threading.Lock] = {}  # a URDF version being read -> held by its reader
 
 
 def robot_look(profile: Profile) -> RobotLook | None:
     """The look of a profile made from a URDF file (None: a profile of its own frames, or a URDF without any
     visual, or one that cannot be read any more), read once per version of the file."""
-    path = profile_urdf_path(profile)
+    path = _urdf_path(profile)
     if path is None:
         return None
     try:
@@ -87,16 +89,43 @@ def robot_look(profile: Profile) -> RobotLook | None:
     except OSError:
         return None
     key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-    with _lock:  # one reader at a time: two viewers opening the same robot read its meshes once
-        if key not in _looks:
-            look = read_look(path)
-            if look is not None and look.warning:
-                more = len(look.problems) > SHOWN_PROBLEMS
-                log.warning("%s%s", look.warning, f" (every one: {'; '.join(look.problems)})" if more else "")
+    with _lock:
+        if key in _looks:
+            return _looks[key]
+        reading = _reading.setdefault(key, threading.Lock())
+    with reading:  # one reader per file: two viewers opening one robot read it once; other robots never wait
+        with _lock:
+            if key in _looks:
+                return _looks[key]
+        look = read_look(path)
+        if look is not None and look.warning:
+            more = len(look.problems) > SHOWN_PROBLEMS
+            log.warning("%s%s", look.warning, f" (every one: {'; '.join(look.problems)})" if more else "")
+        with _lock:
             while len(_looks) >= _CACHED:
                 _looks.pop(next(iter(_looks)))
             _looks[key] = look
-        return _looks[key]
+            _reading.pop(key, None)
+        return look
+
+
+def _urdf_path(profile: Profile) -> Path | None:
+    """profile_urdf_path, read once per version of the profile file (parsing NAO's YAML takes 0.2 s, and every
+    review of every robot asks)."""
+    try:
+        version = Path(profile.source).stat().st_mtime_ns
+    except OSError:
+        version = None  # a built-in profile ("nao (built-in)"): its file does not change while the desk runs
+    key = (profile.source, version)
+    with _lock:
+        if key in _paths:
+            return _paths[key]
+    path = profile_urdf_path(profile)  # outside the lock: nobody waits for another robot's YAML
+    with _lock:
+        while len(_paths) >= _CACHED:
+            _paths.pop(next(iter(_paths)))
+        _paths[key] = path
+    return path
 
 
 def read_look(path: Path, max_faces: int = MAX_FACES) -> RobotLook | None:

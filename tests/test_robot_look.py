@@ -13,6 +13,7 @@ import trimesh
 import viser
 from fastapi.testclient import TestClient
 from sim_frames import measured_frames
+from test_urdf_import import PROFILE as ARM_PROFILE
 
 from app.desk_config import load_desk_config
 from app.review import Review
@@ -55,25 +56,11 @@ URDF = """<?xml version="1.0"?>
 </robot>
 """
 
-PROFILE = """profile: 1
-name: meshed-arm
-units: {length: mm, angle: deg}
-urdf: urdf/arm.urdf
-frames:
-  - {name: tracker, parent: base_link, registration: true}
-targets:
-  - {name: smr, frame: tool0, point: {x: 0, y: 20, z: 10}}
-sensors:
-  - {name: tracker, frame: tracker, model: point3d, noise: {model: isotropic, sigma: 0.02}}
-data:
-  sensor: tracker
-  target: smr
-  measurement: {columns: [x, y, z], unit: mm}
-  prediction_columns: [pred_x, pred_y, pred_z]
-simulation:
-  noise: {point: 0.02}
-  truth: {tracker.x: 1500.0, tracker.yaw: 170.0, j2: 2.0, j3: -3.0, j3.z: 310.0}
-"""
+# The arm profile of docs/urdf-robots.md on this URDF, with a hidden true robot for the simulator.
+PROFILE = ARM_PROFILE.replace("name: test-arm", "name: meshed-arm").replace("urdf: arm.urdf", "urdf: urdf/arm.urdf") + (
+    "simulation:\n  noise: {point: 0.02}\n"
+    "  truth: {tracker.x: 1500.0, tracker.yaw: 170.0, j2: 2.0, j3: -3.0, j3.z: 310.0}\n"
+)
 
 
 def meshed_arm(folder: Path, *, meshes: bool = True) -> Path:
