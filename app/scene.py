@@ -15,8 +15,10 @@
     /live                          Observe: one copy driven by the live joint stream, in the left place
 
 Each side's URDF is generated from that side's parameters (`Review.urdf`), so both copies take the
-same joint readings and still differ where the calibrations differ. The scene keeps its own registry
-of the nodes it made (viser has no public listing) and reports it through `state()`.
+same joint readings and still differ where the calibrations differ. A robot made from a URDF file is drawn
+with that URDF's own visuals (app/robot_look.py: meshes, primitives) under each copy's link frames, in place of
+the generated bodies of those links; they are sent once per copy and move with the links. The scene keeps its
+own registry of the nodes it made (viser has no public listing) and reports it through `state()`.
 
 Readable at a glance: a measurement is a ring and a prediction a smaller dot inside it, so a good
 calibration's dot shows inside its ring instead of being covered by a mark of the same size; a sphere

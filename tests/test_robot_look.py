@@ -18,7 +18,7 @@ from test_urdf_import import PROFILE as ARM_PROFILE
 from app.desk_config import load_desk_config
 from app.review import Review
 from app.robot_look import cluster_vertices, read_look, robot_look
-from app.scene import ReviewScene
+from app.scene import GHOST_RGBA, ReviewScene
 from app.server import create_app
 from calib_core import SimulatedRobot, load_profile, to_csv
 from calib_core.model.kinematics import forward
@@ -155,6 +155,11 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
     names = set(state["urdf"]["new"]["looks"])
     scene.select(int(review.indices[0]))
     assert set(scene.state()["urdf"]["new"]["looks"]) == names
+    # The overlay's translucent old copy has them too, in its tint.
+    scene.set_overlay(True)
+    ghost = scene.state()["urdf"]["ghost"]["looks"]
+    assert sorted(v["link"] for v in ghost.values()) == ["base_link", "fore", "shoulder", "upper"]
+    assert all(server.scene.get_handle_by_name(name).opacity == GHOST_RGBA[3] for name in ghost)
     # The generated bodies of links with their own visuals are gone; the reflector (the profile's) stays.
     robot = scene._copies["new"].urdf  # the copy's model as ViserUrdf drew it
     materials = {v.material.name for link in robot.robot.links for v in link.visuals if v.material is not None}
