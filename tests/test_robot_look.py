@@ -151,10 +151,11 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
     }
     old, new = (_pose(server, fore_nodes[s], f"/review/{s}/base")[:3, 3] for s in ("old", "new"))
     assert np.linalg.norm(new - old) > 0.01
-    # A frame step moves the nodes it made, it does not make new ones.
-    names = set(state["urdf"]["new"]["looks"])
+    # A frame step moves the link frames; the mesh nodes stay the ones sent at the load (none sent again).
+    handles = {name: server.scene.get_handle_by_name(name) for name in state["urdf"]["new"]["looks"]}
     scene.select(int(review.indices[0]))
-    assert set(scene.state()["urdf"]["new"]["looks"]) == names
+    assert set(scene.state()["urdf"]["new"]["looks"]) == set(handles)
+    assert all(server.scene.get_handle_by_name(name) is h for name, h in handles.items())
     # The overlay's translucent old copy has them too, in its tint.
     scene.set_overlay(True)
     ghost = scene.state()["urdf"]["ghost"]["looks"]
@@ -224,3 +225,19 @@ def test_the_review_answer_names_the_mesh_that_cannot_be_read(tmp_path: Path) ->
             "arm.urdf: mesh package://meshed_arm/meshes/upper.stl holds no triangles (link 'upper'); mesh "
             "../meshes/fore.obj cannot be found (link 'fore'): their 2 links are drawn with simple shapes"
         )
+
+
+def test_a_collada_mesh_keeps_its_own_colour_and_the_urdf_colour_wins(tmp_path: Path) -> None:
+    """A DAE (read through pycollada) without a URDF material is drawn in its own colour; one with is drawn in the
+    URDF's."""
+    path = meshed_arm(tmp_path)
+    box = trimesh.creation.box(extents=(0.05, 0.05, 0.1))
+    box.visual.face_colors = [20, 120, 220, 255]
+    box.export(tmp_path / "meshed_arm" / "meshes" / "fore.dae")
+    urdf = path.parent / "urdf" / "arm.urdf"
+    urdf.write_text(URDF.replace("../meshes/fore.obj", "package://meshed_arm/meshes/fore.dae"))
+    look = read_look(urdf)
+    assert look is not None and look.warning is None
+    colours = {v.link: v.rgb for v in look.visuals}
+    assert colours["fore"] == (20, 120, 220)  # the file's own
+    assert colours["upper"] == (255, 128, 0)  # the URDF's <material name="orange">, defined at the top
