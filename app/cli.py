@@ -52,6 +52,8 @@ from .limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
 if TYPE_CHECKING:
     from .desk_config import DeskConfig
 
+SIGPIPE_STATUS = 141  # 128 + SIGPIPE: how a shell reports a command that wrote to a closed pipe
+
 
 class _Parser(argparse.ArgumentParser):
     """argparse, but usage errors name the subcommand and exit 2 without a traceback."""
@@ -262,6 +264,26 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; its exit status. A reader that closes our output early (`calib ... | head -1`) ends
+    the command quietly with 141, the status of a command a shell sees killed by SIGPIPE (Python ignores the
+    signal, so the write raises BrokenPipeError instead: never a traceback or an "internal error")."""
+    try:
+        try:
+            status = _run(argv)
+        except SystemExit as exc:  # argparse: --help, a usage error
+            status = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 2
+        sys.stdout.flush()  # a closed pipe shows here rather than at the interpreter's exit
+    except BrokenPipeError:
+        # Whatever is left in the buffer can never be written: point stdout at /dev/null so that the
+        # interpreter's own flush at exit does not report the broken pipe once more.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return SIGPIPE_STATUS
+    return status
+
+
+def _run(argv: Sequence[str] | None) -> int:
     args = _parser().parse_args(argv)
     try:
         commands = {
@@ -285,6 +307,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"calib {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # our output's reader went away: main ends quietly
+        raise
     except Exception as exc:  # a bug: one line, the traceback only on request
         if os.environ.get("CALIB_DEBUG"):
             traceback.print_exc()
@@ -446,6 +470,9 @@ def _simulate(args: argparse.Namespace) -> int:
         raise InputError("--outliers applies to --out; with --session the detectors make their own failures")
     believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None
     _check_writable(args.out or args.session, session=args.session is not None)
+    perfect = _perfect_simulation(profile, args.day, images=args.session is not None)
+    for note in perfect.values():
+        print(f"calib simulate: note: {note}", file=sys.stderr)
     robot = SimulatedRobot.from_profile(profile, seed=args.seed)
     for day in range(2, args.day + 1):
         robot = robot.drifted(seed=1000 * args.seed + day)
@@ -465,8 +492,33 @@ def _simulate(args: argparse.Namespace) -> int:
     print(
         f"{sim.data.n_configurations} configurations, {sim.data.n_observations} observations "
         f"({int(np.sum(sim.outliers))} gross errors) in {time.perf_counter() - start:.1f} s: {args.out}"
+        + (f" ({', '.join(perfect)}: see the notes)" if perfect else "")
     )
     return 0
+
+
+def _perfect_simulation(profile: Profile, day: int, *, images: bool) -> dict[str, str]:
+    """What a profile without (part of) a `simulation` section makes the simulator do silently: measure the
+    nominal model itself (on the first day: later days drift the offsets) and, for a dataset CSV, without
+    noise (images go through the detectors, which make their own errors). The data are valid but perfect:
+    a calibration of them finds nothing to correct, which a user must know before reading one. A short
+    phrase for the summary line -> the note that says what to add."""
+    sim = profile.simulation
+    add = f"add to the profile ({profile.source})"
+    notes = {}
+    if not sim.get("truth") and day == 1:
+        notes["the nominal robot itself"] = (
+            f"robot '{profile.name}' has no simulation.truth: the simulated robot is the nominal model itself, "
+            f"so a calibration of these data finds nothing to correct; {add} `simulation: {{truth: {{PARAMETER: "
+            "VALUE, ...}}` (a hidden robot with errors, in the profile's units; docs/urdf-robots.md)"
+        )
+    if not images and not any(float(v) > 0 for v in (sim.get("noise") or {}).values()):
+        notes["no measurement noise"] = (
+            f"robot '{profile.name}' has no simulation.noise: the measurements are exact; {add} `simulation: "
+            "{noise: {point: SIGMA}}` (a 3-D sensor, the profile's length unit) or `{noise: {pixel: SIGMA}}` "
+            "(a camera, px)"
+        )
+    return notes
 
 
 def _simulate_session(

@@ -192,7 +192,8 @@ class Desk:
             self.viewers.watch(viewer, False)
             if not self.viewers.watched():
                 self.observe(None)
-        return self.reviews.show(viewer, review, key)
+        answer = self.reviews.show(viewer, review, key)
+        return answer | {"warnings": [self.scrub(w) for w in answer["warnings"]]}  # a mesh's absolute path
 
 
 def server_paths(data_dir: Path) -> list[Path]:

@@ -15,8 +15,10 @@
     /live                          Observe: one copy driven by the live joint stream, in the left place
 
 Each side's URDF is generated from that side's parameters (`Review.urdf`), so both copies take the
-same joint readings and still differ where the calibrations differ. The scene keeps its own registry
-of the nodes it made (viser has no public listing) and reports it through `state()`.
+same joint readings and still differ where the calibrations differ. A robot made from a URDF file is drawn
+with that URDF's own visuals (app/robot_look.py: meshes, primitives) under each copy's link frames, in place of
+the generated bodies of those links; they are sent once per copy and move with the links. The scene keeps its
+own registry of the nodes it made (viser has no public listing) and reports it through `state()`.
 
 Readable at a glance: a measurement is a ring and a prediction a smaller dot inside it, so a good
 calibration's dot shows inside its ring instead of being covered by a mark of the same size; a sphere
@@ -56,6 +58,7 @@ from calib_core.vision.sighting import Sighting
 
 from .framing import ClientFraming, Target, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
+from .robot_look import LinkVisual, RobotLook, robot_look, without_bodies
 
 SIDES = ("old", "new")
 PARTS = ("measured", "predicted", "lines")
@@ -99,6 +102,8 @@ class _Copy:
     root: str
     node: viser.FrameHandle
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
+    joint_unit: np.ndarray  # per URDF actuated joint: its reading's unit in the URDF's (a prismatic one's, in m)
+    looks: dict[str, LinkVisual]  # the robot's own visuals (app/robot_look.py): viser node -> visual
 
 
 @dataclass(frozen=True)
@@ -299,7 +304,7 @@ class ReviewScene:
         "lines", "label"), visible, shown (it and its ancestors visible), position, wxyz (relative to
         its parent), and color + points (N, 3) / segments (N, 2, 3) of what it really holds, or text}};
         urdf: {copy ("old", "ghost", "new", "live"): {root, node (the URDF's nodes hang under it), shown,
-        joints: {name: rad}}}; camera: the
+        joints: {name: rad}, looks: {node: {link, what, faces}} (a URDF robot's own visuals)}}; camera: the
         framing of the robot shown and each browser's camera (app.framing.ClientFraming.state)."""
         with self._lock:
             return {
@@ -316,6 +321,9 @@ class ReviewScene:
                         "node": c.node.name,
                         "shown": self._shown(c.root),
                         "joints": dict(zip(c.urdf.actuated_joint_names, map(float, c.urdf.cfg), strict=True)),
+                        "looks": {
+                            name: {"link": v.link, "what": v.what, "faces": len(v.faces)} for name, v in c.looks.items()
+                        },
                     }
                     for slot, c in self._copies.items()
                 },
@@ -402,8 +410,10 @@ class ReviewScene:
         current = self._copies.get(slot)
         if current is not None and current.text == text:
             return current
-        urdf = yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=True, load_meshes=True)
-        if urdf.scene is None or not urdf.scene.geometry:
+        look = robot_look(profile) if GENERATED in text else None  # a URDF robot's own visuals
+        shown = text if look is None else without_bodies(text, look.links)
+        urdf = yourdfpy.URDF.load(io.StringIO(shown), build_scene_graph=True, load_meshes=True)
+        if (urdf.scene is None or not urdf.scene.geometry) and not (look and look.visuals):
             raise ValueError(f"the URDF of the '{slot}' copy has no visual geometry to show")
         self._frame(root)
         if current is not None:
@@ -412,16 +422,46 @@ class ReviewScene:
         node = self.target.scene.add_frame(f"{root}/u{self._builds}", show_axes=False)
         handle = ViserUrdf(self.target, urdf, root_node_name=node.name, mesh_color_override=rgba)
         order = [profile.joint(name) for name in urdf.actuated_joint_names]
-        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order)
+        to_m = length_factor(profile.length_unit, "m")
+        unit = np.array([to_m if profile.joints[j].prismatic else 1.0 for j in order])
+        looks = {} if look is None else self._add_look(urdf, f"{node.name}/visual", look, rgba)
+        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order, unit, looks)
         return self._copies[slot]
+
+    def _add_look(
+        self, urdf: yourdfpy.URDF, visual_root: str, look: RobotLook, rgba: tuple[float, ...] | None
+    ) -> dict[str, LinkVisual]:
+        """A URDF robot's own visuals, each under its link's node of the copy (ViserUrdf's frame of the link, which
+        update_cfg poses): sent once per copy, moved with the link at every frame step. `rgba`: the copy's colour
+        instead of the visuals' own (the overlay's ghost)."""
+        links = {link: _link_node(urdf.scene, link, visual_root) for link in {v.link for v in look.visuals}}
+        added: dict[str, LinkVisual] = {}
+        for k, visual in enumerate(look.visuals):
+            parent = links.get(visual.link)
+            if parent is None:  # a link the profile left out (below a planar or mimic joint)
+                continue
+            color: tuple[float, ...] = tuple(visual.rgb) if rgba is None else tuple(rgba[:3])
+            opacity = visual.opacity if rgba is None else rgba[3]
+            name = f"{parent}/look{k}"
+            self.target.scene.add_mesh_simple(
+                name,
+                visual.vertices,
+                visual.faces,
+                color=color,  # type: ignore[arg-type]
+                opacity=None if opacity >= 1.0 else float(opacity),
+                wxyz=_wxyz(visual.T_link_visual[:3, :3]),
+                position=tuple(float(v) for v in visual.T_link_visual[:3, 3]),
+            )
+            added[name] = visual
+        return added
 
     def _drop_copy(self, slot: str) -> None:
         """Remove a copy's URDF from viser: its build node and every node under it."""
         self._copies.pop(slot).node.remove()
 
     def _set_joints(self, copy: _Copy, q_rad: np.ndarray) -> None:
-        """Drive a copy with readings in the profile's joint order."""
-        copy.handle.update_cfg(np.asarray(q_rad, float)[copy.joint_order])
+        """Drive a copy with readings in the profile's joint order (rad, a prismatic joint's in its length unit)."""
+        copy.handle.update_cfg(np.asarray(q_rad, float)[copy.joint_order] * copy.joint_unit)
 
     def _show_frame(self, base: str, geometry: FrameGeometry, side: str) -> None:
         predicted = geometry.predicted_m[side]
@@ -603,6 +643,19 @@ class ReviewScene:
         else:
             out |= {"kind": "frame"}
         return out
+
+
+def _link_node(scene: Any, link: str, visual_root: str) -> str | None:
+    """The viser node of a link in a ViserUrdf copy (its frames are named by the links from the root down to
+    the link, under `visual_root`); None for a link the URDF does not have."""
+    parents = scene.graph.transforms.parents
+    names = []
+    while link != scene.graph.base_frame:
+        if link not in parents:
+            return None
+        names.append(link)
+        link = parents[link]
+    return "/".join([visual_root, *reversed(names)])
 
 
 def _wxyz(R: np.ndarray) -> tuple[float, float, float, float]:

@@ -444,6 +444,8 @@ async function loadReview(old, neu, sensor = null) {
   sensors.replaceChildren(...names.map((s) => el("option", { value: s }, s)));
   sensors.value = state.review.sensor;
   $("#review-sensor-label").hidden = state.review.sensors.length < 2;
+  // What the scene could not show as asked (a URDF robot's mesh that cannot be read): said once per review.
+  $("#review-warnings").replaceChildren(...(state.review.warnings || []).map((w) => el("p", { class: "warning" }, w)));
   const rows = state.review.table;
   state.sort = { key: state.newCal ? "err_new" : "err_old", dir: -1 };
   const slider = $("#frame-slider");

@@ -148,6 +148,15 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
             assert colour_pixels(png, rgb) > 20, f"no {name} marks in the 3-D view"
         shot(page, "4-review")
 
+        # Meanwhile another calibration is applied through the API, so the history gets a row to re-apply.
+        job = server.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily", "base": new_id})
+        deadline = time.monotonic() + 120
+        while (j := server.get(f"/api/jobs/{job.json()['job']}").json())["state"] in ("queued", "running"):
+            assert time.monotonic() < deadline, j
+            time.sleep(0.2)
+        other = j["result"]
+        assert server.post(f"/api/calibrations/{other}/apply", json={"confirm": True}).status_code == 200
+
         # Apply: the robot's active calibration changes to the new one, here, in the Apply panel and on the server.
         page.click("#tabs button[data-tab='apply']")
         assert re.fullmatch(r"c-[0-9a-f]{8}", new_id), new_id
@@ -160,6 +169,20 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         history = page.text_content(f"#history tr[data-calibration='{new_id}']")
         assert "full" in history and "before" in history and "after" in history, history
         shot(page, "5-apply")
+
+        # The history's re-apply button shows whole inside the panel at this width (it was clipped), and works.
+        reapply = f"#history tr[data-calibration='{other}'] button"
+        page.wait_for_selector(reapply)
+        inside = page.eval_on_selector(
+            reapply,
+            "b => { const a = b.closest('aside'); const r = b.getBoundingClientRect();"
+            " const p = a.getBoundingClientRect(); return [r.width > 0, r.left >= p.left,"
+            " r.right <= p.left + a.clientWidth, a.scrollWidth <= a.clientWidth, b.scrollWidth <= b.clientWidth]; }",
+        )
+        assert inside == [True] * 5, inside  # visible; left and right edges inside; no sideways scroll; text fits
+        page.click(reapply)
+        page.wait_for_function(f"document.querySelector('#active-cal').dataset.id === {other!r}")
+        assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == other
         browser.close()
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import yaml
 
 from calib_core import load_profile
 
@@ -172,6 +173,7 @@ def _mean_distance(rows: list[dict[str, str]], measured: list[str], predicted: l
 def test_simulate_writes_the_robonaut_csv_format(robonaut: dict) -> None:
     proc = ok(robonaut["sim1"])
     assert "day1.csv" in proc.stdout
+    assert "note" not in proc.stderr and "see the notes" not in proc.stdout  # the profile has a simulation
     header, rows = read_rows(robonaut["dir"] / "day1.csv")
     assert sorted(header) == sorted(ROBONAUT_COLUMNS)
     assert len(rows) == 67
@@ -247,6 +249,40 @@ def test_a_reading_beyond_a_joint_limit_is_a_note_on_stderr(tmp_path: Path) -> N
         "calib predict: note: past.csv, line 4, column 'shoulder_pitch': shoulder_pitch reads 95.00 deg, beyond its "
         "upper limit 90.00 deg"
     ) in proc.stderr
+
+
+def test_simulate_without_a_simulation_section_says_the_data_are_perfect(tmp_path: Path) -> None:
+    """A profile without `simulation:` gets the nominal robot measured exactly: valid data (a check of the
+    profile's plumbing), but a calibration of them finds nothing, so the command says so and what to add."""
+    doc = yaml.safe_load((ROOT / "sample_sessions" / "arm" / "arm.yaml").read_text())
+    del doc["simulation"]
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    (tmp_path / "arm.urdf").write_bytes((ROOT / "sample_sessions" / "arm" / "arm.urdf").read_bytes())
+    proc = ok(calib("simulate", "--robot", "arm.yaml", "--configurations", "5", "--out", "a.csv", cwd=tmp_path))
+    assert "(the nominal robot itself, no measurement noise: see the notes)" in proc.stdout
+    notes = [line for line in proc.stderr.splitlines() if line.startswith("calib simulate: note: robot 'my-arm'")]
+    assert len(notes) == 2, proc.stderr
+    assert "has no simulation.truth" in notes[0] and "`simulation: {truth: {PARAMETER: VALUE, ...}}`" in notes[0]
+    assert "has no simulation.noise" in notes[1] and "arm.yaml" in notes[1]
+    _, rows = read_rows(tmp_path / "a.csv")
+    assert len(rows) == 5
+
+
+def test_a_closed_output_pipe_ends_quietly(tmp_path: Path) -> None:
+    """`calib detect-board ... | head -1`: the reader goes away before the answer is written; the command ends
+    with 141 (a shell's status for SIGPIPE) and nothing on stderr, neither a traceback nor an internal error."""
+    image = ROOT / "sample_sessions" / "nao" / "images" / "0001_image.jpg"
+    board = ("detect-board", "--image", str(image), "--cols", "6", "--rows", "4")
+    for args, statuses in ((board, {141}), (("--help",), {0, 141})):  # argparse's help ignores a failed write
+        read, write = os.pipe()
+        os.close(read)
+        try:
+            proc = subprocess.run(
+                [*_command(), *args], stdout=write, stderr=subprocess.PIPE, text=True, timeout=TIMEOUT, env=_env()
+            )
+        finally:
+            os.close(write)
+        assert proc.returncode in statuses and proc.stderr == "", (args, proc.returncode, proc.stderr)
 
 
 def test_a_solve_that_hits_the_iteration_limit_says_it_did_not_converge(tmp_path: Path) -> None:

@@ -14,9 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import viser
 import yourdfpy
 from jacobian_check import check_jacobian, perturbed
+from sim_frames import measured_frames
 
+from app.review import Review
+from app.scene import ReviewScene
 from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv
 from calib_core.model.kinematics import forward
 
@@ -242,3 +246,28 @@ def test_bad_prismatic_profiles_name_the_field(tmp_path: Path, case: str) -> Non
         load_profile(_yaml_profile(tmp_path, text))
     assert err.value.file == str(tmp_path / "slide.yaml")
     assert words in str(err.value), str(err.value)
+
+
+def test_the_review_scene_draws_a_prismatic_joint_in_metres(profile_path: Path) -> None:
+    """The display model (to_urdf) has the prismatic joints, and the scene drives them with the readings in m:
+    every link of the copy where the profile's kinematics put it."""
+    profile = load_profile(profile_path)
+    sim = SimulatedRobot.from_profile(profile, seed=4).simulate(3)
+    review = Review.build(profile, measured_frames(sim.data), sim.data, profile.nominal(), sim.true_params)
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        scene = ReviewScene(server)
+        scene.load(review)
+        index = int(review.indices[1])
+        scene.select(index)
+        copy = scene._copies["new"]
+        q = review.frame_geometry(index).joints_rad
+        assert copy.urdf.joint_map["telescope"].type == "prismatic"
+        poses = forward(profile, review.sides["new"].p, q[None])
+        for link in LINKS:
+            T = copy.urdf.get_transform(frame_to=link, frame_from="base_link")
+            f = profile.frame(link)
+            np.testing.assert_allclose(T[:3, :3], poses.R[f][0], atol=1e-9)
+            np.testing.assert_allclose(T[:3, 3], poses.t[f][0] / 1000.0, atol=1e-9)
+    finally:
+        server.stop()

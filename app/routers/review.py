@@ -41,6 +41,7 @@ class ReviewOut(BaseModel):
     sensors: list[str]  # the sensors the session has observations of
     table: list[ReviewRow]
     summary: dict[str, Any]  # old and new mean, RMS, max (held out too), unit, histogram
+    warnings: list[str] = []  # what the scene could not show as asked (a URDF robot's mesh that cannot be read)
 
 
 @router.post("/review")

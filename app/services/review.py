@@ -15,6 +15,7 @@ from calib_core import Dataset, InputError, Profile
 from calib_core.estimation.registration import register, registration_params
 
 from ..review import Review
+from ..robot_look import robot_look
 from ..robots import Robots
 from ..store import Store
 from ..viewers import Viewer
@@ -53,10 +54,12 @@ class ReviewService:
         }
 
     def show(self, viewer: Viewer, review: Review, key: dict[str, Any]) -> dict[str, Any]:
-        """Show a review in a viewer's scene (another robot's replaces everything it showed): its table and
-        summary."""
+        """Show a review in a viewer's scene (another robot's replaces everything it showed): its table, summary
+        and what the scene could not show as asked (a URDF mesh that cannot be read)."""
         viewer.load(review, key)
-        return {**key, "table": review.table(), "summary": review.summary()}
+        look = robot_look(review.profile)  # read by the scene's load: the URDF visuals it could not draw
+        warnings = [] if look is None or look.warning is None else [look.warning]
+        return {**key, "table": review.table(), "summary": review.summary(), "warnings": warnings}
 
     def select(self, viewer: Viewer, index: int, *, show_all: bool = False, overlay: bool = False) -> dict[str, Any]:
         t0 = time.perf_counter()

@@ -563,11 +563,9 @@ def default_modes(profile: Profile, robot: UrdfRobot) -> dict[str, Mode]:
 # --- the URDF behind a loaded profile ------------------------------------------------------------
 
 
-def profile_urdf(profile: Profile) -> UrdfRobot | None:
-    """The URDF a profile was loaded from (read again from its profile file), or None.
-
-    It must still be the URDF the profile was compiled from: every imported joint's origin and axis
-    as the profile's nominal values say (else InputError: the file changed since)."""
+def profile_urdf_path(profile: Profile) -> Path | None:
+    """The URDF file a profile names (read again from its profile file), or None: a profile of its own
+    frames, or a profile file that cannot be read any more."""
     source = profile.source
     try:
         if source.endswith(BUILTIN_SUFFIX):
@@ -576,11 +574,22 @@ def profile_urdf(profile: Profile) -> UrdfRobot | None:
         else:
             text = Path(source).read_text(encoding="utf-8")
         doc = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        if not isinstance(doc, dict) or "urdf" not in doc:
+            return None
+        return urdf_path(doc, source)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, InputError):
         return None
-    if not isinstance(doc, dict) or "urdf" not in doc:
+
+
+def profile_urdf(profile: Profile) -> UrdfRobot | None:
+    """The URDF a profile was loaded from (read again from its profile file), or None.
+
+    It must still be the URDF the profile was compiled from: every imported joint's origin and axis
+    as the profile's nominal values say (else InputError: the file changed since)."""
+    path = profile_urdf_path(profile)
+    if path is None:
         return None
-    robot = read_urdf(urdf_path(doc, source))
+    robot = read_urdf(path)
     nominal = profile.nominal()
     to_length = 1.0 / LENGTH_IN_M[profile.length_unit]
     for j in robot.joints:
