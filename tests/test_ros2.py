@@ -41,7 +41,9 @@ if HAVE_RCLPY:
         graph_env,
         limit_violations,
         served_ros2,
+        wait_done,
         wait_job,
+        wait_until,
     )
 else:
     ROOT = Path(__file__).resolve().parent.parent
@@ -67,15 +69,25 @@ def graph(tmp_path_factory):
         nao = Sim([*nao_args, "--connection-out", str(nao_connection)], env).launch()
         sim = arm_sim(env).start()
         nao.ready()
+        _generous_measurement_wait(nao_connection)
         ns = SimpleNamespace(env=env, watcher=watcher, sim=sim, data_dir=folder / "data")
         try:
             connections = ("--ros2", str(nao_connection))  # a second robot on the same graph, under /nao
             with served_ros2(ARM_DIR / "arm-connection.yaml", ns.data_dir, env, *connections) as ns.server:
+                watcher.wait_commanders()  # every command the desk sends reaches the watcher
+                watcher.wait_joint_states()
                 yield ns
         finally:
             ns.sim.stop()  # the one running now (a test restarts it)
             nao.stop()
             watcher.close()
+
+
+def _generous_measurement_wait(connection: Path) -> None:
+    """A camera's image is rendered after the robot settles: on a loaded machine it may take seconds. A look
+    ends as soon as it comes, so a long limit costs nothing when it does and keeps a slow render measured."""
+    doc = yaml.safe_load(connection.read_text(encoding="utf-8"))
+    connection.write_text(yaml.safe_dump({**doc, "measurement_wait_s": 20}), encoding="utf-8")
 
 
 def _frames(server, session: str) -> list[dict]:
@@ -90,18 +102,15 @@ def test_session_on_the_graph_recovers_the_truth_and_apply_sets_the_parameter(gr
     session = server.post("/api/sessions", json={"robot": "arm", "name": "on ROS 2"})
     assert session.status_code == 201
     sid = session.json()["id"]
-    replay = server.post(f"/api/sessions/{sid}/replay", json={"count": 22})
+    replay = server.post(f"/api/sessions/{sid}/replay", json={"count": 20})
     assert replay.status_code == 202
-    job = wait_job(server, replay.json()["job"])
-    assert job["state"] == "done", job
+    wait_done(server, replay.json()["job"])
     frames = _frames(server, sid)
-    assert len(frames) == 22 and all(f["status"] == "measured" for f in frames)
+    assert len(frames) == 20 and all(f["status"] == "measured" for f in frames)
 
     calibrate = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "offsets"})
     assert calibrate.status_code == 202
-    job = wait_job(server, calibrate.json()["job"])
-    assert job["state"] == "done", job
-    cal_id = job["result"]
+    cal_id = wait_done(server, calibrate.json()["job"])["result"]
     cal = server.get(f"/api/calibrations/{cal_id}").json()
     profile = arm_profile()
     truth = dict(zip(profile.parameter_names, SimulatedRobot.from_profile(profile, seed=1).true_params, strict=True))
@@ -116,14 +125,12 @@ def test_session_on_the_graph_recovers_the_truth_and_apply_sets_the_parameter(gr
     assert "set robot_description of /robot_state_publisher" in applied.json()["deployed"]
     urdf = (graph.data_dir / "ros2" / "arm" / f"{cal_id}.urdf").read_text(encoding="utf-8")
     assert (graph.data_dir / "ros2" / "arm" / f"{cal_id}.offsets.yaml").is_file()
-    deadline = time.monotonic() + 5
-    while len(watcher.descriptions) == before and time.monotonic() < deadline:
-        time.sleep(0.05)
+    wait_until(lambda: len(watcher.descriptions) > before, "the robot re-publishes its description")
     assert watcher.descriptions[-1] == urdf  # set on the node before the answer; it re-published it
     history = server.get("/api/robot/history", params={"robot": "arm"}).json()
     assert history[0]["calibration"] == cal_id and "robot_description" in history[0]["note"]
 
-    assert len(watcher.commands) >= 22
+    assert len(watcher.commands) >= 20
     assert limit_violations(watcher.commands, profile) == []
 
 
@@ -135,11 +142,11 @@ def test_a_camera_robot_is_measured_by_the_detectors_in_images_from_its_topics(g
     # Random poses the robot believes it sees its board in: this checks the images through the detectors;
     # planned poses (the default) lean to the edge of the view, where a robot that is off loses a few.
     job = server.post(f"/api/sessions/{sid}/replay", json={"count": 10, "planner": "random"}).json()["job"]
-    assert wait_job(server, job)["state"] == "done"
+    wait_done(server, job)
     frames = _frames(server, sid)
     assert len(frames) == 10 and all(f["status"] == "measured" for f in frames), [f["reason"] for f in frames]
     job = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "full"}).json()["job"]
-    cal = server.get(f"/api/calibrations/{wait_job(server, job)['result']}").json()
+    cal = server.get(f"/api/calibrations/{wait_done(server, job)['result']}").json()
     # The board corners found by the sandal-board detector in the Image messages, fitted to the
     # pixel noise (0.3 px) from the nominal model's tens of pixels.
     assert cal["figures"]["after"]["n"] == 10 * 24  # 24 inner corners a board
@@ -152,39 +159,37 @@ def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
     names = [j.name for j in arm_profile().joints]
     sid = server.post("/api/sessions", json={"robot": "arm", "name": "stopped"}).json()["id"]
     job = server.post(f"/api/sessions/{sid}/replay", json={"count": 10, "seed": 3}).json()["job"]
-    deadline = time.monotonic() + 60
-    while len(_frames(server, sid)) < 2 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_until(lambda: len(_frames(server, sid)) >= 2, "two frames captured")
     assert server.post("/api/robot/stop").status_code == 200
     ended = wait_job(server, job)
     assert ended["state"] == "cancelled", ended
     assert 2 <= len(_frames(server, sid)) < 10  # what was captured stays; the rest is not driven to
 
     # A long move stopped under way: the empty trajectory, and the arm holds where it was, short of the goal.
-    n = len(watcher.commands)
+    k = names.index("wrist_1")
     move = server.post("/api/robot/move", json={"robot": "arm", "joints": {"wrist_1": -160.0}})
     assert move.status_code == 202
+    wait_until(lambda: abs(watcher.positions(names)[k] - math.radians(-160)) < math.radians(0.2), "at -160 deg")
     wait_still(watcher, names)
-    watcher.set_sim_speed(1.0)  # 320 deg at 183 deg/s: 1.7 s, long enough to stop under way
+    n = len(watcher.seen_commands())
+    watcher.set_sim_speed(0.5)  # 320 deg at 92 deg/s: 3.5 s, long enough to stop under way on a loaded machine
     try:
         server.post("/api/robot/move", json={"robot": "arm", "joints": {"wrist_1": 160.0}})
-        time.sleep(0.3)
+        wait_until(lambda: watcher.positions(names)[k] > math.radians(-150), "the long move under way")
         assert server.post("/api/robot/stop").status_code == 200
     finally:
         watcher.set_sim_speed(8.0)
-    time.sleep(0.2)
-    held = wait_still(watcher, names)
-    last = watcher.commands[-1]
+    stopped = wait_until(lambda: watcher.seen_commands()[n:][1:], "the move and the stop reach the robot")
+    last = stopped[-1]
     assert last.points == [] and set(last.joint_names) == set(names)
-    k = names.index("wrist_1")
-    assert math.radians(-159) < held[k] < math.radians(159)  # stopped between, no jump to the goal
-    assert len(watcher.commands) > n + 1
+    held = wait_still(watcher, names)
+    assert math.radians(-150) < held[k] < math.radians(159)  # stopped between, no jump to the goal
     assert limit_violations(watcher.commands, arm_profile()) == []
 
 
 def wait_still(watcher, names: list[str], for_s: float = 0.3) -> np.ndarray:
     """The joint states once unchanged for for_s."""
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 30
     q, since = watcher.positions(names), time.monotonic()
     while time.monotonic() - since < for_s:
         assert time.monotonic() < deadline, "the robot did not come to rest"
@@ -199,63 +204,69 @@ def wait_still(watcher, names: list[str], for_s: float = 0.3) -> np.ndarray:
 def test_robot_killed_mid_replay_fails_the_job_keeps_frames_and_resumes_when_back(graph):
     server, sim = graph.server, graph.sim
     sid = server.post("/api/sessions", json={"robot": "arm", "name": "lost"}).json()["id"]
-    plan = {"count": 12, "seed": 5}
+    plan = {"count": 8, "seed": 5}
     job = server.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"]
-    deadline = time.monotonic() + 60
-    while len(_frames(server, sid)) < 3 and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_until(lambda: len(_frames(server, sid)) >= 2, "two frames captured", poll_s=0.01)
     sim.kill()
     ended = wait_job(server, job)
     assert ended["state"] == "failed"
     assert "disconnected: no joint states on /joint_states" in ended["error"]
     kept = len(_frames(server, sid))
-    assert 3 <= kept < 12
+    assert 2 <= kept < 8
     state = server.get("/api/robot", params={"robot": "arm"}).json()
     assert state["connected"] is False
     assert server.post("/api/robot/move", json={"robot": "arm", "joints": {"elbow": 10.0}}).status_code == 503
 
     graph.sim = sim = arm_sim(graph.env, "--refuse-apply").start()  # back, refusing a new description
-    deadline = time.monotonic() + 30
-    while not server.get("/api/robot", params={"robot": "arm"}).json()["connected"]:
-        assert time.monotonic() < deadline, "the desk did not see the robot come back"
-        time.sleep(0.1)
+    wait_until(lambda: server.get("/api/robot", params={"robot": "arm"}).json()["connected"], "the robot back")
     job = server.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"]
-    assert wait_job(server, job)["state"] == "done"
-    assert len(_frames(server, sid)) == 12
+    wait_done(server, job)
+    assert len(_frames(server, sid)) == 8
 
     active = server.get("/api/robot/calibration", params={"robot": "arm"}).json()
     cal_job = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "offsets"}).json()["job"]
-    cal_id = wait_job(server, cal_job)["result"]
+    cal_id = wait_done(server, cal_job)["result"]
     refused = server.post(f"/api/calibrations/{cal_id}/apply", json={"confirm": True})
     assert refused.status_code == 503
     assert "refused to set robot_description (this robot takes no new description)" in refused.json()["detail"]
     assert server.get("/api/robot/calibration", params={"robot": "arm"}).json() == active  # unchanged
-    assert not (graph.data_dir / "ros2" / "arm" / "applied.urdf").read_text(encoding="utf-8").count(cal_id)
+    applied = graph.data_dir / "ros2" / "arm" / "applied.urdf"  # (there when the session test applied one)
+    assert not applied.is_file() or cal_id not in applied.read_text(encoding="utf-8")
 
 
-BAD = {
-    "not a urdf": ("<html>a web page</html>", ["shoulder_pan"], "String", "not a URDF this robot's profile can use"),
-    "joint names": (None, ["joint_a", "joint_b"], "String", "are not among them"),
-    "topic type": (None, None, "String", "/bad/mocap carries std_msgs/msg/String, not geometry_msgs/msg/PointStamped"),
+BAD = {  # case: (its topics' namespace, the description, the joint names, what `calib serve` says)
+    "not a urdf": ("/bad_urdf", "<html>a web page</html>", None, "not a URDF this robot's profile can use"),
+    "joint names": ("/bad_names", None, ["joint_a", "joint_b"], "are not among them"),
+    "topic type": (
+        "/bad_type",
+        None,
+        None,
+        "/bad_type/mocap carries std_msgs/msg/String, not geometry_msgs/msg/PointStamped",
+    ),
 }
 
 
 @needs_ros2
-@pytest.mark.parametrize("case", list(BAD))
-def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path, case):
+def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path):
+    """The three cases side by side (each a `calib serve` of its own on topics of its own: a process start is
+    most of a case's time)."""
+    import subprocess
+
     from sensor_msgs.msg import JointState
     from std_msgs.msg import String
 
     from app.ros2.link import LATCHED_QOS
 
-    description, joints, _, expected = BAD[case]
     node = graph.watcher.link.node
-    names = joints or [j.name for j in arm_profile().joints]
-    text = description or (ARM_DIR / "arm.urdf").read_text(encoding="utf-8")
-    publishers = [node.create_publisher(String, "/bad/robot_description", LATCHED_QOS)]
-    publishers[0].publish(String(data=text))
-    states = node.create_publisher(JointState, "/bad/joint_states", 10)
-    publishers.append(states)
+    arm_joints = [j.name for j in arm_profile().joints]
+    publishers, states, runs = [], [], {}
+    for case, (ns, description, joints, _) in BAD.items():
+        text = description or (ARM_DIR / "arm.urdf").read_text(encoding="utf-8")
+        publishers.append(node.create_publisher(String, f"{ns}/robot_description", LATCHED_QOS))
+        publishers[-1].publish(String(data=text))
+        states.append((node.create_publisher(JointState, f"{ns}/joint_states", 10), joints or arm_joints))
+        if case == "topic type":
+            publishers.append(node.create_publisher(String, f"{ns}/mocap", 10))
     # Published from a thread of the test's own, not a timer added to the running executor (a timer added
     # from another thread may wait for the executor to wake: no joint states for the desk, a flaky test).
     publishing = threading.Event()
@@ -263,42 +274,43 @@ def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path, case):
 
     def publish() -> None:
         while publishing.is_set():
-            states.publish(JointState(name=names, position=[0.0] * len(names)))
+            for publisher, names in states:
+                publisher.publish(JointState(name=names, position=[0.0] * len(names)))
             time.sleep(0.02)
 
     thread = threading.Thread(target=publish, daemon=True)
     thread.start()
-    if case == "topic type":
-        publishers.append(node.create_publisher(String, "/bad/mocap", 10))
-    conn = {
-        "robot": "bad",
-        "profile": str(ARM_DIR / "arm-mocap.yaml"),
-        "description_topic": "/bad/robot_description",
-        "joint_states": "/bad/joint_states",
-        "command": "/bad/joint_trajectory",
-        "measurements": {"mocap": {"topic": "/bad/mocap"}},
-        "wait_s": 8,
-    }
-    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(conn), encoding="utf-8")
     try:
-        import subprocess
-
-        done = subprocess.run(
-            calib("serve", "--ros2", str(tmp_path / "bad.yaml"), "--data-dir", str(tmp_path / "data")),
-            cwd=ROOT,
-            env={**os.environ, **graph.env},
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        for case, (ns, *_) in BAD.items():
+            conn = {
+                "robot": "bad",
+                "profile": str(ARM_DIR / "arm-mocap.yaml"),
+                "description_topic": f"{ns}/robot_description",
+                "joint_states": f"{ns}/joint_states",
+                "command": f"{ns}/joint_trajectory",
+                "measurements": {"mocap": {"topic": f"{ns}/mocap"}},
+            }  # the default wait_s (30 s) only limits a failure: a desk goes on once it has both messages
+            folder = tmp_path / ns.strip("/")
+            folder.mkdir()
+            (folder / "bad.yaml").write_text(yaml.safe_dump(conn), encoding="utf-8")
+            command = calib("serve", "--ros2", str(folder / "bad.yaml"), "--data-dir", str(folder / "data"))
+            env = {**os.environ, **graph.env}
+            runs[case] = subprocess.Popen(command, cwd=ROOT, env=env, stderr=subprocess.PIPE, text=True)
+        ended = {case: run.communicate(timeout=90) for case, run in runs.items()}
     finally:
+        for run in runs.values():
+            if run.poll() is None:
+                run.kill()
+                run.wait()
         publishing.clear()
         thread.join(timeout=2)
-        for p in publishers:
+        for p in publishers + [p for p, _ in states]:
             node.destroy_publisher(p)
-    assert done.returncode == 2, done.stderr
-    assert expected in done.stderr and "Traceback" not in done.stderr
-    assert not (tmp_path / "data").exists()  # nothing half-done
+    for case, (ns, *_, expected) in BAD.items():
+        err = ended[case][1]
+        assert runs[case].returncode == 2, (case, err)
+        assert expected in err and "Traceback" not in err, (case, err)
+        assert not (tmp_path / ns.strip("/") / "data").exists(), case  # nothing half-done
 
 
 def test_without_the_extra_serve_ros2_says_to_install_it(tmp_path, monkeypatch, capsys):
@@ -327,10 +339,7 @@ def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(
         DriverSpec("ros2", {"connection": str(tmp_path / "silent.yaml")}), profile, DriverContext()
     )
     try:
-        deadline = time.monotonic() + 20
-        while not driver.settled(0.1):
-            assert time.monotonic() < deadline, driver.status().message
-            time.sleep(0.05)
+        wait_until(lambda: driver.settled(0.1), "the driver sees the robot settled")
         look = driver.look()
         assert look.sighting.status == "not found"
         assert look.sighting.reason == "no measurement on /silent/point (none received within 0.3 s)"
@@ -340,14 +349,19 @@ def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(
         publisher = node.create_publisher(PointStamped, "/silent/point", 10)
         old = PointStamped()
         old.header.stamp = node.get_clock().now().to_msg()
-        old.header.stamp.sec -= 5  # measured five seconds before the robot settled where it stands
-        while publisher.get_subscription_count() == 0:
-            time.sleep(0.02)
-        publisher.publish(old)
-        time.sleep(0.2)
-        look = driver.look()
+        old.header.stamp.sec -= 10  # measured ten seconds before the robot settled where it stands
+        wait_until(lambda: publisher.get_subscription_count() > 0, "the driver subscribes to /silent/point")
+
+        def stale():  # published again each time round: a best-effort subscription may lose one
+            publisher.publish(old)
+            look = driver.look()
+            return look.sighting.reason.startswith("stale") and look
+
+        look = wait_until(stale, "the old measurement judged stale")
         assert look.sighting.status == "not found"
-        assert look.sighting.reason.startswith("stale measurement on /silent/point: the latest is stamped 5.")
+        reason = look.sighting.reason
+        assert reason.startswith("stale measurement on /silent/point: the latest is stamped "), reason
+        assert 9.5 < float(reason.split("stamped ")[1].split(" s ")[0]) < 60, reason  # 10 s and the time since
         node.destroy_publisher(publisher)
     finally:
         driver.close()
