@@ -252,6 +252,7 @@ def _parser() -> argparse.ArgumentParser:
     r2.add_argument("--robot", required=True, help="a built-in robot (nao, motoman) or a profile file")
     r2.add_argument("--urdf", help="the robot's URDF, for a profile that says urdf: ros2")
     r2.add_argument("--seed", type=int, default=1, help="the hidden truth's and the noise's seed (default 1)")
+    r2.add_argument("--day", type=int, default=1, help="a later day: the joint offsets drifted (default 1)")
     r2.add_argument("--speed", type=float, default=1.0, help="times the trajectories' timing (default 1)")
     r2.add_argument("--rate", type=float, default=100.0, help="joint states per second (default 100)")
     r2.add_argument("--namespace", default="", help="every topic and the node under this (/nao: robots side by side)")
@@ -693,8 +694,8 @@ def _sim_ros2(args: argparse.Namespace) -> int:
     require()
     from .ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
 
-    if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000:
-        raise InputError("--speed must be in 0.1..100 and --rate in 1..1000")
+    if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000 or not 1 <= args.day <= 1000:
+        raise InputError("--speed must be in 0.1..100, --rate in 1..1000 and --day in 1..1000")
     namespace = args.namespace.rstrip("/")
     if namespace and (not namespace.startswith("/") or not namespace[1:].replace("_", "").replace("/", "").isalnum()):
         raise InputError(f"--namespace {args.namespace!r}: expected a ROS 2 namespace like /nao")
@@ -704,6 +705,7 @@ def _sim_ros2(args: argparse.Namespace) -> int:
         profile,
         urdf,
         seed=args.seed,
+        day=args.day,
         speed=args.speed,
         rate_hz=args.rate,
         refuse_apply=args.refuse_apply,

@@ -64,15 +64,21 @@ def graph(tmp_path_factory):
             mp.setenv(key, value)  # the watcher in this process joins the same graph
         watcher = Watcher().start()
         folder = tmp_path_factory.mktemp("ros2")
-        nao_connection = folder / "nao.yaml"
+        nao_connection, robonaut_connection = folder / "nao.yaml", folder / "robonaut.yaml"
         nao_args = ["--robot", "nao", "--namespace", "/nao", "--name", "nao-ros", "--speed", "8"]
         nao = Sim([*nao_args, "--connection-out", str(nao_connection)], env).launch()
+        # Robonaut on its second day: its joint offsets drifted from the truth of the first day's sample session.
+        rn_args = ["--robot", "robonaut-a", "--namespace", "/robonaut", "--name", "robonaut-ros", "--day", "2"]
+        robonaut = Sim([*rn_args, "--speed", "20", "--connection-out", str(robonaut_connection)], env).launch()
         sim = arm_sim(env).start()
         nao.ready()
-        _generous_measurement_wait(nao_connection)
+        robonaut.ready()
+        for connection in (nao_connection, robonaut_connection):
+            _generous_measurement_wait(connection)
         ns = SimpleNamespace(env=env, watcher=watcher, sim=sim, data_dir=folder / "data")
         try:
-            connections = ("--ros2", str(nao_connection))  # a second robot on the same graph, under /nao
+            # Two more robots on the same graph, under /nao and /robonaut.
+            connections = ("--ros2", str(nao_connection), "--ros2", str(robonaut_connection))
             with served_ros2(ARM_DIR / "arm-connection.yaml", ns.data_dir, env, *connections) as ns.server:
                 watcher.wait_commanders()  # every command the desk sends reaches the watcher
                 watcher.wait_joint_states()
@@ -80,6 +86,7 @@ def graph(tmp_path_factory):
         finally:
             ns.sim.stop()  # the one running now (a test restarts it)
             nao.stop()
+            robonaut.stop()
             watcher.close()
 
 
@@ -151,6 +158,52 @@ def test_a_camera_robot_is_measured_by_the_detectors_in_images_from_its_topics(g
     # pixel noise (0.3 px) from the nominal model's tens of pixels.
     assert cal["figures"]["after"]["n"] == 10 * 24  # 24 inner corners a board
     assert cal["figures"]["before"]["rms"] > 10 and cal["figures"]["after"]["rms"] < 1.0
+
+
+ROBONAUT_ARM = ("shoulder_pitch", "elbow_roll", "elbow_pitch", "wrist_roll", "wrist_pitch", "wrist_yaw")
+
+
+@needs_ros2
+def test_robonaut_stereo_pair_is_measured_and_its_daily_calibration_finds_the_drifted_offsets(graph):
+    """Robonaut's rectified stereo pair over ROS 2, through the project's stereo matching and BallFinder: the
+    first day's full calibration (the sample session, imported) applied, a daily replay planned for it, and
+    the daily calibration on top finds the second day's drifted joint offsets of the simulator."""
+    server, robot = graph.server, "robonaut-ros"
+    csv = (ROOT / "sample_sessions" / "robonaut-a-day1" / "data.csv").read_bytes()
+    form = {"data": {"robot": robot, "name": "day 1"}, "files": {"data": ("data.csv", csv)}}
+    day1 = server.post("/api/sessions/import", **form)
+    assert day1.status_code == 201, day1.text
+    job = server.post(f"/api/sessions/{day1.json()['id']}/calibrations", json={"mode": "full"}).json()["job"]
+    base = wait_done(server, job)["result"]
+    applied = server.post(f"/api/calibrations/{base}/apply", json={"confirm": True})  # the seed, the plan's model
+    assert applied.status_code == 200, applied.text
+
+    sid = server.post("/api/sessions", json={"robot": robot, "name": "day 2 over ROS 2"}).json()["id"]
+    job = server.post(f"/api/sessions/{sid}/replay", json={"count": 8, "mode": "daily"}).json()["job"]
+    wait_done(server, job)
+    frames = _frames(server, sid)
+    # The sphere found in the pair from the topics; the BallFinder may reject one view of a planned daily set
+    # (they lean to the view's edge: in the simulator it misses ~5% of such views too), never for want of images.
+    missed = [f["reason"] for f in frames if f["status"] != "measured"]
+    assert len(frames) == 8 and len(missed) <= 1, missed
+    assert not any("measurement" in why or "CameraInfo" in why or "stereo pair" in why for why in missed), missed
+    job = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "daily", "base": base}).json()["job"]
+    cal = server.get(f"/api/calibrations/{wait_done(server, job)['result']}").json()
+
+    profile = load_profile("robonaut-a")
+    day1_truth = SimulatedRobot.from_profile(profile, seed=1)
+    truth = dict(zip(profile.parameter_names, np.degrees(day1_truth.drifted(seed=1002).true_params), strict=True))
+    drift = {n: truth[n] - v for n, v in zip(profile.parameter_names, np.degrees(day1_truth.true_params), strict=True)}
+    found = {p["name"]: p for p in cal["parameters"]}
+    for joint in ROBONAUT_ARM:
+        name = f"{joint}.theta"
+        # Within 4 of its standard deviations (the BallFinder's 0.3-0.7 mm centres over 8 views) and 0.1 deg:
+        # the first day's calibration is not exact, and the neck roll drifted too, which the daily mode holds
+        # (so the neck and shoulder roll offsets absorb it and are not compared; offline, the arm's offsets
+        # came within 0.34 deg of the truth with 8 planned views, within 0.16 deg where their std was < 0.1).
+        error = found[name]["value"] - truth[name]
+        assert abs(error) < 4 * found[name]["std"] + 0.1, (name, error, found[name]["std"], drift[name])
+    assert max(abs(drift[f"{j}.theta"]) for j in ROBONAUT_ARM) > 3  # what was found had moved by degrees
 
 
 @needs_ros2
@@ -370,5 +423,5 @@ def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(
 
 @needs_ros2
 def test_sim_ros2_says_which_robots_it_cannot_simulate(capsys):
-    assert main(["sim-ros2", "--robot", "robonaut-a"]) == 2
-    assert "robonaut-a: its eye (stereo) cannot be simulated on ROS 2 yet" in capsys.readouterr().err
+    assert main(["sim-ros2", "--robot", str(ROOT / "tests" / "profiles" / "probe-arm.yaml")]) == 2
+    assert "probe-arm: its table (direct) cannot be simulated on ROS 2 yet" in capsys.readouterr().err
