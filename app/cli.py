@@ -259,6 +259,9 @@ def _parser() -> argparse.ArgumentParser:
     r2.add_argument("--name", help="the robot's name in --connection-out (default: the profile's)")
     r2.add_argument("--connection-out", metavar="FILE", help="write the desk's connection file for this node")
     r2.add_argument("--refuse-apply", action="store_true", help="refuse every new robot_description (tests)")
+    r2.add_argument(
+        "--stall-apply", action="store_true", help="never answer a new robot_description while running (tests)"
+    )
     return p
 
 
@@ -709,6 +712,7 @@ def _sim_ros2(args: argparse.Namespace) -> int:
         speed=args.speed,
         rate_hz=args.rate,
         refuse_apply=args.refuse_apply,
+        stall_apply=args.stall_apply,
         topics=topics,
     )
     if args.connection_out:

@@ -65,7 +65,8 @@ def graph(tmp_path_factory):
         watcher = Watcher().start()
         folder = tmp_path_factory.mktemp("ros2")
         nao_connection, robonaut_connection = folder / "nao.yaml", folder / "robonaut.yaml"
-        nao_args = ["--robot", "nao", "--namespace", "/nao", "--name", "nao-ros", "--speed", "8"]
+        # NAO's robot_state_publisher takes a new description and never answers (--stall-apply).
+        nao_args = ["--robot", "nao", "--namespace", "/nao", "--name", "nao-ros", "--speed", "8", "--stall-apply"]
         nao = Sim([*nao_args, "--connection-out", str(nao_connection)], env).launch()
         # Robonaut on its second day: its joint offsets drifted from the truth of the first day's sample session.
         rn_args = ["--robot", "robonaut-a", "--namespace", "/robonaut", "--name", "robonaut-ros", "--day", "2"]
@@ -73,8 +74,8 @@ def graph(tmp_path_factory):
         sim = arm_sim(env).start()
         nao.ready()
         robonaut.ready()
-        for connection in (nao_connection, robonaut_connection):
-            _generous_measurement_wait(connection)
+        _edit(nao_connection, measurement_wait_s=20, apply_timeout_s=APPLY_TIMEOUT_S)
+        _edit(robonaut_connection, measurement_wait_s=20)
         ns = SimpleNamespace(env=env, watcher=watcher, sim=sim, data_dir=folder / "data")
         try:
             # Two more robots on the same graph, under /nao and /robonaut.
@@ -90,11 +91,15 @@ def graph(tmp_path_factory):
             watcher.close()
 
 
-def _generous_measurement_wait(connection: Path) -> None:
-    """A camera's image is rendered after the robot settles: on a loaded machine it may take seconds. A look
-    ends as soon as it comes, so a long limit costs nothing when it does and keeps a slow render measured."""
+APPLY_TIMEOUT_S = 1.5  # NAO's apply gives up after this
+
+
+def _edit(connection: Path, **settings: float) -> None:
+    """A connection file's optional settings. A camera's image is rendered after the robot settles: on a loaded
+    machine that may take seconds; a look ends as soon as it comes, so a long `measurement_wait_s` costs
+    nothing when it does and keeps a slow render measured."""
     doc = yaml.safe_load(connection.read_text(encoding="utf-8"))
-    connection.write_text(yaml.safe_dump({**doc, "measurement_wait_s": 20}), encoding="utf-8")
+    connection.write_text(yaml.safe_dump({**doc, **settings}), encoding="utf-8")
 
 
 def _frames(server, session: str) -> list[dict]:
@@ -158,6 +163,17 @@ def test_a_camera_robot_is_measured_by_the_detectors_in_images_from_its_topics(g
     # pixel noise (0.3 px) from the nominal model's tens of pixels.
     assert cal["figures"]["after"]["n"] == 10 * 24  # 24 inner corners a board
     assert cal["figures"]["before"]["rms"] > 10 and cal["figures"]["after"]["rms"] < 1.0
+
+    # Its robot_state_publisher takes the new description and never answers: the operator sees which node
+    # and how long, the robot goes on (joint states), the active calibration stays.
+    active = server.get("/api/robot/calibration", params={"robot": "nao-ros"}).json()
+    stalled = server.post(f"/api/calibrations/{cal['id']}/apply", json={"confirm": True})
+    assert stalled.status_code == 503, stalled.text
+    expected = f"/nao/robot_state_publisher did not answer setting robot_description within {APPLY_TIMEOUT_S:g} s"
+    assert expected in stalled.json()["detail"]
+    assert server.get("/api/robot/calibration", params={"robot": "nao-ros"}).json() == active
+    assert server.get("/api/robot", params={"robot": "nao-ros"}).json()["connected"] is True
+    assert not (graph.data_dir / "ros2" / "nao-ros" / "applied.urdf").exists()
 
 
 ROBONAUT_ARM = ("shoulder_pitch", "elbow_roll", "elbow_pitch", "wrist_roll", "wrist_pitch", "wrist_yaw")

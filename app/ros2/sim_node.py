@@ -141,6 +141,7 @@ class SimNode:
         speed: float = 1.0,
         rate_hz: float = 100.0,
         refuse_apply: bool = False,
+        stall_apply: bool = False,
         topics: Topics = Topics(),
     ) -> None:
         require()
@@ -160,6 +161,8 @@ class SimNode:
             self.sim = self.sim.drifted(seed=1000 * seed + d)
         self.speed = float(speed)
         self.refuse_apply = refuse_apply
+        self.stall_apply = stall_apply
+        self._closing = threading.Event()
         self.topics = topics
         from ..drivers.simulated import readable_targets
 
@@ -177,6 +180,7 @@ class SimNode:
         self._t0 = 0.0
         self.link = Link(
             "robot_state_publisher",
+            threads=3,  # the parameter services, the motion, the sensor: a stalled one stops neither other
             namespace=topics.namespace or None,
             parameter_overrides=[Parameter("robot_description", value=urdf)],
         )
@@ -186,7 +190,12 @@ class SimNode:
         self._description = node.create_publisher(String, topics.description, LATCHED_QOS)
         self._joints = node.create_publisher(JointState, topics.joint_states, 10)
         self._string, self._joint_state = String, JointState
-        node.create_subscription(JointTrajectory, topics.command, self._on_trajectory, COMMAND_QOS)
+        # The joint states and the commands in a group of their own: a parameter call that stalls (the default
+        # group's services) or a render (the sensor's group) does not hold them up.
+        motion = MutuallyExclusiveCallbackGroup()
+        node.create_subscription(
+            JointTrajectory, topics.command, self._on_trajectory, COMMAND_QOS, callback_group=motion
+        )
 
         def check_parameters(params: list[Any]) -> Any:
             for p in params:
@@ -194,6 +203,9 @@ class SimNode:
                     return SetParametersResult(successful=False, reason="speed: a number in (0, 100]")
                 if p.name != "robot_description":
                     continue
+                if self.stall_apply:  # accepted, never answered while the node lives (a hung robot_state_publisher)
+                    self._closing.wait()
+                    return SetParametersResult(successful=False, reason="the node is closing")
                 if self.refuse_apply:
                     return SetParametersResult(successful=False, reason="this robot takes no new description")
                 text = p.value if isinstance(p.value, str) else ""
@@ -226,7 +238,7 @@ class SimNode:
             self._point_type = PointStamped
             node.create_timer(1.0 / POINT_HZ, self._publish_point, callback_group=sensing)
         self._frame = sensor.name
-        node.create_timer(1.0 / rate_hz, self._tick)
+        node.create_timer(1.0 / rate_hz, self._tick, callback_group=motion)
         self._rendered: tuple[np.ndarray, list[np.ndarray]] | None = None  # (the pose, its images)
 
     def _home(self) -> np.ndarray:
@@ -347,4 +359,5 @@ class SimNode:
         return StereoHead.from_profile(self.profile, self.sim.true_params, self._frame).baseline_m
 
     def close(self) -> None:
+        self._closing.set()
         self.link.close()
