@@ -441,3 +441,60 @@ def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(
 def test_sim_ros2_says_which_robots_it_cannot_simulate(capsys):
     assert main(["sim-ros2", "--robot", str(ROOT / "tests" / "profiles" / "probe-arm.yaml")]) == 2
     assert "probe-arm: its table (direct) cannot be simulated on ROS 2 yet" in capsys.readouterr().err
+
+
+@needs_ros2
+def test_prismatic_joints_settle_and_arrive_by_thresholds_in_metres(tmp_path):
+    """A prismatic joint's readings (m on the graph) are still within `still_m` and at the target within
+    `tolerance_m`, not within the degrees meant for revolute joints (0.005 deg would ask 0.09 um of a lift)."""
+    from sensor_msgs.msg import JointState
+    from test_prismatic import PROFILE, robot_urdf
+    from trajectory_msgs.msg import JointTrajectory
+
+    from app.drivers.ros2 import Ros2Driver
+    from app.ros2.connection import load_connection
+    from app.ros2.link import COMMAND_QOS, Link
+
+    (tmp_path / "robot.urdf").write_text(robot_urdf(), encoding="utf-8")
+    (tmp_path / "lift-arm.yaml").write_text(PROFILE, encoding="utf-8")
+    topics = {"description_topic": "/lift/robot_description", "joint_states": "/lift/joint_states"}
+    doc = {"robot": "lift", "profile": "lift-arm.yaml", **topics, "command": "/lift/joint_trajectory"}
+    (tmp_path / "lift.yaml").write_text(yaml.safe_dump({**doc, "measurements": {"tracker": {"topic": "/lift/smr"}}}))
+    conn = load_connection(tmp_path / "lift.yaml")
+    profile = conn.load_profile(None)
+    names = [j.name for j in profile.joints]
+    lift = names.index("torso_lift")
+    link = Link("lift_test")  # no graph traffic: the joint states are handed to the driver as its subscription would
+    driver = Ros2Driver(profile, conn, link)
+    try:
+        q_m = np.array([0.1 if n in ("torso_lift", "telescope") else 0.2 for n in names])  # m and rad
+
+        def feed(q: np.ndarray, for_s: float) -> None:
+            end = time.monotonic() + for_s
+            while time.monotonic() < end:
+                driver._on_joints(JointState(name=names, position=[float(v) for v in q]))
+                time.sleep(0.01)
+
+        jitter = np.zeros(len(names))
+        jitter[lift] = 20e-6  # 0.02 mm: an encoder's flicker, under still_m (0.05 mm)
+        feed(q_m, 0.05)
+        for _ in range(4):
+            feed(q_m + jitter, 0.05)
+            feed(q_m, 0.05)
+        assert driver.settled(0.3)
+        driver._on_joints(JointState(name=names, position=[float(v) for v in q_m + 10 * jitter]))  # 0.2 mm: moved
+        assert not driver.settled(1.0)
+
+        link.node.create_subscription(JointTrajectory, conn.command, lambda _: None, COMMAND_QOS)  # a controller
+        goal = q_m * driver._scale
+        goal[lift] += 50.0  # mm: 5 cm up
+        assert driver.move_to(goal, wait=False)
+        off = q_m.copy()
+        off[lift] += 0.05 + 0.001  # 1 mm short: under way
+        feed(off, 0.05)
+        assert not driver.settled(0.0)
+        off[lift] = q_m[lift] + 0.05 - 0.0003  # 0.3 mm short, within tolerance_m (0.5 mm): arrived
+        feed(off, 0.05)
+        assert driver.settled(0.0)
+    finally:
+        driver.close()

@@ -8,7 +8,8 @@ Joint readings come from `/joint_states` (matched by name, rad; a prismatic join
 profile's length unit). A move is one JointTrajectory of every profile joint, one point, `time_from_start`
 the slowest joint's distance over its velocity limit (a trajectory controller interpolates one point
 linearly from where the robot stands: no joint is faster than its limit), and is done when the joint
-states are within `tolerance_deg` of the target. STOP sends the empty trajectory (the controller stops
+states are within `tolerance_deg` of the target (a prismatic joint: `tolerance_m`); joint states that change
+less than `still_deg` (`still_m`) stand still. STOP sends the empty trajectory (the controller stops
 and holds). Joint states older than `timeout_s` mean the robot is disconnected (RobotFault, the desk's
 503) until they come again. A look waits for a measurement stamped later than the settled joint states
 (`measurement_wait_s`), else gives a "not found" sighting saying what was missing or stale. A camera's image
@@ -114,10 +115,17 @@ class Ros2Driver:
         self.link = link
         self.files = files
         self.margin_rad = math.radians(conn.options["margin_deg"])
-        self.tolerance_rad = math.radians(conn.options["tolerance_deg"])
-        self.still_rad = math.radians(conn.options["still_deg"])  # readings closer than this are the same
         self._scale = np.array(
             [length_factor("m", profile.length_unit) if j.prismatic else 1.0 for j in profile.joints]
+        )
+        prismatic = np.array([j.prismatic for j in profile.joints], bool)
+        # Per joint, in its internal unit (rad, or the profile's length unit for a prismatic joint): how close
+        # a move must come to its target, and what change of the readings is still standing still.
+        self._tolerance = np.where(
+            prismatic, conn.options["tolerance_m"] * self._scale, math.radians(conn.options["tolerance_deg"])
+        )
+        self._still = np.where(
+            prismatic, conn.options["still_m"] * self._scale, math.radians(conn.options["still_deg"])
         )
         self._velocity = np.array([j.velocity for j in profile.joints])
         self._lock = threading.Lock()
@@ -165,14 +173,14 @@ class Ros2Driver:
                 return
             self._mismatch = ""
             q = np.array([msg.position[index[j.name]] for j in self.profile.joints]) * self._scale
-            if self._ref is None or np.max(np.abs(q - self._ref)) > self.still_rad:
+            if self._ref is None or np.any(np.abs(q - self._ref) > self._still):
                 self._ref = q
                 self._still_since = now
             self._q = q
             self._js_stamp = _stamp_s(msg.header.stamp)
             self._js_at = now
             move = self._move
-            if move is not None and np.max(np.abs(q - move.goal)) <= self.tolerance_rad:
+            if move is not None and np.all(np.abs(q - move.goal) <= self._tolerance):
                 move.arrived = True
                 move.done.set()
                 self._move = None

@@ -14,7 +14,8 @@
 Extensions of the contract (optional, with their defaults): `wait_s: 30` (how long `calib serve` waits for
 the robot's description and joint states), `timeout_s: 1.0` (joint states older than this: disconnected),
 `tolerance_deg: 0.1` (a move has arrived within this of its target), `still_deg: 0.005` (joint states that
-change less than this stand still: above the encoders' jitter), `measurement_wait_s: 2.0` (how long a
+change less than this stand still: above the encoders' jitter), `tolerance_m: 0.0005` and `still_m: 0.00005`
+(the same for prismatic joints, in metres), `measurement_wait_s: 2.0` (how long a
 capture waits for a measurement newer than the settling), `margin_deg: 1.0` (the joint limits' safety
 margin), `apply_timeout_s: 5.0` (the parameter call), `stereo_sync_s: 0.005` (a stereo pair's left and right
 images are one exposure when their stamps differ by at most this).
@@ -53,7 +54,9 @@ OPTIONS = {
     "wait_s": 30.0,
     "timeout_s": 1.0,
     "tolerance_deg": 0.1,
+    "tolerance_m": 0.0005,
     "still_deg": 0.005,
+    "still_m": 0.00005,
     "measurement_wait_s": 2.0,
     "margin_deg": 1.0,
     "apply_timeout_s": 5.0,
