@@ -58,36 +58,52 @@ def arm_profile():
 
 @pytest.fixture(scope="module")
 def graph(tmp_path_factory):
+    from app.ros2.connection import FIELDS
+    from app.ros2.sim_node import Topics, connection_doc
+
     env = graph_env()
+    folder = tmp_path_factory.mktemp("ros2")
+    # Three robots on one graph: the arm, NAO under /nao and Robonaut under /robonaut. The desk starts while
+    # they do (it waits for them: wait_s), with connection files written here as `--connection-out` writes them.
+    conns = {
+        "nao": ("nao-ros", "/nao", {"measurement_wait_s": 20, "apply_timeout_s": APPLY_TIMEOUT_S}),
+        "robonaut-a": ("robonaut-ros", "/robonaut", {"measurement_wait_s": 20}),
+    }
+    sims, files = [], []
+    for robot, (name, namespace, settings) in conns.items():
+        doc = connection_doc(robot, name, load_profile(robot), Topics(namespace))
+        files += [folder / f"{name}.yaml", folder / f"{name}-out.yaml"]
+        files[-2].write_text(yaml.safe_dump({**doc, **settings, "wait_s": 120}), encoding="utf-8")
+    arm = yaml.safe_load((ARM_DIR / "arm-connection.yaml").read_text(encoding="utf-8"))
+    arm.update(profile=str(ARM_DIR / arm["profile"]), wait_s=120)  # a limit for a failure only
+    (folder / "arm.yaml").write_text(yaml.safe_dump(arm), encoding="utf-8")
     with pytest.MonkeyPatch.context() as mp:
         for key, value in env.items():
             mp.setenv(key, value)  # the watcher in this process joins the same graph
         watcher = Watcher().start()
-        folder = tmp_path_factory.mktemp("ros2")
-        nao_connection, robonaut_connection = folder / "nao.yaml", folder / "robonaut.yaml"
-        # NAO's robot_state_publisher takes a new description and never answers (--stall-apply).
-        nao_args = ["--robot", "nao", "--namespace", "/nao", "--name", "nao-ros", "--speed", "8", "--stall-apply"]
-        nao = Sim([*nao_args, "--connection-out", str(nao_connection)], env).launch()
-        # Robonaut on its second day: its joint offsets drifted from the truth of the first day's sample session.
-        rn_args = ["--robot", "robonaut-a", "--namespace", "/robonaut", "--name", "robonaut-ros", "--day", "2"]
-        robonaut = Sim([*rn_args, "--speed", "20", "--connection-out", str(robonaut_connection)], env).launch()
-        sim = arm_sim(env).start()
-        nao.ready()
-        robonaut.ready()
-        _edit(nao_connection, measurement_wait_s=20, apply_timeout_s=APPLY_TIMEOUT_S)
-        _edit(robonaut_connection, measurement_wait_s=20)
-        ns = SimpleNamespace(env=env, watcher=watcher, sim=sim, data_dir=folder / "data")
+        ns = SimpleNamespace(env=env, watcher=watcher, sim=arm_sim(env), data_dir=folder / "data")
         try:
-            # Two more robots on the same graph, under /nao and /robonaut.
-            connections = ("--ros2", str(nao_connection), "--ros2", str(robonaut_connection))
-            with served_ros2(ARM_DIR / "arm-connection.yaml", ns.data_dir, env, *connections) as ns.server:
+            # NAO's robot_state_publisher takes a new description and never answers (--stall-apply); Robonaut is
+            # on its second day: its joint offsets drifted from the truth of the first day's sample session.
+            # Their joint states at 50 Hz (the arm's at the default 100 Hz): less CPU for the same tests.
+            nao = ["--robot", "nao", "--namespace", "/nao", "--name", "nao-ros", "--speed", "8", "--stall-apply"]
+            sims.append(Sim([*nao, "--rate", "50", "--connection-out", str(files[1])], env).launch())
+            rn = ["--robot", "robonaut-a", "--namespace", "/robonaut", "--name", "robonaut-ros", "--day", "2"]
+            sims.append(Sim([*rn, "--speed", "20", "--rate", "50", "--connection-out", str(files[3])], env).launch())
+            ns.sim.launch()
+            connections = ("--ros2", str(files[0]), "--ros2", str(files[2]))
+            with served_ros2(folder / "arm.yaml", ns.data_dir, env, *connections) as ns.server:
+                for sim in (*sims, ns.sim):
+                    sim.ready()
+                for given, written in (files[0:2], files[2:4]):  # the desk was given what the sims write
+                    doc = {k: v for k, v in yaml.safe_load(given.read_text(encoding="utf-8")).items() if k in FIELDS}
+                    assert doc == yaml.safe_load(written.read_text(encoding="utf-8"))
                 watcher.wait_commanders()  # every command the desk sends reaches the watcher
                 watcher.wait_joint_states()
                 yield ns
         finally:
-            ns.sim.stop()  # the one running now (a test restarts it)
-            nao.stop()
-            robonaut.stop()
+            for sim in (ns.sim, *sims):  # the arm that runs now (a test restarts it)
+                sim.stop()
             watcher.close()
 
 
