@@ -89,7 +89,7 @@ def graph(tmp_path_factory):
             nao = ["--robot", "nao", "--namespace", "/nao", "--name", "nao-ros", "--speed", "8", "--stall-apply"]
             sims.append(Sim([*nao, "--rate", "50", "--connection-out", str(files[1])], env).launch())
             rn = ["--robot", "robonaut-a", "--namespace", "/robonaut", "--name", "robonaut-ros", "--day", "2"]
-            sims.append(Sim([*rn, "--speed", "20", "--rate", "50", "--connection-out", str(files[3])], env).launch())
+            sims.append(Sim([*rn, "--speed", "50", "--rate", "50", "--connection-out", str(files[3])], env).launch())
             ns.sim.launch()
             connections = ("--ros2", str(files[0]), "--ros2", str(files[2]))
             with served_ros2(folder / "arm.yaml", ns.data_dir, env, *connections) as ns.server:
