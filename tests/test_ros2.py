@@ -514,3 +514,55 @@ def test_prismatic_joints_settle_and_arrive_by_thresholds_in_metres(tmp_path):
         assert driver.settled(0.0)
     finally:
         driver.close()
+
+
+@needs_ros2
+def test_a_stereo_head_without_a_matching_pair_gives_a_frame_not_found_with_the_reason(tmp_path):
+    """One side silent, the two sides' stamps apart, a right CameraInfo without a baseline: each a "not found"
+    look saying so (the images handed to the driver as its subscriptions would, no graph traffic)."""
+    from sensor_msgs.msg import CameraInfo, Image, JointState
+
+    from app.drivers.ros2 import Ros2Driver
+    from app.ros2.connection import load_connection
+    from app.ros2.link import Link
+    from app.ros2.sim_node import Topics, connection_doc
+
+    profile = load_profile("robonaut-a")
+    doc = connection_doc("robonaut-a", "rn", profile, Topics("/rn_unit"))
+    (tmp_path / "rn.yaml").write_text(yaml.safe_dump({**doc, "measurement_wait_s": 0.05}), encoding="utf-8")
+    conn = load_connection(tmp_path / "rn.yaml")
+    names = [j.name for j in profile.joints]
+    link = Link("stereo_test")
+    driver = Ros2Driver(profile, conn, link)
+    left, right = (driver._on_side("eye", side) for side in ("left", "right"))
+    left_info, right_info = driver._on_info("eye"), driver._on_info("eye", "right_info")
+
+    def image(stamp_s: float) -> Image:
+        msg = Image(height=480, width=640, encoding="mono8", step=640, data=bytes(640 * 480))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(stamp_s), int(stamp_s % 1 * 1e9)
+        return msg
+
+    try:
+        t = link.now_s()
+        for k in range(3):  # the robot stands still: its settled joint states stamped t - 1 s
+            state = JointState(name=names, position=[0.0] * len(names))
+            state.header.stamp.sec, state.header.stamp.nanosec = int(t - 1), k
+            driver._on_joints(state)
+        left(image(t))
+        assert driver.look().sighting.reason == (
+            "no measurement on /rn_unit/eye/right/image_rect (none received within 0.05 s)"
+        )
+        right(image(t + 0.033))  # the next frame of a 30 Hz camera: no exposure of both
+        assert driver.look().sighting.reason == (
+            "no stereo pair on /rn_unit/eye/left/image_rect and /rn_unit/eye/right/image_rect: the left and right "
+            "stamps differ by 0.033 s (more than stereo_sync_s 0.005 s)"
+        )
+        right(image(t + 0.001))  # within 5 ms of the left: one exposure
+        left_info(CameraInfo(k=[500.0, 0, 320, 0, 500.0, 240, 0, 0, 1]))
+        right_info(CameraInfo(p=[500.0, 0, 320, 0, 0, 500.0, 240, 0, 0, 0, 1, 0]))  # P[0,3] = 0: no baseline
+        assert driver.look().sighting.reason == (
+            "/rn_unit/eye/left/image_rect and /rn_unit/eye/right/image_rect: /rn_unit/eye/right/camera_info: its P "
+            "gives no baseline (P[0,3] = -fx * baseline, negative for a right camera)"
+        )
+    finally:
+        driver.close()
