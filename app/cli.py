@@ -450,9 +450,7 @@ def _simulate(args: argparse.Namespace) -> int:
         raise InputError("--outliers applies to --out; with --session the detectors make their own failures")
     believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None
     _check_writable(args.out or args.session, session=args.session is not None)
-    robot = SimulatedRobot.from_profile(profile, seed=args.seed)
-    for day in range(2, args.day + 1):
-        robot = robot.drifted(seed=1000 * args.seed + day)
+    robot = SimulatedRobot.from_profile(profile, seed=args.seed).on_day(args.day)
     start = time.perf_counter()
     if args.session:
         return _simulate_session(args, profile, robot, believed, start)

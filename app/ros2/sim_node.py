@@ -156,9 +156,7 @@ class SimNode:
         from .link import COMMAND_QOS, LATCHED_QOS, Link
 
         self.profile = profile
-        self.sim = SimulatedRobot.from_profile(profile, seed=seed)
-        for d in range(2, day + 1):  # as the desk's simulated robot of that day (app/drivers/simulated.py)
-            self.sim = self.sim.drifted(seed=1000 * seed + d)
+        self.sim = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)  # as the desk's robot of that day
         self.speed = float(speed)
         self.refuse_apply = refuse_apply
         self.stall_apply = stall_apply
