@@ -243,8 +243,11 @@ def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
     server, watcher = graph.server, graph.watcher
     names = [j.name for j in arm_profile().joints]
     sid = server.post("/api/sessions", json={"robot": "arm", "name": "stopped"}).json()["id"]
+    sent = len(watcher.seen_commands())
     job = server.post(f"/api/sessions/{sid}/replay", json={"count": 10, "seed": 3}).json()["job"]
-    wait_until(lambda: len(_frames(server, sid)) >= 2, "two frames captured")
+    # Stopped on the third move: two frames captured. (The watcher sees the move at once; the API's frame
+    # list on a loaded machine may lag so far that the replay ends before a stop sent on it arrives.)
+    wait_until(lambda: len(watcher.seen_commands()) >= sent + 3, "the third move", poll_s=0.005)
     assert server.post("/api/robot/stop").status_code == 200
     ended = wait_job(server, job)
     assert ended["state"] == "cancelled", ended
@@ -287,12 +290,13 @@ def wait_still(watcher, names: list[str], for_s: float = 0.3) -> np.ndarray:
 
 @needs_ros2
 def test_robot_killed_mid_replay_fails_the_job_keeps_frames_and_resumes_when_back(graph):
-    server, sim = graph.server, graph.sim
+    server, sim, watcher = graph.server, graph.sim, graph.watcher
     sid = server.post("/api/sessions", json={"robot": "arm", "name": "lost"}).json()["id"]
     plan = {"count": 8, "seed": 5}
+    sent = len(watcher.seen_commands())
     job = server.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"]
-    wait_until(lambda: len(_frames(server, sid)) >= 2, "two frames captured", poll_s=0.01)
-    sim.kill()
+    wait_until(lambda: len(watcher.seen_commands()) >= sent + 3, "the third move", poll_s=0.005)
+    sim.kill()  # under way to the third configuration: two frames captured
     ended = wait_job(server, job)
     assert ended["state"] == "failed"
     assert "disconnected: no joint states on /joint_states" in ended["error"]
