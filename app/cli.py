@@ -254,12 +254,16 @@ def _parser() -> argparse.ArgumentParser:
     r2.add_argument("--robot", required=True, help="a built-in robot (nao, motoman) or a profile file")
     r2.add_argument("--urdf", help="the robot's URDF, for a profile that says urdf: ros2")
     r2.add_argument("--seed", type=int, default=1, help="the hidden truth's and the noise's seed (default 1)")
+    r2.add_argument("--day", type=int, default=1, help="a later day: the joint offsets drifted (default 1)")
     r2.add_argument("--speed", type=float, default=1.0, help="times the trajectories' timing (default 1)")
     r2.add_argument("--rate", type=float, default=100.0, help="joint states per second (default 100)")
     r2.add_argument("--namespace", default="", help="every topic and the node under this (/nao: robots side by side)")
     r2.add_argument("--name", help="the robot's name in --connection-out (default: the profile's)")
     r2.add_argument("--connection-out", metavar="FILE", help="write the desk's connection file for this node")
     r2.add_argument("--refuse-apply", action="store_true", help="refuse every new robot_description (tests)")
+    r2.add_argument(
+        "--stall-apply", action="store_true", help="never answer a new robot_description while running (tests)"
+    )
     return p
 
 
@@ -473,9 +477,7 @@ def _simulate(args: argparse.Namespace) -> int:
     perfect = _perfect_simulation(profile, args.day, images=args.session is not None)
     for note in perfect.values():
         print(f"calib simulate: note: {note}", file=sys.stderr)
-    robot = SimulatedRobot.from_profile(profile, seed=args.seed)
-    for day in range(2, args.day + 1):
-        robot = robot.drifted(seed=1000 * args.seed + day)
+    robot = SimulatedRobot.from_profile(profile, seed=args.seed).on_day(args.day)
     start = time.perf_counter()
     if args.session:
         return _simulate_session(args, profile, robot, believed, start)
@@ -745,8 +747,8 @@ def _sim_ros2(args: argparse.Namespace) -> int:
     require()
     from .ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
 
-    if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000:
-        raise InputError("--speed must be in 0.1..100 and --rate in 1..1000")
+    if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000 or not 1 <= args.day <= 1000:
+        raise InputError("--speed must be in 0.1..100, --rate in 1..1000 and --day in 1..1000")
     namespace = args.namespace.rstrip("/")
     if namespace and (not namespace.startswith("/") or not namespace[1:].replace("_", "").replace("/", "").isalnum()):
         raise InputError(f"--namespace {args.namespace!r}: expected a ROS 2 namespace like /nao")
@@ -756,9 +758,11 @@ def _sim_ros2(args: argparse.Namespace) -> int:
         profile,
         urdf,
         seed=args.seed,
+        day=args.day,
         speed=args.speed,
         rate_hz=args.rate,
         refuse_apply=args.refuse_apply,
+        stall_apply=args.stall_apply,
         topics=topics,
     )
     if args.connection_out:

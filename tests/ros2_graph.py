@@ -12,7 +12,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -119,6 +119,15 @@ def served_ros2(connection: Path, data_dir: Path, env: dict[str, str], *extra: s
         yield server
 
 
+def wait_until(condition: Callable[[], Any], what: str, timeout_s: float = 60.0, poll_s: float = 0.02) -> Any:
+    """condition()'s first true value; the timeout is only the limit of a failure (AssertionError saying what)."""
+    deadline = time.monotonic() + timeout_s
+    while not (value := condition()):
+        assert time.monotonic() < deadline, f"{what}: not within {timeout_s:g} s"
+        time.sleep(poll_s)
+    return value
+
+
 def wait_job(server: Server, job: str, timeout_s: float = 120.0) -> dict[str, Any]:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -127,6 +136,13 @@ def wait_job(server: Server, job: str, timeout_s: float = 120.0) -> dict[str, An
             return snapshot
         time.sleep(0.1)
     raise AssertionError(f"job {job} did not end within {timeout_s} s")
+
+
+def wait_done(server: Server, job: str, timeout_s: float = 120.0) -> dict[str, Any]:
+    """The job's snapshot once it ended done (AssertionError with its error otherwise)."""
+    snapshot = wait_job(server, job, timeout_s)
+    assert snapshot["state"] == "done", f"job {job} {snapshot['state']}: {snapshot.get('error')}"
+    return snapshot
 
 
 @dataclass
@@ -160,10 +176,24 @@ class Watcher:
 
         self.link = Link(f"watcher_{os.getpid()}")
         node = self.link.node
-        node.create_subscription(JointTrajectory, self.command, self._on_command, COMMAND_QOS)
+        self._commands = node.create_subscription(JointTrajectory, self.command, self._on_command, COMMAND_QOS)
         node.create_subscription(JointState, "/joint_states", self._on_joints, SENSOR_QOS)
         node.create_subscription(String, "/robot_description", self._on_description, LATCHED_QOS)
         return self
+
+    def wait_commanders(self, count: int = 1, timeout_s: float = 60.0) -> None:
+        """Until `count` publishers of the command topic (the desk's) are matched with this watcher: a command
+        sent before that would not reach it (reliable, volatile)."""
+        wait_until(
+            lambda: self._commands.get_publisher_count() >= count, "the desk's commands reach the watcher", timeout_s
+        )
+
+    def wait_joint_states(self, timeout_s: float = 60.0) -> None:
+        wait_until(lambda: self.joints_at > 0, "joint states reach the watcher", timeout_s)
+
+    def seen_commands(self) -> list[Command]:
+        with self.lock:
+            return list(self.commands)
 
     def _on_command(self, msg: Any) -> None:
         points = [(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9, list(p.positions)) for p in msg.points]

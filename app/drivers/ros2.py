@@ -8,10 +8,15 @@ Joint readings come from `/joint_states` (matched by name, rad; a prismatic join
 profile's length unit). A move is one JointTrajectory of every profile joint, one point, `time_from_start`
 the slowest joint's distance over its velocity limit (a trajectory controller interpolates one point
 linearly from where the robot stands: no joint is faster than its limit), and is done when the joint
-states are within `tolerance_deg` of the target. STOP sends the empty trajectory (the controller stops
+states are within `tolerance_deg` of the target (a prismatic joint: `tolerance_m`); joint states that change
+less than `still_deg` (`still_m`) stand still. STOP sends the empty trajectory (the controller stops
 and holds). Joint states older than `timeout_s` mean the robot is disconnected (RobotFault, the desk's
 503) until they come again. A look waits for a measurement stamped later than the settled joint states
-(`measurement_wait_s`), else gives a "not found" sighting saying what was missing or stale.
+(`measurement_wait_s`), else gives a "not found" sighting saying what was missing or stale. A camera's image
+goes through the board detector with the intrinsics of its CameraInfo; a stereo head's pair (left and right
+stamped within `stereo_sync_s` of each other, both after the settled joint states) through the project's
+stereo matching and BallFinder with the left CameraInfo's intrinsics and the right one's baseline, exactly as
+the simulated Robonaut's rendered pair.
 """
 
 from __future__ import annotations
@@ -19,8 +24,9 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +36,8 @@ from calib_core import Calibration, InputError, Profile
 from calib_core.files import write_atomic
 from calib_core.io.export import calibrated_urdf, offsets_yaml
 from calib_core.units import length_factor
-from calib_core.vision.sighting import Sighting, sight_board
+from calib_core.vision.sighting import Sighting, sight_board, sight_fixture
+from calib_core.vision.stereo import StereoHead, depth_from_pair
 
 from . import Look, RobotFault, RobotStatus, check_limits
 from .registry import DriverContext
@@ -41,6 +48,7 @@ MIN_DURATION_S = 0.1
 STILL_WINDOW_S = 0.15  # joint states unchanged for this long: not moving
 MATCH_WAIT_S = 3.0  # how long a move waits for the controller to subscribe to the commands
 _POLL_S = 0.005
+_STEREO_KEEP = 4  # the latest images of each side kept for pairing by stamp
 
 
 def check(profile: Profile, options: Mapping[str, Any], where: str) -> dict[str, Any]:
@@ -84,9 +92,13 @@ class _Move:
 class _Reading:
     """The latest message of a measurement topic."""
 
-    stamp_s: float = math.nan  # header.stamp
-    value: Any = None  # a point (m) or an image
-    info: Any = None  # a camera's latest CameraInfo
+    stamp_s: float = math.nan  # header.stamp (a stereo pair's: the older of its two)
+    value: Any = None  # a point (m), an image, or a stereo pair (left, right)
+    info: Any = None  # a camera's (a stereo head's left) latest CameraInfo
+    right_info: Any = None  # a stereo head's right CameraInfo
+    sides: dict[str, deque] = field(
+        default_factory=lambda: {side: deque(maxlen=_STEREO_KEEP) for side in ("left", "right")}
+    )  # a stereo head's latest images of each side, (stamp s, Image)
 
 
 class Ros2Driver:
@@ -103,10 +115,17 @@ class Ros2Driver:
         self.link = link
         self.files = files
         self.margin_rad = math.radians(conn.options["margin_deg"])
-        self.tolerance_rad = math.radians(conn.options["tolerance_deg"])
-        self.still_rad = math.radians(conn.options["still_deg"])  # readings closer than this are the same
         self._scale = np.array(
             [length_factor("m", profile.length_unit) if j.prismatic else 1.0 for j in profile.joints]
+        )
+        prismatic = np.array([j.prismatic for j in profile.joints], bool)
+        # Per joint, in its internal unit (rad, or the profile's length unit for a prismatic joint): how close
+        # a move must come to its target, and what change of the readings is still standing still.
+        self._tolerance = np.where(
+            prismatic, conn.options["tolerance_m"] * self._scale, math.radians(conn.options["tolerance_deg"])
+        )
+        self._still = np.where(
+            prismatic, conn.options["still_m"] * self._scale, math.radians(conn.options["still_deg"])
         )
         self._velocity = np.array([j.velocity for j in profile.joints])
         self._lock = threading.Lock()
@@ -129,11 +148,16 @@ class Ros2Driver:
         self._command = node.create_publisher(JointTrajectory, conn.command, COMMAND_QOS)
         node.create_subscription(JointState, conn.joint_states, self._on_joints, SENSOR_QOS)
         for m in conn.measurements:
-            if m.info is None:
+            if m.kind == "point":
                 node.create_subscription(PointStamped, m.topic, self._on_point(m.sensor), SENSOR_QOS)
-            else:
+            elif m.kind == "image":
                 node.create_subscription(Image, m.topic, self._on_image(m.sensor), SENSOR_QOS)
                 node.create_subscription(CameraInfo, m.info, self._on_info(m.sensor), SENSOR_QOS)
+            else:
+                node.create_subscription(Image, m.topic, self._on_side(m.sensor, "left"), SENSOR_QOS)
+                node.create_subscription(Image, m.right, self._on_side(m.sensor, "right"), SENSOR_QOS)
+                node.create_subscription(CameraInfo, m.info, self._on_info(m.sensor), SENSOR_QOS)
+                node.create_subscription(CameraInfo, m.right_info, self._on_info(m.sensor, "right_info"), SENSOR_QOS)
         self._set_parameters = None
         if conn.apply_node is not None:
             self._set_parameters = node.create_client(SetParameters, f"{conn.apply_node.rstrip('/')}/set_parameters")
@@ -149,14 +173,14 @@ class Ros2Driver:
                 return
             self._mismatch = ""
             q = np.array([msg.position[index[j.name]] for j in self.profile.joints]) * self._scale
-            if self._ref is None or np.max(np.abs(q - self._ref)) > self.still_rad:
+            if self._ref is None or np.any(np.abs(q - self._ref) > self._still):
                 self._ref = q
                 self._still_since = now
             self._q = q
             self._js_stamp = _stamp_s(msg.header.stamp)
             self._js_at = now
             move = self._move
-            if move is not None and np.max(np.abs(q - move.goal)) <= self.tolerance_rad:
+            if move is not None and np.all(np.abs(q - move.goal) <= self._tolerance):
                 move.arrived = True
                 move.done.set()
                 self._move = None
@@ -178,10 +202,28 @@ class Ros2Driver:
 
         return on
 
-    def _on_info(self, sensor: str) -> Callable[[Any], None]:
+    def _on_info(self, sensor: str, which: str = "info") -> Callable[[Any], None]:
         def on(msg: Any) -> None:
             with self._lock:
-                self._readings[sensor].info = msg
+                setattr(self._readings[sensor], which, msg)
+
+        return on
+
+    def _on_side(self, sensor: str, side: str) -> Callable[[Any], None]:
+        """A stereo head's image: kept, and the newest left/right pair whose stamps agree becomes the reading."""
+        sync_s = self.conn.options["stereo_sync_s"]
+        other = "right" if side == "left" else "left"
+
+        def on(msg: Any) -> None:
+            stamp = _stamp_s(msg.header.stamp)
+            with self._lock:
+                r = self._readings[sensor]
+                r.sides[side].append((stamp, msg))
+                match = [(s, m) for s, m in r.sides[other] if abs(s - stamp) <= sync_s]
+                if match and not min(stamp, match[-1][0]) <= r.stamp_s:
+                    pair = (msg, match[-1][1]) if side == "left" else (match[-1][1], msg)
+                    r.stamp_s, r.value = min(stamp, match[-1][0]), pair
+                    self._arrived.notify_all()
 
         return on
 
@@ -241,7 +283,8 @@ class Ros2Driver:
     def look(self, believed: np.ndarray | None = None) -> Look:
         """The data sensor's first measurement stamped after the joint states the robot stands at now."""
         sensor = self.profile.sensors[self.profile.data.sensor]
-        topic = next(m.topic for m in self.conn.measurements if m.sensor == sensor.name)
+        m = next(m for m in self.conn.measurements if m.sensor == sensor.name)
+        topic = m.topic if m.kind != "stereo" else f"{m.topic} and {m.right}"
         wait_s = self.conn.options["measurement_wait_s"]
         with self._lock:
             self._check_link()
@@ -252,9 +295,12 @@ class Ros2Driver:
             r = self._readings[sensor.name]
             while not r.stamp_s > since and time.monotonic() < deadline:
                 self._arrived.wait(_POLL_S)
-            stamp, value, info = r.stamp_s, r.value, r.info
+            stamp, value, info, right_info = r.stamp_s, r.value, r.info, r.right_info
+            latest = {side: images[-1][0] if images else math.nan for side, images in r.sides.items()}
         if not stamp > since:
-            if math.isnan(stamp):
+            if math.isnan(stamp) and m.kind == "stereo":
+                reason = _unpaired(m, latest, self.conn.options["stereo_sync_s"], wait_s)
+            elif math.isnan(stamp):
                 reason = f"no measurement on {topic} (none received within {wait_s:g} s)"
                 carried = self.link.topic_types().get(topic)
                 want = "sensor_msgs/msg/Image" if sensor.reading == "image" else "geometry_msgs/msg/PointStamped"
@@ -266,6 +312,8 @@ class Ros2Driver:
                     f"joint states (none newer within {wait_s:g} s)"
                 )
             return Look(q, target, _not_found(self.profile, target, reason), {})
+        if m.kind == "stereo":
+            return self._look_stereo(q, p, value, info, right_info, m)
         if sensor.reading == "image":
             return self._look_image(q, target, p, value, info, topic)
         measured = value[None] * length_factor("m", self.profile.length_unit)
@@ -288,6 +336,29 @@ class Ros2Driver:
             p[list(sensor.intrinsics)] = [k[0], k[4], k[2], k[5]]
         sighting = sight_board(self.profile, p, q, target, image)
         return Look(q, target, sighting, {"image": image})
+
+    def _look_stereo(self, q: np.ndarray, p: np.ndarray, pair: Any, left_info: Any, right_info: Any, m: Any) -> Look:
+        """Stereo matching and the BallFinder on a rectified pair, seeded by the believed kinematics; the
+        intrinsics from the left CameraInfo's K, the baseline from the right one's P (P[0,3] = -fx * baseline)."""
+        target = self.profile.data.target if self.profile.data.target is not None else 0
+        sensor = self.profile.sensors[self.profile.data.sensor]
+        if left_info is None or right_info is None:
+            return Look(
+                q, target, _not_found(self.profile, target, f"no CameraInfo for {m.topic} and {m.right} yet"), {}
+            )
+        try:
+            left, right = (_image_array(msg) for msg in pair)
+            if left.shape != right.shape:
+                sizes = [f"{image.shape[1]} x {image.shape[0]} px" for image in (left, right)]
+                raise ValueError(f"the left image is {sizes[0]}, the right one {sizes[1]}")
+            head = _stereo_head(self.profile, sensor.name, left_info, right_info, left.shape, m.right_info)
+        except ValueError as exc:
+            return Look(q, target, _not_found(self.profile, target, f"{m.topic} and {m.right}: {exc}"), {})
+        if sensor.intrinsics is not None:
+            p[list(sensor.intrinsics)] = [head.fx_px, head.fy_px, head.cx_px, head.cy_px]
+        depth_m = depth_from_pair(left, right, head)
+        sighting = sight_fixture(self.profile, p, q, depth_m, head)
+        return Look(q, target, sighting, {"left": left, "right": right})
 
     # --- calibration ----------------------------------------------------------------------------------
     def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None:
@@ -457,6 +528,36 @@ def _not_found(profile: Profile, target: int, reason: str) -> Sighting:
 
 def _stamp_s(stamp: Any) -> float:
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def _unpaired(m: Any, latest: dict[str, float], sync_s: float, wait_s: float) -> str:
+    """Why a stereo head has no pair at all: a side never came, or the two sides' stamps never agree."""
+    silent = [topic for side, topic in (("left", m.topic), ("right", m.right)) if math.isnan(latest[side])]
+    if silent:
+        return f"no measurement on {' and '.join(silent)} (none received within {wait_s:g} s)"
+    return (
+        f"no stereo pair on {m.topic} and {m.right}: the left and right stamps differ by "
+        f"{abs(latest['left'] - latest['right']):.3f} s (more than stereo_sync_s {sync_s:g} s)"
+    )
+
+
+def _stereo_head(
+    profile: Profile, sensor: str, left_info: Any, right_info: Any, shape: tuple[int, ...], right_topic: str
+) -> StereoHead:
+    """The rectified head as its CameraInfo messages describe it (ValueError saying what does not fit)."""
+    fx, fy, cx, cy = (float(left_info.k[i]) for i in (0, 4, 2, 5))
+    if not (fx > 0 and fy > 0):
+        raise ValueError("the left CameraInfo's K has no focal length")
+    p = right_info.p
+    baseline_m = -float(p[3]) / float(p[0]) if p[0] else math.nan
+    if not baseline_m > 0:
+        raise ValueError(
+            f"{right_topic}: its P gives no baseline (P[0,3] = -fx * baseline, negative for a right camera)"
+        )
+    head = StereoHead.from_profile(profile, profile.nominal(), sensor)  # its frame and optical axes
+    return replace(
+        head, fx_px=fx, fy_px=fy, cx_px=cx, cy_px=cy, width_px=shape[1], height_px=shape[0], baseline_m=baseline_m
+    )
 
 
 def _image_array(msg: Any) -> np.ndarray:

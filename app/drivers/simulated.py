@@ -126,9 +126,7 @@ class SimulatedDriver:
         self.rate_hz = float(rate_hz)
         self.margin_rad = math.radians(margin_deg)
         self.move_slack_s = float(move_slack_s)
-        robot = SimulatedRobot.from_profile(profile, seed=seed)
-        for d in range(2, day + 1):
-            robot = robot.drifted(seed=1000 * seed + d)
+        robot = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)
         self._sim = robot  # renders and detects, or reads a tracker (its rng is guarded by _render_lock)
         self._reads = reads_points(profile.sensors[profile.data.sensor])
         self._planner = SimulatedRobot.from_profile(profile, seed=seed + 1, truth=robot.true_params)

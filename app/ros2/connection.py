@@ -7,14 +7,22 @@
     joint_states: /joint_states
     command: /joint_trajectory_controller/joint_trajectory
     measurements: {mocap: {topic: /mocap/marker}}       # or {topic: .../image_raw, info: .../camera_info}
+    # a stereo head (extension): {left: .../left/image_rect, left_info: .../left/camera_info,
+    #                             right: .../right/image_rect, right_info: .../right/camera_info}
     apply: {node: /robot_state_publisher, parameter: robot_description}   # optional
 
 Extensions of the contract (optional, with their defaults): `wait_s: 30` (how long `calib serve` waits for
 the robot's description and joint states), `timeout_s: 1.0` (joint states older than this: disconnected),
 `tolerance_deg: 0.1` (a move has arrived within this of its target), `still_deg: 0.005` (joint states that
-change less than this stand still: above the encoders' jitter), `measurement_wait_s: 2.0` (how long a
+change less than this stand still: above the encoders' jitter), `tolerance_m: 0.0005` and `still_m: 0.00005`
+(the same for prismatic joints, in metres), `measurement_wait_s: 2.0` (how long a
 capture waits for a measurement newer than the settling), `margin_deg: 1.0` (the joint limits' safety
-margin), `apply_timeout_s: 5.0` (the parameter call).
+margin), `apply_timeout_s: 5.0` (the parameter call), `stereo_sync_s: 0.005` (a stereo pair's left and right
+images are one exposure when their stamps differ by at most this).
+
+A stereo head's entry (an extension of the contract) names its rectified pair: two sensor_msgs/Image topics
+and their CameraInfo (the left's K gives the intrinsics, the right's P the baseline, as a ROS stereo driver or
+stereo_image_proc publishes them).
 
 connect() checks everything on the live graph before the desk starts (the description is a URDF the
 profile compiles with, the joint states name every joint of the profile, each topic that exists has the
@@ -46,10 +54,13 @@ OPTIONS = {
     "wait_s": 30.0,
     "timeout_s": 1.0,
     "tolerance_deg": 0.1,
+    "tolerance_m": 0.0005,
     "still_deg": 0.005,
+    "still_m": 0.00005,
     "measurement_wait_s": 2.0,
     "margin_deg": 1.0,
     "apply_timeout_s": 5.0,
+    "stereo_sync_s": 0.005,
 }
 URDF_FROM_GRAPH = "ros2"  # a profile's `urdf: ros2`
 TYPES = {
@@ -62,11 +73,32 @@ TYPES = {
 }
 
 
+STEREO_KEYS = ("left", "left_info", "right", "right_info")
+
+
 @dataclass(frozen=True)
 class Measurement:
     sensor: str
-    topic: str
-    info: str | None = None  # a camera's CameraInfo topic
+    topic: str  # a point sensor's PointStamped, a camera's Image, a stereo head's left Image
+    info: str | None = None  # a camera's (a stereo head's left) CameraInfo topic
+    right: str | None = None  # a stereo head's right Image ...
+    right_info: str | None = None  # ... and its CameraInfo
+
+    @property
+    def kind(self) -> str:
+        """ "point", "image" or "stereo"."""
+        return "stereo" if self.right is not None else "image" if self.info is not None else "point"
+
+    def topics(self) -> dict[str, tuple[str, str]]:
+        """Its topics: the field name in the connection file -> (topic, the contract's type)."""
+        if self.kind == "stereo":
+            assert self.info is not None and self.right is not None and self.right_info is not None
+            pairs = zip(STEREO_KEYS, (self.topic, self.info, self.right, self.right_info), strict=True)
+            return {key: (topic, TYPES["info" if key.endswith("info") else "image"]) for key, topic in pairs}
+        if self.kind == "image":
+            assert self.info is not None
+            return {"topic": (self.topic, TYPES["image"]), "info": (self.info, TYPES["info"])}
+        return {"topic": (self.topic, TYPES["point"])}
 
 
 @dataclass(frozen=True)
@@ -125,8 +157,16 @@ def load_connection(path: Path) -> Connection:
     measurements = []
     for sensor, spec in items.items():
         where = f"measurements.{sensor}"
+        if isinstance(spec, dict) and set(spec) == set(STEREO_KEYS):
+            left, left_info, right, right_info = (_topic(spec, key, file, where) for key in STEREO_KEYS)
+            measurements.append(Measurement(str(sensor), left, left_info, right, right_info))
+            continue
         if not isinstance(spec, dict) or set(spec) - {"topic", "info"} or "topic" not in spec:
-            raise InputError(f"{where}: expected {{topic: ...}} or {{topic: ..., info: ...}}", file=file)
+            raise InputError(
+                f"{where}: expected {{topic: ...}}, {{topic: ..., info: ...}} or a stereo pair "
+                "{left: ..., left_info: ..., right: ..., right_info: ...}",
+                file=file,
+            )
         info = _topic(spec, "info", file, where) if "info" in spec else None
         measurements.append(Measurement(str(sensor), _topic(spec, "topic", file, where), info))
     apply_node = apply_parameter = None
@@ -166,12 +206,20 @@ def _check_sensors(conn: Connection, profile: Profile | None) -> None:
                 f"measurements.{m.sensor}: no such sensor in the profile (sensors: {', '.join(names)})", file=file
             )
         sensor = profile.sensors[names.index(m.sensor)]
+        if m.kind == "stereo" and sensor.reading != "stereo":
+            raise InputError(f"measurements.{m.sensor}: a stereo pair for a sensor that is no stereo head", file=file)
         if sensor.reading == "image" and m.info is None:
             raise InputError(f"measurements.{m.sensor}: a camera needs `info` (its CameraInfo topic)", file=file)
-        if sensor.reading not in ("image", "direct") or (sensor.reading == "direct" and sensor.dim != 3):
+        if sensor.reading == "stereo" and m.kind != "stereo":
             raise InputError(
-                f"measurements.{m.sensor}: the ROS 2 driver reads point sensors (PointStamped) and cameras "
-                f"(Image + CameraInfo), not a {sensor.reading} sensor",
+                f"measurements.{m.sensor}: a stereo head needs its pair {{left: ..., left_info: ..., right: ..., "
+                "right_info: ...}",
+                file=file,
+            )
+        if sensor.reading not in ("image", "stereo", "direct") or (sensor.reading == "direct" and sensor.dim != 3):
+            raise InputError(
+                f"measurements.{m.sensor}: the ROS 2 driver reads point sensors (PointStamped), cameras "
+                f"(Image + CameraInfo) and stereo heads (two of each), not a {sensor.reading} sensor",
                 file=file,
             )
     data_sensor = profile.sensors[profile.data.sensor].name
@@ -290,7 +338,7 @@ def _nominal(folder: Path, received: str) -> str:
 def _check_types(conn: Connection, link: Any, settle_s: float = 2.0) -> None:
     """Each topic of the connection that the graph knows must carry the contract's type (the graph is given
     up to settle_s to show every measurement topic: discovery lags behind the first messages)."""
-    topics = {m.topic for m in conn.measurements} | {m.info for m in conn.measurements if m.info}
+    topics = {topic for m in conn.measurements for topic, _ in m.topics().values()}
     deadline = time.monotonic() + settle_s
     types = link.topic_types()
     while not topics <= set(types) and time.monotonic() < deadline:
@@ -302,10 +350,7 @@ def _check_types(conn: Connection, link: Any, settle_s: float = 2.0) -> None:
         ("command", conn.command, TYPES["command"]),
     ]
     for m in conn.measurements:
-        kind = "image" if m.info is not None else "point"
-        want.append((f"measurements.{m.sensor}.topic", m.topic, TYPES[kind]))
-        if m.info is not None:
-            want.append((f"measurements.{m.sensor}.info", m.info, TYPES["info"]))
+        want += [(f"measurements.{m.sensor}.{key}", topic, type_) for key, (topic, type_) in m.topics().items()]
     for where, topic, expected in want:
         have = types.get(topic)
         if have and expected not in have:

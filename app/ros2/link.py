@@ -33,7 +33,12 @@ class Link:
     """A node on the graph, spun by a multi-threaded executor in a daemon thread until close()."""
 
     def __init__(
-        self, node_name: str, *, namespace: str | None = None, parameter_overrides: list[Any] | None = None
+        self,
+        node_name: str,
+        *,
+        namespace: str | None = None,
+        parameter_overrides: list[Any] | None = None,
+        threads: int = 2,
     ) -> None:
         self.context = Context()
         rclpy.init(context=self.context)
@@ -44,7 +49,7 @@ class Link:
         except BaseException:
             self.context.try_shutdown()
             raise
-        self.executor = MultiThreadedExecutor(num_threads=2, context=self.context)
+        self.executor = MultiThreadedExecutor(num_threads=threads, context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, name=f"ros2-{node_name}", daemon=True)
         self._thread.start()

@@ -3,15 +3,19 @@
 It publishes the robot's URDF on /robot_description (transient local, as robot_state_publisher does, and
 again whenever its `robot_description` parameter is set), the encoder readings on /joint_states at
 `rate_hz`, and what its sensor measures: a point sensor's (laser tracker, motion capture) PointStamped in
-metres on /<sensor>/point, or a camera's rendered image and CameraInfo on /<sensor>/image_raw and
-/<sensor>/camera_info. It executes trajectory_msgs/JointTrajectory from
-/joint_trajectory_controller/joint_trajectory as a ros2_control trajectory controller does with positions
-only: linear interpolation from where it stands, each point at its time_from_start (divided by `speed`,
-a parameter that may be set while it runs); an empty trajectory stops and holds. A trajectory naming an
+metres on /<sensor>/point, a camera's rendered image and CameraInfo on /<sensor>/image_raw and
+/<sensor>/camera_info, or a stereo head's rendered rectified pair (Robonaut) on /<sensor>/left/image_rect and
+/<sensor>/right/image_rect with their CameraInfo on /<sensor>/left/camera_info and /<sensor>/right/camera_info
+(both images of a pair stamped alike; the right P carries the baseline). It executes
+trajectory_msgs/JointTrajectory from /joint_trajectory_controller/joint_trajectory as a ros2_control
+trajectory controller does with positions only: linear interpolation from where it stands, each point at its
+time_from_start (divided by `speed`, a parameter that may be set while it runs); an empty trajectory stops
+and holds. A trajectory naming an
 unknown joint or a point beyond a joint limit is refused whole (logged), as a controller refuses it.
 
-Its hidden truth is the profile's simulation (calib_core.sim.SimulatedRobot with `seed`): the desk that
-calibrates it should find those parameters.
+Its hidden truth is the profile's simulation (calib_core.sim.SimulatedRobot with `seed`; `day` > 1 drifts the
+joint offsets as the desk's simulated robots and `calib simulate --day` do): the desk that calibrates it should
+find those parameters.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from calib_core.model.loader import BUILTIN_PROFILES
 from calib_core.sim.simulator import SimulatedRobot
 from calib_core.units import length_factor
 from calib_core.vision.sandal_board import render_board_image
+from calib_core.vision.stereo import StereoHead, render_pair
 
 from . import require
 
@@ -62,10 +67,18 @@ class Topics:
     def node(self) -> str:
         return f"{self.namespace}/robot_state_publisher"
 
-    def measurement(self, sensor: str, camera: bool) -> dict[str, str]:
-        if camera:
-            return {"topic": f"{self.namespace}/{sensor}/image_raw", "info": f"{self.namespace}/{sensor}/camera_info"}
-        return {"topic": f"{self.namespace}/{sensor}/point"}
+    def measurement(self, sensor: str, kind: str) -> dict[str, str]:
+        """The topics of a sensor of this kind ("point", "image" or "stereo"), as the connection file names them."""
+        at = f"{self.namespace}/{sensor}"
+        if kind == "stereo":
+            return {
+                f"{side}{key}": f"{at}/{side}/{name}"
+                for side in ("left", "right")
+                for key, name in (("", "image_rect"), ("_info", "camera_info"))
+            }
+        if kind == "image":
+            return {"topic": f"{at}/image_raw", "info": f"{at}/camera_info"}
+        return {"topic": f"{at}/point"}
 
 
 def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
@@ -98,9 +111,21 @@ def connection_doc(profile_ref: str, robot: str, profile: Profile, topics: Topic
         "description_topic": topics.description,
         "joint_states": topics.joint_states,
         "command": topics.command,
-        "measurements": {sensor.name: topics.measurement(sensor.name, sensor.reading == "image")},
+        "measurements": {sensor.name: topics.measurement(sensor.name, sensor_kind(profile))},
         "apply": {"node": topics.node, "parameter": "robot_description"},
     }
+
+
+def sensor_kind(profile: Profile) -> str:
+    """How the node publishes the profile's data sensor: "stereo", "image" or "point" (InputError: it cannot)."""
+    from ..drivers.simulated import reads_points
+
+    sensor = profile.sensors[profile.data.sensor]
+    if sensor.reading in ("stereo", "image"):
+        return sensor.reading
+    if reads_points(sensor):
+        return "point"
+    raise InputError(f"{profile.name}: its {sensor.name} ({sensor.reading}) cannot be simulated on ROS 2 yet")
 
 
 class SimNode:
@@ -112,9 +137,11 @@ class SimNode:
         urdf: str,
         *,
         seed: int = 1,
+        day: int = 1,
         speed: float = 1.0,
         rate_hz: float = 100.0,
         refuse_apply: bool = False,
+        stall_apply: bool = False,
         topics: Topics = Topics(),
     ) -> None:
         require()
@@ -129,17 +156,17 @@ class SimNode:
         from .link import COMMAND_QOS, LATCHED_QOS, Link
 
         self.profile = profile
-        self.sim = SimulatedRobot.from_profile(profile, seed=seed)
+        self.sim = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)  # as the desk's robot of that day
         self.speed = float(speed)
         self.refuse_apply = refuse_apply
+        self.stall_apply = stall_apply
+        self._closing = threading.Event()
         self.topics = topics
-        from ..drivers.simulated import readable_targets, reads_points
+        from ..drivers.simulated import readable_targets
 
         sensor = profile.sensors[profile.data.sensor]
-        self.camera = sensor.reading == "image"
-        if not self.camera and not reads_points(sensor):
-            raise InputError(f"{profile.name}: its {sensor.name} ({sensor.reading}) cannot be simulated on ROS 2 yet")
-        self.target = (readable_targets(profile) or [0])[0] if not self.camera else 0
+        self.kind = sensor_kind(profile)
+        self.target = (readable_targets(profile) or [0])[0] if self.kind == "point" else 0
         self._lock = threading.Lock()
         lo, hi = profile.joint_limits()
         self._lo, self._hi = lo, hi
@@ -151,6 +178,7 @@ class SimNode:
         self._t0 = 0.0
         self.link = Link(
             "robot_state_publisher",
+            threads=3,  # the parameter services, the motion, the sensor: a stalled one stops neither other
             namespace=topics.namespace or None,
             parameter_overrides=[Parameter("robot_description", value=urdf)],
         )
@@ -160,7 +188,12 @@ class SimNode:
         self._description = node.create_publisher(String, topics.description, LATCHED_QOS)
         self._joints = node.create_publisher(JointState, topics.joint_states, 10)
         self._string, self._joint_state = String, JointState
-        node.create_subscription(JointTrajectory, topics.command, self._on_trajectory, COMMAND_QOS)
+        # The joint states and the commands in a group of their own: a parameter call that stalls (the default
+        # group's services) or a render (the sensor's group) does not hold them up.
+        motion = MutuallyExclusiveCallbackGroup()
+        node.create_subscription(
+            JointTrajectory, topics.command, self._on_trajectory, COMMAND_QOS, callback_group=motion
+        )
 
         def check_parameters(params: list[Any]) -> Any:
             for p in params:
@@ -168,6 +201,9 @@ class SimNode:
                     return SetParametersResult(successful=False, reason="speed: a number in (0, 100]")
                 if p.name != "robot_description":
                     continue
+                if self.stall_apply:  # accepted, never answered while the node lives (a hung robot_state_publisher)
+                    self._closing.wait()
+                    return SetParametersResult(successful=False, reason="the node is closing")
                 if self.refuse_apply:
                     return SetParametersResult(successful=False, reason="this robot takes no new description")
                 text = p.value if isinstance(p.value, str) else ""
@@ -185,21 +221,23 @@ class SimNode:
         node.add_on_set_parameters_callback(check_parameters)
         node.add_post_set_parameters_callback(republish)
         self._description.publish(String(data=urdf))
-        measurement = topics.measurement(sensor.name, self.camera)
+        measurement = topics.measurement(sensor.name, self.kind)
         # Rendering takes a few hundred ms: in a group of its own the joint states and commands go on meanwhile.
         sensing = MutuallyExclusiveCallbackGroup()
-        if self.camera:
-            self._image = node.create_publisher(Image, measurement["topic"], 5)
-            self._info = node.create_publisher(CameraInfo, measurement["info"], 5)
+        if self.kind != "point":
+            images = ("topic",) if self.kind == "image" else ("left", "right")
+            infos = ("info",) if self.kind == "image" else ("left_info", "right_info")
+            self._images = [node.create_publisher(Image, measurement[key], 5) for key in images]
+            self._infos = [node.create_publisher(CameraInfo, measurement[key], 5) for key in infos]
             self._image_type, self._info_type = Image, CameraInfo
-            node.create_timer(1.0 / IMAGE_HZ, self._publish_image, callback_group=sensing)
+            node.create_timer(1.0 / IMAGE_HZ, self._publish_images, callback_group=sensing)
         else:
             self._point = node.create_publisher(PointStamped, measurement["topic"], 10)
             self._point_type = PointStamped
             node.create_timer(1.0 / POINT_HZ, self._publish_point, callback_group=sensing)
         self._frame = sensor.name
-        node.create_timer(1.0 / rate_hz, self._tick)
-        self._rendered: tuple[np.ndarray, np.ndarray] | None = None  # (the pose, its image)
+        node.create_timer(1.0 / rate_hz, self._tick, callback_group=motion)
+        self._rendered: tuple[np.ndarray, list[np.ndarray]] | None = None  # (the pose, its images)
 
     def _home(self) -> np.ndarray:
         """A start with the target in view, inside the limits less a degree."""
@@ -274,34 +312,50 @@ class SimNode:
         msg.point.x, msg.point.y, msg.point.z = float(x), float(y), float(z)
         self._point.publish(msg)
 
-    def _publish_image(self) -> None:
-        """A camera image of the board in view, rendered while the robot stands still (a moving robot's would
-        be blurred, and no capture takes it)."""
+    def _publish_images(self) -> None:
+        """What the camera (the stereo head) sees, rendered while the robot stands still (a moving robot's images
+        would be blurred, and no capture takes them); a stereo pair's two images and infos stamped alike."""
         stamp = self.link.node.get_clock().now().to_msg()
         with self._lock:
             if self._plan is not None:
                 return
             q = self._q.copy()
         if self._rendered is None or not np.array_equal(self._rendered[0], q):  # a still scene: rendered once
-            targets = np.arange(len(self.profile.targets))
-            seen = targets[self.sim.visible(np.repeat(q[None], len(targets), axis=0), targets)]
-            target = int(seen[0]) if len(seen) else self.target  # the board in view (NAO: the left or right foot's)
-            board = render_board_image(self.profile, self.sim.true_params, q, target, self.sim.rng)
-            self._rendered = (q, np.ascontiguousarray(board.image, dtype=np.uint8))
-        image = self._rendered[1]
-        msg = self._image_type()
-        msg.header.stamp, msg.header.frame_id = stamp, self._frame
-        msg.height, msg.width = image.shape[:2]
-        msg.encoding, msg.step = "mono8", image.shape[1]
-        msg.data = image.tobytes()
+            self._rendered = (q, self._render(q))
         sensor = self.profile.sensors[self.profile.data.sensor]
         fx, fy, cx, cy = (float(self.sim.true_params[i]) for i in sensor.intrinsics or ())
-        info = self._info_type()
-        info.header = msg.header
-        info.height, info.width = msg.height, msg.width
-        info.k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
-        self._image.publish(msg)
-        self._info.publish(info)
+        # The right camera of a rectified pair: P[0,3] = -fx * baseline (m), as a ROS stereo driver says it.
+        shifts = [0.0] if self.kind == "image" else [0.0, -fx * self._baseline_m()]
+        for image, shift, images, infos in zip(self._rendered[1], shifts, self._images, self._infos, strict=True):
+            msg = self._image_type()
+            msg.header.stamp, msg.header.frame_id = stamp, self._frame
+            msg.height, msg.width = image.shape[:2]
+            msg.encoding, msg.step = "mono8", image.shape[1]
+            msg.data = image.tobytes()
+            info = self._info_type()
+            info.header = msg.header
+            info.height, info.width = msg.height, msg.width
+            info.k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
+            info.p = [fx, 0.0, cx, shift, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+            images.publish(msg)
+            infos.publish(info)
+
+    def _render(self, q: np.ndarray) -> list[np.ndarray]:
+        """The image(s) of true configuration q: the board in view (NAO: the left or right foot's), or the
+        stereo head's pair (Robonaut: the sphere in its hand)."""
+        if self.kind == "stereo":
+            head = StereoHead.from_profile(self.profile, self.sim.true_params, self._frame)
+            pair = render_pair(self.profile, self.sim.true_params, q, head, self.sim.rng)
+            return [np.ascontiguousarray(pair.left), np.ascontiguousarray(pair.right)]
+        targets = np.arange(len(self.profile.targets))
+        seen = targets[self.sim.visible(np.repeat(q[None], len(targets), axis=0), targets)]
+        target = int(seen[0]) if len(seen) else self.target
+        board = render_board_image(self.profile, self.sim.true_params, q, target, self.sim.rng)
+        return [np.ascontiguousarray(board.image, dtype=np.uint8)]
+
+    def _baseline_m(self) -> float:
+        return StereoHead.from_profile(self.profile, self.sim.true_params, self._frame).baseline_m
 
     def close(self) -> None:
+        self._closing.set()
         self.link.close()

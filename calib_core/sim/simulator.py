@@ -123,6 +123,14 @@ class SimulatedRobot:
             self.sphere_share,
         )
 
+    def on_day(self, day: int) -> SimulatedRobot:
+        """The same robot on day `day` (1: as it is): drifted once for each later day, seeded by this robot's
+        seed and the day (`calib simulate --day`, the desk's simulated robots and `calib sim-ros2` alike)."""
+        robot = self
+        for d in range(2, day + 1):
+            robot = robot.drifted(seed=1000 * self.seed + d)
+        return robot
+
     # --- configurations ---------------------------------------------------------------------------
     def configurations(self, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Joint readings (N, n_joints) and, per configuration, the target it shows (N,)."""
