@@ -24,7 +24,7 @@ configuration, a board's 48 compressed to at most the parameter count by QR), th
 passes that swap a chosen configuration for a candidate while the criterion falls. Uniform draws are
 sparse where the best configurations lie (near the sensor, at the edge of what it sees), so a plan from
 drawn candidates then draws more about the configurations it chose (REFINE_DEG on every joint) and
-exchanges again: a local refinement, about 6% off the predicted error of a 32-configuration Robonaut plan.
+exchanges again: a local refinement, about 8% off the predicted error of a 32-configuration Robonaut plan.
 The workspace the error is averaged over is not the plan's candidates (which keep wider margins) but
 configurations the sensor sees with the usual margin, the kind a held-out check draws (`workspace`).
 """
