@@ -100,6 +100,19 @@ def test_woodbury_updates_match_the_criterion_recomputed(rn, rn_pool) -> None:
         assert sel.value() <= before + 1e-12
 
 
+def test_refinement_candidates_carry_the_information_the_design_gives_them(rn, rn_pool) -> None:
+    """Candidates added to a design (a plan's local refinement) get the same whitened information as if
+    they had been in its pool from the start."""
+    q, t = rn_pool
+    workspace = (q[:60], t[:60])
+    d = design(rn, "full", rn.nominal(), q[:100], t[:100], workspace=workspace)
+    d.extend(q[100:140], t[100:140])
+    whole = design(rn, "full", rn.nominal(), q[:140], t[:140], workspace=workspace)
+    assert d.free == whole.free and len(d.q) == 140
+    rows = np.arange(90, 140)
+    assert np.allclose(d.information(rows), whole.information(rows), rtol=1e-9, atol=1e-12 * whole.scale.max())
+
+
 def test_predicted_error_matches_calibrations_against_the_truth(rn, rn_pool, rn_heldout) -> None:
     """With the true model as the base, the prediction is the linearised truth: the RMS error of
     calibrations from the same configurations over noise seeds must match it (within 35 %)."""

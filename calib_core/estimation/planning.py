@@ -21,7 +21,12 @@ The search: candidates inside the joint limits less the safety margin and predic
 base model (the simulator's checks: field of view, the arm hiding the sphere, a board's obliquity);
 greedy selection with rank-k updates of C (Sherman-Morrison-Woodbury; k the rows of one
 configuration, a board's 48 compressed to at most the parameter count by QR), then Fedorov exchange
-passes that swap a chosen configuration for a candidate while the criterion falls.
+passes that swap a chosen configuration for a candidate while the criterion falls. Uniform draws are
+sparse where the best configurations lie (near the sensor, at the edge of what it sees), so a plan from
+drawn candidates then draws more about the configurations it chose (REFINE_DEG on every joint) and
+exchanges again: a local refinement, about 8% off the predicted error of a 32-configuration Robonaut plan.
+The workspace the error is averaged over is not the plan's candidates (which keep wider margins) but
+configurations the sensor sees with the usual margin, the kind a held-out check draws (`workspace`).
 """
 
 from __future__ import annotations
@@ -70,6 +75,13 @@ STANCE_CANDIDATES = 400
 MAX_STANCE_BATCHES = 200
 WORKSPACE = 300  # configurations the predicted workspace error is averaged over
 EXCHANGE_PASSES = 2
+# Local refinement (module doc): candidates drawn about each chosen configuration, with this spread on every
+# joint, then one exchange pass. On Robonaut full (32 configurations, seeds 0-3) the expected held-out error
+# of the frames the true robot shows fell from 0.090 to 0.088 cm with 5 deg, 0.086 with 8 deg, 0.085 with
+# 12 deg; the planner's own prediction from 0.085 to 0.078.
+REFINE_DRAWS = 24
+REFINE_DEG = 12.0
+REFINE_PASSES = 1
 # An information matrix (scaled by a typical configuration's) whose smallest eigenvalue is below this share
 # of its largest leaves a parameter direction undetermined: no finite prediction.
 UNDETERMINED = 1e-10
@@ -174,6 +186,15 @@ class Design:
         _, J = problem.residuals_jacobian(problem.x0)
         return _compress(_whitened(problem, J[: problem.n_data_rows], self.p, self.isotropic))
 
+    def extend(self, q: np.ndarray, targets: np.ndarray) -> None:
+        """More candidates in the pool (after the ones it has, so chosen indices stay valid)."""
+        L = self.factors(q, targets)
+        k = max(L.shape[1], self.L.shape[1])
+        pad = [((0, 0), (0, k - x.shape[1]), (0, 0)) for x in (self.L, L)]
+        self.L = np.concatenate([np.pad(self.L, pad[0]), np.pad(L, pad[1])])
+        self.q = np.concatenate([self.q, q])
+        self.targets = np.concatenate([self.targets, targets])
+
     def predict(self, M: np.ndarray, n: int) -> AccuracyPrediction:
         """The prediction from an information matrix M over the free parameters (inf where the
         configurations do not determine them all)."""
@@ -262,6 +283,13 @@ def candidates(
     if keep.sum() == 0:
         raise InputError(f"no configuration of robot '{profile.name}' is predicted visible within its joint limits")
     return q[keep], targets[keep]
+
+
+def workspace(profile: Profile, p_base: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Where the predicted error is averaged: WORKSPACE configurations the sensor sees with the base model,
+    VIEW_MARGIN_PX clear of the border and a stereo head's sphere not hidden by the arm (what a held-out
+    check draws), not the plan's candidates, which keep a stereo head's wider margins."""
+    return candidates(profile, p_base, seed=seed + 1, count=WORKSPACE)
 
 
 def _stances(profile: Profile) -> bool:
@@ -525,6 +553,11 @@ class Visibility:
         self.q, self.targets = q, targets
         self.known = np.full(len(q), -1, np.int8)  # -1: not checked yet, else 0/1
 
+    def extend(self, q: np.ndarray, targets: np.ndarray) -> None:
+        """More candidates (as `Design.extend`), not checked yet."""
+        self.q, self.targets = np.concatenate([self.q, q]), np.concatenate([self.targets, targets])
+        self.known = np.concatenate([self.known, np.full(len(q), -1, np.int8)])
+
     def __call__(self, cs: np.ndarray) -> np.ndarray:
         """Whether each candidate (indices) is visible (bool array)."""
         new = cs[self.known[cs] < 0]
@@ -566,6 +599,7 @@ def plan(
     start = time.perf_counter()
     p = profile.nominal() if p_base is None else p_base
     profile.mode(mode)  # an unknown mode fails before any sampling
+    drawn = pool is None  # a pool given is what to choose from: no refinement beyond it
     if pool is None:
         count = max(STANCE_CANDIDATES if _stances(profile) else CANDIDATES, 3 * n)
         pool = candidates(
@@ -580,7 +614,7 @@ def plan(
     q, targets = pool
     if n > len(q):
         raise InputError(f"only {len(q)} candidate configurations are predicted visible: ask for at most {len(q)}")
-    d = design(profile, mode, p, q, targets, isotropic=isotropic, seed=seed)
+    d = design(profile, mode, p, q, targets, workspace=workspace(profile, p, seed), isotropic=isotropic, seed=seed)
     admissible = Visibility(profile, p, q, targets)
     history: list[float] = []
     if criterion == "random":
@@ -596,13 +630,32 @@ def plan(
             history.append(_mean_error(d, sel.C))
         if exchange:
             sel.exchange()
+            if drawn and not _stances(profile):
+                _refine(profile, d, admissible, sel, margin_deg, seed)
     if len(sel.chosen) < n:
         raise InputError(
             f"only {len(sel.chosen)} of the candidate configurations are predicted visible: ask for at most that"
         )
     rows = np.array(sel.chosen)
     predicted = d.predict(d.start(regularise=False) + d.information(rows), n)
-    return Plan(q[rows], targets[rows], criterion, predicted, history, len(q), time.perf_counter() - start)
+    return Plan(d.q[rows], d.targets[rows], criterion, predicted, history, len(q), time.perf_counter() - start)
+
+
+def _refine(profile: Profile, d: Design, visible: Visibility, sel: Selection, margin_deg: float, seed: int) -> None:
+    """Local refinement (module doc): REFINE_DRAWS candidates about each chosen configuration, inside the
+    limits less the margin and the plan's view margins (occlusion checked when one is about to be chosen),
+    then exchange again."""
+    rng = np.random.default_rng([seed, 2])
+    lo, hi = _limits_less_margin(profile, margin_deg)
+    chosen = np.array(sel.chosen)
+    q = np.repeat(d.q[chosen], REFINE_DRAWS, axis=0)
+    q = np.clip(q + rng.normal(0.0, math.radians(REFINE_DEG), q.shape), lo, hi)
+    targets = np.repeat(d.targets[chosen], REFINE_DRAWS)
+    seen = visible.sim.visible(q, targets, occlusion=False)
+    if seen.any():
+        d.extend(q[seen], targets[seen])
+        visible.extend(q[seen], targets[seen])
+        sel.exchange(REFINE_PASSES)
 
 
 def _mean_error(d: Design, C: np.ndarray) -> float:
@@ -631,8 +684,7 @@ def predict_accuracy(
     q = np.asarray(q, dtype=float)
     if len(q) == 0:
         raise InputError("no configurations to predict the accuracy of")
-    workspace = candidates(profile, p, seed=seed, count=WORKSPACE, occlusion=False)
-    d = design(profile, mode, p, q, np.asarray(targets, int), workspace=workspace, seed=seed)
+    d = design(profile, mode, p, q, np.asarray(targets, int), workspace=workspace(profile, p, seed), seed=seed)
     return d.predict(d.start(regularise=False) + d.information(np.arange(len(q))), len(q))
 
 
@@ -661,7 +713,7 @@ class SequentialPlan:
         q, targets = candidates(
             profile, p, seed=seed, margin_deg=margin_deg, occlusion=False, view_margin_px=plan_margins(profile)[0]
         )
-        self.design = design(profile, mode, p, q, targets, seed=seed)
+        self.design = design(profile, mode, p, q, targets, workspace=workspace(profile, p, seed), seed=seed)
         visible = Visibility(profile, p, q, targets)
         self.rejected: set[int] = set()
 
