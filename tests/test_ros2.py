@@ -15,6 +15,7 @@ import os
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -160,6 +161,56 @@ def test_session_on_the_graph_recovers_the_truth_and_apply_sets_the_parameter(gr
 
     assert len(watcher.commands) >= 20
     assert limit_violations(watcher.commands, profile) == []
+
+
+@needs_ros2
+def test_observe_while_someone_else_drives_captures_each_still_pose_measured_where_it_stood(graph):
+    """The paper's other way of gathering data: the desk only watches (observe with autocapture) while another
+    node drives the arm through poses. Each pose it stood still in becomes one frame, with the joint readings
+    of that pose and the marker where the simulator's truth puts it there; the desk itself commands nothing."""
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from app.ros2.link import COMMAND_QOS
+    from app.store import Store
+    from calib_core.model.kinematics import sensor_points
+
+    server, watcher = graph.server, graph.watcher
+    profile = arm_profile()
+    names = [j.name for j in profile.joints]
+    lo, hi = profile.joint_limits()
+    sid = server.post("/api/sessions", json={"robot": "arm", "name": "watched"}).json()["id"]
+    on = server.post(f"/api/sessions/{sid}/observe", json={"on": True, "autocapture": True})
+    assert on.status_code == 200, on.text
+    try:
+        wait_until(lambda: len(_frames(server, sid)) == 1, "the pose the arm stands in is captured")
+        other = watcher.link.node.create_publisher(JointTrajectory, watcher.command, COMMAND_QOS)
+        wait_until(lambda: other.get_subscription_count() >= 1, "the arm hears the other driver")
+        sent = len(watcher.seen_commands())
+        poses = [lo + (hi - lo) * (0.35 + 0.1 * k + 0.04 * np.arange(len(names))) for k in range(3)]
+        for k, pose in enumerate(poses, start=2):
+            start = watcher.positions(names)
+            need_s = max(float(np.max(np.abs(pose - start) / [j.velocity for j in profile.joints])), 0.1)
+            point = JointTrajectoryPoint(positions=[float(v) for v in pose])
+            point.time_from_start.sec, point.time_from_start.nanosec = int(2 * need_s), int(2 * need_s % 1 * 1e9)
+            other.publish(JointTrajectory(joint_names=names, points=[point]))
+            wait_until(lambda k=k: len(_frames(server, sid)) >= k, f"pose {k - 1} is captured")
+    finally:
+        server.post(f"/api/sessions/{sid}/observe", json={"on": False})
+    frames = _frames(server, sid)
+    assert len(frames) == 4 and all(f["status"] == "measured" for f in frames), frames
+    for frame, pose in zip(frames[1:], poses, strict=True):
+        readings = np.array([frame["joints"][n] for n in names])
+        assert np.abs(readings - np.degrees(pose)).max() < 0.01, (readings, np.degrees(pose))
+    assert len(watcher.seen_commands()) == sent + 3  # the other driver's three moves, none of the desk's
+
+    store = Store(graph.data_dir)
+    try:
+        data = store.sessions.dataset(sid, replace(profile, name="arm"))  # the desk's name for it
+    finally:
+        store.close()
+    truth = SimulatedRobot.from_profile(profile, seed=1).true_params
+    where = sensor_points(profile, truth, data.joints, data.target, center_only=True)[data.cfg]
+    assert np.abs(data.measured[:, :3] - where).max() < 0.5  # mm: the mocap's 0.05 mm noise
 
 
 @needs_ros2
