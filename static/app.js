@@ -52,12 +52,9 @@ async function api(method, path, body, retried = false) {
   const text = await res.text();
   const data = text ? JSON.parse(text) : null;
   if (res.status === 401 && !retried) {
-    const given = window.prompt("This desk is reachable from the network: its access token, please " +
-      "(calib serve printed it at its first start).");
-    if (given) {
-      sessionStorage.setItem(TOKEN_KEY, given.trim());
-      return api(method, path, body, true);
-    }
+    // Another request may have asked for the token meanwhile: retried with it without asking again.
+    const now = sessionStorage.getItem(TOKEN_KEY);
+    if ((now && now !== token) || (await askToken())) return api(method, path, body, true);
   }
   if (!res.ok) {
     const err = new Error((data && data.detail) || `${res.status} ${res.statusText}`);
@@ -66,6 +63,19 @@ async function api(method, path, body, retried = false) {
     throw err;
   }
   return data;
+}
+
+// Asked once however many requests the server refused at once (the page starts with several in parallel).
+let asking = null;
+function askToken() {
+  asking ??= new Promise((resolve) => setTimeout(() => {
+    const given = window.prompt("This desk is reachable from the network: its access token, please " +
+      "(calib serve printed it at its first start).");
+    if (given) sessionStorage.setItem(TOKEN_KEY, given.trim());
+    asking = null;
+    resolve(Boolean(given));
+  }));
+  return asking;
 }
 
 function toast(message, kind = "error") {
@@ -92,6 +102,10 @@ const fmt = (v, d = 3) => {
   const x = Number(v);
   return x !== 0 && Math.abs(x) < 0.01 ? x.toPrecision(d) : x.toFixed(d);
 };
+// Text written only when it changes (no layout or repaint for the same words).
+const setText = (e, text) => {
+  if (e.textContent !== text) e.textContent = text;
+};
 const el = (tag, attrs = {}, ...children) => {
   const e = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) {
@@ -103,27 +117,48 @@ const el = (tag, attrs = {}, ...children) => {
   return e;
 };
 
-// --- start-up --------------------------------------------------------------------------------
+// --- start-up ---------------------------------------------------------------------------------
+// What the first view shows is asked for at once (two waves: the active calibration and its history need the
+// robot's name). The 3-D scene's client, a large script that runs on this page's main thread and draws on every
+// animation frame, starts once the page has drawn the controls with their data (ready): started before, it
+// held the answers up, and the page's first paint waited for its first frames.
 async function init() {
-  const health = await api("GET", "/health");
-  for (const r of await api("GET", "/robots")) state.robots[r.name] = r;
-  showScene();  // after a request with the token: off loopback, its answer set the cookie the scene needs
+  const [health, robots, status, sessions] = await Promise.all([
+    api("GET", "/health"),
+    api("GET", "/robots"),
+    api("GET", "/robot").catch(() => null),  // none connected: a desk without a drivable robot
+    api("GET", "/sessions"),
+  ]);
+  for (const r of robots) state.robots[r.name] = r;
+  // The connected robot; a desk without a drivable robot has none: the first one is shown.
+  state.robot = status ? status.robot : Object.keys(state.robots)[0];
+  const active = activeCalibration();
   const sel = $("#robot-select");
   for (const r of Object.values(state.robots)) addRobotOption(r);
-  // The connected robot; a desk without a drivable robot has none: the first one is shown.
-  const status = await api("GET", "/robot").catch(() => null);
-  state.robot = status ? status.robot : Object.keys(state.robots)[0];
   sel.value = state.robot;
   sel.addEventListener("change", () => act(() => connect(sel.value)));
   wire();
-  await loadSessions();
+  await loadSessions(undefined, sessions);
   if (Object.values(state.robots).some((r) => r.drivable)) robotEvents();
   buildJoints();
   showDrivable();
-  await refreshActive();
+  await refreshActive(active);
   showTab(state.robots[state.robot].drivable ? "observe" : "review");  // the papers' first step
   watchServer(health.instance);
   document.body.dataset.ready = "1";
+  afterPaint(showScene);  // after requests with the token: off loopback, their answers set the cookie the scene needs
+}
+
+// Once the page has painted what it shows now (two animation frames), or after 250 ms (a tab in the background
+// gets no animation frames).
+function afterPaint(fn) {
+  let done = false;
+  const once = () => {
+    if (!done) fn();
+    done = true;
+  };
+  requestAnimationFrame(() => requestAnimationFrame(once));
+  setTimeout(once, 250);
 }
 
 function showScene() {
@@ -178,6 +213,7 @@ function closeSession() {
     canvas.getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
   }
   split.marks = null;
+  marksCache.clear();
   $("#frame-summary").replaceChildren();
   $("#frame-label").textContent = "frame —";
   $("#frame-slider").max = 0;
@@ -287,8 +323,8 @@ async function stopAll() {
 
 // --- sessions --------------------------------------------------------------------------------
 // Newest first: a session just made or imported is at the top of the list.
-async function loadSessions(selectId) {
-  state.sessions = (await api("GET", "/sessions")).sort((a, b) => b.created.localeCompare(a.created));
+async function loadSessions(selectId, sessions = null) {
+  state.sessions = (sessions || (await api("GET", "/sessions"))).sort((a, b) => b.created.localeCompare(a.created));
   const ul = $("#sessions");
   ul.replaceChildren();
   for (const s of state.sessions) {
@@ -435,6 +471,7 @@ async function startCalibration() {
 async function loadReview(old, neu, sensor = null) {
   const body = { session: state.session.id, old: old || null, new: neu || null, sensor };
   state.review = await api("POST", "/review", body);
+  marksCache.clear();  // the server's marks are of this review from now on
   state.reviewAsked = [old, neu, sensor];
   state.newCal = state.review.new;
   $("#review-old").value = old || "";
@@ -543,9 +580,12 @@ async function selectFrame(index) {
   state.frame = index;
   $("#frame-slider").value = state.frameOrder.indexOf(index);
   $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
-  for (const tr of document.querySelectorAll("#frames tr[data-frame]")) {
-    tr.classList.toggle("selected", +tr.dataset.frame === index);
-    if (+tr.dataset.frame === index) tr.scrollIntoView({ block: "nearest" });
+  // Only the rows that change (a session may have thousands).
+  for (const tr of document.querySelectorAll("#frames tr.selected")) if (+tr.dataset.frame !== index) tr.classList.remove("selected");
+  const row = document.querySelector(`#frames tr[data-frame="${index}"]`);
+  if (row) {
+    row.classList.add("selected");
+    row.scrollIntoView({ block: "nearest" });
   }
   renderFrameSummary(index);
   if (selecting) {
@@ -593,17 +633,11 @@ function togglePlay() {
   }, 400);
 }
 
-const images = new Map();
+// An image loaded and decoded (off the main thread) before it is drawn; null if it cannot be.
 function loadImage(url) {
-  if (!images.has(url)) {
-    images.set(url, new Promise((resolve) => {
-      const img = new Image();
-      img.onload = () => resolve(img);
-      img.onerror = () => resolve(null);
-      img.src = url;
-    }));
-  }
-  return images.get(url);
+  const img = new Image();
+  img.src = url;
+  return img.decode().then(() => img, () => null);
 }
 
 // The 2-D split view: the frame's image at full size, both halves zoomed and panned together (wheel, drag,
@@ -611,15 +645,37 @@ function loadImage(url) {
 // residuals as lines, optionally magnified (said on the view).
 const split = { marks: null, img: null, zoom: 1, cx: null, cy: null, drag: null };
 
+// Each frame's marks and decoded image, of the review shown (emptied when one is loaded), for the last
+// MARKS_KEPT frames used: the frames a step goes to next are fetched ahead, so a step draws at once.
+const MARKS_KEPT = 24;
+const PREFETCH = [1, -1, 2];  // the frames fetched ahead, in the stepping order from the one shown
+const marksCache = new Map();  // frame index -> Promise<{m, img}>, least recently used first
+
+function frameMarks(index) {
+  let got = marksCache.get(index);
+  if (got) marksCache.delete(index);
+  else {
+    got = api("GET", `/review/marks/${index}`).then(async (m) => ({ m, img: m.image ? await loadImage(m.image) : null }));
+    got.catch(() => marksCache.get(index) === got && marksCache.delete(index));  // asked again next time
+  }
+  marksCache.set(index, got);
+  while (marksCache.size > MARKS_KEPT) marksCache.delete(marksCache.keys().next().value);
+  return got;
+}
+
 async function drawSplit(index) {
   const robot = state.review && state.robots[state.review.robot];
   $("#split").hidden = Boolean(robot && !robot.sensor.image);  // a laser tracker has no image to mark
   if ($("#split").hidden) return;
-  const m = await api("GET", `/review/marks/${index}`);
-  const img = m.image ? await loadImage(m.image) : null;
+  const { m, img } = await frameMarks(index);
   if (!split.marks || split.marks.width !== m.width || split.marks.height !== m.height) fitSplit(m);
   Object.assign(split, { marks: m, img });
   redrawSplit();
+  const k = state.frameOrder.indexOf(index);
+  for (const d of PREFETCH) {
+    const next = state.frameOrder[k + d];
+    if (k >= 0 && next !== undefined) frameMarks(next).catch(() => {});
+  }
 }
 
 function fitSplit(m) {
@@ -975,8 +1031,13 @@ async function applied(r) {
 
 // The header and the Apply panel both say which calibration the robot runs; the history says for each apply
 // when, which mode, and the mean error before and after (held out too) on the calibration's own session.
-async function refreshActive() {
-  const a = await api("GET", `/robot/calibration?robot=${state.robot}`);
+function activeCalibration() {
+  return Promise.all([api("GET", `/robot/calibration?robot=${state.robot}`), api("GET", `/robot/history?robot=${state.robot}`)]);
+}
+
+// `asked`: activeCalibration() already under way (none: asked now).
+async function refreshActive(asked = null) {
+  const [a, history] = await (asked || activeCalibration());
   const active = a.id ? `${a.id} (${a.mode})` : "nominal model";
   $("#active-cal").textContent = active;
   $("#active-cal").dataset.id = a.id || "";
@@ -984,7 +1045,6 @@ async function refreshActive() {
   $("#apply-active").dataset.id = a.id || "";
   const t = $("#history");
   t.replaceChildren(el("tr", {}, ...["applied", "calibration and its mean error", ""].map((h) => el("th", {}, h))));
-  const history = await api("GET", `/robot/history?robot=${state.robot}`);
   for (const [k, h] of history.entries()) {
     const f = h.figures || {};
     const u = (f.after && f.after.unit) || "";
@@ -1042,7 +1102,8 @@ async function moveToSliders() {
 function slidersToReadings(all = false) {
   for (const [name, deg] of Object.entries(state.readings || {})) {
     const slider = document.querySelector(`input[data-joint="${name}"]`);
-    if (slider && deg !== null && (all || document.activeElement !== slider)) slider.value = deg;
+    if (!slider || deg === null || (!all && document.activeElement === slider)) continue;
+    if (Math.abs(+slider.value - deg) > 0.06) slider.value = deg;  // a step is 0.1 deg: the same position unwritten
   }
 }
 
@@ -1053,8 +1114,10 @@ function robotEvents() {
   es.onmessage = (ev) => {
     const r = JSON.parse(ev.data);
     if (r.robot !== state.robot) return;
-    $("#robot-state").textContent = `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`;
-    $("#robot-state").className = `pill ${r.moving ? "moving" : ""}`;
+    // Ten times a second: the page is written only where something changed (a repaint of an unchanged page
+    // costs a software-rendered browser as much as a changed one, and slows the 3-D view of every tab).
+    setText($("#robot-state"), `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`);
+    $("#robot-state").classList.toggle("moving", r.moving);
     if (Boolean(state.moving) !== r.moving) {
       state.moving = r.moving;
       jobControls();
@@ -1062,7 +1125,7 @@ function robotEvents() {
     state.readings = r.joints;
     for (const [name, deg] of Object.entries(r.joints)) {
       const cell = document.querySelector(`[data-reading="${name}"]`);
-      if (cell) cell.textContent = deg === null ? "—" : `${deg.toFixed(1)}°`;
+      if (cell) setText(cell, deg === null ? "—" : `${deg.toFixed(1)}°`);
     }
     const d = state.driving;
     if (d && !r.moving && performance.now() - d.since > SLIDERS_FOLLOW_AFTER_MS) state.driving = null;
@@ -1070,7 +1133,7 @@ function robotEvents() {
     const o = r.observing;
     if (o && state.session && o.session === state.session.id && o.captured > (state.autoCaptured || 0)) showNewFrames(o.session);
     state.autoCaptured = o ? o.captured : 0;
-    $("#observe-state").textContent = o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "";
+    setText($("#observe-state"), o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "");
   };
   es.onerror = () => {
     $("#robot-state").textContent = "server unreachable";
