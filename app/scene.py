@@ -47,7 +47,6 @@ from typing import Any, Protocol
 
 import numpy as np
 import viser
-import viser.transforms as tf
 import yourdfpy
 from viser.extras import ViserUrdf
 
@@ -105,57 +104,6 @@ class _Copy:
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
     joint_unit: np.ndarray  # per URDF actuated joint: its reading's unit in the URDF's (a prismatic one's, in m)
     looks: dict[str, LinkVisual]  # the robot's own visuals (app/robot_look.py): viser node -> visual
-    moving: list[_MovingJoint] | None = None  # None: every pose through ViserUrdf.update_cfg (_moving_joints)
-    posed: bool = False  # posed once whole (the fixed joints' frames too)
-
-
-@dataclass(frozen=True)
-class _MovingJoint:
-    """A joint that moves: its viser frame, its origin (in m) and axis, and its value's place in the URDF's cfg."""
-
-    frame: viser.FrameHandle
-    origin: np.ndarray  # (4, 4), the translation in m
-    axis: np.ndarray  # (3,) unit
-    prismatic: bool
-    index: int
-    scale: float  # ViserUrdf's
-
-
-def _moving_joints(urdf: yourdfpy.URDF, handle: ViserUrdf) -> list[_MovingJoint] | None:
-    """The copy's moving joints, so that a frame step poses those only: ViserUrdf.update_cfg recomputes every
-    joint through the scene graph and re-sends both halves of each pose, fixed joints too (NAO: 20 joints, 6
-    fixed, 4.7 ms a copy, of which 0.6 ms is the kinematics). None (update_cfg every time) for a URDF with mimic
-    joints, or a viser whose ViserUrdf keeps its frames otherwise."""
-    joints = getattr(handle, "_joint_map_values", None)
-    frames = getattr(handle, "_joint_frames", None)
-    scale = getattr(handle, "_scale", None)
-    if joints is None or frames is None or scale is None or len(joints) != len(frames):
-        return None
-    if any(j.mimic is not None for j in joints):
-        return None
-    index = {name: k for k, name in enumerate(urdf.actuated_joint_names)}
-    moving = []
-    for joint, frame in zip(joints, frames, strict=True):
-        if joint.type == "fixed":
-            continue
-        if joint.type not in ("revolute", "continuous", "prismatic") or joint.name not in index:
-            return None
-        origin = np.eye(4) if joint.origin is None else np.array(joint.origin, float)
-        origin[:3, 3] *= scale
-        axis = np.asarray(joint.axis, float) / np.linalg.norm(joint.axis)
-        moving.append(_MovingJoint(frame, origin, axis, joint.type == "prismatic", index[joint.name], scale))
-    return moving
-
-
-def _pose_moving(copy: _Copy, cfg: np.ndarray) -> None:
-    """Pose the moving joints of a copy posed whole before: a revolute joint's rotation, a prismatic one's
-    position (the other half of each pose is its origin's, unchanged)."""
-    for j in copy.moving or ():
-        R0, t0 = j.origin[:3, :3], j.origin[:3, 3]
-        if j.prismatic:
-            j.frame.position = t0 + R0 @ (j.axis * cfg[j.index] * j.scale)
-        else:
-            j.frame.wxyz = (tf.SO3.from_matrix(R0) @ tf.SO3.exp(j.axis * cfg[j.index])).wxyz
 
 
 @dataclass(frozen=True)
@@ -481,8 +429,7 @@ class ReviewScene:
         to_m = length_factor(profile.length_unit, "m")
         unit = np.array([to_m if profile.joints[j].prismatic else 1.0 for j in order])
         looks = {} if look is None else self._add_look(urdf, f"{node.name}/visual", look, rgba)
-        moving = _moving_joints(urdf, handle)
-        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order, unit, looks, moving)
+        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order, unit, looks)
         return self._copies[slot]
 
     def _add_look(
@@ -518,13 +465,7 @@ class ReviewScene:
 
     def _set_joints(self, copy: _Copy, q_rad: np.ndarray) -> None:
         """Drive a copy with readings in the profile's joint order (rad, a prismatic joint's in its length unit)."""
-        cfg = np.asarray(q_rad, float)[copy.joint_order] * copy.joint_unit
-        if copy.moving is None or not copy.posed:
-            copy.handle.update_cfg(cfg)
-            copy.posed = True
-            return
-        copy.urdf.update_cfg(cfg)  # its cfg is what state() reports and the ghost copies
-        _pose_moving(copy, cfg)
+        copy.handle.update_cfg(np.asarray(q_rad, float)[copy.joint_order] * copy.joint_unit)
 
     def _show_frame(self, base: str, geometry: FrameGeometry, side: str) -> None:
         predicted = geometry.predicted_m[side]

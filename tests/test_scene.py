@@ -243,22 +243,3 @@ def test_switching_robots_removes_everything_the_previous_one_showed(
     shown = {n for n, v in state["nodes"].items() if v["kind"] in ("points", "lines", "rings") and v["shown"]}
     assert shown == {f"/review/old/base/frame/{part}" for part in ("measured", "predicted", "lines")}
     assert len(_points(state, "/review/old/base/frame/measured")) == 24
-
-
-@pytest.mark.parametrize("robot", ["nao", "robonaut-a"])
-def test_a_frame_step_poses_every_link_as_viser_update_cfg_does(server: viser.ViserServer, robot: str) -> None:
-    """A frame step poses only the moving joints (the fixed ones' frames keep their pose): every joint frame of both
-    copies ends where ViserUrdf.update_cfg, which recomputes them all, puts it."""
-    scene = ReviewScene(server)
-    review = build(robot, 6)
-    scene.load(review)
-    for index in (2, 3, 5):
-        scene.select(index)
-        for copy in (scene._copies["old"], scene._copies["new"]):
-            assert copy.moving, "the fast path is taken"
-            frames = copy.handle._joint_frames
-            fast = [(f.wxyz.copy(), f.position.copy()) for f in frames]
-            copy.handle.update_cfg(np.asarray(copy.urdf.cfg, float))
-            for (wxyz, position), f in zip(fast, frames, strict=True):
-                assert np.allclose(wxyz, f.wxyz, atol=1e-9) or np.allclose(wxyz, -f.wxyz, atol=1e-9)
-                assert np.allclose(position, f.position, atol=1e-12)
