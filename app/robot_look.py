@@ -81,7 +81,7 @@ _reading: dict[tuple, threading.Lock] = {}  # a URDF version being read -> held 
 def robot_look(profile: Profile) -> RobotLook | None:
     """The look of a profile made from a URDF file (None: a profile of its own frames, or a URDF without any
     visual, or one that cannot be read any more), read once per version of the file."""
-    path = _urdf_path(profile)
+    path = urdf_path(profile)
     if path is None:
         return None
     try:
@@ -109,7 +109,7 @@ def robot_look(profile: Profile) -> RobotLook | None:
         return look
 
 
-def _urdf_path(profile: Profile) -> Path | None:
+def urdf_path(profile: Profile) -> Path | None:
     """profile_urdf_path, read once per version of the profile file (parsing NAO's YAML takes 0.2 s, and every
     review of every robot asks)."""
     try:
@@ -139,25 +139,7 @@ def read_look(path: Path, max_faces: int = MAX_FACES) -> RobotLook | None:
     except Exception as exc:  # the profile loaded it: what yourdfpy refuses costs the look only
         why = f"its visuals cannot be read ({exc})"
         return RobotLook(name, (), frozenset(), f"{name}: {why}; drawn with simple shapes", (why,), 0, 0, 0.0)
-    colours = {m.name: m.color.rgba for m in urdf.robot.materials if m.color is not None}
-    visuals: list[LinkVisual] = []
-    failed: dict[str, list[str]] = {}  # link -> what could not be read
-    for link in urdf.robot.links:
-        mine = []
-        for visual in link.visuals:
-            try:
-                mesh, own_rgba, what = _geometry(visual.geometry, path.parent)
-            except _Unreadable as exc:
-                failed.setdefault(link.name, []).append(str(exc))
-                continue
-            if mesh is None:
-                continue
-            rgba = _rgba(visual.material, colours, own_rgba)
-            T = np.eye(4) if visual.origin is None else np.asarray(visual.origin, float)
-            vertices, faces = np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32)
-            mine.append(LinkVisual(link.name, T, vertices, faces, _rgb(rgba), float(rgba[3]), what))
-        if link.name not in failed:
-            visuals.extend(mine)
+    visuals, failed = link_visuals(urdf, path.parent)
     if not visuals and not failed:
         return None
     read = sum(len(v.faces) for v in visuals)
@@ -173,6 +155,31 @@ def read_look(path: Path, max_faces: int = MAX_FACES) -> RobotLook | None:
     links = frozenset(link.name for link in urdf.robot.links if link.name not in failed)
     kept = sum(len(v.faces) for v in visuals)
     return RobotLook(name, tuple(visuals), links, warning, problems, read, kept, time.perf_counter() - t0)
+
+
+def link_visuals(urdf: yourdfpy.URDF, folder: Path) -> tuple[list[LinkVisual], dict[str, list[str]]]:
+    """Every link's visuals (meshes looked for from `folder`, the URDF's), and per link what cannot be drawn: a
+    link with a visual that cannot be drawn keeps none of its visuals."""
+    colours = {m.name: m.color.rgba for m in urdf.robot.materials if m.color is not None}
+    visuals: list[LinkVisual] = []
+    failed: dict[str, list[str]] = {}  # link -> what could not be read
+    for link in urdf.robot.links:
+        mine = []
+        for visual in link.visuals:
+            try:
+                mesh, own_rgba, what = _geometry(visual.geometry, folder)
+            except _Unreadable as exc:
+                failed.setdefault(link.name, []).append(str(exc))
+                continue
+            if mesh is None:
+                continue
+            rgba = _rgba(visual.material, colours, own_rgba)
+            T = np.eye(4) if visual.origin is None else np.asarray(visual.origin, float)
+            vertices, faces = np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32)
+            mine.append(LinkVisual(link.name, T, vertices, faces, _rgb(rgba), float(rgba[3]), what))
+        if link.name not in failed:
+            visuals.extend(mine)
+    return visuals, failed
 
 
 class _Unreadable(Exception):

@@ -3,7 +3,7 @@
     /review/old                    root: placed in the world (left copy; the overlay puts both at 0)
         label                      "old calibration"
         base                       the robot's base frame, turned upright (display_rotation)
-            robot/...              URDF at the old calibration's parameters (ViserUrdf)
+            robot/...              URDF at the old calibration's parameters (app/robot_copy.py)
             ghost/...              the same, translucent: shown instead of `robot` in the overlay (built
                                    when the overlay is first asked for: a third copy costs the browser)
             frame                  the selected frame's marks, lifted toward the camera (`_Marks`)
@@ -48,7 +48,6 @@ from typing import Any, Protocol
 import numpy as np
 import viser
 import yourdfpy
-from viser.extras import ViserUrdf
 
 from calib_core import Profile, load_profile
 from calib_core.io.urdf_export import to_urdf
@@ -58,7 +57,8 @@ from calib_core.vision.sighting import Sighting
 
 from .framing import ClientFraming, Target, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
-from .robot_look import LinkVisual, RobotLook, robot_look, without_bodies
+from .robot_copy import RobotCopy, quaternion
+from .robot_look import LinkVisual, link_visuals, robot_look, urdf_path, without_bodies
 
 SIDES = ("old", "new")
 PARTS = ("measured", "predicted", "lines")
@@ -89,7 +89,8 @@ class LookLike(Protocol):
 
 @dataclass
 class _Copy:
-    """One URDF copy: its document, its own yourdfpy object (update_cfg mutates it), its viser handle.
+    """One URDF copy: its document, its model (the URDF shown: the profile's frame tree, without the simple
+    bodies of links drawn with their own visuals) and its frames and visuals in viser (app/robot_copy.py).
 
     `root` is the slot's frame (kept, its visibility is the copy's); the URDF's nodes hang under `node`, a
     child named once per build (`root`/u<n>), removed with the copy: viser's buffer merges the removal of
@@ -98,7 +99,7 @@ class _Copy:
     text: str
     profile: Profile
     urdf: yourdfpy.URDF
-    handle: ViserUrdf
+    robot: RobotCopy
     root: str
     node: viser.FrameHandle
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
@@ -284,7 +285,7 @@ class ReviewScene:
                 bounds = frame_bounds_m(profile, p, np.zeros((1, len(profile.joints))))
                 top = float((_corners(bounds) @ R.T)[:, 2].max())
                 self._frame("/live", visible=False)
-                self._frame("/live/base", wxyz=_wxyz(R))
+                self._frame("/live/base", wxyz=quaternion(R))
                 self._label("/live/label", LABELS["live"], (0.0, 0.0, top + 0.1))
                 self._add_parts("/live/base/frame", SIDE_COLOR["old"], _marks(profile), "frame", R)
             copy = self._ensure_copy("live", "/live/base/robot", profile, text, None)
@@ -324,7 +325,7 @@ class ReviewScene:
                         "root": c.root,
                         "node": c.node.name,
                         "shown": self._shown(c.root),
-                        "joints": dict(zip(c.urdf.actuated_joint_names, map(float, c.urdf.cfg), strict=True)),
+                        "joints": dict(zip(c.robot.joint_names, map(float, c.robot.cfg), strict=True)),
                         "looks": {
                             name: {"link": v.link, "what": v.what, "faces": len(v.faces)} for name, v in c.looks.items()
                         },
@@ -350,7 +351,7 @@ class ReviewScene:
         for side in SIDES:
             root = f"/review/{side}"
             self._frame(root)
-            self._frame(f"{root}/base", wxyz=_wxyz(R))
+            self._frame(f"{root}/base", wxyz=quaternion(R))
             self._label(f"{root}/label", LABELS[side], (float(self._centre_m[0]), 0.0, self._label_z_m))
             for group in ("frame", "all"):
                 # Every frame at once: smaller marks, or they hide the robot.
@@ -404,7 +405,7 @@ class ReviewScene:
         """The old copy's translucent twin, at the old copy's joints."""
         old = self._copies["old"]
         ghost = self._ensure_copy("ghost", "/review/old/base/ghost", old.profile, old.text, GHOST_RGBA)
-        ghost.handle.update_cfg(np.asarray(old.urdf.cfg, float))
+        ghost.robot.update_cfg(old.robot.cfg)
         return ghost
 
     def _ensure_copy(
@@ -416,48 +417,25 @@ class ReviewScene:
             return current
         look = robot_look(profile) if GENERATED in text else None  # a URDF robot's own visuals
         shown = text if look is None else without_bodies(text, look.links)
-        urdf = yourdfpy.URDF.load(io.StringIO(shown), build_scene_graph=True, load_meshes=True)
-        if (urdf.scene is None or not urdf.scene.geometry) and not (look and look.visuals):
+        urdf = yourdfpy.URDF.load(io.StringIO(shown), build_scene_graph=False, load_meshes=False)
+        # A generated frame tree's bodies are simple shapes; another URDF's meshes are its robot's.
+        folder = urdf_path(profile)
+        bodies, _ = link_visuals(urdf, Path.cwd() if folder is None else folder.parent)
+        if not bodies and not (look and look.visuals):
             raise ValueError(f"the URDF of the '{slot}' copy has no visual geometry to show")
         self._frame(root)
         if current is not None:
             self._drop_copy(slot)
         self._builds += 1
         node = self.target.scene.add_frame(f"{root}/u{self._builds}", show_axes=False)
-        handle = ViserUrdf(self.target, urdf, root_node_name=node.name, mesh_color_override=rgba)
-        order = [profile.joint(name) for name in urdf.actuated_joint_names]
+        robot = RobotCopy(self.target, urdf, node.name)
+        robot.add_visuals(bodies, "body", rgba)
+        looks = {} if look is None else robot.add_visuals(look.visuals, "look", rgba)
+        order = [profile.joint(name) for name in robot.joint_names]
         to_m = length_factor(profile.length_unit, "m")
         unit = np.array([to_m if profile.joints[j].prismatic else 1.0 for j in order])
-        looks = {} if look is None else self._add_look(urdf, f"{node.name}/visual", look, rgba)
-        self._copies[slot] = _Copy(text, profile, urdf, handle, root, node, order, unit, looks)
+        self._copies[slot] = _Copy(text, profile, urdf, robot, root, node, order, unit, looks)
         return self._copies[slot]
-
-    def _add_look(
-        self, urdf: yourdfpy.URDF, visual_root: str, look: RobotLook, rgba: tuple[float, ...] | None
-    ) -> dict[str, LinkVisual]:
-        """A URDF robot's own visuals, each under its link's node of the copy (ViserUrdf's frame of the link, which
-        update_cfg poses): sent once per copy, moved with the link at every frame step. `rgba`: the copy's colour
-        instead of the visuals' own (the overlay's ghost)."""
-        links = {link: _link_node(urdf.scene, link, visual_root) for link in {v.link for v in look.visuals}}
-        added: dict[str, LinkVisual] = {}
-        for k, visual in enumerate(look.visuals):
-            parent = links.get(visual.link)
-            if parent is None:  # a link the profile left out (below a planar or mimic joint)
-                continue
-            color: tuple[float, ...] = tuple(visual.rgb) if rgba is None else tuple(rgba[:3])
-            opacity = visual.opacity if rgba is None else rgba[3]
-            name = f"{parent}/look{k}"
-            self.target.scene.add_mesh_simple(
-                name,
-                visual.vertices,
-                visual.faces,
-                color=color,  # type: ignore[arg-type]
-                opacity=None if opacity >= 1.0 else float(opacity),
-                wxyz=_wxyz(visual.T_link_visual[:3, :3]),
-                position=tuple(float(v) for v in visual.T_link_visual[:3, 3]),
-            )
-            added[name] = visual
-        return added
 
     def _drop_copy(self, slot: str) -> None:
         """Remove a copy's URDF from viser: its build node and every node under it."""
@@ -465,7 +443,7 @@ class ReviewScene:
 
     def _set_joints(self, copy: _Copy, q_rad: np.ndarray) -> None:
         """Drive a copy with readings in the profile's joint order (rad, a prismatic joint's in its length unit)."""
-        copy.handle.update_cfg(np.asarray(q_rad, float)[copy.joint_order] * copy.joint_unit)
+        copy.robot.update_cfg(np.asarray(q_rad, float)[copy.joint_order] * copy.joint_unit)
 
     def _show_frame(self, base: str, geometry: FrameGeometry, side: str) -> None:
         predicted = geometry.predicted_m[side]
@@ -647,24 +625,6 @@ class ReviewScene:
         else:
             out |= {"kind": "frame"}
         return out
-
-
-def _link_node(scene: Any, link: str, visual_root: str) -> str | None:
-    """The viser node of a link in a ViserUrdf copy (its frames are named by the links from the root down to
-    the link, under `visual_root`); None for a link the URDF does not have."""
-    parents = scene.graph.transforms.parents
-    names = []
-    while link != scene.graph.base_frame:
-        if link not in parents:
-            return None
-        names.append(link)
-        link = parents[link]
-    return "/".join([visual_root, *reversed(names)])
-
-
-def _wxyz(R: np.ndarray) -> tuple[float, float, float, float]:
-    w, x, y, z = (float(v) for v in viser.transforms.SO3.from_matrix(R).wxyz)
-    return w, x, y, z
 
 
 def _box(points: np.ndarray) -> np.ndarray:

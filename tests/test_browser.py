@@ -29,7 +29,17 @@ SHOTS = os.environ.get("CALIB_SCREENSHOTS")
 def shot(page, name: str) -> None:
     if SHOTS:
         Path(SHOTS).mkdir(parents=True, exist_ok=True)
+        close_notices(page)
         page.screenshot(path=str(Path(SHOTS) / f"{name}.png"))
+
+
+def close_notices(page) -> None:
+    """Close the notices of the 3-D view's client, as an operator would: viser warns a browser without a GPU (the
+    tests' headless chromium) that it renders WebGL in software."""
+    notices = page.frame_locator("#scene").locator(".mantine-Notification-closeButton")
+    for _ in range(notices.count()):
+        notices.first.click()
+        page.wait_for_timeout(400)  # the notice slides out
 
 
 # A pixel of a split-view canvas (CSS px from its top-left): [r, g, b].
@@ -77,7 +87,7 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         assert page.is_enabled("#calibrate-start") and page.is_disabled("#calibrate-cancel")
         page.click("#calibrate-start")
         page.wait_for_function("document.querySelector('#job-state').textContent.startsWith('done')", timeout=120_000)
-        page.wait_for_selector("#calibrate-start:enabled")
+        page.wait_for_selector("#calibrate-start:enabled", state="attached")  # the page goes on to the review
         assert page.is_disabled("#calibrate-cancel")  # nothing left to cancel
         page.wait_for_selector("#tab-review:not([hidden])")
         page.wait_for_selector("#parameters tr td", state="attached")

@@ -17,6 +17,7 @@ import pytest
 import viser
 import yourdfpy
 from jacobian_check import check_jacobian, perturbed
+from scene_nodes import node_pose
 from sim_frames import measured_frames
 
 from app.review import Review
@@ -264,10 +265,10 @@ def test_the_review_scene_draws_a_prismatic_joint_in_metres(profile_path: Path) 
         q = review.frame_geometry(index).joints_rad
         assert copy.urdf.joint_map["telescope"].type == "prismatic"
         poses = forward(profile, review.sides["new"].p, q[None])
-        for link in LINKS:
-            T = copy.urdf.get_transform(frame_to=link, frame_from="base_link")
+        for link in LINKS:  # as the browser gets them: the link frames' poses under the copy's base
+            T = node_pose(server, copy.robot.links[link], "/review/new/base")
             f = profile.frame(link)
-            np.testing.assert_allclose(T[:3, :3], poses.R[f][0], atol=1e-9)
-            np.testing.assert_allclose(T[:3, 3], poses.t[f][0] / 1000.0, atol=1e-9)
+            np.testing.assert_allclose(T[:3, :3], poses.R[f][0], atol=1e-6)
+            np.testing.assert_allclose(T[:3, 3], poses.t[f][0] / 1000.0, atol=1e-6)
     finally:
         server.stop()

@@ -12,6 +12,7 @@ import pytest
 import trimesh
 import viser
 from fastapi.testclient import TestClient
+from scene_nodes import node_pose
 from sim_frames import measured_frames
 from test_urdf_import import PROFILE as ARM_PROFILE
 
@@ -95,20 +96,6 @@ def _review(profile_path: Path) -> Review:
     return Review.build(profile, measured_frames(sim.data), sim.data, profile.nominal(), sim.true_params)
 
 
-def _pose(server: viser.ViserServer, name: str, below: str) -> np.ndarray:
-    """T_below_name: the product of the node poses from `below` (exclusive) down to `name`."""
-    T = np.eye(4)
-    parts = name.split("/")
-    for k in range(len(below.split("/")) + 1, len(parts) + 1):
-        handle = server.scene.get_handle_by_name("/".join(parts[:k]))
-        assert handle is not None, "/".join(parts[:k])
-        step = np.eye(4)
-        step[:3, :3] = viser.transforms.SO3(np.asarray(handle.wxyz, float)).as_matrix()
-        step[:3, 3] = handle.position
-        T = T @ step
-    return T
-
-
 def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links(
     server: viser.ViserServer, tmp_path: Path
 ) -> None:
@@ -143,13 +130,13 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
                 f = profile.frame(v["link"])
                 T_base_link[:3, :3], T_base_link[:3, 3] = poses.R[f][0], poses.t[f][0] * to_m
             want = T_base_link @ visual.T_link_visual
-            got = _pose(server, name, f"/review/{side}/base")
+            got = node_pose(server, name, f"/review/{side}/base")
             np.testing.assert_allclose(got, want, atol=1e-6, err_msg=f"{side} {name}")
     # The copies differ where the calibrations differ (j2, j3 offsets and j3's origin): the forearm's mesh.
     fore_nodes = {
         s: next(n for n, v in state["urdf"][s]["looks"].items() if v["link"] == "fore") for s in ("old", "new")
     }
-    old, new = (_pose(server, fore_nodes[s], f"/review/{s}/base")[:3, 3] for s in ("old", "new"))
+    old, new = (node_pose(server, fore_nodes[s], f"/review/{s}/base")[:3, 3] for s in ("old", "new"))
     assert np.linalg.norm(new - old) > 0.01
     # A frame step moves the link frames; the mesh nodes stay the ones sent at the load (none sent again).
     handles = {name: server.scene.get_handle_by_name(name) for name in state["urdf"]["new"]["looks"]}
@@ -162,7 +149,7 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
     assert sorted(v["link"] for v in ghost.values()) == ["base_link", "fore", "shoulder", "upper"]
     assert all(server.scene.get_handle_by_name(name).opacity == GHOST_RGBA[3] for name in ghost)
     # The generated bodies of links with their own visuals are gone; the reflector (the profile's) stays.
-    robot = scene._copies["new"].urdf  # the copy's model as ViserUrdf drew it
+    robot = scene._copies["new"].urdf  # the copy's model as the scene drew it
     materials = {v.material.name for link in robot.robot.links for v in link.visuals if v.material is not None}
     assert "body" not in materials and "target" in materials
 

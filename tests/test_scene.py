@@ -197,7 +197,7 @@ def test_live_view_replaces_the_review_until_the_next_select(server: viser.Viser
 
 
 def _link_nodes(urdf_text: str, node: str) -> set[str]:
-    """The viser names ViserUrdf gives a URDF's links under `node`: visual/<links from the root's child down>."""
+    """The viser names the scene gives a URDF's links under `node`: visual/<links from the root's child down>."""
     urdf = yourdfpy.URDF.load(io.StringIO(urdf_text), build_scene_graph=False)
     parent = {j.child: j.parent for j in urdf.joint_map.values()}
     names = set()
