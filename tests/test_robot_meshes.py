@@ -141,11 +141,13 @@ BAD = {
         "launch/arm.py is not a mesh file",
     ),
     "not a zip": (ARM, b"PK\x03\x04 this is not a zip", 422, "m.zip: not a readable zip"),
-    "a corrupt entry": (ARM, None, 422, "m.zip: cannot be unpacked"),
+    "a corrupt entry": (ARM, "crc", 422, "m.zip: cannot be unpacked (Bad CRC-32"),
+    "a size that lies": (ARM, "size", 422, "m.zip: cannot be unpacked (Bad CRC-32"),
     "no mesh": (ARM, zipped({"meshes/": b""}), 422, "m.zip: holds no mesh file"),
     "twice": (ARM, zipped({"meshes/a.stl": STL, "meshes//a.stl": STL}), 422, "meshes//a.stl is in the zip twice"),
     "a zip bomb": (ARM, zipped({"meshes/big.stl": bytes(3 * 2**20)}), 413, "larger than 2 MB unpacked"),
     "too large": (ARM, b"PK" + bytes(300 * 1024), 413, "larger than"),
+    "too many files": (ARM, zipped({f"meshes/{k}.stl": b"" for k in range(2001)}), 413, "more than 2000 files"),
     "without a URDF": (
         {"profile_file": ("p.yaml", PROFILE.replace("urdf: arm.urdf\n", "").encode())},
         zipped({"meshes/base.stl": STL}),
@@ -164,13 +166,23 @@ def _crc_broken() -> bytes:
     return bytes(data)
 
 
+def _lying_size() -> bytes:
+    """A zip bomb whose directory says 100 bytes for an entry of 3 MB (zipfile stops at 100: its CRC fails)."""
+    data = bytearray(zipped({"meshes/big.stl": bytes(3 * 2**20)}))
+    local = data.index(b"PK\x03\x04")
+    central = data.index(b"PK\x01\x02")
+    data[local + 22 : local + 26] = (100).to_bytes(4, "little")
+    data[central + 24 : central + 28] = (100).to_bytes(4, "little")
+    return bytes(data)
+
+
 @pytest.mark.parametrize("case", list(BAD))
 def test_a_bad_meshes_zip_is_refused_naming_the_problem_and_changes_nothing(
     desk: tuple[TestClient, Path], case: str
 ) -> None:
     client, data_dir = desk
     form, data, status, words = BAD[case]
-    data = _crc_broken() if data is None else data
+    data = {"crc": _crc_broken, "size": _lying_size}[data]() if isinstance(data, str) else data
     before = client.get("/api/robots").json()
     extra = {} if form else {"profile": "nao"}
     r = add(client, "arm-bad", {**form, "meshes_zip": ("m.zip", data)}, **extra)

@@ -3,8 +3,8 @@
 A zip keeps the package's folders, which the URDF's mesh names depend on (`package://arm_description/meshes/
 base.stl`, `../meshes/base.stl`), is one file to pick in a browser and one `-F meshes_zip=@meshes.zip` for curl.
 Its paths are taken relative to the profile's folder (the package's root): the store unpacks it there, beside
-the profile and the URDF, and the review finds the meshes as it finds those of a URDF on disk
-(app/robot_look.py `mesh_file`).
+the profile and the URDF, and the review finds the meshes as it finds those of a URDF on disk, but in that
+folder only (app/robot_look.py `mesh_file`, PACKAGE_ROOT).
 
 The zip is checked whole before anything is written, from its directory: every entry a plain relative path
 (no `..`, no absolute path, no drive), a regular file or a folder (no symlink), a mesh or what a mesh reads
@@ -46,7 +46,6 @@ class MeshArchive:
     name: str
     data: bytes
     files: tuple[tuple[str, zipfile.ZipInfo], ...]  # (relative POSIX path, its entry)
-    unpacked_bytes: int
 
     @property
     def paths(self) -> tuple[str, ...]:
@@ -61,6 +60,8 @@ def check_archive(name: str, data: bytes, max_unpacked_bytes: int) -> MeshArchiv
             infos = zf.infolist()
     except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError, NotImplementedError) as exc:
         raise InputError(f"not a readable zip ({exc})", file=name) from None
+    if len(infos) > 2 * MAX_FILES:  # folders count too: a directory of millions of entries is read no further
+        raise MeshesTooLarge(f"more than {2 * MAX_FILES} entries", file=name)
     files: list[tuple[str, zipfile.ZipInfo]] = []
     folders: set[str] = set()
     total = 0
@@ -104,7 +105,7 @@ def check_archive(name: str, data: bytes, max_unpacked_bytes: int) -> MeshArchiv
         for above in PurePosixPath(path).parents:
             if str(above).casefold() in seen:
                 raise InputError(f"{info.filename} is below a file of the zip ({above})", file=name)
-    return MeshArchive(name, data, tuple(files), total)
+    return MeshArchive(name, data, tuple(files))
 
 
 def _relative_path(name: str, given: str) -> str | None:
