@@ -22,6 +22,11 @@ class Limits:
             raise ValueError("an upload limit of at least 1 KB and a row limit of at least 1")
 
     @property
+    def unpacked_bytes(self) -> int:
+        """A robot's meshes unpacked from their zip: 8 times the upload limit (meshes zip to a third to a fifth)."""
+        return 8 * self.upload_bytes
+
+    @property
     def upload_text(self) -> str:
         """The upload limit as the operator set it (MB)."""
         return f"{self.upload_bytes / (1024 * 1024):g} MB"

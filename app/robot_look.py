@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 MAX_FACES = 100_000  # triangles per robot, over all its visuals (each copy in each browser holds them)
 MAX_MESH_BYTES = 64 * 1024 * 1024  # a mesh file above this is not read (named in the warning)
 MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".glb", ".gltf")
+PACKAGE_ROOT = ".uploaded-description"  # marks the folder of a robot kept with its uploaded meshes (mesh_file)
 CYLINDER_SECTIONS = 24
 DEFAULT_RGBA = (0.72, 0.74, 0.78, 1.0)  # a visual without a colour of its own (the built-in bodies' grey)
 SHOWN_PROBLEMS = 3  # visuals the warning names (the log names every one)
@@ -222,19 +223,30 @@ def mesh_file(given: str, folder: Path) -> Path | None:
     """The file a URDF's mesh `filename` means, for a URDF in `folder`; None if there is none. `package://PKG/
     REST` is looked for as ROS would find it (PKG under ROS_PACKAGE_PATH, or share/PKG under AMENT_PREFIX_PATH)
     and, for a description copied without its workspace, in the URDF's folder and every folder above it (as
-    REST, and as PKG/REST); `file://PATH` and a plain path are relative to the URDF's folder."""
+    REST, and as PKG/REST); `file://PATH` and a plain path are relative to the URDF's folder.
+
+    A URDF kept by the desk with its uploaded meshes (below a folder holding PACKAGE_ROOT: app/store/robots.py)
+    finds them in that folder only: `package://` neither in the ROS paths nor above it, and a path that leads
+    out of it (`../..`, an absolute one) finds nothing."""
+    root = next((d for d in (folder, *folder.parents) if (d / PACKAGE_ROOT).is_file()), None)
     candidates: list[Path] = []
     if given.startswith("package://"):
         package, _, rest = given[len("package://") :].partition("/")
-        for entry in filter(None, os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep)):
-            candidates.append(Path(entry) / package / rest)
-        for entry in filter(None, os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)):
-            candidates.append(Path(entry) / "share" / package / rest)
+        if root is None:
+            for entry in filter(None, os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep)):
+                candidates.append(Path(entry) / package / rest)
+            for entry in filter(None, os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)):
+                candidates.append(Path(entry) / "share" / package / rest)
         for above in (folder, *folder.parents):
             candidates += [above / rest, above / package / rest]
+            if above == root:
+                break
     else:
         path = Path(given[len("file://") :] if given.startswith("file://") else given)
         candidates.append(path if path.is_absolute() else folder / path)
+    if root is not None:
+        inside = root.resolve()
+        candidates = [c for c in candidates if c.resolve().is_relative_to(inside)]
     return next((c for c in candidates if c.is_file()), None)
 
 

@@ -379,12 +379,12 @@ async function loadCalibrations() {
 
 const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
 
-// A robot added to the running desk: a profile file (with its URDF when it says `urdf: ...`) or a built-in
-// profile's name (another NAO), and a driver or none (real data only).
+// A robot added to the running desk: a profile file (with its URDF when it says `urdf: ...`, and a zip of
+// that URDF's meshes) or a built-in profile's name (another NAO), and a driver or none (real data only).
 async function addRobot(e) {
   e.preventDefault();
   const form = new FormData(e.target);
-  for (const key of ["profile_file", "urdf_file"]) if (!form.get(key) || !form.get(key).size) form.delete(key);
+  for (const key of ["profile_file", "urdf_file", "meshes_zip"]) if (!form.get(key) || !form.get(key).size) form.delete(key);
   for (const key of ["profile", "driver"]) if (!form.get(key)) form.delete(key);
   const robot = await api("POST", "/robots", form);
   state.robots[robot.name] = robot;

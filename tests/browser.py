@@ -128,12 +128,18 @@ def launch(playwright):
     return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
 
 
+def ready_page(browser, url: str, width: int = 1500, height: int = 1000):
+    """A page of the desk at `url` in a window of `width` x `height` px, once it says it is ready."""
+    page = browser.new_page(viewport={"width": width, "height": height})
+    page.goto(url)
+    page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+    return page
+
+
 def new_nao_session(browser, url: str, name: str) -> tuple:
     """A page at the desk with the simulated NAO connected and a new capture session of that name selected
     (the page on step 1, Observe); the page and the session's id."""
-    page = browser.new_page(viewport={"width": 1500, "height": 1000})
-    page.goto(url)
-    page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+    page = ready_page(browser, url)
     page.select_option("#robot-select", "nao")
     page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao')", timeout=60_000)
     page.click("#new-session-toggle")

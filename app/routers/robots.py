@@ -16,6 +16,7 @@ from ..drivers.registry import KINDS, DriverSpec
 from ..profiles import file_name, is_builtin
 from ..robots import Robot
 from ..store import ProfileFiles
+from ..store.meshes import MeshesTooLarge, check_archive
 from .deps import DeskDep, RobotsDep, read_upload
 
 VERSION = "0.4.0"
@@ -130,11 +131,14 @@ async def add_robot(
     profile_file: Annotated[UploadFile | None, File()] = None,
     urdf_file: Annotated[UploadFile | None, File()] = None,
     driver: Annotated[str | None, Form(max_length=64)] = None,
+    meshes_zip: Annotated[UploadFile | None, File()] = None,
 ) -> RobotOut:
     """Add a robot to the running desk, kept after a restart: `name`, and its profile either uploaded
-    (`profile_file`, with `urdf_file` when the profile says `urdf: ...`) or named in `profile` (a built-in
-    profile, or on a desk bound to loopback a profile file on this machine). `driver`: a driver kind
-    (`simulated`), none for real data only. A broken profile answers 422 naming its file and field."""
+    (`profile_file`, with `urdf_file` when the profile says `urdf: ...`, and `meshes_zip`: a zip of the URDF's
+    meshes, its paths relative to the profile's folder, the description package's root) or named in `profile`
+    (a built-in profile, or on a desk bound to loopback a profile file on this machine). `driver`: a driver
+    kind (`simulated`), none for real data only. A broken profile or zip answers 422 naming its file and field
+    or entry; a zip larger unpacked than the desk's limit 413."""
     files = None
     if profile_file is not None:
         if profile:
@@ -142,11 +146,23 @@ async def add_robot(
         urdf = None
         if urdf_file is not None:
             urdf = (file_name(urdf_file.filename, "robot.urdf"), await read_upload(desk, urdf_file))
+        elif meshes_zip is not None:
+            raise InputError("meshes go with a URDF: upload the URDF (urdf_file) the profile names too")
+        meshes = None
+        if meshes_zip is not None:
+            zip_name = file_name(meshes_zip.filename, "meshes.zip")
+            data = await read_upload(desk, meshes_zip)
+            try:
+                meshes = check_archive(zip_name, data, desk.limits.unpacked_bytes)
+            except MeshesTooLarge as exc:
+                raise HTTPException(413, str(exc)) from None
         files = ProfileFiles(
-            file_name(profile_file.filename, "profile.yaml"), await read_upload(desk, profile_file), urdf
+            file_name(profile_file.filename, "profile.yaml"), await read_upload(desk, profile_file), urdf, meshes
         )
     elif urdf_file is not None:
         raise InputError("a URDF goes with its profile: upload the profile (profile_file) too")
+    elif meshes_zip is not None:
+        raise InputError("meshes go with an uploaded profile and its URDF: upload them too (profile_file, urdf_file)")
     elif profile and not is_builtin(profile) and not desk.loopback:
         raise HTTPException(
             403, "a profile file on the server can be named only on a desk bound to loopback: upload it"

@@ -15,7 +15,7 @@ import shutil
 import sqlite3
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, TypeVar
 
 import yaml
@@ -24,10 +24,12 @@ from calib_core import InputError, Profile
 from calib_core.model.loader import BUILTIN_PROFILES
 
 from ..errors import NotFound
-from ..profiles import instance_profile, load_model
+from ..profiles import file_name, instance_profile, load_model
+from ..robot_look import PACKAGE_ROOT
 from ..validation import check_id
 from .db import Database, now
 from .files import fsync_dir, write_bytes
+from .meshes import MeshArchive, unpack
 
 T = TypeVar("T")
 
@@ -44,11 +46,12 @@ class RobotRecord:
 
 @dataclass(frozen=True)
 class ProfileFiles:
-    """A profile file and the URDF it names, as bytes, to be kept under DATA/robots/<name>/."""
+    """A profile file, the URDF it names and that URDF's meshes, to be kept under DATA/robots/<name>/."""
 
     profile_name: str
     profile: bytes
     urdf: tuple[str, bytes] | None = None
+    meshes: MeshArchive | None = None  # unpacked beside the profile (the description package's root)
 
 
 class RobotRepository:
@@ -135,18 +138,36 @@ class RobotRepository:
         shutil.rmtree(self.data_dir / "robots" / name, ignore_errors=True)
 
     def _stage(self, name: str, files: ProfileFiles) -> Path:
-        """The files in a staging folder beside the robots' folders; the profile's `urdf:` names the URDF
-        beside it, and a URDF given with a profile that names none is refused."""
+        """The files in a staging folder beside the robots' folders: the URDF where the profile's `urdf:` puts
+        it (in its folder, when that is a plain relative one: `urdf/arm.urdf`), the meshes unpacked beside the
+        profile, so that the URDF's mesh names find them as on disk. A URDF given with a profile that names
+        none, and meshes without a URDF, are refused."""
         if files.urdf is not None and files.urdf[0] == files.profile_name:
             raise InputError(f"the profile and its URDF are both named {files.profile_name}: rename one")
+        if files.meshes is not None and files.urdf is None:
+            raise InputError("meshes go with a URDF: give the URDF the profile names too", file=files.meshes.name)
+        text, urdf_path = _point_at_urdf(
+            files.profile_name, files.profile, None if files.urdf is None else files.urdf[0]
+        )
+        if files.meshes is not None:
+            taken = {files.profile_name.casefold(), (urdf_path or "").casefold()}
+            clash = next((p for p in files.meshes.paths if p.casefold() in taken), None)
+            if clash is not None:
+                raise InputError(f"{clash} is the profile's or the URDF's own name: rename it", file=files.meshes.name)
         root = self.data_dir / "robots"
         root.mkdir(exist_ok=True)
         staged = root / f".{name}.{secrets.token_hex(3)}"
         staged.mkdir()
         try:
-            text = _point_at_urdf(files.profile_name, files.profile, None if files.urdf is None else files.urdf[0])
-            if files.urdf is not None:
-                write_bytes(staged / files.urdf[0], files.urdf[1], atomic=False)
+            if files.urdf is not None and urdf_path is not None:
+                urdf_file = staged.joinpath(*urdf_path.split("/"))
+                write_bytes(urdf_file, files.urdf[1], atomic=False)
+                fsync_dir(urdf_file.parent)
+            if files.meshes is not None:
+                unpack(files.meshes, staged)
+                write_bytes(
+                    staged / PACKAGE_ROOT, b"the URDF's meshes are looked for in this folder only\n", atomic=False
+                )
             write_bytes(staged / files.profile_name, text, atomic=False)
             fsync_dir(staged)
         except BaseException:
@@ -155,24 +176,28 @@ class RobotRepository:
         return staged
 
 
-def _point_at_urdf(profile_name: str, text: bytes, urdf_name: str | None) -> bytes:
-    """The profile with its `urdf:` naming `urdf_name`, the URDF given with it, in its own folder. A profile
-    that names a URDF not given with it, or none when one is given, is refused: a profile kept by the
-    desk reads no file outside its folder."""
+def _point_at_urdf(profile_name: str, text: bytes, urdf_name: str | None) -> tuple[bytes, str | None]:
+    """The profile with its `urdf:` naming the URDF given with it (`urdf_name`, in the folder the profile's
+    `urdf:` names when that is a plain relative folder, else beside the profile), and that path. A profile
+    that names a URDF not given with it, or none when one is given, is refused: a profile kept by the desk
+    reads no file outside its folder."""
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError:
-        return text  # the loader names the line
+        return text, urdf_name  # the loader names the line
     ref = doc.get("urdf") if isinstance(doc, dict) else None
     if urdf_name is None:
         if ref is not None:
             raise InputError(f"urdf: {ref} is not given with the profile (give the URDF file too)", file=profile_name)
-        return text
+        return text, None
     if not isinstance(ref, str) or not ref.strip():
         raise InputError(f"urdf: the profile names no URDF file, but {urdf_name} is given with it", file=profile_name)
-    if ref == urdf_name:
-        return text
-    return yaml.safe_dump({**doc, "urdf": urdf_name}, sort_keys=False, allow_unicode=True).encode()
+    folder = PurePosixPath(ref.strip().replace("\\", "/")).parent.parts
+    plain = all(part == file_name(part, "") for part in folder)  # no '..', no absolute path, no hidden folder
+    path = "/".join([*folder, urdf_name]) if plain else urdf_name
+    if ref == path:
+        return text, path
+    return yaml.safe_dump({**doc, "urdf": path}, sort_keys=False, allow_unicode=True).encode(), path
 
 
 def _upsert(db: sqlite3.Connection, r: RobotRecord) -> None:
