@@ -22,6 +22,7 @@ import numpy as np
 from calib_core.errors import InputError
 from calib_core.estimation.solver import Cancelled
 from calib_core.sim.simulator import SimulatedRobot
+from calib_core.units import length_factor
 
 from .drivers import LimitError, Look, RobotDriver, RobotFault
 from .store import StoreWriteError
@@ -74,17 +75,29 @@ def out_of_margin(driver: RobotDriver, q_rad: np.ndarray) -> tuple[np.ndarray, s
         driver.check(q_rad)
         return q_rad, ""
     except LimitError as exc:
-        if exc.beyond or math.isnan(exc.value_deg):
+        if exc.beyond or math.isnan(exc.value):
             raise
-        margin_deg = exc.margin_deg
     profile = driver.profile
-    lower, upper = profile.joint_limits()
-    m = np.minimum(math.radians(margin_deg), (upper - lower) / 2)
-    moved = np.clip(q_rad, lower + m, upper - m)
+    lower, upper = profile.limits_less_margin(math.degrees(driver.margin_rad), driver.margin_m)
+    moved = np.clip(q_rad, lower, upper)
     driver.check(moved)
-    shift = np.degrees(np.abs(moved - q_rad))
-    joints = ", ".join(f"{profile.joints[i].name} {shift[i]:.2f} deg" for i in np.flatnonzero(shift > 0))
-    return moved, f"moved out of the {margin_deg:.1f} deg safety margin: {joints}"
+    shift = [
+        abs(profile.joint_to_display(i, moved[i]) - profile.joint_to_display(i, q_rad[i])) for i in range(len(q_rad))
+    ]
+    joints = ", ".join(
+        f"{profile.joints[i].name} {shift[i]:.2f} {profile.joint_display_unit(i)}"
+        for i in np.flatnonzero(moved != q_rad)
+    )
+    return moved, f"moved out of the {_margins(driver)} safety margin: {joints}"
+
+
+def _margins(driver: RobotDriver) -> str:
+    """The driver's safety margins, as the operator reads them: deg, and a length for a robot with a slide."""
+    deg = f"{math.degrees(driver.margin_rad):.1f} deg"
+    if not any(j.prismatic for j in driver.profile.joints):
+        return deg
+    unit = driver.profile.length_unit
+    return f"{deg} / {driver.margin_m * length_factor('m', unit):.4g} {unit}"
 
 
 def dry_run(

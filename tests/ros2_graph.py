@@ -4,7 +4,6 @@ process that records every trajectory command and the joint states."""
 
 from __future__ import annotations
 
-import math
 import os
 import random
 import signal
@@ -20,6 +19,8 @@ from typing import Any
 
 import numpy as np
 from browser import Server, served
+
+from calib_core.units import length_factor
 
 ROOT = Path(__file__).resolve().parent.parent
 ARM_DIR = ROOT / "docs" / "ros2"
@@ -235,22 +236,29 @@ class Watcher:
         self.link.close()
 
 
-def limit_violations(commands: list[Command], profile: Any, margin_deg: float = 1.0) -> list[str]:
+def limit_violations(
+    commands: list[Command], profile: Any, margin_deg: float = 1.0, margin_m: float = 0.001
+) -> list[str]:
     """Every command point outside the joint limits less the margin, or faster than a velocity limit (from the
-    joint states the robot published before the command; 2% and 1 ms allowed for the time between)."""
-    limits = {j.name: j for j in profile.joints}
-    margin = math.radians(margin_deg)
+    joint states the robot published before the command; 2% and 1 ms allowed for the time between). Commands
+    are in ROS units (rad, m); the profile's prismatic joints in its length unit."""
+    lower, upper = profile.limits_less_margin(margin_deg, margin_m)
+    index = {j.name: k for k, j in enumerate(profile.joints)}
+    to_unit = length_factor("m", profile.length_unit)
     bad = []
     for n, c in enumerate(commands):
         previous = c.start
         t_previous = 0.0
         for t, positions in c.points:
-            for name, value in zip(c.joint_names, positions, strict=True):
-                j = limits[name]
-                if not j.lower + margin - 1e-9 <= value <= j.upper - margin + 1e-9:
-                    bad.append(f"command {n}: {name} {math.degrees(value):.2f} deg outside the limits less the margin")
+            for name, ros_value in zip(c.joint_names, positions, strict=True):
+                k = index[name]
+                scale = to_unit if profile.joints[k].prismatic else 1.0
+                value = ros_value * scale
+                if not lower[k] - 1e-9 <= value <= upper[k] + 1e-9:
+                    shown = f"{profile.joint_to_display(k, value):.2f} {profile.joint_display_unit(k)}"
+                    bad.append(f"command {n}: {name} {shown} outside the limits less the margin")
                 if name in previous:
-                    need = abs(value - previous[name]) / j.velocity
+                    need = abs(ros_value - previous[name]) * scale / profile.joints[k].velocity
                     if need > 1.02 * (t - t_previous) + 1e-3:
                         bad.append(f"command {n}: {name} needs {need:.3f} s, given {t - t_previous:.3f} s")
             previous, t_previous = dict(zip(c.joint_names, positions, strict=True)), t

@@ -20,9 +20,13 @@ from jacobian_check import check_jacobian, perturbed
 from scene_nodes import node_pose
 from sim_frames import measured_frames
 
+from app.capture import out_of_margin
+from app.drivers import LimitError
+from app.drivers.simulated import SimulatedDriver
 from app.review import Review
 from app.scene import ReviewScene
 from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv
+from calib_core.estimation.planning import within_margin
 from calib_core.model.kinematics import forward
 
 # name, type, parent, child, xyz (m), rpy (rad), axis, limits (m or rad)
@@ -272,3 +276,40 @@ def test_the_review_scene_draws_a_prismatic_joint_in_metres(profile_path: Path) 
             np.testing.assert_allclose(T[:3, 3], poses.t[f][0] / 1000.0, atol=1e-6)
     finally:
         server.stop()
+
+
+def test_a_prismatic_joint_keeps_its_own_safety_margin_in_length(profile_path: Path) -> None:
+    """The driver keeps a slide 1 mm (margin_m) clear of its limits, says so in the profile's length unit, and a
+    replay's configuration inside that margin is moved onto its edge; the planner keeps the same margin. (One
+    margin in degrees was applied to every joint: 0.017 mm for this mm profile's slides.)"""
+    profile = load_profile(profile_path)
+    driver = SimulatedDriver(profile, time_scale=50.0)
+    try:
+        telescope = profile.joint("telescope")
+        q = np.zeros(len(profile.joints))
+        q[profile.joint("torso_lift")] = 100.0  # mm, inside its range
+        q[telescope] = 199.5  # 0.5 mm below its upper limit of 200 mm
+        with pytest.raises(
+            LimitError, match=r"^telescope 199\.5 mm is within the 1 mm safety margin of its upper limit 200 mm$"
+        ):
+            driver.check(q)
+        q[telescope] = 200.5
+        with pytest.raises(LimitError, match=r"^telescope 200\.5 mm is beyond its upper limit 200 mm \(margin 1 mm\)$"):
+            driver.check(q)
+        q[telescope] = 199.5
+        moved, note = out_of_margin(driver, q)
+        assert moved[telescope] == pytest.approx(199.0) and np.delete(moved, telescope) == pytest.approx(
+            np.delete(q, telescope)
+        )
+        assert note == "moved out of the 1.0 deg / 1 mm safety margin: telescope 0.50 mm"
+        q[telescope] = 199.0
+        driver.check(q)  # on the margin's edge: allowed
+    finally:
+        driver.close()
+    lower, upper = profile.limits_less_margin(1.0, 0.001)
+    assert lower[telescope] == pytest.approx(1.0) and upper[telescope] == pytest.approx(199.0)
+    assert upper[profile.joint("elbow")] == pytest.approx(2.0 - np.radians(1.0))
+    q[telescope] = 199.5
+    assert not within_margin(profile, q[None])[0]
+    q[telescope] = 198.5
+    assert within_margin(profile, q[None])[0]

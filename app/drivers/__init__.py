@@ -1,8 +1,9 @@
 """Robot drivers: the one interface the desk drives a robot through.
 
-Joint values are rad in the profile's joint order. Limits are checked with a safety margin before anything
-moves (a configuration closer to a limit than the margin is refused, naming the joint and the limit in deg),
-and every move runs each joint at most at its velocity limit, all joints arriving together.
+Joint values are rad in the profile's joint order (a prismatic joint's in the profile's length unit). Limits
+are checked with a safety margin before anything moves (a configuration closer to a limit than the margin is
+refused, naming the joint and the limit in deg, or in the length unit), and every move runs each joint at most
+at its velocity limit, all joints arriving together.
 
 A kind of driver is a module of this package registered by name in registry.py (`simulated`: the robot
 simulated by calib_core, simulated.py); the desk makes one driver per robot that has one, from its
@@ -20,35 +21,38 @@ import numpy as np
 
 from calib_core.errors import InputError
 from calib_core.model.profile import Profile
+from calib_core.units import length_factor
 from calib_core.vision.sighting import Sighting
 
-DEFAULT_MARGIN_DEG = 1.0
+DEFAULT_MARGIN_DEG = 1.0  # a revolute joint's safety margin
+DEFAULT_MARGIN_M = 0.001  # a prismatic joint's
 
 
 class LimitError(InputError):
-    """A configuration beyond a joint limit (less the safety margin). `beyond`: past the limit itself, not
-    only inside the margin."""
+    """A configuration beyond a joint limit (less the safety margin). `value`, `limit` and `margin` are in
+    `unit`: deg for a revolute joint, the profile's length unit for a prismatic one. `beyond`: past the limit
+    itself, not only inside the margin."""
 
-    def __init__(self, joint: str, value_deg: float, limit_deg: float, side: str, margin_deg: float) -> None:
+    def __init__(self, joint: str, value: float, limit: float, side: str, margin: float, unit: str = "deg") -> None:
         self.joint = joint
-        self.value_deg = value_deg
-        self.limit_deg = limit_deg
+        self.value = value
+        self.limit = limit
         self.side = side  # "lower" or "upper"
-        self.margin_deg = margin_deg
-        self.beyond = not (value_deg >= limit_deg if side == "lower" else value_deg <= limit_deg)
-        if math.isnan(value_deg):
+        self.margin = margin
+        self.unit = unit
+        self.beyond = not (value >= limit if side == "lower" else value <= limit)
+        v, lim, m = (_shown(x, unit) for x in (value, limit, margin))
+        if math.isnan(value):
             message = f"{joint} is not a number"
         elif self.beyond:
-            message = (
-                f"{joint} {value_deg:.1f} deg is beyond its {side} limit {limit_deg:.1f} deg "
-                f"(margin {margin_deg:.1f} deg)"
-            )
+            message = f"{joint} {v} {unit} is beyond its {side} limit {lim} {unit} (margin {m} {unit})"
         else:
-            message = (
-                f"{joint} {value_deg:.1f} deg is within the {margin_deg:.1f} deg safety margin of its {side} "
-                f"limit {limit_deg:.1f} deg"
-            )
+            message = f"{joint} {v} {unit} is within the {m} {unit} safety margin of its {side} limit {lim} {unit}"
         super().__init__(message)
+
+
+def _shown(value: float, unit: str) -> str:
+    return f"{value:.1f}" if unit == "deg" else f"{value:.4g}"
 
 
 class RobotFault(RuntimeError):
@@ -56,19 +60,25 @@ class RobotFault(RuntimeError):
     robot is stopped; what was captured before stays."""
 
 
-def check_limits(profile: Profile, q_rad: np.ndarray, margin_rad: float) -> None:
-    """Raise LimitError for the first joint of q (rad) beyond its limits less the margin. A joint whose range
-    is narrower than twice the margin (a joint fixed at one angle) must sit inside its range."""
-    q = np.asarray(q_rad, dtype=float)
+def check_limits(profile: Profile, q: np.ndarray, margin_rad: float, margin_m: float = DEFAULT_MARGIN_M) -> None:
+    """Raise LimitError for the first joint of q (rad; a prismatic joint's in the length unit) beyond its limits
+    less the margin: `margin_rad` for a revolute joint, `margin_m` for a prismatic one. A joint whose range is
+    narrower than twice its margin (a joint fixed at one value) must sit inside its range."""
+    q = np.asarray(q, dtype=float)
     if q.shape != (len(profile.joints),):
         raise ValueError(f"expected {len(profile.joints)} joint values for {profile.name}, got shape {q.shape}")
-    margin_deg = math.degrees(margin_rad)
-    for joint, value in zip(profile.joints, q, strict=True):
-        m = min(margin_rad, (joint.upper - joint.lower) / 2)
-        if math.isnan(value) or value < joint.lower + m - 1e-12:
-            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.lower), "lower", margin_deg)
-        if value > joint.upper - m + 1e-12:
-            raise LimitError(joint.name, math.degrees(value), math.degrees(joint.upper), "upper", margin_deg)
+    margins = profile.joint_margins(math.degrees(margin_rad), margin_m)
+    for k, (joint, value) in enumerate(zip(profile.joints, q, strict=True)):
+        m = float(margins[k])
+        for side, limit, out in (
+            ("lower", joint.lower, math.isnan(value) or value < joint.lower + m - 1e-12),
+            ("upper", joint.upper, value > joint.upper - m + 1e-12),
+        ):
+            if out:
+                shown = [profile.joint_to_display(k, x) for x in (value, limit)]
+                margin = margin_m * length_factor("m", profile.length_unit) if joint.prismatic else margin_rad
+                unit = profile.joint_display_unit(k)
+                raise LimitError(joint.name, *shown, side, profile.joint_to_display(k, margin), unit)
 
 
 @dataclass
@@ -94,7 +104,8 @@ class Look:
 
 class RobotDriver(Protocol):
     profile: Profile
-    margin_rad: float  # the safety margin: no move is commanded closer than this to a joint limit
+    margin_rad: float  # the safety margin: no move is commanded closer than this to a revolute joint's limit
+    margin_m: float  # and to a prismatic joint's
 
     def status(self) -> RobotStatus: ...
 

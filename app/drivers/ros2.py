@@ -115,6 +115,7 @@ class Ros2Driver:
         self.link = link
         self.files = files
         self.margin_rad = math.radians(conn.options["margin_deg"])
+        self.margin_m = float(conn.options["margin_m"])
         self._scale = np.array(
             [length_factor("m", profile.length_unit) if j.prismatic else 1.0 for j in profile.joints]
         )
@@ -421,7 +422,7 @@ class Ros2Driver:
 
     # --- moving ---------------------------------------------------------------------------------------
     def check(self, q_rad: np.ndarray) -> None:
-        check_limits(self.profile, q_rad, self.margin_rad)
+        check_limits(self.profile, q_rad, self.margin_rad, self.margin_m)
 
     def duration_s(self, start: np.ndarray, goal: np.ndarray) -> float:
         """The move's time_from_start: no joint faster than its velocity limit."""

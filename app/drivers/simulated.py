@@ -21,7 +21,7 @@ from calib_core.model.profile import Profile, Sensor
 from calib_core.sim.simulator import SimulatedRobot
 from calib_core.vision.sighting import Sighting
 
-from . import DEFAULT_MARGIN_DEG, LimitError, Look, RobotFault, RobotStatus, check_limits
+from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, Look, RobotFault, RobotStatus, check_limits
 from .registry import DriverContext
 
 MOVE_SLACK_S = 5.0  # real seconds a move may overrun its planned duration before the robot counts as not responding
@@ -116,15 +116,17 @@ class SimulatedDriver:
         time_scale: float = 1.0,
         rate_hz: float = 50.0,
         margin_deg: float = DEFAULT_MARGIN_DEG,
+        margin_m: float = DEFAULT_MARGIN_M,
         start_rad: np.ndarray | None = None,
         move_slack_s: float = MOVE_SLACK_S,
     ) -> None:
-        if time_scale <= 0 or rate_hz <= 0 or margin_deg < 0:
-            raise ValueError("time_scale and rate_hz must be positive and margin_deg not negative")
+        if time_scale <= 0 or rate_hz <= 0 or margin_deg < 0 or margin_m < 0:
+            raise ValueError("time_scale and rate_hz must be positive and margin_deg, margin_m not negative")
         self.profile = profile
         self.time_scale = float(time_scale)
         self.rate_hz = float(rate_hz)
         self.margin_rad = math.radians(margin_deg)
+        self.margin_m = float(margin_m)
         self.move_slack_s = float(move_slack_s)
         robot = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)
         self._sim = robot  # renders and detects, or reads a tracker (its rng is guarded by _render_lock)
@@ -264,7 +266,7 @@ class SimulatedDriver:
 
     # --- moving -------------------------------------------------------------------------------------
     def check(self, q_rad: np.ndarray) -> None:
-        check_limits(self.profile, q_rad, self.margin_rad)
+        check_limits(self.profile, q_rad, self.margin_rad, self.margin_m)
 
     def move_to(self, q_rad: np.ndarray, *, wait: bool = True, should_stop: Callable[[], bool] | None = None) -> bool:
         """The operator's (or a replay's) move: it ends a wander."""

@@ -16,9 +16,10 @@ the robot's description and joint states), `timeout_s: 1.0` (joint states older 
 `tolerance_deg: 0.1` (a move has arrived within this of its target), `still_deg: 0.005` (joint states that
 change less than this stand still: above the encoders' jitter), `tolerance_m: 0.0005` and `still_m: 0.00005`
 (the same for prismatic joints, in metres), `measurement_wait_s: 2.0` (how long a
-capture waits for a measurement newer than the settling), `margin_deg: 1.0` (the joint limits' safety
-margin), `apply_timeout_s: 5.0` (the parameter call), `stereo_sync_s: 0.005` (a stereo pair's left and right
-images are one exposure when their stamps differ by at most this).
+capture waits for a measurement newer than the settling), `margin_deg: 1.0` and `margin_m: 0.001` (the joint
+limits' safety margin, revolute and prismatic), `apply_timeout_s: 5.0` (the parameter call),
+`stereo_sync_s: 0.005` (a stereo pair's left and right images are one exposure when their stamps differ by at
+most this).
 
 A stereo head's entry (an extension of the contract) names its rectified pair: two sensor_msgs/Image topics
 and their CameraInfo (the left's K gives the intrinsics, the right's P the baseline, as a ROS stereo driver or
@@ -59,6 +60,7 @@ OPTIONS = {
     "still_m": 0.00005,
     "measurement_wait_s": 2.0,
     "margin_deg": 1.0,
+    "margin_m": 0.001,
     "apply_timeout_s": 5.0,
     "stereo_sync_s": 0.005,
 }

@@ -70,6 +70,7 @@ class RobotOut(BaseModel):
     origin: str  # "builtin" (the desk's defaults), "config" (its configuration file), "api" (added here)
     joints: list[JointOut]
     margin_deg: float | None = None  # its driver's safety margin: no move closer to a joint limit (None: no driver)
+    margin_m: float | None = None  # the same for a prismatic joint, in m
     modes: list[ModeOut]
     targets: list[str]
     sensor: SensorOut
@@ -105,6 +106,7 @@ def robot_out(robot: Robot) -> RobotOut:
         origin=robot.origin,
         joints=[_joint_out(p, k) for k in range(len(p.joints))],
         margin_deg=None if robot.driver is None else math.degrees(robot.driver.margin_rad),
+        margin_m=None if robot.driver is None else robot.driver.margin_m,
         notes=list(p.notes),
         modes=[ModeOut(name=m.name, description=m.description) for m in p.modes.values()],
         targets=[t.name for t in p.targets],

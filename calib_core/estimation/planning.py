@@ -53,7 +53,8 @@ from .registration import registration_params
 Criterion = Literal["task", "d", "random"]
 CRITERIA: tuple[str, ...] = ("task", "d", "random")
 
-JOINT_MARGIN_DEG = 1.0  # kept clear of every joint limit (the drivers' default safety margin)
+JOINT_MARGIN_DEG = 1.0  # kept clear of every revolute joint's limits (the drivers' default safety margin)
+JOINT_MARGIN_M = 0.001  # kept clear of every prismatic joint's limits (the drivers' default)
 # Kept clear of the image border by candidates and the workspace: more than the dry run's 10 px, since a
 # model error of a few cm (a robot never calibrated) moves what the sensor sees.
 VIEW_MARGIN_PX = 40.0
@@ -230,9 +231,7 @@ def _inverse(M: np.ndarray) -> np.ndarray:
 
 
 def _limits_less_margin(profile: Profile, margin_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = profile.joint_limits()
-    m = np.minimum(math.radians(margin_deg), (hi - lo) / 2)
-    return lo + m, hi - m
+    return profile.limits_less_margin(margin_deg, JOINT_MARGIN_M)
 
 
 def within_margin(profile: Profile, q: np.ndarray, margin_deg: float = JOINT_MARGIN_DEG) -> np.ndarray:

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..sensors import Sensor
+from ..units import length_factor
 
 
 @dataclass(frozen=True)
@@ -237,6 +238,20 @@ class Profile:
     def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper joint limits in rad (prismatic joints: the profile's length unit)."""
         return np.array([j.lower for j in self.joints]), np.array([j.upper for j in self.joints])
+
+    def joint_margins(self, margin_deg: float, margin_m: float) -> np.ndarray:
+        """Each joint's safety margin in its own unit: `margin_deg` for a revolute joint (in rad), `margin_m` for
+        a prismatic one (in the length unit); at most half the joint's range (a joint fixed at one value)."""
+        to_unit = length_factor("m", self.length_unit)
+        margin = np.array([margin_m * to_unit if j.prismatic else math.radians(margin_deg) for j in self.joints])
+        lower, upper = self.joint_limits()
+        return np.minimum(margin, (upper - lower) / 2)
+
+    def limits_less_margin(self, margin_deg: float, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """The joint limits less each joint's safety margin (joint_margins), in the joints' units."""
+        lower, upper = self.joint_limits()
+        margin = self.joint_margins(margin_deg, margin_m)
+        return lower + margin, upper - margin
 
     def true_params(self) -> np.ndarray:
         """The simulator's hidden true robot (the profile's `simulation.truth`), internal units."""
