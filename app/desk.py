@@ -73,7 +73,11 @@ class Desk:
     def start(self) -> None:
         self.instance = secrets.token_hex(8)
         self.store = Store(self.data_dir)
-        self.robots = Robots(self.store, DriverContext(time_scale=self.time_scale, base_dir=self.config.base_dir))
+        self.robots = Robots(
+            self.store,
+            DriverContext(time_scale=self.time_scale, base_dir=self.config.base_dir),
+            self.limits.unpacked_bytes,
+        )
         self.robots.start(self.config)
         if self.sample_dir is not None and self.sample_dir.is_dir():
             ensure_samples(self.store, self.sample_dir, self.robots.names())

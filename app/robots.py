@@ -26,8 +26,10 @@ from .drivers import RobotDriver
 from .drivers import registry as drivers
 from .drivers.registry import DriverContext, DriverSpec
 from .errors import NotFound
+from .profile_meshes import gather_meshes
 from .profiles import as_instance, builtin_urdf, file_name, is_builtin, load_model
 from .store import ProfileFiles, RobotRecord, Store
+from .store.robots import kept_urdf_path
 
 log = logging.getLogger(__name__)
 
@@ -54,9 +56,11 @@ class Robot:
 
 
 class Robots:
-    def __init__(self, store: Store, context: DriverContext) -> None:
+    def __init__(self, store: Store, context: DriverContext, max_mesh_bytes: int) -> None:
+        """`max_mesh_bytes`: of the meshes a robot added by naming its profile file brings, together."""
         self.store = store
         self.context = context
+        self.max_mesh_bytes = max_mesh_bytes
         self._robots: dict[str, Robot] = {}
         self._lock = threading.Lock()
 
@@ -147,12 +151,13 @@ class Robots:
     # --- changing -----------------------------------------------------------------------------------
     def add(self, name: str, *, profile: str | None, files: ProfileFiles | None, driver: DriverSpec | None) -> Robot:
         """A new robot on the running desk, kept in the store: `profile` a built-in profile's name or a file on
-        this machine (its URDF copied with it), or `files` uploaded. Nothing changes when anything is wrong."""
+        this machine (its URDF and that URDF's meshes copied with it), or `files` uploaded. Nothing changes when
+        anything is wrong."""
         if (profile is None) == (files is None):
             raise InputError("give the robot's profile: a built-in profile's name, a profile file, or an upload")
         ref = profile if profile is not None and is_builtin(profile) else None
         if profile is not None and ref is None:
-            files = read_profile_files(Path(profile))
+            files = read_profile_files(Path(profile), self.max_mesh_bytes)
         made: list[Robot] = []
 
         def prepare(model: Profile) -> Robot:
@@ -202,8 +207,9 @@ class Robots:
         )
 
 
-def read_profile_files(path: Path) -> ProfileFiles:
-    """A profile file on this machine and the URDF it names (relative to it), for the store to keep."""
+def read_profile_files(path: Path, max_mesh_bytes: int) -> ProfileFiles:
+    """A profile file on this machine, the URDF it names (relative to it) and that URDF's meshes (at most
+    `max_mesh_bytes` together: app/profile_meshes.py), for the store to keep."""
     try:
         text = path.read_bytes()
     except FileNotFoundError:
@@ -215,7 +221,7 @@ def read_profile_files(path: Path) -> ProfileFiles:
     except yaml.YAMLError:
         doc = None  # the loader names the line
     ref = doc.get("urdf") if isinstance(doc, dict) else None
-    urdf = None
+    urdf = meshes = None
     if isinstance(ref, str) and ref.strip():
         urdf_file = path.parent / ref
         try:
@@ -224,7 +230,8 @@ def read_profile_files(path: Path) -> ProfileFiles:
             raise InputError(f"urdf: {ref} does not exist", file=str(path)) from None
         except OSError as exc:
             raise InputError(f"urdf: cannot read {ref} ({exc.__class__.__name__})", file=str(path)) from None
-    return ProfileFiles(file_name(path.name, "profile.yaml"), text, urdf)
+        meshes = gather_meshes(urdf_file, path.parent, kept_urdf_path(ref, urdf[0]), max_mesh_bytes)
+    return ProfileFiles(file_name(path.name, "profile.yaml"), text, urdf, meshes)
 
 
 def _close(robot: Robot) -> None:

@@ -16,6 +16,7 @@ import pytest
 import trimesh
 from browser import launch, ready_page, served
 from fastapi.testclient import TestClient
+from PIL import Image
 from test_robot_look import meshed_arm
 from test_urdf_import import PROFILE, arm_urdf
 
@@ -49,6 +50,28 @@ def add(client: TestClient, name: str, files: dict[str, tuple[str, bytes]], **da
     return client.post("/api/robots", data={"name": name, **data}, files=files)
 
 
+def _review_warnings(client: TestClient, robot: str, profile: Path) -> list[str]:
+    """The warnings of the review of a session of `robot` (simulated from `profile`, imported)."""
+    model = load_profile(profile)
+    csv = to_csv(model, SimulatedRobot.from_profile(model, seed=1).simulate(4).data)
+    r = client.post("/api/sessions/import", data={"robot": robot, "name": "d1"}, files={"data": ("a.csv", csv)})
+    assert r.status_code == 201, r.text
+    review = client.post("/api/review", json={"session": r.json()["id"], "old": None})
+    assert review.status_code == 200, review.text
+    return review.json()["warnings"]
+
+
+def kept_files(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+
+
+def drawn_whole(client: TestClient, robot: str) -> None:
+    """The robot's look draws every visual of meshed_arm's URDF, with no warning."""
+    look = robot_look(client.app.state.desk.robots.get(robot).profile)
+    assert look is not None and look.warning is None and {v.what for v in look.visuals} == DRAWN
+    assert look.links == {"base_link", "shoulder", "upper", "fore", "tool0"}
+
+
 def test_meshes_uploaded_with_the_urdf_are_drawn_and_kept_after_a_restart(tmp_path: Path) -> None:
     profile = meshed_arm(tmp_path)  # meshed_arm/{arm.yaml, urdf/arm.urdf, meshes/{upper.stl, fore.obj}}
     root = profile.parent
@@ -67,7 +90,7 @@ def test_meshes_uploaded_with_the_urdf_are_drawn_and_kept_after_a_restart(tmp_pa
         assert r.status_code == 201, r.text
         kept = data_dir / "robots" / "meshed"
         # The URDF where the profile's `urdf: urdf/arm.urdf` puts it, the meshes beside the profile.
-        assert sorted(str(p.relative_to(kept)) for p in kept.rglob("*") if p.is_file()) == [
+        assert kept_files(kept) == [
             PACKAGE_ROOT,
             "arm.yaml",
             "meshes/fore.obj",
@@ -75,19 +98,11 @@ def test_meshes_uploaded_with_the_urdf_are_drawn_and_kept_after_a_restart(tmp_pa
             "urdf/arm.urdf",
         ]
         assert (kept / "meshes" / "upper.stl").read_bytes() == (root / "meshes" / "upper.stl").read_bytes()
-        look = robot_look(client.app.state.desk.robots.get("meshed").profile)
-        assert look is not None and look.warning is None
-        assert {v.what for v in look.visuals} == DRAWN
+        drawn_whole(client, "meshed")
         # The review of a session of it answers no warning: every link drawn with its own visuals.
-        model = load_profile(kept / "arm.yaml")
-        csv = to_csv(model, SimulatedRobot.from_profile(model, seed=1).simulate(4).data)
-        r = client.post("/api/sessions/import", data={"robot": "meshed", "name": "d1"}, files={"data": ("a.csv", csv)})
-        assert r.status_code == 201, r.text
-        review = client.post("/api/review", json={"session": r.json()["id"], "old": None})
-        assert review.status_code == 200 and review.json()["warnings"] == [], review.text
+        assert _review_warnings(client, "meshed", kept / "arm.yaml") == []
     with TestClient(create_app(data_dir, sample_dir=None)) as client:
-        look = robot_look(client.app.state.desk.robots.get("meshed").profile)
-        assert look is not None and look.warning is None and {v.what for v in look.visuals} == DRAWN
+        drawn_whole(client, "meshed")
 
 
 def test_uploaded_meshes_are_looked_for_in_their_folder_only(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -112,6 +127,73 @@ def test_uploaded_meshes_are_looked_for_in_their_folder_only(tmp_path: Path, mon
         "mesh package://meshed_arm/meshes/upper.stl cannot be found (link 'upper')",
         "mesh ../meshes/fore.obj cannot be found (link 'fore')",
     )
+
+
+def test_a_profile_file_named_brings_its_urdfs_meshes_and_needs_its_folder_no_more(tmp_path: Path) -> None:
+    """A profile file on this machine named on a loopback desk: the meshes its URDF's visuals name are kept with
+    it (app/profile_meshes.py), each where the kept URDF's name finds it, an OBJ's material and its texture
+    beside it, nothing else of the folder; drawn with no warning, after a restart and with the original folder
+    moved away, then deleted, too."""
+    profile = meshed_arm(tmp_path / "disk")
+    root = profile.parent
+    fore = root / "meshes" / "fore.obj"
+    fore.write_text("mtllib fore.mtl\nusemtl steel\n" + fore.read_text())
+    (root / "meshes" / "fore.mtl").write_text("newmtl steel\nKd 0.2 0.4 0.6\nmap_Kd -s 1 1 1 tex/steel.png\n")
+    (root / "meshes" / "tex").mkdir()
+    Image.new("RGB", (4, 4), (50, 100, 150)).save(root / "meshes" / "tex" / "steel.png")
+    (root / "meshes" / "unused.stl").write_bytes(STL)
+    data_dir = tmp_path / "data"
+    with TestClient(create_app(data_dir, sample_dir=None)) as client:
+        r = add(client, "meshed", {}, profile=str(profile))
+        assert r.status_code == 201, r.text
+        kept = data_dir / "robots" / "meshed"
+        gathered = ["meshes/fore.mtl", "meshes/fore.obj", "meshes/tex/steel.png", "meshes/upper.stl"]  # no unused.stl
+        assert kept_files(kept) == [PACKAGE_ROOT, "arm.yaml", *gathered, "urdf/arm.urdf"]
+        assert (kept / "meshes" / "tex" / "steel.png").read_bytes() == (
+            root / "meshes" / "tex" / "steel.png"
+        ).read_bytes()
+        drawn_whole(client, "meshed")
+        assert _review_warnings(client, "meshed", profile) == []
+    moved = shutil.move(root, tmp_path / "elsewhere")
+    with TestClient(create_app(data_dir, sample_dir=None)) as client:
+        drawn_whole(client, "meshed")
+        shutil.rmtree(moved)
+        look = read_look(kept / "urdf" / "arm.urdf")  # read again, not the look kept in memory
+        assert look.warning is None and {v.what for v in look.visuals} == DRAWN
+        (session,) = [x["id"] for x in client.get("/api/sessions").json() if x["robot"] == "meshed"]
+        review = client.post("/api/review", json={"session": session, "old": None})
+        assert review.status_code == 200 and review.json()["warnings"] == [], review.text
+
+
+def test_a_mesh_of_a_named_profile_file_that_is_not_there_leaves_the_robot_added_with_a_warning(
+    tmp_path: Path,
+) -> None:
+    profile = meshed_arm(tmp_path)
+    (profile.parent / "meshes" / "fore.obj").unlink()
+    with TestClient(create_app(tmp_path / "data", sample_dir=None)) as client:
+        r = add(client, "meshed", {}, profile=str(profile))
+        assert r.status_code == 201, r.text
+        look = robot_look(client.app.state.desk.robots.get("meshed").profile)
+        assert look is not None and look.problems == ("mesh ../meshes/fore.obj cannot be found (link 'fore')",)
+        assert look.links == {"base_link", "shoulder", "upper", "tool0"}  # the upper arm's STL found, kept and drawn
+        assert _review_warnings(client, "meshed", profile) == [look.warning]
+
+
+def test_a_named_profile_files_meshes_too_large_together_are_refused_413(
+    desk: tuple[TestClient, Path], tmp_path: Path
+) -> None:
+    client, data_dir = desk
+    profile = meshed_arm(tmp_path)
+    (profile.parent / "meshes" / "upper.stl").write_bytes(bytes(3 * 2**20))  # the desk takes 2 MB of meshes
+    before = client.get("/api/robots").json()
+    r = add(client, "arm-big", {}, profile=str(profile))
+    assert r.status_code == 413, r.text
+    urdf = profile.parent / "urdf" / "arm.urdf"
+    assert (
+        r.json()["detail"] == f"the meshes of {urdf}: larger than 2 MB unpacked (the desk's limit for a robot's meshes)"
+    )
+    assert client.get("/api/robots").json() == before
+    assert not (data_dir / "robots").is_dir() or list((data_dir / "robots").iterdir()) == []
 
 
 @pytest.fixture(scope="module")

@@ -140,7 +140,8 @@ async def add_robot(
     meshes, its paths relative to the profile's folder, the description package's root) or named in `profile`
     (a built-in profile, or on a desk bound to loopback a profile file on this machine). `driver`: a driver
     kind (`simulated`), none for real data only. A broken profile or zip answers 422 naming its file and field
-    or entry; a zip larger unpacked than the desk's limit 413."""
+    or entry; a zip larger unpacked than the desk's limit 413. A profile file named brings its URDF's meshes
+    (app/profile_meshes.py): 413 when they are more or larger together than a zip may hold."""
     files = None
     if profile_file is not None:
         if profile:
@@ -174,7 +175,10 @@ async def add_robot(
         if driver not in KINDS:
             raise InputError(f"driver: unknown driver kind '{driver}' (known: {', '.join(KINDS)})")
         spec = DriverSpec(driver)
-    robot = await asyncio.to_thread(desk.add_robot, name, profile=profile or None, files=files, driver=spec)
+    try:
+        robot = await asyncio.to_thread(desk.add_robot, name, profile=profile or None, files=files, driver=spec)
+    except MeshesTooLarge as exc:  # the meshes of a profile file named: as a zip's
+        raise HTTPException(413, str(exc)) from None
     return robot_out(robot)
 
 

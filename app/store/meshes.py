@@ -10,7 +10,8 @@ The zip is checked whole before anything is written, from its directory: every e
 (no `..`, no absolute path, no drive), a regular file or a folder (no symlink), a mesh or what a mesh reads
 (a texture, an OBJ's material), not encrypted; at most MAX_FILES files and `max_unpacked_bytes` unpacked
 (against zip bombs: zipfile itself stops an entry at the size the directory gives it). A macOS archive's
-`__MACOSX/` folder and `.DS_Store` files are left out.
+`__MACOSX/` folder and `.DS_Store` files are left out. The meshes of a profile file named on this machine
+are kept as such an archive too, zipped in memory (archive_files; app/profile_meshes.py), checked alike.
 """
 
 from __future__ import annotations
@@ -60,6 +61,30 @@ def check_archive(name: str, data: bytes, max_unpacked_bytes: int) -> MeshArchiv
             infos = zf.infolist()
     except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError, NotImplementedError) as exc:
         raise InputError(f"not a readable zip ({exc})", file=name) from None
+    return MeshArchive(name, data, checked_entries(name, infos, max_unpacked_bytes))
+
+
+def archive_files(name: str, files: dict[str, Path], max_unpacked_bytes: int) -> MeshArchive:
+    """Files on this machine (relative POSIX path -> the file) as a MeshArchive, checked as an uploaded zip is:
+    their sizes and number from the files' own before any is read, then zipped in memory (stored) and checked
+    again (a file that grew meanwhile). InputError naming `name` when a file cannot be read."""
+    try:
+        checked_entries(
+            name, [zipfile.ZipInfo.from_file(file, path) for path, file in files.items()], max_unpacked_bytes
+        )
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
+            for path, file in files.items():
+                zf.write(file, path)
+    except OSError as exc:
+        raise InputError(f"cannot read {exc.filename} ({exc.__class__.__name__})", file=name) from None
+    return check_archive(name, buffer.getvalue(), max_unpacked_bytes)
+
+
+def checked_entries(
+    name: str, infos: list[zipfile.ZipInfo], max_unpacked_bytes: int
+) -> tuple[tuple[str, zipfile.ZipInfo], ...]:
+    """The files of a zip directory `infos` (relative path, entry), checked as the module says."""
     if len(infos) > 2 * MAX_FILES:  # folders count too: a directory of millions of entries is read no further
         raise MeshesTooLarge(f"more than {2 * MAX_FILES} entries", file=name)
     files: list[tuple[str, zipfile.ZipInfo]] = []
@@ -105,7 +130,7 @@ def check_archive(name: str, data: bytes, max_unpacked_bytes: int) -> MeshArchiv
         for above in PurePosixPath(path).parents:
             if str(above).casefold() in seen:
                 raise InputError(f"{info.filename} is below a file of the zip ({above})", file=name)
-    return MeshArchive(name, data, tuple(files))
+    return tuple(files)
 
 
 def _relative_path(name: str, given: str) -> str | None:

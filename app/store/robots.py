@@ -2,9 +2,9 @@
 
 A robot on the desk is an instance of a profile (a model): five NAOs are `nao-1` ... `nao-5`, each with
 profile `nao`. Sessions, calibrations and applies name the instance. A profile is a built-in one by name,
-or a profile file: one added through the API is kept under DATA/robots/<name>/ (with the URDF it names),
-so the robot is there after a restart. A built-in robot the desk has no row of yet (a store made before
-instances, or one opened without a desk) is the instance of its profile, named after it.
+or a profile file: one added through the API is kept under DATA/robots/<name>/ (with the URDF it names and
+that URDF's meshes), so the robot is there after a restart. A built-in robot the desk has no row of yet (a
+store made before instances, or one opened without a desk) is the instance of its profile, named after it.
 """
 
 from __future__ import annotations
@@ -192,12 +192,18 @@ def _point_at_urdf(profile_name: str, text: bytes, urdf_name: str | None) -> tup
         return text, None
     if not isinstance(ref, str) or not ref.strip():
         raise InputError(f"urdf: the profile names no URDF file, but {urdf_name} is given with it", file=profile_name)
-    folder = PurePosixPath(ref.strip().replace("\\", "/")).parent.parts
-    plain = all(part == file_name(part, "") for part in folder)  # no '..', no absolute path, no hidden folder
-    path = "/".join([*folder, urdf_name]) if plain else urdf_name
+    path = kept_urdf_path(ref, urdf_name)
     if ref == path:
         return text, path
     return yaml.safe_dump({**doc, "urdf": path}, sort_keys=False, allow_unicode=True).encode(), path
+
+
+def kept_urdf_path(ref: str, urdf_name: str) -> str:
+    """Where the desk keeps a URDF named `urdf_name` that a profile's `urdf: ref` names, relative to the profile's
+    folder: in the folder `ref` names when that is a plain relative one (`urdf/arm.urdf`), else beside it."""
+    folder = PurePosixPath(ref.strip().replace("\\", "/")).parent.parts
+    plain = all(part == file_name(part, "") for part in folder)  # no '..', no absolute path, no hidden folder
+    return "/".join([*folder, urdf_name]) if plain else urdf_name
 
 
 def _upsert(db: sqlite3.Connection, r: RobotRecord) -> None:
