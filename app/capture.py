@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,13 +32,21 @@ if TYPE_CHECKING:
     from calib_core.estimation.planning import SequentialPlan
 
     from .jobs import JobContext
-    from .services.replay import Until
     from .store import FrameInfo, Store
 
 DEFAULT_MIN_GAP_DEG = 2.0
 DEFAULT_SETTLE_S = 0.3
 DEFAULT_VIEW_MARGIN_PX = 10.0
 _SETTLE_POLL_S = 0.01
+
+
+@dataclass(frozen=True)
+class Until:
+    """Capture until good enough: plan each next configuration from the frames measured so far and stop when
+    the predicted mean error over the workspace reaches `error` (the measurement's unit) or after `max` frames."""
+
+    error: float
+    max: int
 
 
 def save_look(store: Store, session_id: str, look: Look, index: int | None = None) -> FrameInfo:

@@ -11,8 +11,9 @@ from fastapi import APIRouter, File, Form, HTTPException, Response, UploadFile
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
+from ..capture import Until
 from ..importers import import_csv
-from ..services.replay import ReplayPlan, Until
+from ..services.replay import ReplayPlan
 from ..validation import ID, IMAGE_NAME
 from .deps import DeskDep, FrameIndex, JobsDep, RobotsDep, StoreDep, ViewerDep, read_upload
 from .models import FrameOut, JobStarted, RobotState, frame_out, robot_state

@@ -22,7 +22,7 @@ from calib_core import InputError, Profile, SimulatedRobot
 from calib_core.estimation.planning import Plan, SequentialPlan, predict_accuracy
 from calib_core.estimation.planning import plan as plan_configurations
 
-from ..capture import capture_until, dry_run, out_of_margin, replay
+from ..capture import Until, capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
 from ..jobs import JobContext, JobManager
 from ..robots import Robots
@@ -33,15 +33,6 @@ from ..store import Store
 RESUME_TOLERANCE_DEG = 0.5
 MAX_PLANNED = 2000  # new configurations one replay may plan
 PLANS_KEPT = 8  # recent plans kept, so that a replay after its dry run drives the plan the dry run checked
-
-
-@dataclass(frozen=True)
-class Until:
-    """Capture until good enough: plan each next configuration from the frames measured so far and stop when
-    the predicted mean error over the workspace reaches `error` (the measurement's unit) or after `max` frames."""
-
-    error: float
-    max: int
 
 
 @dataclass(frozen=True)
