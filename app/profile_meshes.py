@@ -78,15 +78,24 @@ def _inside(path: str) -> str | None:
 def _materials(obj: Path) -> Iterator[tuple[str, Path]]:
     """An OBJ's material files (its `mtllib` lines) and the textures they name (`map_Kd` ... lines, the name
     last), each as its name relative to the OBJ's folder and the file: those that are there."""
-    for name in _named(obj, (b"mtllib",), all_words=True):
+    for name in _readable(_named(obj, (b"mtllib",), all_words=True)):
         mtl = obj.parent / name
         if mtl.suffix.lower() != ".mtl" or not mtl.is_file():
             continue
         yield name, mtl
-        for texture in _named(mtl, (b"map_", b"bump", b"disp", b"norm")):
+        for texture in _readable(_named(mtl, (b"map_", b"bump", b"disp", b"norm"))):
             file = mtl.parent / texture
             if file.suffix.lower() in TEXTURE_SUFFIXES and file.is_file():
                 yield posixpath.join(posixpath.dirname(name), texture), file
+
+
+def _readable(names: Iterator[str]) -> list[str]:
+    """The names (a generator that opens its file when first asked), or none when the file cannot be read: the
+    mesh is kept without its materials."""
+    try:
+        return list(names)
+    except OSError:
+        return []
 
 
 def _named(file: Path, keys: tuple[bytes, ...], *, all_words: bool = False) -> Iterator[str]:

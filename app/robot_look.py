@@ -82,7 +82,7 @@ _reading: dict[tuple, threading.Lock] = {}  # a URDF version being read -> held 
 def robot_look(profile: Profile) -> RobotLook | None:
     """The look of a profile made from a URDF file (None: a profile of its own frames, or a URDF without any
     visual, or one that cannot be read any more), read once per version of the file."""
-    path = urdf_path(profile)
+    path = _urdf_path(profile)
     if path is None:
         return None
     try:
@@ -110,7 +110,7 @@ def robot_look(profile: Profile) -> RobotLook | None:
         return look
 
 
-def urdf_path(profile: Profile) -> Path | None:
+def _urdf_path(profile: Profile) -> Path | None:
     """profile_urdf_path, read once per version of the profile file (parsing NAO's YAML takes 0.2 s, and every
     review of every robot asks)."""
     try:

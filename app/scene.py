@@ -58,7 +58,7 @@ from calib_core.vision.sighting import Sighting
 from .framing import ClientFraming, Target, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
 from .robot_copy import RobotCopy, quaternion
-from .robot_look import LinkVisual, link_visuals, robot_look, urdf_path, without_bodies
+from .robot_look import LinkVisual, link_visuals, robot_look, without_bodies
 
 SIDES = ("old", "new")
 PARTS = ("measured", "predicted", "lines")
@@ -418,9 +418,7 @@ class ReviewScene:
         look = robot_look(profile) if GENERATED in text else None  # a URDF robot's own visuals
         shown = text if look is None else without_bodies(text, look.links)
         urdf = yourdfpy.URDF.load(io.StringIO(shown), build_scene_graph=False, load_meshes=False)
-        # A generated frame tree's bodies are simple shapes; another URDF's meshes are its robot's.
-        folder = urdf_path(profile)
-        bodies, _ = link_visuals(urdf, Path.cwd() if folder is None else folder.parent)
+        bodies, _ = link_visuals(urdf, Path.cwd())  # a generated frame tree's bodies: simple shapes, no files
         if not bodies and not (look and look.visuals):
             raise ValueError(f"the URDF of the '{slot}' copy has no visual geometry to show")
         self._frame(root)
