@@ -123,6 +123,10 @@ def test_tabs_and_contexts_review_their_own_sessions(tmp_path: Path) -> None:
         assert len(sockets) >= 3 and {urlsplit(u).netloc for u in sockets} == {f"127.0.0.1:{port}"}
 
         for session, page in pages.items():  # each scene shows its session's robot, and no other
+            # The robot's nodes may reach the client after the frame's marks (one CI run in many read NAO still).
+            scene_frame(page).wait_for_function(
+                f"link => ({SCENE})().links.includes(link)", arg=links[session], polling=100, timeout=30_000
+            )
             shown = scene_frame(page).evaluate(SCENE)["links"]
             assert links[session] in shown and set(links.values()) - {links[session]} - set(shown), (session, shown)
         for session, page in [*pages.items(), *pages.items()][:4]:  # each page steps, the first one twice
