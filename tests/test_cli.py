@@ -268,6 +268,23 @@ def test_simulate_without_a_simulation_section_says_the_data_are_perfect(tmp_pat
     assert len(rows) == 5
 
 
+def test_a_truth_written_as_an_error_is_noted_with_the_value_meant(tmp_path: Path) -> None:
+    """`simulation.truth` holds values, not errors (a user wrote `elbow.z: 0.5` meaning an error and got a 419 mm
+    "before"): the docs say so, and a value that reads like the other reading is noted with the value meant."""
+    doc = yaml.safe_load((ROOT / "sample_sessions" / "arm" / "arm.yaml").read_text())
+    nominal_z = load_profile(ROOT / "sample_sessions" / "arm" / "arm.yaml").nominal()
+    doc["simulation"]["truth"]["elbow.z"] = 0.5
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    (tmp_path / "arm.urdf").write_bytes((ROOT / "sample_sessions" / "arm" / "arm.urdf").read_bytes())
+    profile = load_profile(tmp_path / "arm.yaml")
+    z = profile.to_display(profile.param("elbow.z"), nominal_z[profile.param("elbow.z")])
+    proc = ok(calib("simulate", "--robot", "arm.yaml", "--configurations", "5", "--out", "a.csv", cwd=tmp_path))
+    (note,) = [line for line in proc.stderr.splitlines() if "simulation.truth.elbow.z" in line]
+    assert f"0.5 mm is {z - 0.5:.4g} mm from its nominal value {z:.6g} mm" in note
+    assert f"not their errors (an error of 0.5 mm is {z + 0.5:.6g})" in note
+    assert load_profile(ROOT / "sample_sessions" / "arm" / "arm.yaml").notes == ()  # values as meant: no note
+
+
 def test_a_closed_output_pipe_ends_quietly(tmp_path: Path) -> None:
     """`calib detect-board ... | head -1`: the reader goes away before the answer is written; the command ends
     with 141 (a shell's status for SIGPIPE) and nothing on stderr, neither a traceback nor an internal error."""
