@@ -17,6 +17,7 @@ import json
 import math
 import os
 import re
+import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -283,6 +284,45 @@ def test_a_truth_written_as_an_error_is_noted_with_the_value_meant(tmp_path: Pat
     assert f"0.5 mm is {z - 0.5:.4g} mm from its nominal value {z:.6g} mm" in note
     assert f"not their errors (an error of 0.5 mm is {z + 0.5:.6g})" in note
     assert load_profile(ROOT / "sample_sessions" / "arm" / "arm.yaml").notes == ()  # values as meant: no note
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o027])
+def test_files_written_follow_the_umask(tmp_path: Path, mask: int) -> None:
+    """A simulated CSV, its truth, a calibration and its exports were written 0600 whatever the umask (a driver
+    running as another user could not read them); now as any file of the user's: 0666 less the umask."""
+
+    def run(*args: str) -> None:
+        proc = subprocess.run(
+            [*_command(), *args],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT,
+            env=_env(),
+            preexec_fn=lambda: os.umask(mask),
+        )
+        assert proc.returncode == 0, proc.stderr
+
+    robot = ("--robot", "robonaut-a")
+    run("simulate", *robot, "--configurations", "30", "--out", "d.csv", "--truth", "t.json")
+    run("solve", *robot, "--mode", "daily", "--data", "d.csv", "--out", "c.json")
+    for fmt in ("urdf", "yaml"):
+        run("export", *robot, "--calibration", "c.json", "--format", fmt, "--out", f"x.{fmt}")
+    for name in ("d.csv", "t.json", "c.json", "x.urdf", "x.yaml"):
+        assert oct((tmp_path / name).stat().st_mode & 0o777) == oct(0o666 & ~mask), name
+
+
+def test_serve_on_a_taken_port_says_so_and_exits_2(tmp_path: Path) -> None:
+    """`scripts/run.sh` on a busy port announced "open http://127.0.0.1:8000/" and then failed."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = calib("serve", "--port", str(port), "--data-dir", "data", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "open http" not in proc.stdout and "Traceback" not in proc.stderr
+    assert f"port {port} on 127.0.0.1 is taken" in proc.stderr and f"--port {port + 1}" in proc.stderr
+    assert not (tmp_path / "data").exists()  # nothing started
 
 
 def test_a_closed_output_pipe_ends_quietly(tmp_path: Path) -> None:
