@@ -1,4 +1,4 @@
-"""Background jobs: calibrations in worker processes, captures and replays on threads.
+"""Background jobs: calibrations in worker processes, captures, replays and dry runs on threads.
 
 A calibration runs in its own spawned process (never forked: the server process runs viser and
 uvicorn threads), so the solver neither holds the server's GIL nor takes the server down when it
@@ -169,6 +169,7 @@ class _Job:
     kill_reason: str | None = None  # set when the server kills the worker on purpose
     resent: bool = False  # handed to a new worker once, its first having died before it started the job
     preparing: bool = False  # its payload is still being built (_prepare): not yet queued for a worker
+    pausable: bool = True  # a thread job that can wait at its checkpoints (a dry run has none: it computes only)
 
 
 @dataclass
@@ -417,9 +418,19 @@ class JobManager:
         self._dispatch()
         return job.snap["id"]
 
-    def submit_thread(self, kind: str, fn: Callable[[JobContext], str | None], *, session_id: str | None) -> str:
-        """Run fn(ctx) on a thread of its own; its return value is the job's result."""
-        job = self._create(kind, session_id, None, process=False)
+    def submit_thread(
+        self,
+        kind: str,
+        fn: Callable[[JobContext], str | None],
+        *,
+        session_id: str | None,
+        detail: dict | None = None,
+        pausable: bool = True,
+    ) -> str:
+        """Run fn(ctx) on a thread of its own; its return value is the job's result. `pausable=False`: a pause
+        is refused (a job that only computes, a dry run, has nothing to hold still)."""
+        job = self._create(kind, session_id, detail, process=False)
+        job.pausable = pausable
         job_id = job.snap["id"]
         threading.Thread(target=self._run_thread, args=(job_id, fn), name=f"job-{job_id}", daemon=True).start()
         return job_id
@@ -639,6 +650,8 @@ class JobManager:
         job = self._job(job_id)
         if job.process:
             raise InputError(f"a {job.snap['kind']} job runs in a worker process and cannot be paused; cancel it")
+        if not job.pausable:
+            raise InputError(f"a {job.snap['kind'].replace('_', ' ')} job cannot be paused; cancel it")
         with self._changed:
             if job.snap["state"] in FINISHED or job.snap["paused"] == paused:
                 return
