@@ -70,7 +70,6 @@ def calibrate(
     if method not in METHODS:
         raise InputError(f"unknown method '{method}' ({', '.join(METHODS)})")
     check_share(holdout)
-    p_base = base.params(profile) if base is not None else profile.nominal()
     data = sensors_of(profile, data, m)
     if holdout > 0:
         train_idx, test_idx = holdout_split(data, holdout, seed)
@@ -78,10 +77,8 @@ def calibrate(
         train_idx, test_idx = np.arange(data.n_configurations), np.array([], int)
     train = data.select(train_idx)
     m = observed_mode(profile, train, m)
-    _check_can_fit(profile, train, m, base)
-    if set(registration_params(profile, train.sensors)) & set(m.free):
-        # A tracker set-up of its own: "before" is the old model with only the registration fitted.
-        p_base = register(profile, train, p_base)
+    p_base = start_values(profile, train, m, base)
+    _check_rows(profile, train, m, p_base)
     fit = fit_parameters(
         profile,
         train,
@@ -118,21 +115,59 @@ def calibrate(
     return _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
 
 
-def _check_can_fit(profile: Profile, train: Dataset, mode: Mode, base: Calibration | None) -> None:
-    """Enough observations for the mode, and a tracker's pose either estimated or known from a base."""
-    rows = sum(profile.sensors[s].dim * int(np.sum(train.sensor == s)) for s in train.sensors)
-    if rows < len(mode.free):
-        raise InputError(
-            f"{train.n_observations} observations cannot determine the {len(mode.free)} parameters of mode "
-            f"'{mode.name}'",
-            file=train.source,
-        )
-    reg = set(registration_params(profile, train.sensors))
+def check_can_fit(profile: Profile, data: Dataset, mode: str, base: Calibration | None = None) -> None:
+    """Refuse (InputError) data from which `calibrate` cannot estimate `mode`, as it would on these data
+    as its training part: a registration these data need that neither the mode nor a base gives, or too few
+    observations (`_check_rows`)."""
+    m = profile.mode(mode)
+    data = sensors_of(profile, data, m)
+    m = observed_mode(profile, data, m)
+    _check_rows(profile, data, m, start_values(profile, data, m, base))
+
+
+def start_values(profile: Profile, data: Dataset, mode: Mode, base: Calibration | None) -> np.ndarray:
+    """Where the solver starts: the base calibration (or the nominal model), with each tracker's
+    registration fitted in closed form when the mode estimates it (a tracker set-up of its own: "before"
+    is the old model with only the registration fitted). A tracker whose pose is neither estimated nor
+    known from a base is refused."""
+    p = base.params(profile) if base is not None else profile.nominal()
+    reg = set(registration_params(profile, data.sensors))
     if reg and not reg & set(mode.free) and base is None:
-        devices = ", ".join(profile.sensors[s].name for s in train.sensors if registration_params(profile, [s]))
+        devices = ", ".join(profile.sensors[s].name for s in data.sensors if registration_params(profile, [s]))
         raise InputError(
             f"mode '{mode.name}' does not estimate the registration of '{devices}' (where it stands), which these "
             "data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
+        )
+    return register(profile, data, p) if reg & set(mode.free) else p
+
+
+def _check_rows(profile: Profile, data: Dataset, mode: Mode, p_start: np.ndarray) -> None:
+    """Refuse only observations that leave nothing to check a fit: no parameter of the mode stays free, or
+    the rows are no more than the parameters they determine (each row then goes to fixing a parameter,
+    and the fit passes through every observation, noise and all). Parameters the data cannot tell apart
+    are held and named by the fit (`find_dependencies`), so a mode with more parameters than rows is
+    refused only when the rows do not exceed what they determine."""
+    rows = sum(profile.sensors[s].dim * int(np.sum(data.sensor == s)) for s in data.sensors)
+    n = len(mode.free)
+    if rows > n:  # more rows than parameters: some are left over, whatever the data determine
+        return
+    problem = Problem(profile, data, list(mode.free), p_start, mode.ties)
+    J = problem.residuals_jacobian(problem.x0)[1][: problem.n_data_rows]
+    held = len(find_dependencies(profile, J, problem.free))
+    free = n - held
+    if free == 0:
+        raise InputError(
+            f"{data.n_observations} observations determine none of the {n} parameters of mode '{mode.name}' "
+            "(no parameter changes what they predict): measure configurations that move the parameters",
+            file=data.source,
+        )
+    if rows <= free:
+        raise InputError(
+            f"{data.n_observations} observations ({rows} rows) cannot calibrate mode '{mode.name}': they would fix "
+            f"{free} of its {n} parameters exactly ({held} more held: the data cannot tell them apart), with no row "
+            "left to check the fit against the noise: measure more configurations, or choose a mode with fewer "
+            "parameters",
+            file=data.source,
         )
 
 
