@@ -39,7 +39,7 @@ from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
 from calib_core import Calibration, InputError, Profile, calibrate
-from calib_core.estimation.calibrate import METHODS
+from calib_core.estimation.calibrate import METHODS, check_can_fit
 from calib_core.estimation.solver import Cancelled
 
 from .errors import NotFound
@@ -295,7 +295,8 @@ class JobManager:
         self, session_id: str, mode: str, base_id: str | None, holdout: float, *, folds: int = 0, method: str = "lm"
     ) -> tuple[Profile, dict | None, int]:
         """Check a calibration request against its options and the counts of the session's rows, reading no
-        more than those: (profile, base calibration as a dictionary or None, measured frames)."""
+        more than those unless they are no more than the mode's parameters (then the few observations, to count
+        what they determine): (profile, base calibration as a dictionary or None, measured frames)."""
         session = self.store.sessions.get(session_id)
         profile = self.store.sessions.profile(session.robot)
         m = profile.mode(mode)
@@ -326,11 +327,14 @@ class JobManager:
                 f"{self.max_rows:,} (the desk's row limit, calib serve --max-rows): calibrate on a part of it"
             )
         sensor_dim = {s: profile.sensors[profile.data.sensor if s is None else s].dim for s in counts}
-        if sum(n * sensor_dim[s] for s, n in counts.items()) < len(m.free):
-            raise InputError(
-                f"{session.measured} measured frames cannot determine the {len(m.free)} parameters "
-                f"of mode '{mode}': measure more frames"
-            )
+        if sum(n * sensor_dim[s] for s, n in counts.items()) <= len(m.free):
+            # No more rows than parameters: whether they are too few depends on what they determine (the
+            # calibration holds what they cannot tell apart). Such a session is small: check it here.
+            data = self.store.sessions.dataset(session_id, profile)
+            try:
+                check_can_fit(profile, data, mode, None if base is None else Calibration.from_dict(base))
+            except InputError as exc:
+                raise InputError(f"session '{session_id}': {exc.message}") from None
         train = session.measured - round(holdout * session.measured)
         if folds > train:
             raise InputError(f"{folds} folds need at least {folds} training frames, not {train}")
