@@ -21,10 +21,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib_core.errors import InputError
-from calib_core.estimation.solver import Cancelled
-from calib_core.sim.simulator import SimulatedRobot
+from calib_core.errors import Cancelled, InputError
 from calib_core.units import length_factor
+from calib_core.vision.visibility import VIEW_MARGIN_PX, Visibility
 
 from .drivers import LimitError, Look, RobotDriver, RobotFault
 from .store import StoreWriteError
@@ -37,7 +36,6 @@ if TYPE_CHECKING:
 
 DEFAULT_MIN_GAP_DEG = 2.0
 DEFAULT_SETTLE_S = 0.3
-DEFAULT_VIEW_MARGIN_PX = 10.0
 CHECK_CHUNK = 100  # configurations a dry run checks between two reports of its progress
 _SETTLE_POLL_S = 0.01
 
@@ -119,7 +117,7 @@ def dry_run(
     *,
     indices: list[int] | None = None,
     seen: np.ndarray | None = None,
-    margin_px: float = DEFAULT_VIEW_MARGIN_PX,
+    margin_px: float = VIEW_MARGIN_PX,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[dict]:
     """Check every configuration, moving nothing. Per configuration: {"index", "target", "ok", "problem",
@@ -138,7 +136,7 @@ def dry_run(
     n_targets = len(profile.targets)
     if np.any((t < 0) | (t >= n_targets)):
         raise InputError(f"targets must be in 0..{n_targets - 1} for {profile.name}")
-    predictor = SimulatedRobot(profile, np.asarray(believed, dtype=float), margin=margin_px)
+    view = Visibility(profile, np.asarray(believed, dtype=float), margin_px=margin_px)
     moved, notes, refusals = q.copy(), [""] * len(q), [""] * len(q)
     in_view = seen_.copy()
     for at in range(0, len(q), CHECK_CHUNK):
@@ -150,7 +148,7 @@ def dry_run(
                 refusals[k] = str(exc)
         unseen = part[~seen_[part]]
         if len(unseen):
-            in_view[unseen] = predictor.visible(moved[unseen], t[unseen])
+            in_view[unseen] = view.sees(moved[unseen], t[unseen])
         if progress is not None:
             progress(int(part[-1]) + 1, len(q))
     rows = []

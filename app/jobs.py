@@ -39,8 +39,8 @@ from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
 from calib_core import Calibration, InputError, Profile, calibrate
+from calib_core.errors import Cancelled
 from calib_core.estimation.calibrate import METHODS, check_can_fit
-from calib_core.estimation.solver import Cancelled
 
 from .errors import NotFound
 from .limits import DEFAULT_MAX_ROWS

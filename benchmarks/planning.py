@@ -37,6 +37,7 @@ import numpy as np
 from calib_core import InputError, SimulatedRobot, calibrate, load_profile
 from calib_core.estimation.planning import JOINT_MARGIN_DEG, candidates, design, plan, within_margin
 from calib_core.model.profile import Profile
+from calib_core.vision.visibility import Visibility
 
 METHODS = {"random": "random", "d": "greedy D-optimal", "task": "planned (task space)"}
 COLOURS = {"random": "#888888", "d": "#1f77b4", "task": "#d62728"}
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> tuple[Results, Results]:
                 seconds.append(time.perf_counter() - start)
                 cpu.append(time.process_time() - start_cpu)
                 robot = SimulatedRobot.from_profile(profile, seed=1000 + seed, truth=truth)
-                seen = robot.visible(q, targets)
+                seen = Visibility(profile, robot.true_params).sees(q, targets)
                 data = robot.measure(q[seen], targets[seen]).data
                 cal = calibrate(profile, data, args.mode, base)
                 e = predictions(profile, cal.params(profile), held_q, held_t) - true_pred

@@ -8,9 +8,10 @@ print(cal.summary()); cal.save("full.json")
 planned = plan(profile, "full", 32)      # the configurations to measure next, and their predicted accuracy
 
 The subpackages, by concern: `model` (profiles, URDF import, kinematics), `sensors` (measurement
-models), `estimation` (problem, solver, calibration, identifiability, validation, registration, planning),
-`vision` (detectors and renderers), `sim` (the simulated robot) and `io` (CSV formats, session
-folders, bags, exports). The names below load their module on first use, so `import calib_core`
+models), `vision` (detectors, renderers, and what a sensor sees where a model puts the targets:
+`Visibility`), `estimation` (problem, solver, calibration, identifiability, validation, registration,
+planning), `sim` (the simulated robot: truth, noise, rendering) and `io` (CSV formats, session folders,
+bags, exports). The names below load their module on first use, so `import calib_core`
 stays light (no SciPy or OpenCV until something needs them).
 """
 
@@ -29,6 +30,7 @@ _EXPORTS = {
     "Profile": "model.profile",
     "SimulatedRobot": "sim.simulator",
     "Simulation": "sim.simulator",
+    "Visibility": "vision.visibility",
     "Evaluation": "estimation.evaluation",
     "AccuracyPrediction": "estimation.planning",
     "Plan": "estimation.planning",
@@ -59,6 +61,7 @@ __all__ = [
     "Sensor",
     "SimulatedRobot",
     "Simulation",
+    "Visibility",
     "calibrate",
     "evaluate",
     "fit_parameters",
@@ -98,3 +101,4 @@ if TYPE_CHECKING:
     from .model.profile import Profile
     from .sensors import SENSOR_MODELS, Sensor
     from .sim.simulator import SimulatedRobot, Simulation
+    from .vision.visibility import Visibility

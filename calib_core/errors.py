@@ -1,4 +1,5 @@
-"""The one exception for bad input: it says what is wrong and where (file, line, column or field)."""
+"""The one exception for bad input (it says what is wrong and where: file, line, column or field), and the
+stop a caller asked for."""
 
 from __future__ import annotations
 
@@ -29,3 +30,7 @@ class InputError(ValueError):
         if self.column:
             where.append(f"column '{self.column}'")
         return f"{', '.join(where)}: {self.message}" if where else self.message
+
+
+class Cancelled(Exception):
+    """A long computation (a solve, a plan, a draw of configurations) stopped because its caller asked it to."""

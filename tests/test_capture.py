@@ -18,7 +18,7 @@ from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
 from app.jobs import FINISHED, JobManager
 from app.store import Store
-from calib_core import InputError, SimulatedRobot, load_profile
+from calib_core import InputError, SimulatedRobot, Visibility, load_profile
 from calib_core.io.session import read_session
 
 DEG = math.pi / 180
@@ -111,7 +111,7 @@ def test_dry_run_flags_limits_and_views_before_anything_moves(rn) -> None:
     rng = np.random.default_rng(0)
     margin = np.minimum(DEG, (hi - lo) / 2)
     random_q = rng.uniform(lo + margin, hi - margin, (200, len(lo)))
-    hidden = random_q[~SimulatedRobot(rn, rn.nominal()).visible(random_q, np.zeros(200, int))][0]
+    hidden = random_q[~Visibility(rn, rn.nominal()).sees(random_q, np.zeros(200, int))][0]
     beyond, in_margin = q_ok[0].copy(), q_ok[0].copy()
     beyond[rn.joint("shoulder_pitch")] = 95 * DEG
     in_margin[rn.joint("wrist_roll")] = hi[rn.joint("wrist_roll")] - 0.5 * DEG  # the fixture stays in view

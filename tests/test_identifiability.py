@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from calib_core import Problem, SimulatedRobot, calibrate, load_profile
+from calib_core import Problem, SimulatedRobot, Visibility, calibrate, load_profile
 from calib_core.estimation.identifiability import find_dependencies, report
 
 PROFILES = Path(__file__).parent / "profiles"
@@ -239,7 +239,7 @@ def _varied_stances(robot: SimulatedRobot, q: np.ndarray, targets: np.ndarray, r
             trial[:, legs] += np.radians(rng.uniform(-1.5, 1.5, len(legs)))
             trial[:, head] += np.radians(rng.uniform(-1.0, 1.0, (len(rows), 2)))
             trial = np.clip(trial, lo, hi)
-            if robot.visible(trial, targets[rows]).all():
+            if Visibility(prof, robot.true_params).sees(trial, targets[rows]).all():
                 out[rows] = trial
                 break
     return out

@@ -22,7 +22,7 @@ from app.importers import ensure_samples
 from app.jobs import CRASHED, FINISHED, JobContext, JobManager, WorkerLink, calibration_worker
 from app.store import INTERRUPTED, Store
 from calib_core import InputError
-from calib_core.estimation.solver import Cancelled
+from calib_core.errors import Cancelled
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 

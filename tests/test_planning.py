@@ -26,7 +26,7 @@ from calib_core.estimation.planning import (
     plan_margins,
     within_margin,
 )
-from calib_core.sim.simulator import MIN_SPHERE_SHARE
+from calib_core.vision.visibility import MIN_SPHERE_SHARE, Visibility
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -59,7 +59,7 @@ def _error_against_truth(profile, p, heldout) -> float:
 def _calibrated_error(profile, q, targets, seed, heldout, mode="full") -> float:
     """Measure q on the true robot (losing what it does not show), calibrate, and judge on held-out."""
     robot = SimulatedRobot.from_profile(profile, seed=seed)
-    seen = robot.visible(q, targets)
+    seen = Visibility(profile, robot.true_params).sees(q, targets)
     cal = calibrate(profile, robot.measure(q[seen], targets[seen]).data, mode)
     return _error_against_truth(profile, cal.params(profile), heldout)
 
@@ -73,8 +73,8 @@ def test_plan_within_limits_less_margin_and_predicted_visible(rn) -> None:
     assert within_margin(rn, planned.q).all()
     margin_px, share = plan_margins(rn)  # a stereo head's plan keeps more clear than its detector needs
     assert margin_px > 10.0 and share > MIN_SPHERE_SHARE
-    believer = SimulatedRobot(rn, rn.nominal(), margin=margin_px, sphere_share=share)
-    assert believer.visible(planned.q, planned.targets).all()
+    believer = Visibility(rn, rn.nominal(), margin_px=margin_px, sphere_share=share)
+    assert believer.sees(planned.q, planned.targets).all()
     assert len({tuple(r) for r in np.round(planned.q, 9)}) == 12  # no configuration twice
     pred = planned.predicted
     assert pred.unit == "cm" and 0 < pred.mean <= pred.rms <= pred.max
@@ -118,7 +118,7 @@ def test_predicted_error_matches_calibrations_against_the_truth(rn, rn_pool, rn_
     calibrations from the same configurations over noise seeds must match it (within 35 %)."""
     truth = rn.true_params()
     q, t = rn_pool
-    q, t = q[SimulatedRobot(rn, truth).visible(q, t)][:30], t[:30]
+    q, t = q[Visibility(rn, truth).sees(q, t)][:30], t[:30]
     pred = predict_accuracy(rn, "full", q, t, truth, seed=5)
     errors = []
     for seed in range(6):
@@ -136,7 +136,7 @@ def test_plan_beats_random_configurations_against_the_truth(rn, rn_pool, rn_held
     planned = plan(rn, "full", 20, pool=rn_pool)
     ours = [_calibrated_error(rn, planned.q, planned.targets, 300 + s, rn_heldout) for s in range(4)]
     q, t = rn_pool
-    visible = np.flatnonzero(SimulatedRobot(rn, rn.nominal(), margin=40.0).visible(q, t))
+    visible = np.flatnonzero(Visibility(rn, rn.nominal(), margin_px=40.0).sees(q, t))
     drawn = []
     for s in range(4):
         pick = np.random.default_rng(s).choice(visible, 20, replace=False)
@@ -157,7 +157,7 @@ def test_nao_plan_stays_within_the_stance_structure() -> None:
             assert a - 1e-9 <= math.degrees(qk[nao.joint(name)]) <= b + 1e-9
         lifted = {nao.joint(n) for n in ranges} | {nao.joint("HeadYaw"), nao.joint("HeadPitch")}
         assert all(qk[j] == 0.0 for j in range(len(qk)) if j not in lifted)  # the other leg lies still
-    assert SimulatedRobot(nao, nao.nominal(), margin=10.0).visible(planned.q, planned.targets).all()
+    assert Visibility(nao, nao.nominal(), margin_px=10.0).sees(planned.q, planned.targets).all()
     assert set(planned.targets.tolist()) == {0, 1}  # both boards: each foot's mounting is a parameter
     assert planned.predicted.unit == "px"
 

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib_core import Problem, SimulatedRobot, load_profile
+from calib_core import Problem, SimulatedRobot, Visibility, load_profile
 from calib_core.model.kinematics import forward
 from calib_core.vision.stereo import SPHERE, StereoHead, no_depth_band_px, render_pair, sphere_views
 
@@ -198,7 +198,7 @@ def test_robonaut_sphere_hidden_by_the_arm_is_not_picked(rn) -> None:
     in_image = (u > 150) & (u < 600) & (v > 30) & (v < 450)
     hidden = in_image & (views.visible.min(axis=1) < 0.5)
     assert hidden.sum() > 0.1 * in_image.sum()  # the check matters
-    assert not robot.visible(q[hidden], np.zeros(hidden.sum(), int)).any()
+    assert not Visibility(rn, robot.true_params).sees(q[hidden], np.zeros(hidden.sum(), int)).any()
 
 
 def test_nao_boards_are_seen_well_enough_to_be_measured(nao, nao_sim) -> None:

@@ -19,7 +19,9 @@ import numpy as np
 from calib_core.errors import InputError
 from calib_core.model.profile import Profile, Sensor
 from calib_core.sim.simulator import SimulatedRobot
+from calib_core.vision.sampling import Sampler
 from calib_core.vision.sighting import Sighting
+from calib_core.vision.visibility import Visibility
 
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, Look, RobotFault, RobotStatus, check_limits
 from .registry import DriverContext
@@ -131,7 +133,7 @@ class SimulatedDriver:
         robot = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)
         self._sim = robot  # renders and detects, or reads a tracker (its rng is guarded by _render_lock)
         self._reads = reads_points(profile.sensors[profile.data.sensor])
-        self._planner = SimulatedRobot.from_profile(profile, seed=seed + 1, truth=robot.true_params)
+        self._planner = Sampler(Visibility(profile, robot.true_params), np.random.default_rng(seed + 1))
         self._seed = seed
         self._velocity = np.array([j.velocity for j in profile.joints])
         self._lock = threading.Lock()

@@ -35,8 +35,10 @@ from calib_core.model.loader import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 from calib_core.sim.simulator import SimulatedRobot
 from calib_core.units import length_factor
+from calib_core.vision.sampling import Sampler
 from calib_core.vision.sandal_board import render_board_image
 from calib_core.vision.stereo import StereoHead, render_pair
+from calib_core.vision.visibility import Visibility
 
 from . import require
 
@@ -241,7 +243,7 @@ class SimNode:
 
     def _home(self) -> np.ndarray:
         """A start with the target in view, inside the limits less a degree."""
-        qs, _ = SimulatedRobot.from_profile(self.profile, seed=99, truth=self.sim.true_params).configurations(4)
+        qs, _ = Sampler(Visibility(self.profile, self.sim.true_params), np.random.default_rng(99)).configurations(4)
         margin = math.radians(1.0)
         return np.clip(qs[0], self._lo + margin, self._hi - margin) if len(qs) else (self._lo + self._hi) / 2
 
@@ -347,8 +349,7 @@ class SimNode:
             head = StereoHead.from_profile(self.profile, self.sim.true_params, self._frame)
             pair = render_pair(self.profile, self.sim.true_params, q, head, self.sim.rng)
             return [np.ascontiguousarray(pair.left), np.ascontiguousarray(pair.right)]
-        targets = np.arange(len(self.profile.targets))
-        seen = targets[self.sim.visible(np.repeat(q[None], len(targets), axis=0), targets)]
+        seen = Visibility(self.profile, self.sim.true_params).targets_in_view(q)
         target = int(seen[0]) if len(seen) else self.target
         board = render_board_image(self.profile, self.sim.true_params, q, target, self.sim.rng)
         return [np.ascontiguousarray(board.image, dtype=np.uint8)]

@@ -20,9 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from calib_core import InputError, Profile, SimulatedRobot
+from calib_core import InputError, Profile
 from calib_core.estimation.planning import Plan, PlanProgress, SequentialPlan, predict_accuracy
 from calib_core.estimation.planning import plan as plan_configurations
+from calib_core.vision.sampling import Sampler
+from calib_core.vision.visibility import Visibility
 
 from ..capture import Until, capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
@@ -317,7 +319,7 @@ class ReplayService:
         driver = self.robots.driver(session.robot)
         made = None
         if plan.planner == "random":
-            planner = SimulatedRobot.from_profile(robot.profile, seed=plan.seed, truth=believed)
+            planner = Sampler(Visibility(robot.profile, believed), np.random.default_rng(plan.seed))
             if ctx is not None:
                 ctx.progress(0.0, phase="planning", stage="drawing")
             stop = None if ctx is None else (lambda: ctx.cancelled)

@@ -18,7 +18,7 @@ whatever its effect on what the user measures, and O3/O4 look at one singular va
 (benchmarks/planning.py compares them on held-out error against the simulator's truth).
 
 The search: candidates inside the joint limits less the safety margin and predicted visible with the
-base model (the simulator's checks: field of view, the arm hiding the sphere, a board's obliquity);
+base model (`Visibility`: field of view, the arm hiding the sphere, a board's obliquity);
 greedy selection with rank-k updates of C (Sherman-Morrison-Woodbury; k the rows of one
 configuration, a board's 48 compressed to at most the parameter count by QR), then Fedorov exchange
 passes that swap a chosen configuration for a candidate while the criterion falls. Uniform draws are
@@ -44,15 +44,15 @@ from typing import Literal
 import numpy as np
 
 from ..dataset import Dataset
-from ..errors import InputError
+from ..errors import Cancelled, InputError
 from ..model.kinematics import sensor_points
 from ..model.profile import Profile
-from ..sim.simulator import MIN_SPHERE_SHARE, SimulatedRobot
+from ..vision.sampling import Sampler
+from ..vision.visibility import MIN_SPHERE_SHARE, Visibility
 from .calibrate import observed_mode
 from .identifiability import find_dependencies, minimal_set
 from .problem import Problem
 from .registration import registration_params
-from .solver import Cancelled
 
 Criterion = Literal["task", "d", "random"]
 CRITERIA: tuple[str, ...] = ("task", "d", "random")
@@ -309,22 +309,23 @@ def candidates(
     the head in its postures aimed at the board) gives that structure's frames; any other, uniform
     draws. `count`: about how many (default: CANDIDATES, a stance structure STANCE_CANDIDATES).
     `occlusion=False`: without the costly check that the arm leaves a stereo head's sphere in
-    view (`Visibility` makes it for the configurations a plan picks). `view_margin_px`: kept clear of
+    view (`CandidateView` makes it for the configurations a plan picks). `view_margin_px`: kept clear of
     the image border. `should_stop`: asked before each batch drawn; Cancelled once it says yes."""
 
     def check() -> None:
         if should_stop is not None and should_stop():
             raise Cancelled("the draw was cancelled")
 
-    sim = SimulatedRobot(profile, p_base, margin=view_margin_px, seed=seed)
+    view = Visibility(profile, p_base, margin_px=view_margin_px)
+    sampler = Sampler(view, np.random.default_rng(seed))
     if profile.simulation.get("sampling", {}).get("kind") == "contact":
         raise InputError(f"robot '{profile.name}' is calibrated from contacts with planes: there is nothing to plan")
     if _stances(profile):
         count = STANCE_CANDIDATES if count is None else count
-        parts = [sim.stance_frames(1)[:2] for _ in range(STANCE_BATCHES)]
+        parts = [sampler.stance_frames(1)[:2] for _ in range(STANCE_BATCHES)]
         while sum(len(p[0]) for p in parts) < count and len(parts) < MAX_STANCE_BATCHES:
             check()
-            parts.append(sim.stance_frames(1)[:2])
+            parts.append(sampler.stance_frames(1)[:2])
         q, targets = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     else:
         count = CANDIDATES if count is None else count
@@ -333,8 +334,8 @@ def candidates(
         found: list[np.ndarray] = []
         for _ in range(50):
             check()
-            draw = sim.rng.uniform(lo, hi, (count, len(lo)))
-            found += list(draw[sim.visible(draw, np.full(count, target), occlusion=occlusion)])
+            draw = sampler.rng.uniform(lo, hi, (count, len(lo)))
+            found += list(draw[view.sees(draw, np.full(count, target), occlusion=occlusion)])
             if len(found) >= count:
                 break
         q = np.array(found[:count]).reshape(-1, len(lo))
@@ -606,13 +607,13 @@ def plan_margins(profile: Profile) -> tuple[float, float]:
     return VIEW_MARGIN_PX, MIN_SPHERE_SHARE
 
 
-class Visibility:
+class CandidateView:
     """Whether the base model predicts candidates visible with a plan's margins (`plan_margins`),
     occlusion by the robot's body included; checked when first asked and remembered."""
 
     def __init__(self, profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> None:
         margin_px, share = plan_margins(profile)
-        self.sim = SimulatedRobot(profile, p, margin=margin_px, sphere_share=share)
+        self.view = Visibility(profile, p, margin_px=margin_px, sphere_share=share)
         self.q, self.targets = q, targets
         self.known = np.full(len(q), -1, np.int8)  # -1: not checked yet, else 0/1
 
@@ -625,7 +626,7 @@ class Visibility:
         """Whether each candidate (indices) is visible (bool array)."""
         new = cs[self.known[cs] < 0]
         if len(new):
-            self.known[new] = self.sim.visible(self.q[new], self.targets[new])
+            self.known[new] = self.view.sees(self.q[new], self.targets[new])
         return self.known[cs] == 1
 
 
@@ -694,7 +695,7 @@ def plan(
     pace("drawing")
     d = design(profile, mode, p, q, targets, workspace=ws, isotropic=isotropic, seed=seed)
     pace("drawing", 1)
-    admissible = Visibility(profile, p, q, targets)
+    admissible = CandidateView(profile, p, q, targets)
     history: list[float] = []
     if criterion == "random":
         order = (int(c) for c in np.random.default_rng(seed).permutation(len(q)))
@@ -723,7 +724,7 @@ def plan(
 
 
 def _refine(
-    profile: Profile, d: Design, visible: Visibility, sel: Selection, margin_deg: float, seed: int, pace: _Pace
+    profile: Profile, d: Design, visible: CandidateView, sel: Selection, margin_deg: float, seed: int, pace: _Pace
 ) -> None:
     """Local refinement (module doc): REFINE_DRAWS candidates about each chosen configuration, inside the
     limits less the margin and the plan's view margins (occlusion checked when one is about to be chosen),
@@ -739,7 +740,7 @@ def _refine(
     for at in range(0, len(q), REFINE_CHUNK * REFINE_DRAWS):
         pace("refining")
         part = slice(at, at + REFINE_CHUNK * REFINE_DRAWS)
-        seen = visible.sim.visible(q[part], targets[part], occlusion=False)
+        seen = visible.view.sees(q[part], targets[part], occlusion=False)
         if seen.any():
             d.extend(q[part][seen], targets[part][seen])
             visible.extend(q[part][seen], targets[part][seen])
@@ -804,7 +805,7 @@ class SequentialPlan:
             profile, p, seed=seed, margin_deg=margin_deg, occlusion=False, view_margin_px=plan_margins(profile)[0]
         )
         self.design = design(profile, mode, p, q, targets, workspace=workspace(profile, p, seed), seed=seed)
-        visible = Visibility(profile, p, q, targets)
+        visible = CandidateView(profile, p, q, targets)
         self.rejected: set[int] = set()
 
         def ok(cs: np.ndarray) -> np.ndarray:

@@ -18,9 +18,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-
-class Cancelled(Exception):
-    """A solve stopped because its caller asked it to."""
+from ..errors import Cancelled
 
 
 class SolveStatus(Enum):

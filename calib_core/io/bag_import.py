@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -49,9 +49,9 @@ from rosbags.typesys import Stores, get_typestore
 from ..errors import InputError
 from ..model.profile import Profile
 from ..sensors import Pinhole, Sensor
-from ..sim.simulator import Capture, SimulatedRobot, dataset_from_captures
-from ..vision.sighting import Sighting, predicted_points, sight_board, sight_fixture
+from ..vision.sighting import Capture, Sighting, dataset_from_captures, predicted_points, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair
+from ..vision.visibility import Visibility
 from .session import FrameRecord, write_session
 
 DEFAULT_JOINT_TOPIC = "/joint_states"
@@ -381,26 +381,24 @@ def _image_roles(profile: Profile) -> tuple[Sensor, list[str]]:
 
 def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> list[int]:
     """The boards to look for in configuration q, best first: those the believed kinematics predict fully
-    in view (the simulator's test, nearest the image centre first), then those partly in view."""
+    in view (`Visibility`, nearest the image centre first), then those partly in view (most points first)."""
     sensor = profile.sensors[profile.data.sensor]
     assert isinstance(sensor, Pinhole) and sensor.image is not None  # _image_roles checked it
     width, height = sensor.image
-    boards = [t for t, target in enumerate(profile.targets) if target.grid is not None]
-    if not boards:
+    boards = np.array([t for t, target in enumerate(profile.targets) if target.grid is not None], int)
+    if not len(boards):
         raise InputError(f"robot '{profile.name}' has no board target for its camera")
-    predictor = SimulatedRobot(profile, believed)
-    seen = predictor.visible(np.repeat(q[None], len(boards), axis=0), np.array(boards))
+    qs = np.repeat(q[None], len(boards), axis=0)
+    whole = Visibility(profile, believed).sees(qs, boards)
+    inside = Visibility(profile, believed, margin_px=0.0).points(qs, boards).sum(axis=1)
     scored = []
-    for t, full in zip(boards, seen, strict=True):
-        x = predicted_points(profile, believed, q, t)
-        uv = sensor.project(believed, x)
-        uv = uv[np.isfinite(uv[:, 0])]
-        if not len(uv):
+    for t, full, n_inside in zip(boards.tolist(), whole, inside, strict=True):
+        if not n_inside:
             continue
-        inside = int(np.sum((uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)))
+        uv = sensor.project(believed, predicted_points(profile, believed, q, t))
+        uv = uv[np.isfinite(uv[:, 0])]
         off_centre = float(np.hypot(*(uv.mean(axis=0) - [width / 2, height / 2])))
-        if inside:
-            scored.append((not full, -inside, off_centre, t))
+        scored.append((not full, -int(n_inside), off_centre, t))
     return [t for *_, t in sorted(scored)]
 
 
@@ -606,7 +604,7 @@ def import_bag(
             f"{len(rec.periods)} still periods, but the detector measured none of them ({'; '.join(reasons)})",
             file=str(bag),
         )
-    data = replace(dataset_from_captures(profile, captures), source=f"ROS bag {bag.name}")
+    data = dataset_from_captures(profile, captures, f"ROS bag {bag.name}")
     role_topics = dict(zip(roles, rec.topics, strict=True))
     description = (
         f"Imported from the ROS bag {bag.name}: {len(rec.periods)} still periods (at most {still_deg_s:g} deg/s "

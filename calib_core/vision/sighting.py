@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..dataset import Dataset
 from ..model.kinematics import sensor_points, target_points
 from ..model.profile import Profile
 from ..units import length_factor
@@ -32,6 +33,16 @@ class Sighting:
     points: np.ndarray  # (K, 3) the observed points in the target frame (NaN: the calibrated point)
     vertices: np.ndarray  # (K,) vertex ids, -1 for a single point
     detail: dict = field(default_factory=dict)  # the detector's own figures (votes, inliers, ...)
+
+
+@dataclass
+class Capture:
+    """One configuration looked at through the cameras (simulated, or a bag's images)."""
+
+    frame: int
+    readings: np.ndarray  # (n_joints,) rad: what the robot reports (quantised)
+    sighting: Sighting
+    images: dict[str, np.ndarray]  # "left", "right" (stereo) or "image" (a camera)
 
 
 def predicted_points(profile: Profile, p: np.ndarray, q: np.ndarray, target: int) -> np.ndarray:
@@ -72,3 +83,24 @@ def sight_board(profile: Profile, p_believed: np.ndarray, q: np.ndarray, target:
     if not found.found or found.corners is None:
         return Sighting(target, "not found", found.reason, None, board.grid, vertices, detail)
     return Sighting(target, "measured", "ok", np.asarray(found.corners, float), board.grid, vertices, detail)
+
+
+def dataset_from_captures(profile: Profile, captures: list[Capture], source: str) -> Dataset:
+    """The dataset of the measured captures (frames whose detector found nothing are left out); `source`:
+    where they come from (the Dataset's)."""
+    got = [c for c in captures if c.sighting.measured is not None]
+    if not got:
+        raise ValueError("no capture was measured")
+    counts = [len(c.sighting.measured) for c in got]  # type: ignore[arg-type]
+    return Dataset(
+        robot=profile.name,
+        frame_ids=np.array([c.frame for c in got]),
+        joints=np.array([c.readings for c in got]),
+        cfg=np.repeat(np.arange(len(got)), counts),
+        target=np.repeat([c.sighting.target for c in got], counts),
+        point=np.concatenate([c.sighting.points for c in got]),
+        vertex=np.concatenate([c.sighting.vertices for c in got]),
+        measured=np.concatenate([c.sighting.measured for c in got]),  # type: ignore[misc]
+        sensor=np.full(sum(counts), profile.data.sensor),
+        source=source,
+    )
