@@ -11,9 +11,11 @@ Errors are the papers' figure: the distance between prediction and measurement p
 The summary and the histogram count observations, like `Calibration.figures`, so the numbers agree
 with the calibration's own on the same data.
 
-Where the points are in 3-D (base frame, metres): a 3-D sensor's measurement is placed through that
-side's sensor pose; a camera measures only directions, so a measured pixel is back-projected onto
-the plane of the board as that side's calibration predicts it.
+Where the points are in 3-D (base frame, metres) and in the image: each sensor places its own measurement
+(`Sensor.place`, `Sensor.measured_pixels`) through that side's sensor pose. A 3-D sensor's measurement is
+the point; a camera measures only directions, so a measured pixel is back-projected onto the plane of the
+board as that side's calibration predicts it; a plane's distance moves the predicted point along the
+plane's normal. Nothing here asks which kind a sensor is.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from calib_core import Dataset, Profile
 from calib_core.estimation.validation import figures
 from calib_core.io.urdf_export import to_urdf
 from calib_core.model.kinematics import forward, to_sensor
-from calib_core.sensors import Pinhole, Sensor
+from calib_core.sensors import Sensor
 from calib_core.units import length_factor
 
 from .errors import NotFound
@@ -133,8 +135,7 @@ class Review:
         order = np.argsort(rows, kind="stable")
         rows, target, point, measured = rows[order], target[order], point[order], measured[order]
         start = np.searchsorted(rows, np.arange(n + 1))
-        seen_by = profile.sensors[sensor]
-        measured_px = _image_of_measurements(seen_by, new_p if new_p is not None else old_p, measured)
+        measured_px = profile.sensors[sensor].measured_pixels(new_p if new_p is not None else old_p, measured)
         params = {"old": old_p} | ({} if new_p is None else {"new": new_p})
         sides = {
             side: _side(profile, p, joints, rows, target, point, measured, n, sensor) for side, p in params.items()
@@ -185,13 +186,14 @@ class Review:
         """The 2-D split view: {index, role, width, height, measured, old, new}, [u, v] px per point,
         row-aligned (None where nothing was measured or a point is behind the camera); new is None
         without a new calibration. role: the image the marks belong to ("left" of a stereo head,
-        "image" of a camera)."""
+        "image" of a camera; None: the sensor takes no image)."""
         r = self.row(index)
         s = slice(self.start[r], self.start[r + 1])
-        width, height = getattr(self.sensor, "image", None) or (None, None)
+        width, height = self.sensor.image_size_px() or (None, None)
+        roles = self.sensor.image_roles
         return {
             "index": int(index),
-            "role": "image" if self.sensor.reading == "image" else "left",
+            "role": roles[0] if roles else None,
             "width": width,
             "height": height,
             "measured": _pixels(self.measured_px[s]),
@@ -331,15 +333,9 @@ def _side(
     R_base_sensor = poses.R[sensor.frame][rows]
     t_base_sensor = poses.t[sensor.frame][rows]
     predicted = sensor.predict(p, x)[0] if len(x) else np.zeros((0, measured.shape[1]))
-    if isinstance(sensor, Pinhole):
-        ray = sensor.view_rays(p, measured)  # sensor frame
-        ray_base = (R_base_sensor @ ray[:, :, None])[:, :, 0]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            depth = np.einsum("ij,ij->i", normal, P - t_base_sensor) / np.einsum("ij,ij->i", normal, ray_base)
-        depth = np.where(depth > 0, depth, np.nan)
-        measured_base = t_base_sensor + depth[:, None] * ray_base
-    else:
-        measured_base = (R_base_sensor @ measured[:, :, None])[:, :, 0] + t_base_sensor
+    normal_sensor = np.einsum("nji,nj->ni", R_base_sensor, normal)
+    x_measured = sensor.place(p, measured, x, normal_sensor)
+    measured_base = (R_base_sensor @ x_measured[:, :, None])[:, :, 0] + t_base_sensor
     error = np.linalg.norm(predicted - measured, axis=1)
     got = np.isfinite(error)
     counts = np.bincount(rows[got], minlength=n_frames)
@@ -362,16 +358,6 @@ def _image(sensor: Sensor, p: np.ndarray, x: np.ndarray) -> np.ndarray:
     or when the sensor makes no image."""
     uv = sensor.project(p, x)
     return np.full((len(x), 2), np.nan) if uv is None else uv
-
-
-def _image_of_measurements(sensor: Sensor, p: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """Measured pixels: a camera's directly, a 3-D sensor's projected into its left image."""
-    if sensor.unit == "px":
-        return measured.copy()
-    got = np.isfinite(measured[:, 0])
-    out = np.full((len(measured), 2), np.nan)
-    out[got] = _image(sensor, p, measured[got])
-    return out
 
 
 def frame_bounds_m(

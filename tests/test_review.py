@@ -10,15 +10,18 @@ reproject to the measured pixels.
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
 import yourdfpy
+from fastapi.testclient import TestClient
 from sim_frames import Frame, measured_frames, unmeasured_frames
 
 from app.errors import NotFound
 from app.review import Review
-from calib_core import Problem, SimulatedRobot, Simulation, load_profile
+from app.server import create_app
+from calib_core import Problem, SimulatedRobot, Simulation, load_profile, to_csv
 from calib_core.model.kinematics import forward
 from calib_core.model.profile import Profile
 
@@ -188,3 +191,73 @@ def test_unknown_frame_is_a_clear_error(robonaut) -> None:
     for call in (review.frame_geometry, review.marks, review.row):
         with pytest.raises(NotFound, match=r"frame 999 is not in this review \(frames 1\.\.42\)"):
             call(999)
+
+
+PROBE_ARM = Path(__file__).resolve().parent / "profiles" / "probe-arm.yaml"
+
+
+@pytest.fixture(scope="module")
+def probe_arm() -> tuple[Profile, Simulation, list[Frame]]:
+    """Touches of a table and two walls (1-D measurements: the probe's distance from each plane)."""
+    profile = load_profile(str(PROBE_ARM))
+    robot = SimulatedRobot.from_profile(profile, seed=4)
+    robot.quantise = False
+    sim = robot.simulate(6)
+    return profile, sim, measured_frames(sim.data)
+
+
+def test_a_plane_s_distances_are_placed_along_its_normal(probe_arm) -> None:
+    """Each plane reviewed on its own: the errors are the distance noise with the truth, the measured probe
+    lies at the measured distance from that side's plane and off the prediction only along its normal, and
+    there are no image marks (a plane makes no image)."""
+    profile, sim, frames = probe_arm
+    for s, sensor in enumerate(profile.sensors):
+        review = Review.build(profile, frames, sim.data, profile.nominal(), sim.true_params, sensor=s)
+        rows = np.flatnonzero(sim.data.sensor == s)
+        touched = sorted({int(sim.data.frame_ids[sim.data.cfg[r]]) for r in rows})
+        table = {r["index"]: r for r in review.table()}
+        noise_mm = np.abs(sim.exact[rows, 0] - sim.data.measured[rows, 0])
+        np.testing.assert_allclose([table[i]["err_new"] for i in touched], noise_mm, rtol=0, atol=1e-9)
+        assert all(table[i]["err_new"] is None for i in table if i not in touched)
+        assert review.summary()["unit"] == "mm"
+        for i, r in zip(touched, rows, strict=True):
+            g = review.frame_geometry(i)
+            for side, p in (("old", profile.nominal()), ("new", sim.true_params)):
+                poses = forward(profile, p, frames[i - 1].joints_rad[None], frames=[sensor.frame])
+                R, t = poses.R[sensor.frame][0], poses.t[sensor.frame][0]
+                measured = (g.measured_m[side][0] * 1000 - t) @ R  # the sensor frame, mm
+                predicted = (g.predicted_m[side][0] * 1000 - t) @ R
+                assert measured @ sensor.normal == pytest.approx(sim.data.measured[r, 0], abs=1e-9)
+                off = measured - predicted
+                np.testing.assert_allclose(off - (off @ sensor.normal) * sensor.normal, 0.0, atol=1e-9)
+            marks = review.marks(i)
+            assert marks["role"] is None and marks["width"] is None
+            assert marks["measured"] == marks["old"] == marks["new"] == [None]
+
+
+def test_a_plane_sensor_s_review_answers_through_the_api(probe_arm, tmp_path: Path) -> None:
+    """The probe arm added from its profile file, its touches imported as CSV: the review, a frame selected
+    and its marks answer 200 for every plane (a 1-D measurement answered 500 before)."""
+    profile, sim, _ = probe_arm
+    with TestClient(create_app(tmp_path / "data", time_scale=20.0), raise_server_exceptions=False) as client:
+        added = client.post(
+            "/api/robots", data={"name": "arm"}, files={"profile_file": ("probe-arm.yaml", PROBE_ARM.read_bytes())}
+        )
+        assert added.status_code == 201, added.text
+        csv = to_csv(profile, sim.data).encode()
+        imported = client.post(
+            "/api/sessions/import", data={"robot": "arm", "name": "touches"}, files={"data": ("t.csv", csv)}
+        )
+        assert imported.status_code == 201, imported.text
+        sid = imported.json()["id"]
+        for sensor in ("table", "wall", "side"):
+            r = client.post("/api/review", json={"session": sid, "old": None, "sensor": sensor})
+            assert r.status_code == 200, r.text
+            body = r.json()
+            assert body["sensor"] == sensor and body["summary"]["unit"] == "mm"
+            measured = [row for row in body["table"] if row["err_old"] is not None]
+            assert len(measured) == sum(1 for s in sim.data.sensor if profile.sensors[s].name == sensor)
+            index = measured[0]["index"]
+            assert client.post("/api/review/frame", json={"index": index}).status_code == 200
+            marks = client.get(f"/api/review/marks/{index}")
+            assert marks.status_code == 200 and marks.json()["role"] is None, marks.text

@@ -48,7 +48,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from ..errors import InputError
 from ..model.profile import Profile
-from ..sensors import Pinhole, Sensor
+from ..sensors import Sensor
 from ..vision.sighting import Capture, Sighting, dataset_from_captures, predicted_points, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair
 from ..vision.visibility import Visibility
@@ -368,11 +368,10 @@ def decode_image(msg: Any, msgtype: str, topic: str, bag: str) -> np.ndarray | N
 
 
 def _image_roles(profile: Profile) -> tuple[Sensor, list[str]]:
+    """The data sensor and the images one of its readings takes (`Sensor.image_roles`), with their size."""
     sensor = profile.sensors[profile.data.sensor]
-    if sensor.reading == "stereo":
-        return sensor, ["left", "right"]
-    if sensor.reading == "image" and isinstance(sensor, Pinhole) and sensor.image is not None:
-        return sensor, ["image"]
+    if sensor.image_roles and sensor.image_size_px() is not None:
+        return sensor, list(sensor.image_roles)
     raise InputError(
         f"robot '{profile.name}': its sensor '{sensor.name}' is neither a stereo head nor a camera with an "
         "image size, so there is no detector for its images"
@@ -383,8 +382,9 @@ def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> lis
     """The boards to look for in configuration q, best first: those the believed kinematics predict fully
     in view (`Visibility`, nearest the image centre first), then those partly in view (most points first)."""
     sensor = profile.sensors[profile.data.sensor]
-    assert isinstance(sensor, Pinhole) and sensor.image is not None  # _image_roles checked it
-    width, height = sensor.image
+    size = sensor.image_size_px()
+    assert size is not None  # _image_roles checked it
+    width, height = size
     boards = np.array([t for t, target in enumerate(profile.targets) if target.grid is not None], int)
     if not len(boards):
         raise InputError(f"robot '{profile.name}' has no board target for its camera")
@@ -566,7 +566,7 @@ def import_bag(
     sensor, roles = _image_roles(profile)
     believed = profile.nominal() if believed is None else np.asarray(believed, dtype=float)
     head = StereoHead.from_profile(profile, believed, sensor.name) if roles == ["left", "right"] else None
-    size_px = (head.width_px, head.height_px) if head is not None else sensor.image
+    size_px = sensor.image_size_px()
 
     reader = _open_reader(bag)
     try:

@@ -15,7 +15,9 @@ this package asks which kind a sensor is. It says:
   BallFinder finds a sphere), `image` (a camera image, where a board detector finds the corners) or
   `direct` (the device reports the measurement itself);
 - `visible`, `project`: whether the sensor can see points, and where they fall in its image;
-- `simulate`: a noisy reading as the real device would give it (for the simulator).
+- `simulate`: a noisy reading as the real device would give it (for the simulator);
+- `place`, `measured_pixels`, `image_roles`, `image_size_px`: where a measurement puts its point in 3-D and
+  its mark in the image, and which images one reading takes (what a review shows of it).
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ import numpy as np
 from ..errors import InputError
 
 Reading = Literal["stereo", "image", "direct"]
+# The images one reading takes, by their role in a stored frame; a sensor's pixels are in the first.
+IMAGE_ROLES: dict[str, tuple[str, ...]] = {"stereo": ("left", "right"), "image": ("image",), "direct": ()}
 
 
 class SpecReader(Protocol):
@@ -78,6 +82,15 @@ class SensorModel(Protocol):
     def simulate(
         self, p: np.ndarray, x: np.ndarray, rng: np.random.Generator, noise: dict[str, float]
     ) -> np.ndarray: ...
+
+    def place(self, p: np.ndarray, measured: np.ndarray, x: np.ndarray, normal: np.ndarray) -> np.ndarray: ...
+
+    def measured_pixels(self, p: np.ndarray, measured: np.ndarray) -> np.ndarray: ...
+
+    @property
+    def image_roles(self) -> tuple[str, ...]: ...
+
+    def image_size_px(self) -> tuple[int, int] | None: ...
 
 
 # The fields of each noise model (isotropic: `sigma` may be left out, meaning 1 in the measurement's unit).
@@ -156,6 +169,27 @@ class Sensor:
         (profile `simulation.noise`: `point` in the length unit for a direct reading)."""
         h = self.predict(p, x)[0]
         return h + rng.normal(0.0, float(noise.get("point", 0.0)), h.shape)
+
+    def place(self, p: np.ndarray, measured: np.ndarray, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """Where measurements (M, dim) put their points (M, 3) in the sensor frame, for a 3-D view: given
+        each point's prediction x (M, 3) and the target's surface normal there (M, 3, unit; a board's z axis),
+        both in the sensor frame. A measurement too few to fix a point is placed nearest the prediction.
+        NaN rows: nothing to place (NaN measured, a ray parallel to the surface)."""
+        raise NotImplementedError
+
+    def measured_pixels(self, p: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """Where measurements (M, dim) fall in the sensor's image (M, 2) px; NaN: it makes no image, or the
+        point lies behind the camera."""
+        return np.full((len(measured), 2), np.nan)
+
+    @property
+    def image_roles(self) -> tuple[str, ...]:
+        """The images one reading takes, by their role in a stored frame (IMAGE_ROLES); none for a direct one."""
+        return IMAGE_ROLES[self.reading]
+
+    def image_size_px(self) -> tuple[int, int] | None:
+        """Width and height of the image its pixels are in; None: no image, or its size is not given."""
+        return None
 
 
 def check_noise(noise: Any, sensor_kind: str, allowed: tuple[str, ...], where: str) -> dict[str, Any]:

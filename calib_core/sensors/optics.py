@@ -44,6 +44,9 @@ class Optical(Sensor):
         X = self.optical(x)
         return np.stack([fx * X[:, 0] / X[:, 2] + cx, fy * X[:, 1] / X[:, 2] + cy], axis=1)
 
+    def image_size_px(self) -> tuple[int, int] | None:
+        return self.image
+
     def project(self, p: np.ndarray, x: np.ndarray) -> np.ndarray | None:
         """Pixels (M, 2) of points of the sensor frame; NaN for points behind the camera."""
         if self.intrinsics is None:

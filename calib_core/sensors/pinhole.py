@@ -103,6 +103,18 @@ class Pinhole(Optical):
         h = self.predict(p, x)[0]
         return h + rng.normal(0.0, float(noise.get("pixel", 0.0)), h.shape)
 
+    def place(self, p: np.ndarray, measured: np.ndarray, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """A pixel fixes a ray only: the point is where the ray meets the target's surface, the plane through
+        the predicted point x with that normal (NaN where it meets it behind the camera, or never)."""
+        ray = self.view_rays(p, measured[:, :2])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            depth = np.einsum("ij,ij->i", normal, x) / np.einsum("ij,ij->i", normal, ray)
+        return np.where(depth > 0, depth, np.nan)[:, None] * ray
+
+    def measured_pixels(self, p: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """The measurement is the pixel."""
+        return np.array(measured[:, :2], dtype=float)
+
     def view_rays(self, p: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Unit view rays (M, 3) in the sensor frame through pixels uv (M, 2): the pinhole model
         inverted, distortion undone by fixed-point iteration (as OpenCV's undistortPoints)."""

@@ -37,6 +37,11 @@ class Plane(Sensor):
             return h, None, None
         return h, np.broadcast_to(self.normal, (len(x), 1, 3)), np.zeros((len(x), 1, 0))
 
+    def place(self, p: np.ndarray, measured: np.ndarray, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """A distance fixes the point's height over the plane only: the predicted point moved along the
+        plane's normal until its distance is the measured one."""
+        return x + (measured[:, :1] - x @ self.normal[:, None]) * self.normal
+
     @classmethod
     def from_spec(cls, spec: dict, reader: SpecReader, name: str, frame: int, where: str) -> Plane:
         normal = reader.vector(spec.get("normal", [0, 0, 1]), f"{where}.normal")

@@ -39,6 +39,15 @@ class Point3D(Optical):
             return x, None, None
         return x, np.broadcast_to(np.eye(3), (len(x), 3, 3)), np.zeros((len(x), 3, 0))
 
+    def place(self, p: np.ndarray, measured: np.ndarray, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """The measurement is the point."""
+        return np.array(measured[:, :3], dtype=float)
+
+    def measured_pixels(self, p: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """The measured point projected into the (left) image."""
+        uv = self.project(p, np.array(measured[:, :3], dtype=float))
+        return np.full((len(measured), 2), np.nan) if uv is None else uv
+
     def visible(self, p: np.ndarray, x: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
         if self.intrinsics is None and self.range is None:
             return np.ones(len(x), bool)  # a tracker sees the whole workspace
