@@ -22,11 +22,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calib_core.errors import Cancelled, InputError
+from calib_core.model.profile import Profile
 from calib_core.units import length_factor
 from calib_core.vision.visibility import VIEW_MARGIN_PX, Visibility
 
 from .drivers import LimitError, Look, RobotDriver, RobotFault
-from .store import StoreWriteError
+from .store import Observations, StoreWriteError
 
 if TYPE_CHECKING:
     from calib_core.estimation.planning import SequentialPlan
@@ -49,21 +50,48 @@ class Until:
     max: int
 
 
-def save_look(store: Store, session_id: str, look: Look, index: int | None = None) -> FrameInfo:
-    """Store what one look gave as a frame (replacing the frame `index` if it exists)."""
-    s = look.sighting
+def look_outcome(profile: Profile, look: Look) -> tuple[str, str]:
+    """A look's frame status ("measured" when any sensor measured) and its reason: the one sighting's, or with
+    several each sensor's that found nothing, by name ("ok" when every one measured)."""
+    status = "measured" if look.measured else "not found"
+    if len(look.sightings) == 1:
+        return status, look.sightings[0].reason
+    missed = [
+        f"{profile.sensors[s.sensor].name} ({profile.targets[s.target].name}): {s.reason}"
+        for s in look.sightings
+        if s.measured is None
+    ]
+    return status, "; ".join(missed) or "ok"
+
+
+def save_look(store: Store, profile: Profile, session_id: str, look: Look, index: int | None = None) -> FrameInfo:
+    """Store what one look gave as a frame (replacing the frame `index` if it exists): every sensor's
+    measurements, the images, and the detectors' figures (the first sighting's; with several, each sensor's
+    status and figures under "sightings" too)."""
+    status, reason = look_outcome(profile, look)
+    parts = [
+        Observations.of(profile, s.target, s.measured, s.points, s.vertices, s.sensor)
+        for s in look.sightings
+        if s.measured is not None
+    ]
+    detail = dict(look.sightings[0].detail)
+    if len(look.sightings) > 1:
+        detail["sightings"] = [
+            {"sensor": profile.sensors[s.sensor].name, "target": profile.targets[s.target].name}
+            | {"status": s.status, "reason": s.reason, "observations": 0 if s.measured is None else len(s.measured)}
+            | {"detail": s.detail}
+            for s in look.sightings
+        ]
     index = store.sessions.add_frame(
         session_id,
         index=index,
         joints_rad=look.readings_rad,
         target=look.target,
-        status=s.status,
-        reason=s.reason,
-        measured=s.measured,
-        points=s.points,
-        vertices=s.vertices,
+        status=status,
+        reason=reason,
+        observations=Observations.joined(parts) if parts else None,
         images=look.images,
-        detail=s.detail,
+        detail=detail,
     )
     return store.sessions.frame(session_id, index)
 
@@ -74,7 +102,7 @@ def capture_frame(store: Store, driver: RobotDriver, session_id: str, index: int
     _check_robot(store, driver, session_id)
     if driver.status().moving:
         raise InputError("the robot is moving: capture a frame once it stands still")
-    return save_look(store, session_id, driver.look(), index)
+    return save_look(store, driver.profile, session_id, driver.look(), index)
 
 
 def out_of_margin(driver: RobotDriver, q_rad: np.ndarray) -> tuple[np.ndarray, str]:
@@ -361,9 +389,9 @@ class AutoCapture:
         if not np.array_equal(look.readings_rad, q) or self.driver.status().moving:
             return None  # it moved while we looked
         self._looked = q
-        if look.sighting.status != "measured":
+        if not look.measured:
             return None
-        frame = save_look(self.store, self.session_id, look)
+        frame = save_look(self.store, self.driver.profile, self.session_id, look)
         self._last = q
         return frame
 

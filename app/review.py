@@ -39,6 +39,15 @@ from .errors import NotFound
 HISTOGRAM_BINS = 20
 
 
+class SightingLike(Protocol):
+    """What a live view needs of one sensor's sighting (calib_core.vision.sighting.Sighting)."""
+
+    sensor: int
+    target: int
+    points: np.ndarray
+    measured: np.ndarray | None
+
+
 class FrameLike(Protocol):
     """What a review needs of a stored frame (app.store.FrameInfo)."""
 
@@ -251,18 +260,22 @@ class Review:
 
 
 def live_geometry(
-    profile: Profile, p: np.ndarray, q_rad: np.ndarray, target: int, points: np.ndarray, measured: np.ndarray | None
+    profile: Profile, p: np.ndarray, q_rad: np.ndarray, sightings: Iterable[SightingLike]
 ) -> FrameGeometry:
-    """One live look (Observe) through calibration p, as side "old": the sighting's points in the
-    target frame (NaN: the target's calibrated point) and what was measured of them (None: nothing)."""
+    """One live look (Observe) through calibration p, as side "old": each sighting's points in its target frame
+    (NaN: the target's calibrated point), as its own sensor predicts and places them, one after the other."""
     q = np.nan_to_num(np.asarray(q_rad, float))[None]
-    k = len(points)
-    dim = profile.sensors[profile.data.sensor].dim
-    meas = np.full((k, dim), np.nan) if measured is None else np.asarray(measured, float)
-    s = _side(
-        profile, p, q, np.zeros(k, int), np.full(k, target), np.asarray(points, float), meas, 1, profile.data.sensor
-    )
-    return FrameGeometry(0, "live", q[0], {"old": s.predicted_m}, {"old": s.measured_m})
+    predicted, measured = [np.zeros((0, 3))], [np.zeros((0, 3))]
+    for s in sightings:
+        k = len(s.points)
+        dim = profile.sensors[s.sensor].dim
+        meas = np.full((k, dim), np.nan) if s.measured is None else np.asarray(s.measured, float)
+        side = _side(
+            profile, p, q, np.zeros(k, int), np.full(k, s.target), np.asarray(s.points, float), meas, 1, s.sensor
+        )
+        predicted.append(side.predicted_m)
+        measured.append(side.measured_m)
+    return FrameGeometry(0, "live", q[0], {"old": np.concatenate(predicted)}, {"old": np.concatenate(measured)})
 
 
 # --- computation --------------------------------------------------------------------------------

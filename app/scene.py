@@ -84,7 +84,7 @@ class LookLike(Protocol):
     """What show_live needs of a driver's look (app.drivers.Look)."""
 
     readings_rad: np.ndarray
-    sighting: Sighting
+    sightings: list[Sighting]
 
 
 @dataclass
@@ -272,9 +272,9 @@ class ReviewScene:
 
     def show_live(self, profile: Profile, look: LookLike, p: np.ndarray) -> None:
         """Observe: the robot at its live readings through calibration p, the live detection (red)
-        and the prediction (blue), in place of the review copies until the next select or load."""
-        s = look.sighting
-        geometry = live_geometry(profile, p, look.readings_rad, s.target, s.points, s.measured)
+        and the prediction (blue) of every sensor's sighting, in place of the review copies until the next select
+        or load."""
+        geometry = live_geometry(profile, p, look.readings_rad, look.sightings)
         text = to_urdf(profile, p, bodies=True)
         with self._lock:
             # Another robot: it replaces the one shown (and its review), and the cameras frame it live.

@@ -5,6 +5,7 @@ pauses and resumes, and re-measures a session in place."""
 
 from __future__ import annotations
 
+import csv
 import math
 import time
 from collections.abc import Iterator
@@ -18,7 +19,7 @@ from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
 from app.jobs import FINISHED, JobManager
 from app.store import Store
-from calib_core import InputError, SimulatedRobot, Visibility, load_profile
+from calib_core import InputError, Problem, SimulatedRobot, Visibility, load_profile
 from calib_core.io.session import read_session
 
 DEG = math.pi / 180
@@ -85,6 +86,42 @@ def test_capture_frame_stores_what_the_robot_sees(store, nao, nao_driver) -> Non
     assert set(frame.images) == {"image"} and (store.data_dir / frame.images["image"]).is_file()
     assert store.sessions.dataset(sid, nao).measured.shape == (24, 2)
     assert capture_frame(store, nao_driver, sid).index == 2
+
+
+def test_a_frame_keeps_every_sensor_s_sighting_of_one_look(store) -> None:
+    """The Motoman's tracker and two cameras look at once, at two of the data set's poses with both arms in the
+    cameras' view (leica_rep_self1): each frame holds the tracker's reflector of the arm it is pointed at and
+    each camera's faces of both arms, with the readings of that one moment, each row where the hidden truth puts
+    it (the cameras' pixels noise-free, the profile gives them no noise; the tracker within 5 sigma)."""
+    mm = load_profile("motoman")
+    names = [s.name for s in mm.sensors]
+    with (SAMPLES / "motoman-ctu" / "camera_poses.csv").open() as f:
+        poses = [r for r in csv.DictReader(f) if r["source_file"] == "leica_rep_self1_dataset.mat"][:2]
+    q = [np.radians([float(r[f"{j.name}_deg"]) for j in mm.joints]) for r in poses]
+    sid = store.sessions.create("motoman", "three sensors", source="capture")
+    with SimulatedDriver(mm, seed=3, time_scale=50.0, start_rad=q[0]) as d:
+        for arm, qk in zip(("LR1", "LR2"), q, strict=True):
+            assert d.move_to(qk)
+            d.set_target(mm.target(arm))
+            look = d.look()
+            assert (look.sightings[0].sensor, look.sightings[0].target) == (names.index("tracker"), mm.target(arm))
+            cameras = {(names[s.sensor], mm.targets[s.target].name) for s in look.sightings[1:]}
+            assert cameras == {(f"camera{c}", f"markers{a}") for c in (1, 2) for a in (1, 2)}
+            frame = capture_frame(store, d, sid)
+            assert frame.status == "measured" and frame.reason == "ok" and frame.target == mm.target(arm)
+            assert [x["sensor"] for x in frame.detail["sightings"]] == [names[s.sensor] for s in look.sightings]
+        truth = d.true_params()
+    counts = store.sessions.sensor_counts(sid)
+    camera_rows = {names.index(f"camera{c}"): 40 for c in (1, 2)}
+    assert all(c == {names.index("tracker"): 1} | camera_rows for c in counts.values()), counts
+    data = store.sessions.dataset(sid, mm)
+    assert data.n_configurations == 2
+    for s in data.sensors:
+        own = data.of_sensor(s)
+        dim = mm.sensors[s].dim
+        error = np.linalg.norm(Problem(mm, own, [], truth).predict(truth)[:, :dim] - own.measured[:, :dim], axis=1)
+        limit = 5 * mm.simulation["noise"]["point"] if names[s] == "tracker" else 1e-6
+        assert error.max() < limit, (names[s], error.max())
 
 
 def test_capture_frame_refuses_a_moving_robot_and_another_robots_session(store, nao, rn, nao_driver) -> None:
@@ -349,7 +386,7 @@ def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao
     assert d.move_to(q)
     settle()
     assert auto.poll() is None
-    assert auto.last_look is not None and auto.last_look.sighting.status == "not found"
+    assert auto.last_look is not None and auto.last_look.sightings[0].status == "not found"
     seen = auto.last_look
     assert auto.poll() is None and auto.last_look is seen
     assert [f.index for f in store.sessions.frames(sid)] == [first.index, second.index]

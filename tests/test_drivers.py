@@ -185,9 +185,9 @@ def test_look_finds_the_sphere_within_1_cm_of_the_truth(rn) -> None:
             assert look.target == 0 and set(look.images) == {"left", "right"}
             assert look.images["left"].shape == (480, 640)
             assert np.array_equal(look.readings_rad, d.read_joints())
-            if look.sighting.status == "measured":
+            if look.sightings[0].status == "measured":
                 truth = predicted_points(rn, d.true_params(), d.true_joints_rad(), 0)[0]
-                errors.append(float(np.linalg.norm(look.sighting.measured[0] - truth)))
+                errors.append(float(np.linalg.norm(look.sightings[0].measured[0] - truth)))
             if len(errors) == 2:
                 break
     assert len(errors) == 2
@@ -203,19 +203,19 @@ def test_applied_calibration_seeds_the_detector(rn) -> None:
     configurations, _ = planner.configurations(16)
     with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
         for _ in _visit(d, configurations):
-            if d.look().sighting.status == "measured":
+            if d.look().sightings[0].status == "measured":
                 break
         else:
             pytest.fail("no configuration measured with the nominal calibration")
         d.apply_calibration("c-wrong", wrong)
         assert d.status().calibration_id == "c-wrong"
         assert np.array_equal(d.believed_params(), wrong)
-        assert d.look().sighting.status == "not found"
-        assert d.look(believed=rn.nominal()).sighting.status == "measured"  # an explicit belief wins
+        assert d.look().sightings[0].status == "not found"
+        assert d.look(believed=rn.nominal()).sightings[0].status == "measured"  # an explicit belief wins
         d.apply_calibration(None, None)
         assert d.status().calibration_id is None
         assert np.array_equal(d.believed_params(), rn.nominal())
-        assert d.look().sighting.status == "measured"
+        assert d.look().sightings[0].status == "measured"
 
 
 def test_day_drifts_the_hidden_joint_offsets(rn) -> None:
@@ -272,8 +272,8 @@ def test_nao_looks_at_the_board_of_the_selected_foot(nao) -> None:
         look = d.look()
         assert look.target == st.target
         assert set(look.images) == {"image"}
-        assert look.sighting.status == "measured"
-        assert look.sighting.measured.shape == (24, 2)
+        assert look.sightings[0].status == "measured"
+        assert look.sightings[0].measured.shape == (24, 2)
         with pytest.raises(ValueError, match=r"targets 0\.\.1"):
             d.set_target(2)
         d.set_target(1 - st.target)
@@ -300,10 +300,10 @@ def test_the_simulated_motoman_reads_its_tracker_on_the_arm_it_is_pointed_at() -
         for name in ("LR1", "LR2"):
             d.set_target(motoman.target(name))
             looks = [d.look() for _ in range(30)]
-            assert all(look.images == {} and look.sighting.status == "measured" for look in looks)
+            assert all(look.images == {} and look.sightings[0].status == "measured" for look in looks)
             assert all(look.target == motoman.target(name) for look in looks)
             truth = predicted_points(motoman, d.true_params(), d.true_joints_rad(), motoman.target(name))[0]
-            errors[name] = np.array([look.sighting.measured[0] - truth for look in looks])
+            errors[name] = np.array([look.sightings[0].measured[0] - truth for look in looks])
         for name, e in errors.items():
             assert np.all(np.abs(e.mean(axis=0)) < 4 * sigma / math.sqrt(len(e))), name
             assert 0.6 * sigma < e.std() < 1.5 * sigma, (name, e.std())

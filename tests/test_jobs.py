@@ -20,7 +20,7 @@ import pytest
 from app.errors import NotFound
 from app.importers import ensure_samples
 from app.jobs import CRASHED, FINISHED, JobContext, JobManager, WorkerLink, calibration_worker
-from app.store import INTERRUPTED, Store
+from app.store import INTERRUPTED, Observations, Store
 from calib_core import InputError
 from calib_core.errors import Cancelled
 
@@ -152,8 +152,9 @@ def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(jobs: JobMa
     with pytest.raises(InputError, match="no measured frames"):
         jobs.submit_calibration(sid, "full", None, 0.0)
     for k in range(3):
+        obs = Observations.of(store.sessions.profile("robonaut-a"), 0, np.ones((1, 3)))
         store.sessions.add_frame(
-            sid, index=None, joints_rad=np.full(10, 0.1 * k), target=0, status="measured", measured=np.ones((1, 3))
+            sid, index=None, joints_rad=np.full(10, 0.1 * k), target=0, status="measured", observations=obs
         )
     with pytest.raises(
         InputError, match=r"3 observations \(9 rows\) cannot calibrate mode 'full': they would fix 9 of"
@@ -179,7 +180,7 @@ def test_a_mode_of_more_parameters_than_rows_runs_when_the_rows_exceed_what_they
                 joints_rad=sample.joints[c],
                 target=int(sample.target[obs][0]),
                 status="measured",
-                measured=sample.measured[obs, :3],
+                observations=Observations.of(profile, int(sample.target[obs][0]), sample.measured[obs, :3]),
             )
         if n == 6:
             before = len(jobs.list())

@@ -9,6 +9,7 @@ reproject to the measured pixels.
 
 from __future__ import annotations
 
+import csv
 import io
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from fastapi.testclient import TestClient
 from sim_frames import Frame, measured_frames, unmeasured_frames
 
 from app.errors import NotFound
-from app.review import Review
+from app.review import Review, live_geometry
 from app.server import create_app
 from calib_core import Problem, SimulatedRobot, Simulation, load_profile, to_csv
 from calib_core.model.kinematics import forward
@@ -193,7 +194,8 @@ def test_unknown_frame_is_a_clear_error(robonaut) -> None:
             call(999)
 
 
-PROBE_ARM = Path(__file__).resolve().parent / "profiles" / "probe-arm.yaml"
+ROOT = Path(__file__).resolve().parents[1]
+PROBE_ARM = ROOT / "tests" / "profiles" / "probe-arm.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -261,3 +263,27 @@ def test_a_plane_sensor_s_review_answers_through_the_api(probe_arm, tmp_path: Pa
             assert client.post("/api/review/frame", json={"index": index}).status_code == 200
             marks = client.get(f"/api/review/marks/{index}")
             assert marks.status_code == 200 and marks.json()["role"] is None, marks.text
+
+
+def test_a_live_look_shows_every_sensor_s_sighting_where_the_truth_puts_it() -> None:
+    """A Motoman look at the data set's first pose of two arms in view (leica_rep_self1), through the true
+    model: the tracker's reflector and both cameras' faces of both arms, as the data set's cameras saw them at
+    that pose; every sighting's rows predicted and placed by its own sensor, the noise-free pixels
+    back-projected onto exactly the predicted faces and the tracker's reading within its noise."""
+    from app.drivers.simulated import SimulatedDriver
+
+    mm = load_profile("motoman")
+    with (ROOT / "sample_sessions" / "motoman-ctu" / "camera_poses.csv").open() as f:
+        pose = next(r for r in csv.DictReader(f) if r["source_file"] == "leica_rep_self1_dataset.mat")
+    q = np.radians([float(pose[f"{j.name}_deg"]) for j in mm.joints])
+    with SimulatedDriver(mm, seed=3, time_scale=50.0, start_rad=q) as d:
+        look = d.look()
+        truth = d.true_params()
+    seen = {(mm.sensors[s.sensor].name, mm.targets[s.target].name) for s in look.sightings}
+    assert seen == {("tracker", "LR1")} | {(f"camera{c}", f"markers{a}") for c in (1, 2) for a in (1, 2)}
+    g = live_geometry(mm, truth, look.readings_rad, look.sightings)
+    rows = [len(s.points) for s in look.sightings]
+    assert len(g.predicted_m["old"]) == len(g.measured_m["old"]) == sum(rows) == 1 + 4 * 20
+    off = np.linalg.norm(g.measured_m["old"] - g.predicted_m["old"], axis=1)
+    assert off[0] < 5 * mm.simulation["noise"]["point"]  # m: the tracker's reading
+    assert off[rows[0] :].max() < 1e-9  # the cameras' pixels, noise-free

@@ -481,8 +481,8 @@ def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(
     try:
         wait_until(lambda: driver.settled(0.1), "the driver sees the robot settled")
         look = driver.look()
-        assert look.sighting.status == "not found"
-        assert look.sighting.reason == "no measurement on /silent/point (none received within 0.3 s)"
+        assert look.sightings[0].status == "not found"
+        assert look.sightings[0].reason == "no measurement on /silent/point (none received within 0.3 s)"
         assert np.allclose(look.readings_rad, graph.watcher.positions([j.name for j in profile.joints]), atol=1e-4)
 
         node = graph.watcher.link.node
@@ -495,11 +495,11 @@ def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(
         def stale():  # published again each time round: a best-effort subscription may lose one
             publisher.publish(old)
             look = driver.look()
-            return look.sighting.reason.startswith("stale") and look
+            return look.sightings[0].reason.startswith("stale") and look
 
         look = wait_until(stale, "the old measurement judged stale")
-        assert look.sighting.status == "not found"
-        reason = look.sighting.reason
+        assert look.sightings[0].status == "not found"
+        reason = look.sightings[0].reason
         assert reason.startswith("stale measurement on /silent/point: the latest is stamped "), reason
         assert 9.5 < float(reason.split("stamped ")[1].split(" s ")[0]) < 60, reason  # 10 s and the time since
         node.destroy_publisher(publisher)
@@ -604,18 +604,18 @@ def test_a_stereo_head_without_a_matching_pair_gives_a_frame_not_found_with_the_
             state.header.stamp.sec, state.header.stamp.nanosec = int(t - 1), k
             driver._on_joints(state)
         left(image(t))
-        assert driver.look().sighting.reason == (
+        assert driver.look().sightings[0].reason == (
             "no measurement on /rn_unit/eye/right/image_rect (none received within 0.05 s)"
         )
         right(image(t + 0.033))  # the next frame of a 30 Hz camera: no exposure of both
-        assert driver.look().sighting.reason == (
+        assert driver.look().sightings[0].reason == (
             "no stereo pair on /rn_unit/eye/left/image_rect and /rn_unit/eye/right/image_rect: the left and right "
             "stamps differ by 0.033 s (more than stereo_sync_s 0.005 s)"
         )
         right(image(t + 0.001))  # within 5 ms of the left: one exposure
         left_info(CameraInfo(k=[500.0, 0, 320, 0, 500.0, 240, 0, 0, 1]))
         right_info(CameraInfo(p=[500.0, 0, 320, 0, 0, 500.0, 240, 0, 0, 0, 1, 0]))  # P[0,3] = 0: no baseline
-        assert driver.look().sighting.reason == (
+        assert driver.look().sightings[0].reason == (
             "/rn_unit/eye/left/image_rect and /rn_unit/eye/right/image_rect: /rn_unit/eye/right/camera_info: its P "
             "gives no baseline (P[0,3] = -fx * baseline, negative for a right camera)"
         )

@@ -27,7 +27,7 @@ RED, BLUE, GREEN = [255, 0, 0], [0, 0, 255], [0, 200, 0]
 @dataclass
 class Look:
     readings_rad: np.ndarray
-    sighting: Sighting
+    sightings: list[Sighting]
 
 
 def build(name: str, n: int, *, new: bool = True) -> Review:
@@ -178,8 +178,8 @@ def test_live_view_replaces_the_review_until_the_next_select(server: viser.Viser
     p = profile.true_params()
     q = robonaut.frame_geometry(2).joints_rad
     point_cm = np.array([[3.0, 60.0, -1.0]])  # a detection in the eye frame
-    sighting = Sighting(0, "measured", "ok", point_cm, np.full((1, 3), np.nan), np.array([-1]))
-    scene.show_live(profile, Look(q, sighting), p)
+    sighting = Sighting(0, 0, "measured", "ok", point_cm, np.full((1, 3), np.nan), np.array([-1]))
+    scene.show_live(profile, Look(q, [sighting]), p)
     state = scene.state()
     assert state["live"] and state["nodes"]["/live"]["shown"]
     assert not state["nodes"]["/review/old"]["shown"] and not state["nodes"]["/review/new"]["shown"]
@@ -218,9 +218,9 @@ def test_switching_robots_removes_everything_the_previous_one_showed(
     scene = ReviewScene(server, URDF_DIR / "robonaut-a.urdf")
     scene.load(robonaut)
     profile = robonaut.profile
-    sighting = Sighting(0, "measured", "ok", np.array([[3.0, 60.0, -1.0]]), np.full((1, 3), np.nan), np.array([-1]))
+    sighting = Sighting(0, 0, "measured", "ok", np.array([[3.0, 60.0, -1.0]]), np.full((1, 3), np.nan), np.array([-1]))
     scene.set_overlay(True)
-    scene.show_live(profile, Look(robonaut.frame_geometry(2).joints_rad, sighting), profile.true_params())
+    scene.show_live(profile, Look(robonaut.frame_geometry(2).joints_rad, [sighting]), profile.true_params())
     state = scene.state()
     assert set(state["urdf"]) == {"old", "ghost", "new", "live"}
     texts = {slot: scene._copies[slot].text for slot in state["urdf"]}

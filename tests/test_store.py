@@ -17,12 +17,13 @@ import pytest
 
 from app.errors import NotFound
 from app.importers import ensure_samples, import_csv, import_session_folder
-from app.store import INTERRUPTED, FrameInfo, Store
+from app.store import INTERRUPTED, FrameInfo, Observations, Store
 from app.store.files import SWEEP_AGE_S
 from calib_core import Calibration, InputError, calibrate, load_profile, parse_dataset, read_dataset, to_csv
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 SAMPLE_NAMES = ["robonaut-a-day1", "robonaut-a-day2", "nao"]
+ROBONAUT = load_profile("robonaut-a")
 
 
 @pytest.fixture(scope="module")
@@ -41,11 +42,17 @@ def sample_store(tmp_path_factory: pytest.TempPathFactory, samples: Path) -> Sto
     return store
 
 
+def _one(measured: np.ndarray) -> Observations:
+    """Robonaut's eye measuring its fixture: checked as a frame's observations."""
+    return Observations.of(ROBONAUT, 0, measured)
+
+
 def _files(root: Path) -> set[str]:
     return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and p.name != "store.sqlite-shm"}
 
 
 def _robonaut_frame(store: Store, sid: str, index: int | None, x_cm: float, **images: np.ndarray) -> int:
+    measured = np.array([[x_cm, 90.0, 5.0]])
     return store.sessions.add_frame(
         sid,
         index=index,
@@ -53,9 +60,7 @@ def _robonaut_frame(store: Store, sid: str, index: int | None, x_cm: float, **im
         target=0,
         status="measured",
         reason="ok",
-        measured=np.array([[x_cm, 90.0, 5.0]]),
-        points=np.full((1, 3), np.nan),
-        vertices=np.array([-1]),
+        observations=Observations.of(ROBONAUT, 0, measured, np.full((1, 3), np.nan), np.array([-1])),
         images=images or None,
         detail={"votes": np.int64(300), "fit_rms": np.float64(0.001), "center": np.array([0.1, 0.2, 0.9])},
     )
@@ -105,8 +110,7 @@ def test_a_bad_frame_is_refused_and_writes_nothing(tmp_path: Path) -> None:
     bad = [
         ({"joints_rad": np.zeros(9), "status": "not found"}, "10 joint readings"),
         ({"joints_rad": np.zeros(10), "status": "measured"}, "exactly when its status"),
-        ({"joints_rad": np.zeros(10), "status": "pending", "measured": np.ones((1, 3))}, "exactly when"),
-        ({"joints_rad": np.zeros(10), "status": "measured", "measured": np.ones((1, 2))}, "rows of 3 numbers"),
+        ({"joints_rad": np.zeros(10), "status": "pending", "observations": _one(np.ones((1, 3)))}, "exactly when"),
         ({"joints_rad": np.zeros(10), "status": "wobbly"}, "unknown frame status"),
         ({"joints_rad": np.zeros(10), "status": "pending", "images": {"../x": img["left"]}}, "image role"),
         ({"joints_rad": np.zeros(10), "status": "pending", "images": {"left": np.zeros((8, 8))}}, "uint8"),
@@ -114,6 +118,9 @@ def test_a_bad_frame_is_refused_and_writes_nothing(tmp_path: Path) -> None:
     for kwargs, message in bad:
         with pytest.raises(InputError, match=message):
             store.sessions.add_frame(sid, index=None, target=0, **kwargs)
+    for measured, message in ((np.ones((1, 2)), "rows of 3 numbers"), (np.full((1, 3), np.inf), "finite")):
+        with pytest.raises(InputError, match=message):
+            _one(measured)
     assert store.sessions.frames(sid) == [] and _files(tmp_path) == before
     with pytest.raises(NotFound):
         store.sessions.add_frame("s-nothere", index=None, joints_rad=np.zeros(10), target=0, status="pending")
@@ -220,15 +227,17 @@ KILLED_WRITER = """
 import sys, numpy as np
 from pathlib import Path
 from app.importers import import_csv
-from app.store import Store
+from app.store import Observations, Store
 store = Store(Path(sys.argv[1]))
+profile = store.sessions.profile("robonaut-a")
 csv_text = Path(sys.argv[2]).read_text()
 sid = store.sessions.create("robonaut-a", "killed", source="capture")
 print("ready", flush=True)
 for i in range(100000):
     img = np.full((120, 160, 3), i % 256, np.uint8)
+    obs = Observations.of(profile, 0, np.array([[float(i), 1.0, 2.0]]))
     store.sessions.add_frame(sid, index=None, joints_rad=np.zeros(10), target=0, status="measured",
-                    measured=np.array([[float(i), 1.0, 2.0]]), images={"left": img, "right": img[:, :, 0]})
+                    observations=obs, images={"left": img, "right": img[:, :, 0]})
     if i % 5 == 0:
         store.sessions.add_frame(sid, index=1, joints_rad=np.zeros(10), target=0, status="not found", reason=str(i),
                         images={"left": img})

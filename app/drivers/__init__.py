@@ -96,10 +96,19 @@ class RobotStatus:
 
 @dataclass
 class Look:
+    """What one look at the robot gave: its joint readings, the target it is pointed at (`set_target`), each
+    sensor's sighting of the same moment (the data format's sensor first; a sensor that sees several targets,
+    as the Motoman's cameras both arms' markers, gives one per target) and the images they came from (by role)."""
+
     readings_rad: np.ndarray
     target: int
-    sighting: Sighting
+    sightings: list[Sighting]
     images: dict[str, np.ndarray]
+
+    @property
+    def measured(self) -> bool:
+        """Whether any sensor measured something."""
+        return any(s.measured is not None for s in self.sightings)
 
 
 class RobotDriver(Protocol):
@@ -114,8 +123,8 @@ class RobotDriver(Protocol):
         ...
 
     def look(self, believed: np.ndarray | None = None) -> Look:
-        """The images now and the detector's Sighting, seeded by the active calibration (or `believed`); a
-        sensor without images (a tracker) gives its reading and no images."""
+        """The images now and every sensor's Sighting, the detectors seeded by the active calibration (or
+        `believed`); a sensor without images (a tracker) gives its reading and no images."""
         ...
 
     def check(self, q_rad: np.ndarray) -> None:

@@ -312,7 +312,7 @@ class Ros2Driver:
                     f"stale measurement on {topic}: the latest is stamped {since - stamp:.3f} s before the settled "
                     f"joint states (none newer within {wait_s:g} s)"
                 )
-            return Look(q, target, _not_found(self.profile, target, reason), {})
+            return Look(q, target, [_not_found(self.profile, target, reason)], {})
         if m.kind == "stereo":
             return self._look_stereo(q, p, value, info, right_info, m)
         if sensor.reading == "image":
@@ -321,22 +321,25 @@ class Ros2Driver:
         fixed = self.profile.targets[target].points
         points = np.full((1, 3), np.nan) if fixed is None else fixed[[0]]
         detail = {"sensor": topic, "stamp_after_settled_s": round(stamp - since, 4)}
-        return Look(q, target, Sighting(target, "measured", "ok", measured, points, np.array([-1]), detail), {})
+        sighting = Sighting(
+            self.profile.data.sensor, target, "measured", "ok", measured, points, np.array([-1]), detail
+        )
+        return Look(q, target, [sighting], {})
 
     def _look_image(self, q: np.ndarray, target: int, p: np.ndarray, msg: Any, info: Any, topic: str) -> Look:
         """Run the board detector on a camera image, with the intrinsics of its CameraInfo."""
         sensor = self.profile.sensors[self.profile.data.sensor]
         if info is None:
-            return Look(q, target, _not_found(self.profile, target, f"no CameraInfo for {topic} yet"), {})
+            return Look(q, target, [_not_found(self.profile, target, f"no CameraInfo for {topic} yet")], {})
         try:
             image = _image_array(msg)
         except ValueError as exc:
-            return Look(q, target, _not_found(self.profile, target, f"{topic}: {exc}"), {})
+            return Look(q, target, [_not_found(self.profile, target, f"{topic}: {exc}")], {})
         if sensor.intrinsics is not None:
             k = info.k
             p[list(sensor.intrinsics)] = [k[0], k[4], k[2], k[5]]
         sighting = sight_board(self.profile, p, q, target, image)
-        return Look(q, target, sighting, {"image": image})
+        return Look(q, target, [sighting], {"image": image})
 
     def _look_stereo(self, q: np.ndarray, p: np.ndarray, pair: Any, left_info: Any, right_info: Any, m: Any) -> Look:
         """Stereo matching and the BallFinder on a rectified pair, seeded by the believed kinematics; the
@@ -345,7 +348,7 @@ class Ros2Driver:
         sensor = self.profile.sensors[self.profile.data.sensor]
         if left_info is None or right_info is None:
             return Look(
-                q, target, _not_found(self.profile, target, f"no CameraInfo for {m.topic} and {m.right} yet"), {}
+                q, target, [_not_found(self.profile, target, f"no CameraInfo for {m.topic} and {m.right} yet")], {}
             )
         try:
             left, right = (_image_array(msg) for msg in pair)
@@ -354,12 +357,12 @@ class Ros2Driver:
                 raise ValueError(f"the left image is {sizes[0]}, the right one {sizes[1]}")
             head = _stereo_head(self.profile, sensor.name, left_info, right_info, left.shape, m.right_info)
         except ValueError as exc:
-            return Look(q, target, _not_found(self.profile, target, f"{m.topic} and {m.right}: {exc}"), {})
+            return Look(q, target, [_not_found(self.profile, target, f"{m.topic} and {m.right}: {exc}")], {})
         if sensor.intrinsics is not None:
             p[list(sensor.intrinsics)] = [head.fx_px, head.fy_px, head.cx_px, head.cy_px]
         depth_m = depth_from_pair(left, right, head)
         sighting = sight_fixture(self.profile, p, q, depth_m, head)
-        return Look(q, target, sighting, {"left": left, "right": right})
+        return Look(q, target, [sighting], {"left": left, "right": right})
 
     # --- calibration ----------------------------------------------------------------------------------
     def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None:
@@ -524,7 +527,8 @@ def _first_target(profile: Profile) -> int:
 
 
 def _not_found(profile: Profile, target: int, reason: str) -> Sighting:
-    return Sighting(target, "not found", reason, None, np.zeros((0, 3)), np.zeros(0, int), {"reason": reason})
+    sensor = profile.data.sensor
+    return Sighting(sensor, target, "not found", reason, None, np.zeros((0, 3)), np.zeros(0, int), {"reason": reason})
 
 
 def _stamp_s(stamp: Any) -> float:

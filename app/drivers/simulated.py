@@ -20,7 +20,6 @@ from calib_core.errors import InputError
 from calib_core.model.profile import Profile, Sensor
 from calib_core.sim.simulator import SimulatedRobot
 from calib_core.vision.sampling import Sampler
-from calib_core.vision.sighting import Sighting
 from calib_core.vision.visibility import Visibility
 
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, Look, RobotFault, RobotStatus, check_limits
@@ -70,6 +69,17 @@ def reads_points(sensor: Sensor) -> bool:
     return sensor.reading == "direct" and sensor.dim == 3
 
 
+def also_read(profile: Profile) -> list[int]:
+    """The sensors besides the data format's that each look reads too, directly from the truth with the profile's
+    noise (`SimulatedRobot.read`): those that report points or take images (the Motoman's two cameras, which have
+    no image size to render). A plane measures only what touches it: it is never read here."""
+    return [
+        s
+        for s, sensor in enumerate(profile.sensors)
+        if s != profile.data.sensor and (reads_points(sensor) or sensor.reading != "direct")
+    ]
+
+
 def readable_targets(profile: Profile) -> list[int]:
     """The targets a point-reading sensor can be pointed at: those its data format names (the Motoman's
     reflector on either arm, its `reflector_arm` column), else every single-point target."""
@@ -102,11 +112,12 @@ class SimulatedDriver:
     Its true parameters are hidden (the profile's simulation truth; `day` > 1 drifts the joint offsets as
     `calib simulate --day` does, so seed 1 day 2 is the robot of the sample session robonaut-a-day2). A motion
     thread moves the true joint angles at rate_hz; `time_scale` speeds the robot's clock (moves, pauses and
-    settling) for tests and demos. `look()` renders what the sensor sees at the true pose and runs the
-    detector seeded by the calibration the robot was given, so a better calibration finds the fixture better;
-    a sensor without images (a laser tracker, `reads_points`) is read directly: the true position of the
+    settling) for tests and demos. `look()` renders what the data format's sensor sees at the true pose and
+    runs the detector seeded by the calibration the robot was given, so a better calibration finds the fixture
+    better; a sensor without images (a laser tracker, `reads_points`) is read directly: the true position of the
     target it is pointed at (`set_target`: the Motoman's reflector on the right or the left arm), with the
-    profile's `simulation.noise.point`.
+    profile's `simulation.noise.point`. The other sensors (`also_read`) read, in the same look, every target
+    other than the data format's that they see a point of (the Motoman's cameras: both arms' marker faces).
     """
 
     def __init__(
@@ -133,6 +144,9 @@ class SimulatedDriver:
         robot = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)
         self._sim = robot  # renders and detects, or reads a tracker (its rng is guarded by _render_lock)
         self._reads = reads_points(profile.sensors[profile.data.sensor])
+        self._also = also_read(profile)
+        data_targets = set(profile.data.target_values.values()) | {profile.data.target}
+        self._other_targets = np.array([t for t in range(len(profile.targets)) if t not in data_targets], int)
         self._planner = Sampler(Visibility(profile, robot.true_params), np.random.default_rng(seed + 1))
         self._seed = seed
         self._velocity = np.array([j.velocity for j in profile.joints])
@@ -232,17 +246,22 @@ class SimulatedDriver:
             p = (self._believed if believed is None else np.asarray(believed, float)).copy()
         with self._render_lock:
             if self._reads:
-                return self._read(q, target)
-            cap = self._sim.capture(0, q, target, p)
-        return Look(cap.readings, target, cap.sighting, cap.images)
+                first, images = self._sim.read(q, target, self.profile.data.sensor), {}
+            else:
+                cap = self._sim.capture(0, q, target, p)
+                first, images = cap.sighting, cap.images
+            others = [self._sim.read(q, t, s) for s in self._also for t in self._seen_by(q, s)]
+        return Look(self._sim.readings(q), target, [first, *others], images)
 
-    def _read(self, q: np.ndarray, target: int) -> Look:
-        """A tracker's reading of the target at true joint angles q (render lock held): no image, no detector."""
-        d = self._sim.measure(q[None], np.array([target])).data
-        fixed = self.profile.targets[target].points  # a reflector: its frame's origin, as a CSV row's point
-        points = d.point if fixed is None else fixed[np.maximum(d.vertex, 0)]
-        sighting = Sighting(target, "measured", "ok", d.measured, points, d.vertex, {"sensor": "read directly"})
-        return Look(d.joints[0], target, sighting, {})
+    def _seen_by(self, q: np.ndarray, sensor: int) -> list[int]:
+        """The targets besides the data format's of which `sensor` sees a point at true joint angles q."""
+        targets = self._other_targets
+        if not len(targets):
+            return []
+        seen = Visibility(self.profile, self._sim.true_params).points(
+            np.repeat(q[None], len(targets), 0), targets, sensor
+        )
+        return [int(t) for t in targets[seen.any(axis=1)]]
 
     def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None:
         p = self.profile.nominal() if params is None else np.asarray(params, float).copy()

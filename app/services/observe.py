@@ -18,7 +18,7 @@ import numpy as np
 from calib_core import Profile
 from calib_core.estimation.registration import register, registration_params
 
-from ..capture import AutoCapture
+from ..capture import AutoCapture, look_outcome
 from ..drivers import Look, RobotDriver
 from ..robots import Robots
 from ..scene import LookLike
@@ -98,13 +98,18 @@ class Observer:
         if look is None:
             look = self.driver.look()
         self._seen = look
-        self._last["detection"] = look.sighting.status
-        self._last["reason"] = look.sighting.reason
+        profile = self.driver.profile
+        detection, reason = look_outcome(profile, look)
         p, registered = self._live_params()
         if not registered:  # where the tracker stands is unknown: its reading has no place in the scene yet
-            look = Look(look.readings_rad, look.target, replace(look.sighting, measured=None), look.images)
-            self._last["reason"] = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
-        self.live.show_live(self.driver.profile, look, p)
+            unplaced = [
+                replace(s, measured=None) if registration_params(profile, [s.sensor]) else s for s in look.sightings
+            ]
+            look = Look(look.readings_rad, look.target, unplaced, look.images)
+            reason = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
+        self.live.show_live(profile, look, p)
+        # Said once the scene shows it: whoever reads the detection finds the look in the scene.
+        self._last["detection"], self._last["reason"] = detection, reason
 
     def _show_moving(self) -> None:
         """The robot at its readings now, with the prediction of the target last looked at and nothing
@@ -113,9 +118,9 @@ class Observer:
         seen = self._seen
         if seen is None or seen.target != st.target:
             seen = self._seen = self.driver.look()
-        sighting = replace(seen.sighting, status="moving", reason="moving", measured=None)
+        sightings = [replace(s, status="moving", reason="moving", measured=None) for s in seen.sightings]
         p, _ = self._live_params()
-        self.live.show_live(self.driver.profile, Look(st.joints_rad, st.target, sighting, {}), p)
+        self.live.show_live(self.driver.profile, Look(st.joints_rad, st.target, sightings, {}), p)
 
     def _live_params(self) -> tuple[np.ndarray, bool]:
         """The active calibration, seeing an external tracker (if any) through a registration fitted on this

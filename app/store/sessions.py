@@ -74,6 +74,48 @@ class Observations:
     sensor: np.ndarray  # (K,) the sensor of each (its index in the profile)
 
     @classmethod
+    def of(
+        cls,
+        profile: Profile,
+        target: int,
+        measured: np.ndarray,
+        points: np.ndarray | None = None,
+        vertices: np.ndarray | None = None,
+        sensor: int | None = None,
+    ) -> Observations:
+        """One sensor's measurements (default: the data format's) of one target, checked: rows of the sensor's
+        measurement size, finite (InputError otherwise). `points` NaN and `vertices` -1 by default."""
+        s = profile.data.sensor if sensor is None else sensor
+        if not 0 <= s < len(profile.sensors):
+            raise InputError(f"sensor {s} is not one of the {len(profile.sensors)} sensors of {profile.name}")
+        dim = profile.sensors[s].dim
+        m = np.asarray(measured, dtype=float)
+        if m.ndim != 2 or m.shape[1] != dim:
+            raise InputError(f"{profile.name} measurements are rows of {dim} numbers, not shape {m.shape}")
+        if not np.all(np.isfinite(m)):
+            raise InputError("measurements must be finite numbers")
+        k = len(m)
+        p = np.full((k, 3), np.nan) if points is None else np.asarray(points, dtype=float).reshape(k, 3)
+        v = np.full(k, -1) if vertices is None else np.asarray(vertices, dtype=int).reshape(k)
+        return cls(np.full(k, target), v, p, m, np.full(k, s))
+
+    @classmethod
+    def joined(cls, parts: list[Observations]) -> Observations:
+        """Several sensors' observations of one frame as one, rows in order; measurements NaN-padded to the
+        widest."""
+        width = max(o.measured.shape[1] for o in parts)
+        measured = [
+            np.pad(o.measured, ((0, 0), (0, width - o.measured.shape[1])), constant_values=np.nan) for o in parts
+        ]
+        return cls(
+            np.concatenate([o.target for o in parts]),
+            np.concatenate([o.vertex for o in parts]),
+            np.concatenate([o.point for o in parts]),
+            np.concatenate(measured),
+            np.concatenate([o.sensor for o in parts]),
+        )
+
+    @classmethod
     def each(cls, data: Dataset) -> list[Observations]:
         """The observations of each configuration of a dataset, in its order (one pass, not one per
         configuration)."""
@@ -204,14 +246,12 @@ class SessionRepository:
         target: int,
         status: str,
         reason: str = "",
-        measured: np.ndarray | None = None,
-        points: np.ndarray | None = None,
-        vertices: np.ndarray | None = None,
+        observations: Observations | None = None,
         images: dict[str, np.ndarray] | None = None,
         detail: dict | None = None,
-        sensor: int | None = None,
     ) -> int:
-        """Store a frame and its observations; an existing frame with that index is replaced whole.
+        """Store a frame and its observations (`Observations.of`: one sensor's, checked; `Observations.joined`:
+        several sensors'); an existing frame with that index is replaced whole.
 
         index None takes the next free number. Images (role -> uint8 grey or BGR) are encoded outside
         the lock and written under names no row uses yet, so a re-measure never touches the old frame's
@@ -222,9 +262,7 @@ class SessionRepository:
         target = check_target(profile, target)
         if status not in FRAME_STATUSES:
             raise InputError(f"unknown frame status '{status}' ({', '.join(FRAME_STATUSES)})")
-        obs = None
-        if measured is not None:
-            obs = observations(profile, target, measured, points, vertices, sensor)
+        obs = observations
         if (status == "measured") != (obs is not None and len(obs.measured) > 0):
             raise InputError("a frame has measurements exactly when its status is 'measured'")
         encoded = {check_role(role): encode_jpeg(img) for role, img in (images or {}).items()}
@@ -367,31 +405,6 @@ class SessionRepository:
         while rel in taken or (self.data_dir / rel).exists():
             rel = f"sessions/{session_id}/images/{index:04d}_{role}_{secrets.token_hex(3)}.jpg"
         return rel
-
-
-def observations(
-    profile: Profile,
-    target: int,
-    measured: np.ndarray,
-    points: np.ndarray | None,
-    vertices: np.ndarray | None,
-    sensor: int | None = None,
-) -> Observations:
-    """A frame's measurements by one sensor (default: the data format's), rows of its measurement size,
-    as Observations of one target."""
-    s = profile.data.sensor if sensor is None else sensor
-    if not 0 <= s < len(profile.sensors):
-        raise InputError(f"sensor {s} is not one of the {len(profile.sensors)} sensors of {profile.name}")
-    dim = profile.sensors[s].dim
-    m = np.asarray(measured, dtype=float)
-    if m.ndim != 2 or m.shape[1] != dim:
-        raise InputError(f"{profile.name} measurements are rows of {dim} numbers, not shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise InputError("measurements must be finite numbers")
-    k = len(m)
-    p = np.full((k, 3), np.nan) if points is None else np.asarray(points, dtype=float).reshape(k, 3)
-    v = np.full(k, -1) if vertices is None else np.asarray(vertices, dtype=int).reshape(k)
-    return Observations(np.full(k, target), v, p, m, np.full(k, s))
 
 
 def _insert_session(

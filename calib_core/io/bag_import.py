@@ -415,7 +415,7 @@ def _sight(
         grid = profile.targets[t].grid
         points = grid if grid is not None else np.full((1, 3), np.nan)
         vertices = np.arange(len(points)) if grid is not None else np.array([-1])
-        return Sighting(t, "not found", "no board predicted in view", None, points, vertices, {})
+        return Sighting(profile.data.sensor, t, "not found", "no board predicted in view", None, points, vertices, {})
     sighting = None
     for t in candidates:
         sighting = sight_board(profile, believed, q, t, images["image"])
@@ -585,7 +585,9 @@ def import_bag(
         q = period.joints_rad
         if problem:
             t = profile.data.target if profile.data.target is not None else 0
-            sighting = Sighting(t, "not found", problem, None, np.full((1, 3), np.nan), np.array([-1]), {})
+            sighting = Sighting(
+                profile.data.sensor, t, "not found", problem, None, np.full((1, 3), np.nan), np.array([-1]), {}
+            )
         else:
             sighting = _sight(profile, believed, q, frame_images, head)
         captures.append(Capture(frame, q, sighting, frame_images))

@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dataset import Dataset
-from ..model.kinematics import sensor_points
+from ..model.kinematics import sensor_points, target_points
 from ..model.profile import Profile
 from ..vision.sampling import Sampler
 from ..vision.sandal_board import render_board_image
-from ..vision.sighting import Capture, dataset_from_captures, sight_board, sight_fixture
+from ..vision.sighting import Capture, Sighting, dataset_from_captures, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair, render_pair
 from ..vision.visibility import MIN_SPHERE_SHARE, VIEW_MARGIN_PX, Visibility
 from .contact import contacts
@@ -116,9 +116,13 @@ class SimulatedRobot:
         return robot
 
     # --- configurations ---------------------------------------------------------------------------
+    def _view(self) -> Visibility:
+        """What the true robot shows its sensors (margin px clear of the border)."""
+        return Visibility(self.profile, self.true_params, self.margin, self.sphere_share)
+
     def _sampler(self) -> Sampler:
-        """Draws configurations the true robot shows (margin px clear of the border), from this robot's stream."""
-        return Sampler(Visibility(self.profile, self.true_params, self.margin, self.sphere_share), self.rng)
+        """Draws configurations the true robot shows, from this robot's stream."""
+        return Sampler(self._view(), self.rng)
 
     def configurations(
         self, n: int | None = None, *, should_stop: Callable[[], bool] | None = None
@@ -215,6 +219,28 @@ class SimulatedRobot:
             sighting = sight_board(prof, believed, readings, target, board.image)
             return Capture(frame, readings, sighting, {"image": board.image})
         raise ValueError(f"sensor '{sensor.name}' reads its measurements directly: there is no image to render")
+
+    def read(self, q: np.ndarray, target: int, sensor: int) -> Sighting:
+        """What a sensor reads of a target directly, without images, at true joint angles q (one row, rad): the
+        points of the target it sees (Visibility), each with its noise (`Sensor.simulate`: a tracker's
+        `noise.point`, a camera's `noise.pixel`); "not found" when it sees none of them."""
+        prof, p = self.profile, self.true_params
+        t = prof.targets[target]
+        local = target_points(prof, p, target)
+        K = len(local)
+        if t.point_params is not None:  # a calibrated point: no fixed coordinates, no vertex
+            points, vertices = np.full((1, 3), np.nan), np.array([-1])
+        else:
+            points, vertices = local, (np.array([-1]) if K == 1 else np.arange(K))
+        seen = self._view().points(q[None], np.array([target]), sensor)[0, :K]
+        detail = {"sensor": "read directly"}
+        if not seen.any():
+            reason = f"{t.name} is not in view of {prof.sensors[sensor].name}"
+            return Sighting(sensor, target, "not found", reason, None, points, vertices, detail)
+        x = sensor_points(prof, p, q[None], np.array([target]), sensor=sensor)[0, :K]
+        noise = {"pixel": self.pixel_noise, "disparity": self.disparity_noise, "point": self.point_noise}
+        measured = prof.sensors[sensor].simulate(p, x[seen], self.rng, noise)
+        return Sighting(sensor, target, "measured", "ok", measured, points[seen], vertices[seen], detail)
 
     def simulate_images(self, n: int | None = None, believed: np.ndarray | None = None) -> ImageSimulation:
         """Random visible configurations, seen through rendered images and the detectors.

@@ -24,8 +24,9 @@ from .stereo import StereoHead
 
 @dataclass
 class Sighting:
-    """What one look at a target gave: measured rows, or why there are none."""
+    """What one sensor's look at a target gave: measured rows, or why there are none."""
 
+    sensor: int  # the sensor that looked (its index in the profile)
     target: int
     status: str  # "measured" or "not found"
     reason: str
@@ -65,14 +66,15 @@ def sight_fixture(
     detail = found.to_json()
     points = np.full((1, 3), np.nan)
     if not found.found or found.center_m is None:
-        return Sighting(target, "not found", found.reason, None, points, np.array([-1]), detail)
+        return Sighting(profile.data.sensor, target, "not found", found.reason, None, points, np.array([-1]), detail)
     measured = (head.R_frame_optical @ found.center_m) / to_m
-    return Sighting(target, "measured", "ok", measured[None], points, np.array([-1]), detail)
+    return Sighting(profile.data.sensor, target, "measured", "ok", measured[None], points, np.array([-1]), detail)
 
 
 def sight_board(profile: Profile, p_believed: np.ndarray, q: np.ndarray, target: int, image: np.ndarray) -> Sighting:
     """The sandal board detector, its vertex identities taken from the believed kinematics."""
-    sensor = profile.sensors[profile.data.sensor]
+    s = profile.data.sensor
+    sensor = profile.sensors[s]
     board = profile.targets[target]
     assert board.grid is not None and board.grid_shape is not None
     rows, cols = board.grid_shape
@@ -81,8 +83,8 @@ def sight_board(profile: Profile, p_believed: np.ndarray, q: np.ndarray, target:
     vertices = np.arange(rows * cols)
     detail = {"found": found.found, "reason": found.reason, "residual_px": found.residual_px}
     if not found.found or found.corners is None:
-        return Sighting(target, "not found", found.reason, None, board.grid, vertices, detail)
-    return Sighting(target, "measured", "ok", np.asarray(found.corners, float), board.grid, vertices, detail)
+        return Sighting(s, target, "not found", found.reason, None, board.grid, vertices, detail)
+    return Sighting(s, target, "measured", "ok", np.asarray(found.corners, float), board.grid, vertices, detail)
 
 
 def dataset_from_captures(profile: Profile, captures: list[Capture], source: str) -> Dataset:
@@ -101,6 +103,6 @@ def dataset_from_captures(profile: Profile, captures: list[Capture], source: str
         point=np.concatenate([c.sighting.points for c in got]),
         vertex=np.concatenate([c.sighting.vertices for c in got]),
         measured=np.concatenate([c.sighting.measured for c in got]),  # type: ignore[misc]
-        sensor=np.full(sum(counts), profile.data.sensor),
+        sensor=np.repeat([c.sighting.sensor for c in got], counts),
         source=source,
     )
