@@ -512,7 +512,8 @@ def _perfect_simulation(profile: Profile, day: int, *, images: bool) -> dict[str
         notes["the nominal robot itself"] = (
             f"robot '{profile.name}' has no simulation.truth: the simulated robot is the nominal model itself, "
             f"so a calibration of these data finds nothing to correct; {add} `simulation: {{truth: {{PARAMETER: "
-            "VALUE, ...}}` (a hidden robot with errors, in the profile's units; docs/urdf-robots.md)"
+            "VALUE, ...}}` (the hidden robot's parameter values, nominal plus error, in the profile's units; "
+            "docs/urdf-robots.md)"
         )
     if not images and not any(float(v) > 0 for v in (sim.get("noise") or {}).values()):
         notes["no measurement noise"] = (

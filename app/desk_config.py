@@ -20,10 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from calib_core import InputError
 from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.safe_yaml import read_yaml
 
 from .drivers import registry
 from .drivers.registry import DriverSpec
@@ -66,27 +65,11 @@ def default_config() -> DeskConfig:
     return DeskConfig(tuple(robots))
 
 
-def read_yaml(path: Path, what: str) -> Any:
-    """A YAML file's document; InputError naming the file (and the line of a syntax error). `what`: the
-    file's kind, for the messages ("desk configuration")."""
-    where = str(path)
-    try:
-        return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{what} file does not exist", file=where) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read the {what} ({exc.__class__.__name__})", file=where) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        raise InputError(f"not valid YAML ({getattr(exc, 'problem', exc)})", file=where, line=line) from None
-
-
 def load_desk_config(path: Path) -> DeskConfig:
     """Read and check a desk configuration file (every profile loaded, every driver's options checked)."""
     path = Path(path)
     where = str(path)
-    doc = read_yaml(path, "desk configuration")
+    doc = read_yaml(path, "desk configuration file")
     if not isinstance(doc, dict):
         raise InputError("a desk configuration is a YAML mapping with a list of robots", file=where)
     unknown = sorted(set(doc) - {"robots", "connected"})

@@ -22,7 +22,7 @@ from calib_core.io.csv_format import readings_beyond_limits
 from calib_core.io.session import read_session, session_robot
 
 from .store import NewFrame, Observations, Store
-from .store.db import now
+from .store.db import StoreWriteError, now, writing
 from .store.files import fsync_dir, write_bytes
 from .store.sessions import FRAME_STATUSES
 from .validation import check_role
@@ -132,19 +132,26 @@ def ensure_samples(store: Store, folder: Path, robots: Collection[str] | None = 
 
     Runs once per store: a sample the operator deleted does not come back. A sample that cannot
     be read, or of a robot not on the desk, is logged and skipped, so a bad sample never stops the
-    server. Returns the new ids.
+    server. One the data directory had no room for (disk full, read-only) is tried again at the next
+    start: the samples count as done only once none was refused for want of room. Returns the new ids.
     """
     if store.db.meta("samples") is not None or not Path(folder).is_dir():
         return []
     imported = []
+    retry = False
     for sub in sorted(Path(folder).iterdir()):
         if not (sub / "session.json").is_file() or store.sessions.exists(sub.name):
             continue
         try:
-            imported.append(import_session_folder(store, sub, sub.name, source="sample", robots=robots))
+            with writing():
+                imported.append(import_session_folder(store, sub, sub.name, source="sample", robots=robots))
+        except StoreWriteError as exc:
+            retry = True
+            log.warning("sample session %s not imported, tried again at the next start: %s", sub.name, exc)
         except (InputError, OSError) as exc:
             log.warning("sample session %s not imported: %s", sub.name, exc)
-    store.db.set_meta("samples", now())
+    if not retry:
+        store.db.set_meta("samples", now())
     return imported
 
 

@@ -7,7 +7,7 @@ only its own pool, which fails only its own job and is then rebuilt. Workers sen
 through a queue of a spawned multiprocessing Manager (a killed client cannot corrupt it) and read
 their cancel flag from the same Manager; a thread in the server turns the messages into the job's
 snapshot and kills a worker that overruns its time limit or ignores a cancel. Workers and the Manager
-end by themselves when the server dies without cleaning up (SIGKILL): `watch_parent`.
+end by themselves when the server dies without cleaning up (SIGKILL): app/parent_watch.py.
 
 A job's snapshot is what the API shows: {"id", "kind", "state", "progress", "result", "error",
 "session", "created", "updated", "detail", "cost", "version", "paused"}. `version` grows on every
@@ -16,6 +16,7 @@ change (wait_version serves server-sent events); the store keeps the snapshot on
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import math
@@ -43,6 +44,7 @@ from calib_core.estimation.solver import Cancelled
 
 from .errors import NotFound
 from .limits import DEFAULT_MAX_ROWS
+from .parent_watch import light_main, watch_parent
 from .store import StoreWriteError
 from .store.db import jsonable
 
@@ -56,7 +58,6 @@ FINISHED = ("done", "failed", "cancelled")
 MAX_HOLDOUT = 0.9
 PROGRESS_CAP = 0.95  # a solve's end is unknown until it comes: the estimate stays below 1 until then
 CANCEL_POLL_S = 0.05  # how often a worker asks the Manager whether it was cancelled
-PARENT_POLL_S = 0.2  # how often a worker or the Manager looks whether the server still runs
 CRASHED = "the calibration worker process stopped unexpectedly (crashed or killed); the worker was restarted"
 
 
@@ -118,21 +119,6 @@ def calibration_worker(payload: dict, link: WorkerLink) -> dict:
     )
     cal.source = payload["session"]
     return cal.to_dict()
-
-
-def watch_parent(parent_pid: int) -> None:
-    """Runs first in every worker and in the Manager process: ends this process as soon as the server that
-    started it is gone. A server killed with SIGKILL cleans nothing up, and neither child would notice by
-    itself (a worker waits on a task queue whose write end it holds too; the Manager waits for clients).
-    A thread polls the parent pid rather than PR_SET_PDEATHSIG, which fires when the *thread* that started
-    the child ends (the pool starts workers from whichever thread submits)."""
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(PARENT_POLL_S)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="watch-server", daemon=True).start()
 
 
 def warm_up() -> int:
@@ -218,10 +204,12 @@ class JobManager:
         self._submitting = threading.Lock()  # a calibration request: checked against the live jobs, then queued
         self._save_lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
+        self._watchers: set[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = set()  # streams waiting (next_version)
         self._jobs: dict[str, _Job] = {}
         self._pending: deque[str] = deque()
         self._closed = False
         self._ctx = multiprocessing.get_context("spawn")
+        light_main()
         self._mp = SyncManager(ctx=self._ctx)
         self._mp.start(watch_parent, (os.getpid(),))
         self._messages = self._mp.Queue()
@@ -462,6 +450,29 @@ class JobManager:
                 return _copy(job.snap)
         return self.store.jobs.get(job_id)
 
+    async def next_version(self, job_id: str, version: int, timeout_s: float) -> dict | None:
+        """wait_version on the event loop: a server-sent event stream waits holding no thread, so open streams
+        cannot starve the requests that need one. None for a job no longer in memory (read it from the store)."""
+        loop = asyncio.get_running_loop()
+        watcher = (loop, asyncio.Event())
+        deadline = loop.time() + timeout_s
+        with self._lock:
+            self._watchers.add(watcher)
+        try:
+            while True:
+                watcher[1].clear()  # before the check: a change after it sets the event again
+                with self._lock:
+                    job = self._jobs.get(job_id)
+                    if job is None:
+                        return None
+                    if job.snap["version"] > version or loop.time() >= deadline:
+                        return _copy(job.snap)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(watcher[1].wait(), deadline - loop.time())
+        finally:
+            with self._lock:
+                self._watchers.discard(watcher)
+
     def worker_pid(self, job_id: str) -> int | None:
         """The process a running calibration job runs in (None before it starts)."""
         return self._job(job_id).pid
@@ -555,6 +566,8 @@ class JobManager:
         job.snap["version"] += 1
         job.snap["updated"] = _now()
         self._changed.notify_all()
+        for loop, event in self._watchers:
+            loop.call_soon_threadsafe(event.set)
 
     def _start(self, job: _Job) -> None:
         with self._changed:

@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 MAX_FACES = 100_000  # triangles per robot, over all its visuals (each copy in each browser holds them)
 MAX_MESH_BYTES = 64 * 1024 * 1024  # a mesh file above this is not read (named in the warning)
 MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".glb", ".gltf")
-PACKAGE_ROOT = ".uploaded-description"  # marks the folder of a robot kept with its uploaded meshes (mesh_file)
+PACKAGE_ROOT = ".uploaded-description"  # marks the folder of a robot the desk keeps: its meshes are there (mesh_file)
 CYLINDER_SECTIONS = 24
 DEFAULT_RGBA = (0.72, 0.74, 0.78, 1.0)  # a visual without a colour of its own (the built-in bodies' grey)
 SHOWN_PROBLEMS = 3  # visuals the warning names (the log names every one)
@@ -225,7 +225,7 @@ def mesh_file(given: str, folder: Path) -> Path | None:
     and, for a description copied without its workspace, in the URDF's folder and every folder above it (as
     REST, and as PKG/REST); `file://PATH` and a plain path are relative to the URDF's folder.
 
-    A URDF kept by the desk with its uploaded meshes (below a folder holding PACKAGE_ROOT: app/store/robots.py)
+    A URDF kept by the desk, with its uploaded meshes or none (below a folder holding PACKAGE_ROOT: app/store/robots.py)
     finds them in that folder only: `package://` neither in the ROS paths nor above it, and a path that leads
     out of it (`../..`, an absolute one) finds nothing."""
     root = next((d for d in (folder, *folder.parents) if (d / PACKAGE_ROOT).is_file()), None)

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from calib_core import InputError, Profile
+from calib_core.files import read_regular_file
+from calib_core.safe_yaml import MAX_YAML_BYTES, load_yaml
 
 from .desk_config import DeskConfig
 from .drivers import RobotDriver
@@ -210,26 +211,13 @@ class Robots:
 def read_profile_files(path: Path, max_mesh_bytes: int) -> ProfileFiles:
     """A profile file on this machine, the URDF it names (relative to it) and that URDF's meshes (at most
     `max_mesh_bytes` together: app/profile_meshes.py), for the store to keep."""
-    try:
-        text = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError("robot profile file does not exist", file=str(path)) from None
-    except OSError as exc:
-        raise InputError(f"cannot read robot profile ({exc.__class__.__name__})", file=str(path)) from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError:
-        doc = None  # the loader names the line
+    text = read_regular_file(path, MAX_YAML_BYTES, "robot profile file")
+    doc = load_yaml(text, str(path))
     ref = doc.get("urdf") if isinstance(doc, dict) else None
     urdf = meshes = None
     if isinstance(ref, str) and ref.strip():
         urdf_file = path.parent / ref
-        try:
-            urdf = (file_name(urdf_file.name, "robot.urdf"), urdf_file.read_bytes())
-        except FileNotFoundError:
-            raise InputError(f"urdf: {ref} does not exist", file=str(path)) from None
-        except OSError as exc:
-            raise InputError(f"urdf: cannot read {ref} ({exc.__class__.__name__})", file=str(path)) from None
+        urdf = (file_name(urdf_file.name, "robot.urdf"), read_regular_file(urdf_file, max_mesh_bytes, f"URDF {ref}"))
         meshes = gather_meshes(urdf_file, path.parent, kept_urdf_path(ref, urdf[0]), max_mesh_bytes)
     return ProfileFiles(file_name(path.name, "profile.yaml"), text, urdf, meshes)
 

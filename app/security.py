@@ -20,6 +20,10 @@ error texts without paths, and the viser server's share tunnel closed.
   loopback, `calib serve` also answers only to loopback host names (a DNS-rebinding page's Host is its
   own name), the websocket included. A refused websocket gets the HTTP answer instead of the upgrade (or,
   where the server cannot send one, a close with code 1008, policy violation).
+- No page of another site may frame the desk's page or its API (X-Frame-Options and the CSP's
+  frame-ancestors: a click in an invisible frame could start a motion); the scene may be framed by the
+  desk's own page only. Off loopback the OpenAPI document and its page (/openapi.json, /docs) need the token
+  too (the page, opened by address, may carry it as `?token=`).
 - Request bodies are capped before they are read: an upload (a CSV to import, a robot's profile with its
   URDF) at MAX_UPLOAD_BYTES plus the form's overhead, anything else at MAX_BODY_BYTES; a declared
   Content-Length above the cap is refused at once, and a body streamed without one is cut off when it
@@ -49,12 +53,17 @@ TOKEN_FILE = "access-token.json"
 TOKEN_FORMAT = "calib-access-token/1"
 READ_COOKIE = "calib_read"
 OPEN_PATHS = frozenset({"/api/health"})
-GUARDED_PREFIXES = ("/api", "/scene")
+GUARDED_PREFIXES = ("/api", "/scene", "/docs", "/openapi.json")
+PAGES_WITH_TOKEN = ("/scene", "/docs")  # pages a browser opens by address: the token may come as ?token=
 SAFE_METHODS = frozenset({"GET", "HEAD"})
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_BODY_BYTES = 1024 * 1024
 FORM_OVERHEAD_BYTES = 64 * 1024
 UPLOAD_PATHS = frozenset({"/api/sessions/import", "/api/robots"})
+# No page of another site may frame the desk (a click in a hidden frame could start a motion): the page and the
+# API never, the scene only inside the desk's own page (its iframe).
+NO_FRAMING = ((b"x-frame-options", b"DENY"), (b"content-security-policy", b"frame-ancestors 'none'"))
+SCENE_FRAMING = ((b"x-frame-options", b"SAMEORIGIN"), (b"content-security-policy", b"frame-ancestors 'self'"))
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -186,13 +195,16 @@ class Guard:
                     raise BodyTooLarge(limit)
             return message
 
+        framing = SCENE_FRAMING if path.startswith("/scene") else NO_FRAMING
+
         async def send_with_cookie(message: Message) -> None:
             nonlocal started
             if message["type"] == "http.response.start":
                 started = True
+                message["headers"] = [*message.get("headers", []), *framing]
                 if set_cookie:
                     cookie = f"{READ_COOKIE}={self.read_key}; Path=/; HttpOnly; SameSite=Strict"
-                    message["headers"] = [*message.get("headers", []), (b"set-cookie", cookie.encode())]
+                    message["headers"].append((b"set-cookie", cookie.encode()))
             await send(message)
 
         try:
@@ -220,7 +232,7 @@ class Guard:
         if self.tokens is None or not path.startswith(GUARDED_PREFIXES) or path in OPEN_PATHS:
             return None, False
         token = _bearer(headers.get("authorization", ""))
-        if token is None and path.startswith("/scene") and method in SAFE_METHODS:
+        if token is None and path.startswith(PAGES_WITH_TOKEN) and method in SAFE_METHODS:
             token = next(iter(parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [])), None)
         if token is not None and self.tokens.verify(token):
             return None, not websocket and _cookie(headers, READ_COOKIE) != self.read_key

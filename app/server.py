@@ -8,7 +8,9 @@ and its websocket under /scene, behind the same guard as the API); calibrations 
 
 from __future__ import annotations
 
+import errno
 import logging
+import socket
 from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
 from importlib import resources
@@ -163,6 +165,7 @@ def serve(
 ) -> None:
     import uvicorn
 
+    sock = listen(host, port)  # before anything starts or is announced: a port taken is said as such
     loopback = security.is_loopback(host)
     app = create_app(
         data_dir,
@@ -190,12 +193,28 @@ def serve(
     # The scene's websocket relays viser's messages uncompressed, as viser sends them: compressing meshes and
     # point clouds costs more time than it saves on a local network. An open page's event streams never end by
     # themselves: a stop waits for them at most SHUTDOWN_WAIT_S (the scene's websockets close at once, 1012).
-    uvicorn.run(
+    config = uvicorn.Config(
         app,
-        host=host,
-        port=port,
         workers=1,
         log_level="warning",
         ws_per_message_deflate=False,
         timeout_graceful_shutdown=SHUTDOWN_WAIT_S,
     )
+    uvicorn.Server(config).run(sockets=[sock])
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """The server's listening socket; InputError when the address cannot be had (a port another program
+    holds: say so, and how to choose another)."""
+    try:
+        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][0]
+        return socket.create_server((host, port), family=family, backlog=2048)
+    except socket.gaierror:
+        raise InputError(f"--host {host} is not an address of this machine") from None
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            raise InputError(
+                f"port {port} on {host} is taken (another calib serve, or another program): stop it, or choose "
+                f"another port with --port (scripts/run.sh --port {port + 1})"
+            ) from None
+        raise InputError(f"cannot listen on {host}:{port} ({exc.strerror})") from None

@@ -17,6 +17,7 @@ import json
 import math
 import os
 import re
+import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -266,6 +267,62 @@ def test_simulate_without_a_simulation_section_says_the_data_are_perfect(tmp_pat
     assert "has no simulation.noise" in notes[1] and "arm.yaml" in notes[1]
     _, rows = read_rows(tmp_path / "a.csv")
     assert len(rows) == 5
+
+
+def test_a_truth_written_as_an_error_is_noted_with_the_value_meant(tmp_path: Path) -> None:
+    """`simulation.truth` holds values, not errors (a user wrote `elbow.z: 0.5` meaning an error and got a 419 mm
+    "before"): the docs say so, and a value that reads like the other reading is noted with the value meant."""
+    doc = yaml.safe_load((ROOT / "sample_sessions" / "arm" / "arm.yaml").read_text())
+    nominal_z = load_profile(ROOT / "sample_sessions" / "arm" / "arm.yaml").nominal()
+    doc["simulation"]["truth"]["elbow.z"] = 0.5
+    (tmp_path / "arm.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    (tmp_path / "arm.urdf").write_bytes((ROOT / "sample_sessions" / "arm" / "arm.urdf").read_bytes())
+    profile = load_profile(tmp_path / "arm.yaml")
+    z = profile.to_display(profile.param("elbow.z"), nominal_z[profile.param("elbow.z")])
+    proc = ok(calib("simulate", "--robot", "arm.yaml", "--configurations", "5", "--out", "a.csv", cwd=tmp_path))
+    (note,) = [line for line in proc.stderr.splitlines() if "simulation.truth.elbow.z" in line]
+    assert f"0.5 mm is {z - 0.5:.4g} mm from its nominal value {z:.6g} mm" in note
+    assert f"not their errors (an error of 0.5 mm is {z + 0.5:.6g})" in note
+    assert load_profile(ROOT / "sample_sessions" / "arm" / "arm.yaml").notes == ()  # values as meant: no note
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o027])
+def test_files_written_follow_the_umask(tmp_path: Path, mask: int) -> None:
+    """A simulated CSV, its truth, a calibration and its exports were written 0600 whatever the umask (a driver
+    running as another user could not read them); now as any file of the user's: 0666 less the umask."""
+
+    def run(*args: str) -> None:
+        proc = subprocess.run(
+            [*_command(), *args],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT,
+            env=_env(),
+            preexec_fn=lambda: os.umask(mask),
+        )
+        assert proc.returncode == 0, proc.stderr
+
+    robot = ("--robot", "robonaut-a")
+    run("simulate", *robot, "--configurations", "30", "--out", "d.csv", "--truth", "t.json")
+    run("solve", *robot, "--mode", "daily", "--data", "d.csv", "--out", "c.json")
+    for fmt in ("urdf", "yaml"):
+        run("export", *robot, "--calibration", "c.json", "--format", fmt, "--out", f"x.{fmt}")
+    for name in ("d.csv", "t.json", "c.json", "x.urdf", "x.yaml"):
+        assert oct((tmp_path / name).stat().st_mode & 0o777) == oct(0o666 & ~mask), name
+
+
+def test_serve_on_a_taken_port_says_so_and_exits_2(tmp_path: Path) -> None:
+    """`scripts/run.sh` on a busy port announced "open http://127.0.0.1:8000/" and then failed."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = calib("serve", "--port", str(port), "--data-dir", "data", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "open http" not in proc.stdout and "Traceback" not in proc.stderr
+    assert f"port {port} on 127.0.0.1 is taken" in proc.stderr and f"--port {port + 1}" in proc.stderr
+    assert not (tmp_path / "data").exists()  # nothing started
 
 
 def test_a_closed_output_pipe_ends_quietly(tmp_path: Path) -> None:

@@ -6,6 +6,8 @@ import json
 import math
 import os
 import shutil
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -354,3 +356,31 @@ def test_a_restart_shows_interrupted_jobs_as_failed(jobs: JobManager, store: Sto
     finally:
         release.set()
         wait(jobs, running)
+
+
+SERVER_LIKE = """\
+import sys
+with open(sys.argv[1], "a") as log:  # stands for the `calib` script's imports (numpy, OpenCV: seconds)
+    log.write("imported\\n")
+if __name__ == "__main__":
+    from app.jobs import JobManager
+    from app.store import Store
+
+    manager = JobManager(Store(__import__("pathlib").Path(sys.argv[2])), workers=1)
+    manager.shutdown()  # after the Manager and the warmed-up worker have started
+"""
+
+
+def test_spawned_children_do_not_import_the_servers_script(tmp_path: Path) -> None:
+    """A spawned child imports the parent's main script before its initializer (the server watch) runs: with the
+    `calib` console script that is the whole command line, seconds on a loaded machine, during which a SIGKILLed
+    server's child lived on. The jobs' children import app/parent_watch.py as their main module instead."""
+    script, log = tmp_path / "server_like.py", tmp_path / "imports.log"
+    script.write_text(SERVER_LIKE)
+    root = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    proc = subprocess.run(
+        [sys.executable, str(script), str(log), str(tmp_path / "data")], env=env, capture_output=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr.decode()[-2000:]
+    assert log.read_text() == "imported\n"  # by the server alone: not by its Manager nor its worker

@@ -27,6 +27,7 @@ from app.review import Review
 from app.scene import ReviewScene
 from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv
 from calib_core.estimation.planning import within_margin
+from calib_core.io.csv_format import readings_beyond_limits
 from calib_core.model.kinematics import forward
 
 # name, type, parent, child, xyz (m), rpy (rad), axis, limits (m or rad)
@@ -217,6 +218,24 @@ def test_a_prismatic_joint_in_a_yaml_profile(tmp_path: Path) -> None:
     tip = forward(profile, profile.nominal(), data.joints).t[profile.frame("arm")][0]
     np.testing.assert_allclose(tip, [250.0, 0.0, 100.0], atol=1e-12)
     assert "slide_m" in to_csv(profile, data) and ",0.25," in to_csv(profile, data)
+
+
+@pytest.mark.parametrize(("length_unit", "reading"), [("m", "0.350184"), ("mm", "350.184")])
+def test_a_slide_reading_a_hair_past_its_limit_is_a_note_never_an_angle(
+    tmp_path: Path, length_unit: str, reading: str
+) -> None:
+    """TIAGo's torso read 0.350184 m against its 0.35 m limit, and the whole file was refused as "joint readings
+    look like degrees" (the length read as an angle). A length is never an angle; past its limit it is a note."""
+    text = OPS_PROFILE.replace("upper: 500,", "upper: 350,").replace(
+        "joint_length_unit: m", f"joint_length_unit: {length_unit}\n  joint_unit: rad"
+    )
+    profile = load_profile(_yaml_profile(tmp_path, text))
+    rows = [f"{k},0,0,0,{float(reading) * k / 4:.6f},{0.3 * k - 0.5:.3f}" for k in range(1, 4)]
+    csv = "frame,x,y,z,slide_m,turn\n" + "\n".join([*rows, f"4,0,0,0,{reading},1.2"]) + "\n"
+    data = parse_dataset(profile, csv, "tiago.csv")
+    assert data.joints[-1, profile.joint("slide")] == pytest.approx(350.184)
+    (note,) = readings_beyond_limits(profile, data)
+    assert note == "tiago.csv, line 5, column 'slide_m': slide reads 350.18 mm, beyond its upper limit 350.00 mm"
 
 
 BAD_PRISMATIC = {

@@ -6,6 +6,7 @@ or too large is refused naming the problem (422, 413), and nothing changes."""
 from __future__ import annotations
 
 import io
+import os
 import shutil
 import stat
 import zipfile
@@ -127,6 +128,46 @@ def test_uploaded_meshes_are_looked_for_in_their_folder_only(tmp_path: Path, mon
         "mesh package://meshed_arm/meshes/upper.stl cannot be found (link 'upper')",
         "mesh ../meshes/fore.obj cannot be found (link 'fore')",
     )
+
+
+def test_an_uploaded_urdf_reads_no_file_outside_its_folder_even_without_meshes(tmp_path: Path) -> None:
+    """An uploaded URDF whose meshes name files elsewhere on the server (an absolute path, `../..`): with no
+    meshes zip the desk used to read them and stream them to every viewer. Its folder is its only root now."""
+    profile = meshed_arm(tmp_path / "server")  # the meshes exist on the server, outside the data directory
+    root = profile.parent
+    urdf = (root / "urdf" / "arm.urdf").read_text()
+    urdf = urdf.replace("package://meshed_arm/meshes/upper.stl", str(root / "meshes" / "upper.stl"))
+    kept = tmp_path / "data" / "robots" / "prying" / "urdf"  # where the desk keeps the URDF (`urdf: urdf/arm.urdf`)
+    out = os.path.relpath(root / "meshes" / "fore.obj", kept)  # ../../../../server/meshed_arm/meshes/fore.obj
+    urdf = urdf.replace("../meshes/fore.obj", out)
+    files = {"profile_file": ("arm.yaml", profile.read_bytes()), "urdf_file": ("arm.urdf", urdf.encode())}
+    with TestClient(create_app(tmp_path / "data", sample_dir=None)) as client:
+        assert add(client, "prying", files).status_code == 201
+        look = robot_look(client.app.state.desk.robots.get("prying").profile)
+    assert look is not None and look.problems == (
+        f"mesh {root / 'meshes' / 'upper.stl'} cannot be found (link 'upper')",
+        f"mesh {out} cannot be found (link 'fore')",
+    )
+    assert {v.what for v in look.visuals} == {"box", "cylinder"}
+
+
+def test_a_zip_written_by_pythons_writestr_is_taken(tmp_path: Path) -> None:
+    """zipfile.writestr(name, data) records permissions without a file type: a regular file all the same."""
+    profile = meshed_arm(tmp_path)
+    root = profile.parent
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for path, data in package_meshes(root).items():
+            zf.writestr(path, data)
+    files = {
+        "profile_file": ("arm.yaml", profile.read_bytes()),
+        "urdf_file": ("arm.urdf", (root / "urdf" / "arm.urdf").read_bytes()),
+        "meshes_zip": ("meshes.zip", buf.getvalue()),
+    }
+    with TestClient(create_app(tmp_path / "data", sample_dir=None)) as client:
+        r = add(client, "written", files)
+        assert r.status_code == 201, r.text
+        drawn_whole(client, "written")
 
 
 def test_a_profile_file_named_brings_its_urdfs_meshes_and_needs_its_folder_no_more(tmp_path: Path) -> None:

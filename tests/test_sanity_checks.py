@@ -66,6 +66,32 @@ def test_degrees_in_a_radian_profile_name_the_line_and_column(tmp_path: Path) ->
     )
 
 
+def test_a_file_whose_later_half_is_in_radians_is_refused_naming_its_lines(tmp_path: Path) -> None:
+    """Half the Feb 2019 tracker file's rows in radians: before this check it imported with no note and
+    calibrated "done" to 63.5 cm. The check is per configuration; a file all in degrees still reads."""
+    with FEB.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    half = len(rows) // 2
+    with (tmp_path / "mixed.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for i, r in enumerate(rows):
+            w.writerow(
+                {
+                    k: (str(math.radians(float(v))) if i >= half and k.endswith("_deg") and v else v)
+                    for k, v in r.items()
+                }
+            )
+    with pytest.raises(InputError, match=r"configurations read like radians although the profile says joint_unit: deg"):
+        read_dataset(load_profile("motoman"), tmp_path / "mixed.csv")
+    with pytest.raises(InputError) as err:
+        read_dataset(load_profile("motoman"), tmp_path / "mixed.csv")
+    message = str(err.value)
+    assert f"{len(rows) - half} of {len(rows)} configurations" in message
+    assert f"lines {half + 2}, {half + 3}," in message  # the first radian row is line half + 2 (after the header)
+    read_dataset(load_profile("motoman"), FEB)
+
+
 def test_residuals_far_above_the_declared_noise_are_warned_about() -> None:
     mm = load_profile("motoman")
     robot = SimulatedRobot.from_profile(mm, seed=2)

@@ -9,6 +9,7 @@ import io
 import stat
 import time
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 
 import msgspec
@@ -361,3 +362,68 @@ def test_another_sites_page_cannot_open_the_scene(local: TestClient) -> None:
     with _scene_socket(local, Origin=LOCAL) as ws:
         assert ws.accepted_subprotocol == PROTOCOL
     assert local.get("/scene/tab/", headers={"Host": "evil.example:8000"}).status_code == 403
+
+
+def test_off_loopback_the_api_document_and_its_page_need_the_token(remote: TestClient) -> None:
+    """/openapi.json and /docs describe every endpoint: off loopback they answer only with the token (the page,
+    opened by address, may carry it as ?token=, which sets the read cookie its fetch of the document uses)."""
+    token = remote.app.state.new_token
+    remote.cookies.clear()
+    for path in ("/openapi.json", "/docs"):
+        assert remote.get(path).status_code == 401, path
+    assert remote.get("/openapi.json", headers=bearer(token)).json()["info"]["title"]
+    remote.cookies.clear()
+    page = remote.get(f"/docs?token={token}")
+    assert page.status_code == 200 and "swagger" in page.text.lower()
+    assert remote.get("/openapi.json").status_code == 200  # with the read cookie the page's answer set
+    remote.cookies.clear()
+
+
+def test_no_page_of_another_site_can_frame_the_desk(local: TestClient) -> None:
+    """Headers: the page and the API forbid every framing; the scene allows only the desk's own page."""
+    for path in ("/", "/index.html", "/api/health", "/api/sessions", "/docs"):
+        r = local.get(path)
+        assert r.headers["x-frame-options"] == "DENY", path
+        assert r.headers["content-security-policy"] == "frame-ancestors 'none'", path
+    scene = local.get("/scene/tab/")
+    assert scene.status_code == 200
+    assert scene.headers["x-frame-options"] == "SAMEORIGIN"
+    assert scene.headers["content-security-policy"] == "frame-ancestors 'self'"
+
+
+def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(tmp_path: Path) -> None:
+    """Clickjacking: a page on another origin frames the desk to have a click start the scripted wander. In a
+    real browser the frame stays empty, while the same page frames one of its own pages; the desk's own page
+    still shows its scene in its iframe."""
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+    from threading import Thread
+
+    from browser import free_port, launch, ready_page, served, wait_for_scene
+    from playwright.sync_api import sync_playwright
+
+    with served(tmp_path / "data") as server:
+        site = tmp_path / "site"
+        site.mkdir()
+        (site / "own.html").write_text("<p id=own>the attacker's own page</p>")
+        (site / "attack.html").write_text(
+            f'<iframe id=desk src="{server.url}/" width=800 height=600></iframe><iframe id=own src="own.html"></iframe>'
+        )
+        handler = partial(SimpleHTTPRequestHandler, directory=str(site))
+        other = ThreadingHTTPServer(("127.0.0.1", free_port()), handler)
+        Thread(target=other.serve_forever, daemon=True).start()
+        try:
+            with sync_playwright() as pw:
+                browser = launch(pw)
+                page = browser.new_page()
+                page.goto(f"http://127.0.0.1:{other.server_address[1]}/attack.html")
+                own = page.frame_locator("#own").locator("#own")
+                own.wait_for(timeout=30_000)  # a frame the browser lets in shows its page
+                page.wait_for_load_state("load")  # every frame has loaded, or failed to
+                desk = page.query_selector("#desk").content_frame()
+                assert desk is not None and desk.url.startswith("chrome-error"), desk and desk.url  # refused
+                assert desk.query_selector("#robot-select") is None
+                # The desk's own page still frames its scene.
+                wait_for_scene(ready_page(browser, server.url))
+                browser.close()
+        finally:
+            other.shutdown()

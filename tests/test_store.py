@@ -1,6 +1,7 @@
 """The dashboard's store: round trips, the sample sessions equal to their CSV, bad input leaving nothing,
 atomic re-measure, the apply history, crash leftovers, concurrent writers and persisted jobs."""
 
+import errno
 import json
 import os
 import shutil
@@ -167,6 +168,26 @@ def test_samples_come_only_into_a_fresh_store(tmp_path: Path, samples: Path) -> 
     assert not (tmp_path / "data" / "sessions" / "robonaut-a-day1").exists()
     assert ensure_samples(Store(tmp_path / "data"), only) == []
     assert store.sessions.list() == []
+
+
+def test_samples_the_disk_had_no_room_for_come_at_the_next_start(
+    tmp_path: Path, samples: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A full disk at the first start refused the samples, and they never came back (the samples were marked
+    done). Now only a start that imported or skipped every one for good marks them."""
+    only = tmp_path / "samples"
+    shutil.copytree(samples / "robonaut-a-day1", only / "robonaut-a-day1")
+    store = Store(tmp_path / "data")
+
+    def full(fd: int) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with monkeypatch.context() as m:
+        m.setattr(os, "fsync", full)
+        assert ensure_samples(store, only) == []
+    assert store.sessions.list() == [] and list((tmp_path / "data" / "sessions").iterdir()) == []
+    assert ensure_samples(Store(tmp_path / "data"), only) == ["robonaut-a-day1"]  # room again: the next start
+    assert ensure_samples(Store(tmp_path / "data"), only) == []  # and once only
 
 
 def test_a_broken_sample_is_skipped_and_leaves_nothing(tmp_path: Path, samples: Path) -> None:

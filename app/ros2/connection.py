@@ -46,8 +46,8 @@ import yaml
 from calib_core import InputError, Profile, load_profile
 from calib_core.files import write_atomic
 from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.safe_yaml import read_yaml
 
-from ..desk_config import read_yaml
 from . import require
 
 FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")
@@ -121,7 +121,7 @@ class Connection:
         """The profile says `urdf: ros2`."""
         if self.profile in BUILTIN_PROFILES:
             return False
-        doc = read_yaml(Path(self.profile), "robot profile")
+        doc = read_yaml(Path(self.profile), "robot profile file")
         return isinstance(doc, dict) and doc.get("urdf") == URDF_FROM_GRAPH
 
     def load_profile(self, urdf: Path | None) -> Profile:
@@ -136,7 +136,7 @@ def load_connection(path: Path) -> Connection:
     """Read and check a connection file; InputError naming the file and the field."""
     path = Path(path).resolve()
     file = str(path)
-    doc = read_yaml(path, "ROS 2 connection")
+    doc = read_yaml(path, "ROS 2 connection file")
     if not isinstance(doc, dict):
         raise InputError("a ROS 2 connection file is a YAML mapping (robot, profile, topics)", file=file)
     unknown = sorted(set(doc) - set(FIELDS) - set(OPTIONS))
@@ -313,7 +313,7 @@ def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str,
             nominal = folder / "nominal.urdf"
             if not nominal.is_file() or nominal.read_text(encoding="utf-8") != urdf_text:
                 write_atomic(nominal, urdf_text)
-            doc = read_yaml(Path(conn.profile), "robot profile")
+            doc = read_yaml(Path(conn.profile), "robot profile file")
             doc["urdf"] = "nominal.urdf"
             write_atomic(folder / "profile.yaml", yaml.safe_dump(doc, sort_keys=False))
             ref = str((folder / "profile.yaml").relative_to(data_dir))  # the desk loads it relative to its data

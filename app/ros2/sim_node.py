@@ -28,11 +28,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from calib_core import InputError, Profile, load_profile
 from calib_core.io.urdf_export import to_urdf
 from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.safe_yaml import read_yaml
 from calib_core.sim.simulator import SimulatedRobot
 from calib_core.units import length_factor
 from calib_core.vision.sandal_board import render_board_image
@@ -91,7 +91,7 @@ def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
         shipped = builtin_urdf(robot)
         return profile, shipped.read_text(encoding="utf-8") if shipped else to_urdf(profile)
     path = Path(robot)
-    doc = yaml.safe_load(path.read_text(encoding="utf-8")) if path.is_file() else None
+    doc = read_yaml(path, "robot profile file") if path.is_file() else None
     says = doc.get("urdf") if isinstance(doc, dict) else None
     if says == "ros2" and urdf is None:
         raise InputError("the profile says urdf: ros2: give the robot's URDF with --urdf", file=str(path))

@@ -54,7 +54,7 @@ async def job_events(
     snap = first
     yield JobOut.model_validate(snap)
     while snap["state"] in ("queued", "running", "paused") and not await request.is_disconnected():
-        snap = await asyncio.to_thread(jobs.wait_version, job_id, snap["version"], 1.0)
+        snap = await jobs.next_version(job_id, snap["version"], 1.0) or await asyncio.to_thread(jobs.get, job_id)
         yield JobOut.model_validate(snap)
 
 

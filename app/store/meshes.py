@@ -100,7 +100,7 @@ def checked_entries(
         if info.is_dir():
             folders.add(path)
             continue
-        if mode and not stat.S_ISREG(mode):
+        if stat.S_IFMT(mode) and not stat.S_ISREG(mode):  # zipfile.writestr sets permissions without a file type
             raise InputError(f"{info.filename} is not a regular file", file=name)
         if info.flag_bits & 0x1:
             raise InputError(f"{info.filename} is encrypted: zip it without a password", file=name)

@@ -22,6 +22,7 @@ import yaml
 
 from calib_core import InputError, Profile
 from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.safe_yaml import load_yaml
 
 from ..errors import NotFound
 from ..profiles import file_name, instance_profile, load_model
@@ -32,6 +33,7 @@ from .files import fsync_dir, write_bytes
 from .meshes import MeshArchive, unpack
 
 T = TypeVar("T")
+CONFINED = b"the URDF's meshes are looked for in this folder only\n"  # PACKAGE_ROOT's text
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,14 @@ class RobotRepository:
         self.db = db
         self.data_dir = data_dir
         self._profiles: dict[str, Profile] = {}
+        self._confine_meshes()
+
+    def _confine_meshes(self) -> None:
+        """Every kept robot's URDF finds its meshes in its own folder only, a robot kept before every folder got
+        its PACKAGE_ROOT mark included (its URDF could name any file on the server: `../..`, an absolute path)."""
+        for folder in (self.data_dir / "robots").glob("[!.]*/"):
+            if not (folder / PACKAGE_ROOT).is_file():
+                write_bytes(folder / PACKAGE_ROOT, CONFINED)
 
     def list(self) -> list[RobotRecord]:
         return [_record(r) for r in self.db.all("SELECT * FROM robots ORDER BY added, name")]
@@ -165,9 +175,7 @@ class RobotRepository:
                 fsync_dir(urdf_file.parent)
             if files.meshes is not None:
                 unpack(files.meshes, staged)
-                write_bytes(
-                    staged / PACKAGE_ROOT, b"the URDF's meshes are looked for in this folder only\n", atomic=False
-                )
+            write_bytes(staged / PACKAGE_ROOT, CONFINED, atomic=False)
             write_bytes(staged / files.profile_name, text, atomic=False)
             fsync_dir(staged)
         except BaseException:
@@ -181,10 +189,7 @@ def _point_at_urdf(profile_name: str, text: bytes, urdf_name: str | None) -> tup
     `urdf:` names when that is a plain relative folder, else beside the profile), and that path. A profile
     that names a URDF not given with it, or none when one is given, is refused: a profile kept by the desk
     reads no file outside its folder."""
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return text, urdf_name  # the loader names the line
+    doc = load_yaml(text, profile_name)
     ref = doc.get("urdf") if isinstance(doc, dict) else None
     if urdf_name is None:
         if ref is not None:

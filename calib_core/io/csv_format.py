@@ -17,26 +17,17 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..errors import InputError
+from ..files import read_text_file
 from ..model.profile import DataFormat, Profile
 from ..units import ANGLE_IN_RAD, length_factor
 from .rows import Row, require_columns, table
 
+MAX_CSV_BYTES = 512 * 1024 * 1024  # the largest CSV read from a file (100,000 rows are about 10 MB)
+
 
 def read_dataset(profile: Profile, path: str | Path) -> Dataset:
     """Read a CSV in the profile's data format. Raises InputError naming file, line and column."""
-    name = str(path)
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            text = fh.read()
-    except FileNotFoundError:
-        raise InputError("file does not exist", file=name) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a CSV file", file=name) from None
-    except UnicodeDecodeError:
-        raise InputError("is not a UTF-8 text (CSV) file", file=name) from None
-    except OSError as exc:
-        raise InputError(f"cannot be read ({exc.strerror})", file=name) from None
-    return parse_dataset(profile, text, name)
+    return parse_dataset(profile, read_text_file(path, MAX_CSV_BYTES, "CSV file"), str(path))
 
 
 def _required(fmt: DataFormat, col: dict[str, int]) -> list[str]:
@@ -127,20 +118,30 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
 
 RADIAN_RANGE = 3.2  # every reading of a radian file is within +-pi
 MIN_READINGS = 10  # fewer readings do not tell the units apart
+MIN_ROW_READINGS = 3  # a configuration with fewer angle readings does not tell them apart
+HOME_DEG = 0.5  # a configuration whose every reading is within this of zero is a home pose in either unit
+MIXED_ROWS = 0.05  # configurations in the other unit, as a share of the file, beyond which it is refused
+SHOWN_LINES = 10
 
 
 def check_joint_unit(profile: Profile, q: np.ndarray, name: str, lines: list[int]) -> None:
-    """Joint readings in the other angle unit than the profile's `data.joint_unit`: surely wrong.
+    """Joint readings in the other angle unit than the profile's `data.joint_unit`, in the whole file or in
+    some of its configurations: surely wrong, so refused naming the lines. Only revolute joints are looked
+    at: a prismatic joint reads a length (data.joint_length_unit), never an angle.
 
     Degrees read as radians: a reading beyond 2 pi that is also beyond its joint's limits (no joint
     turns that far). Radians read as degrees: a calibration needs the joints to move by tens of
     degrees, so when at least MIN_READINGS readings all lie within +-3.2 (the radians' +-pi) while
-    the joints' limits allow far more, they are radians. `q`: (N, n_joints) in rad, NaN where unread;
+    the joints' limits allow far more, they are radians; and in a file of degrees, configurations whose
+    every reading lies within +-3.2, none of them a home pose, are radians pasted in (more than a few of
+    them: one such configuration may be a pose near home). `q`: (N, n_joints) in rad, NaN where unread;
     `lines`: each configuration's first line."""
     fmt = profile.data
     factor = ANGLE_IN_RAD[fmt.joint_unit]
     lo, hi = profile.joint_limits()
-    columns = {profile.joint(j): c for j, c in fmt.joint_columns.items()}
+    columns = {
+        profile.joint(j): c for j, c in fmt.joint_columns.items() if not profile.joints[profile.joint(j)].prismatic
+    }
     read = [j for j in columns if np.isfinite(q[:, j]).any()] if len(q) else []
     if not read:
         return
@@ -159,7 +160,9 @@ def check_joint_unit(profile: Profile, q: np.ndarray, name: str, lines: list[int
     elif fmt.joint_unit == "deg" and np.isfinite(raw).sum() >= MIN_READINGS:
         spans = np.nanmax(raw, axis=0) - np.nanmin(raw, axis=0)
         room = np.degrees(hi[read] - lo[read])
-        if np.nanmax(np.abs(raw)) <= RADIAN_RANGE and spans.max() > 0 and room.max() > 4 * RADIAN_RANGE:
+        if room.max() <= 4 * RADIAN_RANGE:
+            return  # joints that cannot turn further than radians would: nothing tells the units apart
+        if np.nanmax(np.abs(raw)) <= RADIAN_RANGE and spans.max() > 0:
             widest = columns[read[int(np.argmax(spans))]]
             raise InputError(
                 f"joint readings look like radians but the profile says joint_unit: deg (every reading within "
@@ -168,6 +171,27 @@ def check_joint_unit(profile: Profile, q: np.ndarray, name: str, lines: list[int
                 file=name,
                 column=widest,
             )
+        _check_rows_in_radians(raw, name, lines)
+
+
+def _check_rows_in_radians(raw_deg: np.ndarray, name: str, lines: list[int]) -> None:
+    """Configurations of a file in degrees that read like radians (see check_joint_unit)."""
+    with np.errstate(invalid="ignore"):
+        largest = np.nanmax(np.abs(raw_deg), axis=1, initial=0.0)
+    counted = np.isfinite(raw_deg).sum(axis=1) >= MIN_ROW_READINGS
+    suspect = counted & (largest <= RADIAN_RANGE) & (largest > HOME_DEG)
+    n = int(suspect.sum())
+    if n < 2 or n <= MIXED_ROWS * int(counted.sum()) or suspect.all():
+        return
+    shown = [lines[i] for i in np.flatnonzero(suspect)[:SHOWN_LINES]]
+    more = f" and {n - len(shown)} more" if n > len(shown) else ""
+    raise InputError(
+        f"{n} of {int(counted.sum())} configurations read like radians although the profile says joint_unit: deg "
+        f"(every reading within +-{RADIAN_RANGE}, while the other configurations reach "
+        f"{float(np.max(largest[~suspect])):.0f} deg): lines {', '.join(map(str, shown))}{more}; convert them to "
+        "degrees, or leave them out",
+        file=name,
+    )
 
 
 class _Frames:

@@ -15,14 +15,13 @@ base and where its chains start, a head around each sensor carried by the robot,
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..files import write_atomic
 from ..model.kinematics import axis_angle, forward
 from ..model.profile import Op, Profile
 from ..sensors.optics import Optical
@@ -141,17 +140,7 @@ def to_urdf(profile: Profile, p: np.ndarray | None = None, *, bodies: bool = Fal
 
 def write_urdf(profile: Profile, path: str | Path, p: np.ndarray | None = None) -> None:
     """Write to_urdf(profile, p) to `path` atomically, so a viewer never loads half a file."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(to_urdf(profile, p))
-        # mkstemp's 0600 would hide the model from a viewer run as another user
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    write_atomic(Path(path), to_urdf(profile, p))
 
 
 def _op_matrix(op: Op, value: float, scale: float) -> np.ndarray:

@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import fnmatch
 import math
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from ..errors import InputError
+from ..files import read_text_file
+from ..safe_yaml import MAX_YAML_BYTES, load_yaml
 from ..sensors import SENSOR_MODELS, Sensor
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
 from .profile import DataFormat, Frame, Joint, Mode, Op, Parameter, Profile, Target, Tie
@@ -36,25 +38,56 @@ def load_profile(name_or_path: str | Path, *, urdf: str | Path | None = None) ->
     file to use instead of the one its `urdf:` names (a ROS 2 robot's, received from its graph, for a
     profile that says `urdf: ros2`)."""
     text, source = _read_profile_text(name_or_path)
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        raise InputError(f"not valid YAML ({getattr(exc, 'problem', exc)})", file=source, line=line) from None
+    doc = load_yaml(text, source)
     if not isinstance(doc, dict):
         raise InputError("a robot profile must be a YAML mapping", file=source)
     try:
         if "urdf" in doc and urdf is not None:
             doc = {**doc, "urdf": str(Path(urdf).resolve())}
         if "urdf" in doc:  # frames, joints and default modes from a URDF file
-            return compile_urdf_profile(doc, source, lambda d: _Compiler(d, source).compile())
-        return _Compiler(doc, source).compile()
+            profile = compile_urdf_profile(doc, source, lambda d: _Compiler(d, source).compile())
+        else:
+            profile = _Compiler(doc, source).compile()
+        return replace(profile, notes=profile.notes + _truth_notes(profile))
     except InputError:
         raise
     except (TypeError, AttributeError, KeyError, ValueError, IndexError) as exc:
         # A shape the field checks did not anticipate (a list where a mapping belongs, ...).
         raise InputError(f"malformed robot profile ({exc.__class__.__name__}: {exc})", file=source) from None
+
+
+# A truth value ten times nearer zero than its nominal value, and further from it than these, reads like an error
+# written in place of the value (the Robonaut paper's truth moves link lengths by 4 cm, but to 1/5 of them at most).
+TRUTH_ERROR_DEG = 10.0
+TRUTH_ERROR_MM = 20.0
+TRUTH_SHRINK = 10.0
+
+
+def _truth_notes(profile: Profile) -> tuple[str, ...]:
+    """`simulation.truth` holds the hidden robot's parameter values (nominal plus error), in display units. A
+    value far nearer zero than its nominal and far from it (TRUTH_*) reads like an error written
+    in place of the value (`elbow.z: 0.5` for an elbow.z of 419.5 mm): a note saying so, with the value meant."""
+    truth = profile.simulation.get("truth")
+    if not isinstance(truth, dict):
+        return ()
+    bound = {"angle": TRUTH_ERROR_DEG, "length": TRUTH_ERROR_MM * 1e-3 / LENGTH_IN_M[profile.length_unit]}
+    notes = []
+    for name, value in truth.items():
+        try:
+            i = profile.param(str(name))
+            v = float(value)
+        except (InputError, TypeError, ValueError):
+            continue  # named when the simulator reads it
+        nominal = profile.to_display(i, profile.parameters[i].nominal)
+        far = bound.get(profile.parameters[i].kind)
+        if far is not None and abs(v) * TRUTH_SHRINK < abs(nominal) and abs(v - nominal) > far:
+            unit = profile.unit(i)
+            notes.append(
+                f"simulation.truth.{name}: {v:g} {unit} is {abs(v - nominal):.4g} {unit} from its nominal value "
+                f"{nominal:.6g} {unit}; truth values are the hidden robot's parameter values, not their errors "
+                f"(an error of {v:g} {unit} is {nominal + v:.6g})"
+            )
+    return tuple(notes)
 
 
 def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
@@ -66,12 +99,7 @@ def _read_profile_text(name_or_path: str | Path) -> tuple[str, str]:
     if not path.suffix and not path.exists():
         known = ", ".join(BUILTIN_PROFILES)
         raise InputError(f"unknown robot '{name}' (built-in: {known}; or give a profile file)")
-    try:
-        return path.read_text(encoding="utf-8"), str(path)
-    except FileNotFoundError:
-        raise InputError("robot profile file does not exist", file=str(path)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read robot profile ({exc.__class__.__name__})", file=str(path)) from None
+    return read_text_file(path, MAX_YAML_BYTES, "robot profile file"), str(path)
 
 
 class _Compiler:

@@ -42,10 +42,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from lxml import etree
 
 from ..errors import InputError
+from ..files import read_regular_file, read_text_file
+from ..safe_yaml import MAX_YAML_BYTES, load_yaml
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
 from .profile import Mode, Profile
 
@@ -59,6 +60,7 @@ ORIGIN_PRIOR_MM = 5.0  # the `origins` mode's prior sigma on each origin transla
 ORIGIN_PRIOR_DEG = 1.0  # ... and on each origin rotation
 ORIGIN_FIELDS = ("x", "y", "z", "roll", "pitch", "yaw")
 BUILTIN_SUFFIX = " (built-in)"
+MAX_URDF_BYTES = 64 * 1024 * 1024  # the largest URDF read (a humanoid's is a few hundred kB; meshes are other files)
 
 
 @dataclass(frozen=True)
@@ -109,14 +111,7 @@ class UrdfRobot:
 def read_urdf(path: str | Path) -> UrdfRobot:
     """Parse and check a URDF file; InputError naming the file, the line and the joint or link."""
     name = str(path)
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise InputError("URDF file does not exist", file=name) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a URDF file", file=name) from None
-    except OSError as exc:
-        raise InputError(f"URDF file cannot be read ({exc.strerror})", file=name) from None
+    data = read_regular_file(path, MAX_URDF_BYTES, "URDF file")
     root, notes, data = _parse_xml(data, name)
     if root.tag != "robot":
         raise InputError(f"not a URDF: the root element is <{root.tag}>, not <robot>", file=name, line=root.sourceline)
@@ -572,12 +567,12 @@ def profile_urdf_path(profile: Profile) -> Path | None:
             res = resources.files("calib_core.model") / "profiles" / f"{source[: -len(BUILTIN_SUFFIX)]}.yaml"
             text = res.read_text(encoding="utf-8")
         else:
-            text = Path(source).read_text(encoding="utf-8")
-        doc = yaml.safe_load(text)
+            text = read_text_file(source, MAX_YAML_BYTES, "robot profile file")
+        doc = load_yaml(text, source)
         if not isinstance(doc, dict) or "urdf" not in doc:
             return None
         return urdf_path(doc, source)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, InputError):
+    except (OSError, UnicodeDecodeError, InputError):
         return None
 
 
