@@ -54,7 +54,8 @@ def profiles():
 
 def test_every_profile_loads_plain_and_every_file_imports(profiles) -> None:
     """No note (nothing of the URDF put right, no limit overridden), no refusal: TIAGo's torso lift reads
-    0.350184 m against its 0.35 m limit, a length, not an angle."""
+    0.350184 m against its 0.35 m limit, a length, not an angle. Each profile's nominal agrees with its data
+    once the mocap or room frame is fitted (no registration misfit)."""
     sizes = {}
     for robot, spec in ROBOTS.items():
         profile = profiles[robot]
@@ -62,6 +63,8 @@ def test_every_profile_loads_plain_and_every_file_imports(profiles) -> None:
         for name in filter(None, (spec.data, spec.heldout)):
             data = read_dataset(profile, FOLDER / name)
             sizes[name] = (data.n_configurations, data.n_observations)
+        cal = calibrate(profile, read_dataset(profile, FOLDER / spec.data), "offsets")
+        assert cal.converged and "registration-misfit" not in {d.code for d in cal.diagnostics}
     assert sizes == {
         "talos_left_arm_02_10_contact.csv": (61, 61),
         "qualisys_2021-11-30_static_postures.csv": (37, 37),
