@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from calib_core import calibrate, load_profile, read_dataset
+from calib_core.errors import InputError
 from calib_core.estimation.validation import holdout_split
 from calib_core.io.figaroh_data import (
     POSE_AXIS_M,
@@ -95,17 +96,21 @@ def test_shipped_files_are_the_published_ones(name: str) -> None:
 
 
 def test_the_ur10_points_are_its_poses() -> None:
-    """The shipped points file is pose_points of the published poses, and each pose's 7 points give back
-    its origin and its rotation."""
+    """The shipped points file is pose_points of the published poses (to round-off), and each pose's 7
+    points give back its origin and its rotation."""
     poses = (FOLDER / ROBOTS["ur10e"].pose).read_text()
-    assert pose_points(poses) == (FOLDER / ROBOTS["ur10e"].data).read_text()
-    lines = pose_points(poses).splitlines()
-    first = poses.splitlines()[1].split(",")
-    x, y, z, roll, pitch, yaw = (float(v) for v in first[:6])
-    points = np.array([[float(v) for v in line.split(",")[2:5]] for line in lines[1:8]])
-    np.testing.assert_allclose(points[0], [x, y, z], atol=1e-15)
-    axes = np.stack([points[2 * k + 1] - points[2 * k + 2] for k in range(3)], axis=1) / (2 * POSE_AXIS_M)
+    made = [line.split(",") for line in pose_points(poses).splitlines()]
+    shipped = [line.split(",") for line in (FOLDER / ROBOTS["ur10e"].data).read_text().splitlines()]
+    assert len(made) == len(shipped) == 1 + 23 * 7 and made[0] == shipped[0]
+    assert [m[:2] + m[5:] for m in made] == [s[:2] + s[5:] for s in shipped]  # frame, point, joints
+    xyz = np.array([[float(v) for v in m[2:5]] for m in made[1:]])
+    np.testing.assert_allclose(xyz, [[float(v) for v in s[2:5]] for s in shipped[1:]], rtol=0, atol=1e-12)
+    x, y, z, roll, pitch, yaw = (float(v) for v in poses.splitlines()[1].split(",")[:6])
+    np.testing.assert_allclose(xyz[0], [x, y, z], atol=1e-15)
+    axes = np.stack([xyz[2 * k + 1] - xyz[2 * k + 2] for k in range(3)], axis=1) / (2 * POSE_AXIS_M)
     np.testing.assert_allclose(axes, rpy_matrix(roll, pitch, yaw), atol=1e-12)
+    with pytest.raises(InputError, match=r"line 2, column 'phiy1': expected a number"):
+        pose_points(poses.replace("-0.5109858420062574", "n/a"), "poses.csv")
 
 
 def test_the_points_weigh_a_pose_as_figaroh_does() -> None:

@@ -62,21 +62,11 @@ ROBOTS: dict[str, PeerData] = {
 
 def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """R = Rot_z(yaw) Rot_y(pitch) Rot_x(roll), URDF's and FIGAROH's convention."""
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(roll),
-        math.sin(roll),
-        math.cos(pitch),
-        math.sin(pitch),
-        math.cos(yaw),
-        math.sin(yaw),
-    )
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+    c, s = np.cos([roll, pitch, yaw]), np.sin([roll, pitch, yaw])
+    Rx = np.array([[1, 0, 0], [0, c[0], -s[0]], [0, s[0], c[0]]])
+    Ry = np.array([[c[1], 0, s[1]], [0, 1, 0], [-s[1], 0, c[1]]])
+    Rz = np.array([[c[2], -s[2], 0], [s[2], c[2], 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
 
 
 # The 7 points of a pose, in its frame, as multiples of POSE_AXIS_M: the origin, then +x, -x, +y, -y, +z, -z.
@@ -95,10 +85,13 @@ def pose_points(text: str, name: str = "<poses>") -> str:
     out = io.StringIO()
     out.write(",".join(["frame", "point", "x", "y", "z", *joints]) + "\n")
     for number, row in enumerate(reader, start=1):
-        try:
-            x, y, z, roll, pitch, yaw = (float(row[c]) for c in POSE_COLUMNS)
-        except (TypeError, ValueError):
-            raise InputError("a pose column is not a number", file=name, line=number + 1) from None
+        values = []
+        for c in POSE_COLUMNS:
+            try:
+                values.append(float(row[c]))
+            except (TypeError, ValueError):
+                raise InputError(f"expected a number, got {row[c]!r}", file=name, line=number + 1, column=c) from None
+        x, y, z, roll, pitch, yaw = values
         points = np.array([x, y, z]) + POSE_AXIS_M * POSE_POINTS @ rpy_matrix(roll, pitch, yaw).T
         for k, point in enumerate(points):
             out.write(
