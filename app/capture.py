@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
 DEFAULT_MIN_GAP_DEG = 2.0
 DEFAULT_SETTLE_S = 0.3
 DEFAULT_VIEW_MARGIN_PX = 10.0
+CHECK_CHUNK = 100  # configurations a dry run checks between two reports of its progress
 _SETTLE_POLL_S = 0.01
 
 
@@ -118,13 +120,15 @@ def dry_run(
     indices: list[int] | None = None,
     seen: np.ndarray | None = None,
     margin_px: float = DEFAULT_VIEW_MARGIN_PX,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[dict]:
     """Check every configuration, moving nothing. Per configuration: {"index", "target", "ok", "problem",
     "action", "note"}, action "capture", "skip" (not predicted in view) or "refuse" (beyond a joint limit);
     `note`: how it is moved out of the safety margin (out_of_margin). `index` is the frame index, or the
     1-based position without `indices`. `seen` (bool per configuration): measured in the session it comes from,
     so in view whatever the believed calibration predicts (a model off by a few degrees predicts a target near
-    the image border outside it)."""
+    the image border outside it). `progress(checked, total)`: called after each CHECK_CHUNK configurations (it
+    may raise Cancelled to stop the check)."""
     q = np.asarray(configurations_rad, dtype=float)
     t = np.asarray(targets, dtype=int)
     seen_ = np.zeros(len(q), bool) if seen is None else np.asarray(seen, dtype=bool)
@@ -136,14 +140,19 @@ def dry_run(
         raise InputError(f"targets must be in 0..{n_targets - 1} for {profile.name}")
     predictor = SimulatedRobot(profile, np.asarray(believed, dtype=float), margin=margin_px)
     moved, notes, refusals = q.copy(), [""] * len(q), [""] * len(q)
-    for k in range(len(q)):
-        try:
-            moved[k], notes[k] = out_of_margin(driver, q[k])
-        except LimitError as exc:
-            refusals[k] = str(exc)
     in_view = seen_.copy()
-    if not seen_.all():
-        in_view[~seen_] = predictor.visible(moved[~seen_], t[~seen_])
+    for at in range(0, len(q), CHECK_CHUNK):
+        part = np.arange(at, min(at + CHECK_CHUNK, len(q)))
+        for k in part:
+            try:
+                moved[k], notes[k] = out_of_margin(driver, q[k])
+            except LimitError as exc:
+                refusals[k] = str(exc)
+        unseen = part[~seen_[part]]
+        if len(unseen):
+            in_view[unseen] = predictor.visible(moved[unseen], t[unseen])
+        if progress is not None:
+            progress(int(part[-1]) + 1, len(q))
     rows = []
     for k in range(len(q)):
         problem, action = refusals[k], "refuse" if refusals[k] else "capture"

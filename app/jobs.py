@@ -1,4 +1,4 @@
-"""Background jobs: calibrations in worker processes, captures and replays on threads.
+"""Background jobs: calibrations in worker processes, captures, replays and dry runs on threads.
 
 A calibration runs in its own spawned process (never forked: the server process runs viser and
 uvicorn threads), so the solver neither holds the server's GIL nor takes the server down when it
@@ -39,7 +39,7 @@ from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
 from calib_core import Calibration, InputError, Profile, calibrate
-from calib_core.estimation.calibrate import METHODS
+from calib_core.estimation.calibrate import METHODS, check_can_fit
 from calib_core.estimation.solver import Cancelled
 
 from .errors import NotFound
@@ -169,6 +169,7 @@ class _Job:
     kill_reason: str | None = None  # set when the server kills the worker on purpose
     resent: bool = False  # handed to a new worker once, its first having died before it started the job
     preparing: bool = False  # its payload is still being built (_prepare): not yet queued for a worker
+    pausable: bool = True  # a thread job that can wait at its checkpoints (a dry run has none: it computes only)
 
 
 @dataclass
@@ -294,7 +295,8 @@ class JobManager:
         self, session_id: str, mode: str, base_id: str | None, holdout: float, *, folds: int = 0, method: str = "lm"
     ) -> tuple[Profile, dict | None, int]:
         """Check a calibration request against its options and the counts of the session's rows, reading no
-        more than those: (profile, base calibration as a dictionary or None, measured frames)."""
+        more than those unless they are no more than the mode's parameters (then the few observations, to count
+        what they determine): (profile, base calibration as a dictionary or None, measured frames)."""
         session = self.store.sessions.get(session_id)
         profile = self.store.sessions.profile(session.robot)
         m = profile.mode(mode)
@@ -325,11 +327,14 @@ class JobManager:
                 f"{self.max_rows:,} (the desk's row limit, calib serve --max-rows): calibrate on a part of it"
             )
         sensor_dim = {s: profile.sensors[profile.data.sensor if s is None else s].dim for s in counts}
-        if sum(n * sensor_dim[s] for s, n in counts.items()) < len(m.free):
-            raise InputError(
-                f"{session.measured} measured frames cannot determine the {len(m.free)} parameters "
-                f"of mode '{mode}': measure more frames"
-            )
+        if sum(n * sensor_dim[s] for s, n in counts.items()) <= len(m.free):
+            # No more rows than parameters: whether they are too few depends on what they determine (the
+            # calibration holds what they cannot tell apart). Such a session is small: check it here.
+            data = self.store.sessions.dataset(session_id, profile)
+            try:
+                check_can_fit(profile, data, mode, None if base is None else Calibration.from_dict(base))
+            except InputError as exc:
+                raise InputError(f"session '{session_id}': {exc.message}") from None
         train = session.measured - round(holdout * session.measured)
         if folds > train:
             raise InputError(f"{folds} folds need at least {folds} training frames, not {train}")
@@ -417,9 +422,19 @@ class JobManager:
         self._dispatch()
         return job.snap["id"]
 
-    def submit_thread(self, kind: str, fn: Callable[[JobContext], str | None], *, session_id: str | None) -> str:
-        """Run fn(ctx) on a thread of its own; its return value is the job's result."""
-        job = self._create(kind, session_id, None, process=False)
+    def submit_thread(
+        self,
+        kind: str,
+        fn: Callable[[JobContext], str | None],
+        *,
+        session_id: str | None,
+        detail: dict | None = None,
+        pausable: bool = True,
+    ) -> str:
+        """Run fn(ctx) on a thread of its own; its return value is the job's result. `pausable=False`: a pause
+        is refused (a job that only computes, a dry run, has nothing to hold still)."""
+        job = self._create(kind, session_id, detail, process=False)
+        job.pausable = pausable
         job_id = job.snap["id"]
         threading.Thread(target=self._run_thread, args=(job_id, fn), name=f"job-{job_id}", daemon=True).start()
         return job_id
@@ -639,6 +654,8 @@ class JobManager:
         job = self._job(job_id)
         if job.process:
             raise InputError(f"a {job.snap['kind']} job runs in a worker process and cannot be paused; cancel it")
+        if not job.pausable:
+            raise InputError(f"a {job.snap['kind'].replace('_', ' ')} job cannot be paused; cancel it")
         with self._changed:
             if job.snap["state"] in FINISHED or job.snap["paused"] == paused:
                 return

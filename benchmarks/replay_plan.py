@@ -1,11 +1,12 @@
-"""Replay planning: how long planning N new NAO configurations takes, and how long the replay request waits.
+"""Replay planning: how long planning N new configurations takes, and how long the requests wait.
 
     .venv/bin/python benchmarks/replay_plan.py [--counts 1 10 50 200] [--robot nao]
+    .venv/bin/python benchmarks/replay_plan.py --robot robonaut-a --counts 300
 
-In-process (FastAPI's TestClient, the simulated robots at 50x speed): `Desk.replay_plan` alone (the
-simulator's stance sampling, each stance aimed at the board, with the active calibration), the dry run
-(which plans and checks, and answers with every configuration), and the POST that starts a replay (its
-job is cancelled at once).
+In-process (FastAPI's TestClient, the simulated robots at 50x speed): `ReplayService.configurations` alone
+(the plan), the dry run of the same count with another seed (its request, which answers 202 with a job, and
+the job, which plans, checks and predicts), a cancel of such a dry run once it has chosen its first
+configuration (until its job has ended), and the POST that starts a replay (its job is cancelled at once).
 """
 
 from __future__ import annotations
@@ -13,12 +14,22 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from fastapi.testclient import TestClient
 
 from app.server import create_app
 from app.services.replay import ReplayPlan
+
+
+def wait(client: TestClient, job: str, ok: Callable[[dict], bool]) -> dict:
+    """The job's snapshot once `ok` holds or it has ended, woken by each change of the job."""
+    jobs = client.app.state.desk.jobs
+    snap = jobs.get(job)
+    while not ok(snap) and snap["state"] in ("queued", "running"):
+        snap = jobs.wait_version(job, snap["version"], 60.0)
+    return snap
 
 
 def main() -> None:
@@ -31,23 +42,33 @@ def main() -> None:
         sid = client.post("/api/sessions", json={"robot": args.robot, "name": "plan"}).json()["id"]
         url = f"/api/sessions/{sid}/replay"
         desk.replay.configurations(sid, ReplayPlan(count=1))  # warm-up
-        print(f"{args.robot}: planning N new configurations (ms; per configuration in brackets)")
+        print(f"{args.robot}: N new configurations (ms; per configuration in brackets)")
         for count in args.counts:
             t0 = time.perf_counter()
             q, _, _ = desk.replay.configurations(sid, ReplayPlan(count=count, seed=count))
             plan_ms = 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
-            r = client.post(url, json={"count": count, "seed": count, "dry_run": True})
+            r = client.post(url, json={"count": count, "seed": count + 1, "dry_run": True})
             dry_ms = 1e3 * (time.perf_counter() - t0)
-            assert r.status_code == 200, r.text
+            assert r.status_code == 202, r.text
+            job = wait(client, r.json()["job"], lambda j: False)
+            assert job["state"] == "done", job
+            job_ms = 1e3 * (time.perf_counter() - t0)
+            r = client.post(url, json={"count": count, "seed": count + 2, "dry_run": True})
+            wait(client, r.json()["job"], lambda j: j["detail"].get("stage") == "choosing")
+            t0 = time.perf_counter()
+            client.post(f"/api/jobs/{r.json()['job']}/cancel")
+            job = wait(client, r.json()["job"], lambda j: False)
+            cancel_ms = 1e3 * (time.perf_counter() - t0)
+            assert job["state"] in ("cancelled", "done"), job
             t0 = time.perf_counter()
             r = client.post(url, json={"count": count, "seed": count})
             start_ms = 1e3 * (time.perf_counter() - t0)
             assert r.status_code == 202, r.text
             client.post(f"/api/jobs/{r.json()['job']}/cancel")
             print(
-                f"  N={count:4d}: replay_plan {plan_ms:7.0f} ({plan_ms / len(q):5.1f})  dry run {dry_ms:7.0f}  "
-                f"start replay (request) {start_ms:7.1f}"
+                f"  N={count:4d}: plan {plan_ms:7.0f} ({plan_ms / len(q):5.1f})  dry run: request {dry_ms:5.1f}, "
+                f"job {job_ms:7.0f}, cancel {cancel_ms:5.1f} ({job['state']})  start replay (request) {start_ms:5.1f}"
             )
 
 

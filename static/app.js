@@ -225,14 +225,15 @@ function closeSession() {
 const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "#dry-run", "#replay-start",
   "#goto", "#new-session button"];
 
-// Pause while it runs, resume while paused, abort until it ends; no second replay meanwhile, none without a
-// session to replay into.
+// Pause while it runs, resume while paused, abort until it ends; no second replay or dry run meanwhile, none
+// without a session to replay into. A dry run's job moves nothing: abort it, there is nothing to pause.
 function replayControls(job) {
   state.replaySnap = job;
   const live = Boolean(job) && ["queued", "running"].includes(job.state);
+  const pausable = live && job.kind !== "dry_run";
   const drivable = state.robots[state.robot].drivable;
-  $("#replay-pause").disabled = !live || job.paused;
-  $("#replay-resume").disabled = !live || !job.paused;
+  $("#replay-pause").disabled = !pausable || job.paused;
+  $("#replay-resume").disabled = !pausable || !job.paused;
   $("#replay-abort").disabled = !live;
   for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable || !state.session;
 }
@@ -302,7 +303,16 @@ function wire() {
   $("#observe-on").addEventListener("change", () => act(setObserve));
   $("#autocapture").addEventListener("change", () => act(setObserve));
   $("#wander").addEventListener("change", () => act(() => api("POST", "/robot/wander", { on: $("#wander").checked })));
-  $("#dry-run").addEventListener("click", () => act(() => replay(true)));
+  $("#dry-run").addEventListener("click", () => act(async () => {
+    const button = $("#dry-run");
+    if (button.disabled) return;  // a double click: one dry run
+    button.disabled = true;
+    try {
+      await replay(true);
+    } finally {
+      replayControls(state.replaySnap);
+    }
+  }));
   $("#replay-start").addEventListener("click", () => act(() => replay(false)));
   for (const a of ["pause", "resume", "abort"]) {
     $(`#replay-${a}`).addEventListener("click", () =>
@@ -1174,16 +1184,14 @@ async function replay(dry) {
     Object.assign(body, { seed: state.replaySeed }, replayPlanning(source));
   }
   if ($("#replay-continue").checked) body.resume = true;
+  if (dry) {
+    $("#dry-run-result").replaceChildren();
+    showPredicted(null);
+  }
   const r = await api("POST", `/sessions/${state.session.id}/replay`, body);
   if (dry) {
-    const bad = r.configurations.filter((c) => !c.ok);
-    const moved = r.configurations.filter((c) => c.ok && c.note);
-    const box = $("#dry-run-result");
-    box.replaceChildren(el("p", {}, `${r.configurations.length} configurations, ${bad.length} with a problem` +
-      (moved.length ? `, ${moved.length} moved out of the safety margin` : "")));
-    for (const c of bad) box.append(el("p", { class: "warning" }, `#${c.index}: ${c.problem}`));
-    for (const c of moved) box.append(el("p", { class: "note" }, `#${c.index}: ${c.note}`));
-    showPredicted(r.predicted, r.mode);
+    // A dry run of frames answers at once; one of new configurations plans them in a job first.
+    showDryRun(r.job ? await followDryRun(r.job) : r);
     return;
   }
   state.replayJob = r.job;
@@ -1201,7 +1209,7 @@ async function replay(dry) {
       done = d.done;
       showNewFrames(sid);
     }
-    const planning = j.state === "running" && d.phase === "planning" ? " · planning the configurations" : "";
+    const planning = j.state === "running" && d.phase === "planning" ? ` · ${planningText(d)}` : "";
     const shown = j.paused && j.state === "running" ? "paused" : j.state;
     $("#replay-state").textContent = `${shown}${j.error ? `: ${j.error}` : ""}${planning}${d.frame ? ` · frame ${d.frame}: ${d.status}` : ""}`;
     if (d.curve) showUntilProgress(d);
@@ -1209,6 +1217,47 @@ async function replay(dry) {
   replayControls(null);
   if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: false }));
   await loadSessions(state.session.id);
+}
+
+// A dry run's job: its progress (planning, checking, predicting) in the Replay step; Abort or Esc cancels it.
+// Its result (null: it did not finish) once done.
+async function followDryRun(jobId) {
+  state.replayJob = jobId;
+  const done = await follow(jobId, (j) => {
+    $("#replay-progress").value = j.progress;
+    replayControls(j);
+    const d = j.detail || {};
+    const doing = {
+      planning: planningText(d),
+      checking: `checking ${d.checked} of ${d.total} configurations`,
+      predicting: "predicting the accuracy",
+    }[d.phase];
+    const live = ["queued", "running"].includes(j.state);
+    setText($("#replay-state"), `dry run ${j.state}${j.error ? `: ${j.error}` : ""}${live && doing ? ` · ${doing}` : ""}`);
+  });
+  replayControls(null);
+  return done.state === "done" ? api("GET", `/jobs/${jobId}/dry-run`) : null;
+}
+
+// Where the planning of new configurations is (a replay's or a dry run's job): its stage and steps.
+function planningText(d) {
+  return "planning the configurations" + ({
+    choosing: `: ${d.step} of ${d.steps} chosen`,
+    exchanging: `: improving the plan (${d.step} of ${d.steps})`,
+    refining: `: refining the plan (${d.step} of ${d.steps})`,
+  }[d.stage] || "");
+}
+
+function showDryRun(r) {
+  if (!r) return;
+  const bad = r.configurations.filter((c) => !c.ok);
+  const moved = r.configurations.filter((c) => c.ok && c.note);
+  const box = $("#dry-run-result");
+  box.replaceChildren(el("p", {}, `${r.configurations.length} configurations, ${bad.length} with a problem` +
+    (moved.length ? `, ${moved.length} moved out of the safety margin` : "")));
+  for (const c of bad) box.append(el("p", { class: "warning" }, `#${c.index}: ${c.problem}`));
+  for (const c of moved) box.append(el("p", { class: "note" }, `#${c.index}: ${c.note}`));
+  showPredicted(r.predicted, r.mode);
 }
 
 // --- planned configurations: predicted accuracy, capture until good enough -------------------------

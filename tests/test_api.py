@@ -45,6 +45,15 @@ def wait_job(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
     raise AssertionError(f"job {job} did not finish: {j}")
 
 
+def dry_run(client: TestClient, session_id: str, ask: dict) -> dict:
+    """A dry run of new configurations: its job (202), waited for, and its result."""
+    r = client.post(f"/api/sessions/{session_id}/replay", json={**ask, "dry_run": True})
+    assert r.status_code == 202, r.text
+    job = wait_job(client, r.json()["job"])
+    assert job["state"] == "done", job
+    return client.get(f"/api/jobs/{job['id']}/dry-run").json()
+
+
 @pytest.fixture(scope="module")
 def day1_full(client: TestClient) -> dict:
     """A full calibration of the first-day sample session with a third held out."""
@@ -367,7 +376,7 @@ def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None
     assert frame["images"]["image"].endswith(".jpg")
 
     # Replay: the dry run checks before anything moves; then three new configurations are driven.
-    dry = client.post(f"/api/sessions/{sid}/replay", json={"count": 3, "dry_run": True, "seed": 3}).json()
+    dry = dry_run(client, sid, {"count": 3, "seed": 3})
     assert len(dry["configurations"]) == 3 and all({"index", "ok", "problem"} <= set(c) for c in dry["configurations"])
     r = client.post(f"/api/sessions/{sid}/replay", json={"count": 3, "seed": 3})
     assert r.status_code == 202, r.text

@@ -9,6 +9,7 @@ are within a few of their own reported standard deviations of the truth.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -368,3 +369,43 @@ def test_nao_full_reaches_the_floor(nao, nao_sims, nao_full) -> None:
     # On its own training data a least-squares fit is at (or just below) the truth.
     train_floor = rms_error(nao, train.data, train.true_params)
     assert 0.9 * train_floor <= nao_full.figures["after"].rms <= train_floor
+
+
+ARM = Path(__file__).resolve().parents[1] / "sample_sessions" / "arm" / "arm.yaml"
+
+
+@pytest.fixture(scope="module")
+def arm():
+    """The sample arm (a UR5-like URDF, a tracker at an unknown pose): its mode `origins` frees 51 parameters."""
+    return load_profile(ARM)
+
+
+def test_a_mode_of_more_parameters_than_rows_is_fitted_holding_what_the_rows_cannot_tell_apart(arm) -> None:
+    """12 configurations of one reflector are 36 rows for the 51 parameters of `origins`: refused before,
+    although no data of this kind determine more than 25 of them. Now the rest are held, each named, and
+    the calibration predicts fresh configurations at the truth's floor, far better than `offsets` (whose 13
+    parameters cannot take the arm's origin errors)."""
+    train = SimulatedRobot.from_profile(arm, seed=1).simulate(12)
+    fresh = SimulatedRobot.from_profile(arm, seed=99).simulate(200)
+    cal = calibrate(arm, train.data, "origins")
+    held = [d for d in cal.diagnostics if d.code == "held-fixed"]
+    assert len(arm.modes["origins"].free) == 51 and len(cal.identifiability.free) == 25 and len(held) == 26
+    assert {h.parameter for h in cal.identifiability.held_fixed} >= {"shoulder_pan", "wrist_3", "shoulder_pan.x"}
+    floor = rms_error(arm, fresh.data, fresh.true_params)  # 0.035 mm
+    after = rms_error(arm, fresh.data, cal.params(arm))  # 0.051 mm
+    offsets = rms_error(arm, fresh.data, calibrate(arm, train.data, "offsets").params(arm))  # 2.4 mm
+    assert after < 1.6 * floor and after < offsets / 20
+
+
+def test_rows_no_more_than_what_they_determine_are_refused_saying_how_many_stay_free(arm) -> None:
+    """8 configurations are 24 rows: they would fix 24 of the 51 parameters exactly, with nothing left to
+    check the fit; 9 (27 rows for the 25 they determine) are calibrated."""
+    robot = SimulatedRobot.from_profile(arm, seed=1)
+    data = robot.simulate(9).data
+    with pytest.raises(
+        InputError,
+        match=r"8 observations \(24 rows\) cannot calibrate mode 'origins': they would fix "
+        r"24 of its 51 parameters exactly \(27 more held",
+    ):
+        calibrate(arm, data.select(np.arange(8)), "origins")
+    assert len(calibrate(arm, data, "origins").identifiability.free) == 25

@@ -110,18 +110,20 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
 
     driver.reconnect()
     dry = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True, "dry_run": True}).json()
-    assert len(dry["configurations"]) == 2
+    assert wait_job(client.get, dry["job"])["state"] == "done"
+    assert len(client.get(f"/api/jobs/{dry['job']}/dry-run").json()["configurations"]) == 2
     job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
     assert job["state"] == "done", job
     frames = _frames(client, sid)
     assert [f["index"] for f in frames] == [1, 2, 3, 4]
     assert frames[:2] == kept  # untouched by the resume
     assert _each_configuration_once(client, frames, q_plan)
-    # New configurations are planned in the job (the request returns at once): it fails with nothing to do.
-    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
-    assert job["state"] == "failed" and job["error"].startswith("nothing to resume"), job
-    dry = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True, "dry_run": True})
-    assert dry.status_code == 422 and dry.json()["detail"].startswith("nothing to resume")
+    # New configurations are planned in the job (the request returns at once): it fails with nothing to do, and
+    # so does the dry run's.
+    for dry_run in (False, True):
+        ask = {**plan, "resume": True, "dry_run": dry_run}
+        job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json=ask).json()["job"])
+        assert job["state"] == "failed" and job["error"].startswith("nothing to resume"), job
 
 
 def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestClient) -> None:

@@ -155,8 +155,42 @@ def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(jobs: JobMa
         store.sessions.add_frame(
             sid, index=None, joints_rad=np.full(10, 0.1 * k), target=0, status="measured", measured=np.ones((1, 3))
         )
-    with pytest.raises(InputError, match=r"3 measured frames cannot determine the \d+ parameters of mode 'full'"):
+    with pytest.raises(
+        InputError, match=r"3 observations \(9 rows\) cannot calibrate mode 'full': they would fix 9 of"
+    ):
         jobs.submit_calibration(sid, "full", None, 0.0)
+
+
+def test_a_mode_of_more_parameters_than_rows_runs_when_the_rows_exceed_what_they_determine(
+    jobs: JobManager, store: Store
+) -> None:
+    """Robonaut's `full` frees 23 parameters, of which no data of one sphere determine more than 19: seven of
+    the sample's frames (21 rows) are calibrated, the rest held by name (the request was refused before, 21 <
+    23); six (18 rows, no more than what they determine) are refused before a job exists."""
+    profile = store.sessions.profile("robonaut-a")
+    sample = store.sessions.dataset("robonaut-a-day1", profile)
+    for n in (6, 7):
+        sid = store.sessions.create("robonaut-a", f"{n} frames", source="capture")
+        for c in range(n):
+            obs = sample.cfg == c
+            store.sessions.add_frame(
+                sid,
+                index=None,
+                joints_rad=sample.joints[c],
+                target=int(sample.target[obs][0]),
+                status="measured",
+                measured=sample.measured[obs, :3],
+            )
+        if n == 6:
+            before = len(jobs.list())
+            with pytest.raises(InputError, match=r"6 observations \(18 rows\) cannot calibrate mode 'full'"):
+                jobs.submit_calibration(sid, "full", None, 0.0)
+            assert len(jobs.list()) == before
+    snap = wait(jobs, jobs.submit_calibration(sid, "full", None, 0.0))
+    assert snap["state"] == "done", snap["error"]
+    cal = store.calibrations.load(snap["result"])
+    assert len(cal.identifiability.free) == 19 and len(cal.identifiability.held_fixed) == 4
+    assert cal.figures["after"].rms < cal.figures["before"].rms / 10
 
 
 def test_a_calibration_request_answers_before_its_data_are_read_and_cancels_while_they_are(

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from test_api import wait_job
+from test_api import dry_run, wait_job
 
 from app.server import create_app
 
@@ -27,16 +27,14 @@ def client(tmp_path_factory: pytest.TempPathFactory) -> TestClient:
 
 def test_dry_run_predicts_the_accuracy_of_the_planned_configurations(client: TestClient) -> None:
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "planned"}).json()["id"]
-    r = client.post(f"/api/sessions/{sid}/replay", json={"count": 8, "seed": 4, "dry_run": True})
-    assert r.status_code == 200, r.text
-    dry = r.json()
+    dry = dry_run(client, sid, {"count": 8, "seed": 4})
     captured = [c for c in dry["configurations"] if c["action"] == "capture"]
     assert dry["mode"] == "full" and dry["predicted"]["n"] == len(captured) == 8
     p = dry["predicted"]
     assert p["unit"] == "px" and 0 < p["mean"] <= p["max"]
     assert {q["name"] for q in p["parameters"]} >= {"CamYaw", "LHipRoll", "RTransY"}
     # More configurations of the same plan predict a smaller error.
-    more = client.post(f"/api/sessions/{sid}/replay", json={"count": 24, "seed": 4, "dry_run": True}).json()
+    more = dry_run(client, sid, {"count": 24, "seed": 4})
     assert more["predicted"]["mean"] < p["mean"]
     bad = client.post(f"/api/sessions/{sid}/replay", json={"count": 3, "mode": "weekly", "dry_run": True})
     assert bad.status_code == 422 and "unknown mode 'weekly'" in bad.json()["detail"]

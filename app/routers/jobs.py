@@ -1,4 +1,5 @@
-"""Jobs (calibrations, replays): list, one, its progress as server-sent events, cancel / pause / resume."""
+"""Jobs (calibrations, replays, dry runs): list, one, its progress as server-sent events, cancel / pause /
+resume; a dry run job's result."""
 
 from __future__ import annotations
 
@@ -10,17 +11,18 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.sse import EventSourceResponse
 from pydantic import BaseModel
 
-from .deps import JobsDep
+from .deps import DeskDep, JobsDep
+from .models import DryRun
 
 router = APIRouter()
 
 
 class JobOut(BaseModel):
     id: str
-    kind: str  # "calibration" | "replay"
+    kind: str  # "calibration" | "replay" | "dry_run"
     state: str  # "queued" | "running" | "done" | "failed" | "cancelled"
     progress: float  # 0..1
-    result: str | None  # a calibration job's calibration id, a replay's session id
+    result: str | None  # a calibration job's calibration id, a replay's or a dry run's session id
     error: str | None  # why it failed, one sentence
     session: str | None
     created: str
@@ -56,6 +58,14 @@ async def job_events(
     while snap["state"] in ("queued", "running", "paused") and not await request.is_disconnected():
         snap = await jobs.next_version(job_id, snap["version"], 1.0) or await asyncio.to_thread(jobs.get, job_id)
         yield JobOut.model_validate(snap)
+
+
+@router.get("/jobs/{job_id}/dry-run")
+def dry_run_result(desk: DeskDep, job_id: str) -> DryRun:
+    """What a dry run job found once it is done: the dry run's answer (every configuration checked, the
+    predicted accuracy). 404 for a job that is not a dry run, or whose result is no longer kept; 422 while it
+    runs, or when it ended cancelled or failed."""
+    return DryRun.model_validate(desk.replay.dry_run_result(job_id))
 
 
 @router.post("/jobs/{job_id}/{action}")

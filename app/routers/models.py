@@ -44,6 +44,41 @@ class JobStarted(BaseModel):
     job: str
 
 
+class DryRunRow(BaseModel):
+    index: int  # the frame index, or the 1-based position of a new configuration
+    target: int
+    ok: bool
+    problem: str
+    action: str  # "capture" | "skip" | "refuse"
+    note: str  # how it is moved out of the safety margin ("": it is not)
+
+
+class PredictedStd(BaseModel):
+    name: str
+    unit: str
+    std: float | None  # predicted standard deviation, display unit (None: not determined)
+
+
+class PredictedAccuracy(BaseModel):
+    """What a calibration from the configurations is predicted to reach, from the noise model alone: the
+    expected error over the workspace (None while the configurations do not determine every parameter)."""
+
+    n: int
+    unit: str
+    mean: float | None
+    rms: float | None
+    max: float | None
+    parameters: list[PredictedStd]
+    held: list[str]  # parameters of the mode the configurations cannot determine (held at their base value)
+
+
+class DryRun(BaseModel):
+    ok: bool
+    configurations: list[DryRunRow]
+    mode: str | None = None  # the mode the accuracy is predicted for
+    predicted: PredictedAccuracy | None = None  # of a calibration from the configurations it would capture
+
+
 def degrees(profile: Profile, q_rad: np.ndarray) -> dict[str, float | None]:
     return {
         name: (None if not math.isfinite(v) else round(math.degrees(v), 4))

@@ -122,9 +122,10 @@ def move(desk: DeskDep, body: MoveRequest) -> RobotState:
 
 @router.post("/robot/stop")
 def stop(desk: DeskDep, robots: RobotsDep, jobs: JobsDep) -> RobotState | None:
-    """Halt every robot and every motion job at once; the connected robot's state (None: no robot to drive)."""
+    """Halt every robot and every motion job (replays, and the dry runs that plan them) at once; the connected
+    robot's state (None: no robot to drive)."""
     for job_snapshot in jobs.list():
-        if job_snapshot["kind"] == "replay" and job_snapshot["state"] in ("queued", "running", "paused"):
+        if job_snapshot["kind"] in ("replay", "dry_run") and job_snapshot["state"] in ("queued", "running", "paused"):
             jobs.cancel(job_snapshot["id"])
     for r in robots.all():
         if r.driver is None:

@@ -16,7 +16,7 @@ from ..importers import import_csv
 from ..services.replay import ReplayPlan
 from ..validation import ID, IMAGE_NAME
 from .deps import DeskDep, FrameIndex, JobsDep, RobotsDep, StoreDep, ViewerDep, read_upload
-from .models import FrameOut, JobStarted, RobotState, frame_out, robot_state
+from .models import DryRun, FrameOut, JobStarted, RobotState, frame_out, robot_state
 
 router = APIRouter()
 
@@ -225,51 +225,21 @@ class ReplayRequest(BaseModel):
     until: UntilRequest | None = None  # plan each next configuration from the frames so far, until good enough
 
 
-class DryRunRow(BaseModel):
-    index: int  # the frame index, or the 1-based position of a new configuration
-    target: int
-    ok: bool
-    problem: str
-    action: str  # "capture" | "skip" | "refuse"
-    note: str  # how it is moved out of the safety margin ("": it is not)
-
-
-class PredictedStd(BaseModel):
-    name: str
-    unit: str
-    std: float | None  # predicted standard deviation, display unit (None: not determined)
-
-
-class PredictedAccuracy(BaseModel):
-    """What a calibration from the configurations is predicted to reach, from the noise model alone: the
-    expected error over the workspace (None while the configurations do not determine every parameter)."""
-
-    n: int
-    unit: str
-    mean: float | None
-    rms: float | None
-    max: float | None
-    parameters: list[PredictedStd]
-    held: list[str]  # parameters of the mode the configurations cannot determine (held at their base value)
-
-
-class DryRun(BaseModel):
-    ok: bool
-    configurations: list[DryRunRow]
-    mode: str | None = None  # the mode the accuracy is predicted for
-    predicted: PredictedAccuracy | None = None  # of a calibration from the configurations it would capture
-
-
 @router.post("/sessions/{session_id}/replay", responses={202: {"model": JobStarted}})
 def start_replay(desk: DeskDep, session_id: str, body: ReplayRequest, response: Response) -> DryRun | JobStarted:
-    """A dry run (`dry_run`: every configuration checked, nothing moves) answers 200; a replay 202 with its job."""
+    """A replay answers 202 with its job. A dry run (`dry_run`: every configuration checked, nothing moves) of
+    frames (`from_session`, `remeasure`) answers 200 with what it found; one of new configurations (`count`,
+    `until`) 202 with its job, which plans them, checks them and predicts (its result: GET
+    /api/jobs/{id}/dry-run)."""
     until = None if body.until is None else Until(body.until.error, body.until.max)
     plan = ReplayPlan(
         body.from_session, body.count, body.remeasure, body.seed, body.resume, body.mode, body.planner, until
     )
-    if body.dry_run:
+    if body.dry_run and plan.from_frames:
         return DryRun.model_validate(desk.replay.dry_run(session_id, plan))
     response.status_code = 202
+    if body.dry_run:
+        return JobStarted(job=desk.replay.start_dry_run(session_id, plan))
     return JobStarted(job=desk.replay.start(session_id, plan))
 
 

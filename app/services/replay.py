@@ -4,10 +4,12 @@ The configurations are another session's, a session's own (re-measure), or N new
 robot's active calibration (for the least predicted error of a calibration in a mode, or at random);
 `until` plans each next configuration from the frames measured so far and stops when the predicted error
 reaches a target. A plan from frames is made when the request comes, so its mistakes answer at once; N new
-configurations are planned in the job (a few seconds), so the request returns at once and the job shows
-"planning" meanwhile. The dry run (app/capture.py) checks every configuration before anything moves and
-predicts the accuracy of a calibration from those it would capture; `resume` goes on with a replay a fault
-or an abort stopped.
+configurations are planned in the job (about 0.1 s each on Robonaut), so the request returns at once and the
+job shows "planning" meanwhile. The dry run (app/capture.py) checks every configuration before anything
+moves and predicts the accuracy of a calibration from those it would capture: of frames, in the request; of
+new configurations, in a job of its own (kind "dry_run": planning, checking, predicting; its result read
+with `dry_run_result`), and the plan it checked is the one the replay after it drives. `resume` goes on
+with a replay a fault or an abort stopped.
 """
 
 from __future__ import annotations
@@ -19,11 +21,12 @@ from typing import Any
 import numpy as np
 
 from calib_core import InputError, Profile, SimulatedRobot
-from calib_core.estimation.planning import Plan, SequentialPlan, predict_accuracy
+from calib_core.estimation.planning import Plan, PlanProgress, SequentialPlan, predict_accuracy
 from calib_core.estimation.planning import plan as plan_configurations
 
 from ..capture import Until, capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
+from ..errors import NotFound
 from ..jobs import JobContext, JobManager
 from ..robots import Robots
 from ..store import Store
@@ -33,6 +36,10 @@ from ..store import Store
 RESUME_TOLERANCE_DEG = 0.5
 MAX_PLANNED = 2000  # new configurations one replay may plan
 PLANS_KEPT = 8  # recent plans kept, so that a replay after its dry run drives the plan the dry run checked
+DRY_RUNS_KEPT = 8  # results of recent dry run jobs kept for dry_run_result
+# A dry run job's progress: planning up to this share, then checking every configuration, then predicting.
+PLANNING_SHARE, CHECKING_SHARE = 0.9, 0.07
+ACTIVE = ("queued", "running")
 
 
 @dataclass(frozen=True)
@@ -67,21 +74,33 @@ class ReplayService:
         self.robots = robots
         self.jobs = jobs
         self._plans: dict[tuple, Plan] = {}
+        self._dry_runs: dict[str, dict[str, Any]] = {}  # dry run job: its result (the latest DRY_RUNS_KEPT)
         self._lock = threading.Lock()
         self._starting = threading.Lock()
         self._driving: dict[str, tuple[str, str, ReplayPlan]] = {}  # robot: its latest replay (job, session, plan)
+        self._checking: dict[str, tuple[str, str, ReplayPlan]] = {}  # robot: its latest dry run job (the same)
 
     def configurations(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None]:
         """The configurations (rad), targets and frame indices (None: append) a replay drives through."""
         return self.planned(session_id, plan)[:3]
 
-    def planned(self, session_id: str, plan: ReplayPlan) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray]:
+    def planned(
+        self, session_id: str, plan: ReplayPlan, ctx: JobContext | None = None
+    ) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray]:
         """configurations(), and which of them were measured in the session they come from (bool; new
-        configurations: none), so that the dry run trusts their measurement over a prediction."""
+        configurations: none), so that the dry run trusts their measurement over a prediction. `ctx`: the job
+        that plans them (its progress while planning; a cancel stops the planning)."""
+        return self._configurations(session_id, plan, ctx)[:4]
+
+    def _configurations(
+        self, session_id: str, plan: ReplayPlan, ctx: JobContext | None = None, share: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray, Plan | None]:
+        """planned(), and the plan of new configurations they come from (None: frames, or random). `share`: of
+        the job's progress that planning fills."""
         count = self._check(session_id, plan)
-        q, targets, indices, seen = self._plan(session_id, plan, count)
+        q, targets, indices, seen, made = self._plan(session_id, plan, count, ctx, share)
         if not plan.resume:
-            return q, targets, indices, seen
+            return q, targets, indices, seen, made
         have = np.array([f.joints_rad for f in self.store.sessions.frames(session_id)]).reshape(-1, q.shape[1])
         driver = self.robots.driver(self.store.sessions.get(session_id).robot)
         driven = np.array([_driven(driver, qk) for qk in q]).reshape(q.shape)  # where the replay took each
@@ -93,28 +112,85 @@ class ReplayService:
             raise InputError(
                 f"nothing to resume: session '{session_id}' has a frame at each of the {len(q)} configurations"
             )
-        return q[todo], targets[todo], None, seen[todo]
+        return q[todo], targets[todo], None, seen[todo], made
 
-    def dry_run(self, session_id: str, plan: ReplayPlan) -> dict[str, Any]:
+    def dry_run(self, session_id: str, plan: ReplayPlan, ctx: JobContext | None = None) -> dict[str, Any]:
         """Every configuration checked, and the accuracy a calibration from those captured is predicted to
-        have (with `until`: the plan of its `max` configurations, and the predicted error after each)."""
+        have (with `until`: the plan of its `max` configurations, and the predicted error after each). `ctx`:
+        the dry run's job (start_dry_run), told its progress: planning, checking, predicting."""
         robot = self.store.sessions.get(session_id).robot
         profile = self.robots.get(robot).profile
         mode = default_mode(profile, plan.mode)
-        if plan.until is not None:
-            plan = replace(plan, count=plan.until.max, until=None)
-        q, targets, _, seen = self.planned(session_id, plan)
+        plan = _counted(plan)
+        q, targets, _, seen, made = self._configurations(session_id, plan, ctx, PLANNING_SHARE)
         _, believed = self.robots.active_params(robot)
-        rows = dry_run(self.robots.driver(robot), q, targets, believed, seen=seen)
+
+        def checked(k: int, n: int) -> None:
+            assert ctx is not None
+            ctx.checkpoint()
+            ctx.progress(PLANNING_SHARE + CHECKING_SHARE * k / n, phase="checking", checked=k, total=n)
+
+        driver = self.robots.driver(robot)
+        rows = dry_run(driver, q, targets, believed, seen=seen, progress=None if ctx is None else checked)
+        if ctx is not None:
+            ctx.progress(PLANNING_SHARE + CHECKING_SHARE, phase="predicting")
         captured = [k for k, r in enumerate(rows) if r["action"] == "capture"]
         predicted = None
-        planned = plan.count is not None and not plan.from_frames and plan.planner != "random" and not plan.resume
-        if planned and len(captured) == len(rows) == plan.count:  # the plan's own prediction holds
-            predicted = self._planned(profile, mode, plan.count, believed, plan.seed).predicted.to_dict()
+        if made is not None and not plan.resume and len(captured) == len(rows) == plan.count:
+            predicted = made.predicted.to_dict()  # the plan's own prediction holds
         elif captured:
             pred = predict_accuracy(profile, mode, q[captured], targets[captured], believed, seed=plan.seed)
             predicted = pred.to_dict()
         return {"ok": all(r["ok"] for r in rows), "configurations": rows, "mode": mode, "predicted": predicted}
+
+    def start_dry_run(self, session_id: str, plan: ReplayPlan) -> str:
+        """Queue the dry run of new configurations (planning them takes about 0.1 s each on Robonaut) as a job;
+        its id. What can be wrong with the request is refused at once. The same request while its dry run is
+        queued or running (a double click, a second tab) is that dry run; another dry run of the same robot
+        meanwhile is refused naming the job. The job's result, once done: dry_run_result."""
+        robot = self.store.sessions.get(session_id).robot
+        default_mode(self.robots.get(robot).profile, plan.mode)  # an unknown mode answers at once
+        count = self._check(session_id, _counted(plan))
+        with self._starting:
+            running = self._checking.get(robot)
+            if running is not None and self.jobs.get(running[0])["state"] in ACTIVE:
+                if running[1:] == (session_id, plan):
+                    return running[0]
+                raise InputError(
+                    f"a dry run (job {running[0]}) is planning for {robot}: wait for it to end, or cancel it first"
+                )
+
+            def run(ctx: JobContext) -> str:
+                result = self.dry_run(session_id, plan, ctx)
+                with self._lock:
+                    self._dry_runs[ctx.job_id] = result
+                    while len(self._dry_runs) > DRY_RUNS_KEPT:
+                        self._dry_runs.pop(next(iter(self._dry_runs)))
+                return session_id
+
+            detail = {"robot": robot, "count": count, "phase": "planning"}
+            job_id = self.jobs.submit_thread("dry_run", run, session_id=session_id, detail=detail, pausable=False)
+            self._checking[robot] = (job_id, session_id, plan)
+            return job_id
+
+    def dry_run_result(self, job_id: str) -> dict[str, Any]:
+        """What a dry run job found (the dry run's answer), once it is done."""
+        job = self.jobs.get(job_id)
+        if job["kind"] != "dry_run":
+            raise NotFound(f"job '{job_id}' is a {job['kind']}, not a dry run: it has no dry run result")
+        if job["state"] in ACTIVE:
+            raise InputError(f"the dry run (job {job_id}) is still {job['state']}: its result comes when it is done")
+        if job["state"] != "done":
+            why = f": {job['error']}" if job["error"] else ""
+            raise InputError(f"the dry run (job {job_id}) ended {job['state']}{why}; it has no result")
+        with self._lock:
+            result = self._dry_runs.get(job_id)
+        if result is None:
+            raise NotFound(
+                f"the result of dry run job '{job_id}' is no longer kept (the desk keeps the latest {DRY_RUNS_KEPT} "
+                "until it restarts): run the dry run again"
+            )
+        return result
 
     def start(self, session_id: str, plan: ReplayPlan) -> str:
         """Queue the replay job; its id. The same request while its replay is queued or running (a double
@@ -122,7 +198,7 @@ class ReplayService:
         robot = self.store.sessions.get(session_id).robot
         with self._starting:
             running = self._driving.get(robot)
-            if running is not None and self.jobs.get(running[0])["state"] in ("queued", "running"):
+            if running is not None and self.jobs.get(running[0])["state"] in ACTIVE:
                 if running[1:] == (session_id, plan):
                     return running[0]
                 raise InputError(
@@ -143,7 +219,7 @@ class ReplayService:
         def run(ctx: JobContext) -> str | None:
             if ready is None:
                 ctx.progress(0.0, phase="planning")
-                q, targets, indices, seen = self.planned(session_id, plan)
+                q, targets, indices, seen = self.planned(session_id, plan, ctx)
                 ctx.checkpoint()
                 ctx.progress(0.0, phase="driving")
             else:
@@ -180,13 +256,25 @@ class ReplayService:
 
         return self.jobs.submit_thread("replay", run, session_id=session_id)
 
-    def _planned(self, profile: Profile, mode: str, count: int, believed: np.ndarray, seed: int) -> Plan:
-        """A plan (the same request, the same plan: a dry run's plan is the replay's, and is made once)."""
+    def _planned(
+        self,
+        profile: Profile,
+        mode: str,
+        count: int,
+        believed: np.ndarray,
+        seed: int,
+        ctx: JobContext | None = None,
+        share: float = 1.0,
+    ) -> Plan:
+        """A plan (the same request, the same plan: a dry run's plan is the replay's, and is made once). `ctx`:
+        the job that makes it, told each step (up to `share` of its progress) and stopped by a cancel."""
         key = (profile.name, mode, count, seed, believed.tobytes())
         with self._lock:
             if key in self._plans:
                 return self._plans[key]
-        planned = plan_configurations(profile, mode, count, believed, seed=seed, criterion="task")
+        planned = plan_configurations(
+            profile, mode, count, believed, seed=seed, criterion="task", **_pacing(ctx, share)
+        )
         with self._lock:
             self._plans[key] = planned
             while len(self._plans) > PLANS_KEPT:
@@ -207,8 +295,8 @@ class ReplayService:
         return plan.count
 
     def _plan(
-        self, session_id: str, plan: ReplayPlan, count: int
-    ) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray]:
+        self, session_id: str, plan: ReplayPlan, count: int, ctx: JobContext | None = None, share: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray, list[int] | None, np.ndarray, Plan | None]:
         session = self.store.sessions.get(session_id)
         robot = self.robots.get(session.robot)
         if plan.from_frames:
@@ -221,20 +309,42 @@ class ReplayService:
             q = np.array([f.joints_rad for f in frames])
             targets = np.array([f.target for f in frames])
             seen = np.array([f.status == "measured" for f in frames], dtype=bool)
-            return q, targets, [f.index for f in frames] if plan.remeasure else None, seen
+            return q, targets, [f.index for f in frames] if plan.remeasure else None, seen, None
         # Configurations the robot believes it sees the target in: with its active model. Random: twice as
         # many as asked, since those inside a joint's safety margin are left out. Planned: for the least
         # predicted error of a calibration in the mode, inside the limits less the margin already.
         _, believed = self.robots.active_params(session.robot)
         driver = self.robots.driver(session.robot)
+        made = None
         if plan.planner == "random":
             planner = SimulatedRobot.from_profile(robot.profile, seed=plan.seed, truth=believed)
-            q, targets = planner.configurations(2 * count + 10)
+            if ctx is not None:
+                ctx.progress(0.0, phase="planning", stage="drawing")
+            stop = None if ctx is None else (lambda: ctx.cancelled)
+            q, targets = planner.configurations(2 * count + 10, should_stop=stop)
         else:
-            planned = self._planned(robot.profile, default_mode(robot.profile, plan.mode), count, believed, plan.seed)
-            q, targets = planned.q, planned.targets
+            mode = default_mode(robot.profile, plan.mode)
+            made = self._planned(robot.profile, mode, count, believed, plan.seed, ctx, share)
+            q, targets = made.q, made.targets
         keep = [k for k in range(len(q)) if _within_limits(driver, q[k])][:count]
-        return q[keep], targets[keep], None, np.zeros(len(keep), bool)
+        return q[keep], targets[keep], None, np.zeros(len(keep), bool), made
+
+
+def _counted(plan: ReplayPlan) -> ReplayPlan:
+    """What a dry run checks of `until`: the plan of its `max` configurations."""
+    return plan if plan.until is None else replace(plan, count=plan.until.max, until=None)
+
+
+def _pacing(ctx: JobContext | None, share: float) -> dict[str, Any]:
+    """plan()'s `progress` and `should_stop` for a job: its progress up to `share` while planning (with the
+    stage and its steps in the detail), and planning stops at the next step once the job is cancelled."""
+    if ctx is None:
+        return {}
+
+    def progress(step: PlanProgress) -> None:
+        ctx.progress(share * step.fraction, phase="planning", stage=step.stage, step=step.done, steps=step.total)
+
+    return {"progress": progress, "should_stop": lambda: ctx.cancelled}
 
 
 def _within_limits(driver: RobotDriver, q_rad: np.ndarray) -> bool:

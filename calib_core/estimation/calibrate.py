@@ -3,14 +3,17 @@
 The procedure, for the Levenberg-Marquardt method:
 1. At the start values, find the parameter directions the data cannot determine and hold one
    parameter of each at its base value (named in the report), so nothing wanders.
-2. Least squares from the base calibration (or the nominal model) to the basin of the solution.
+2. Least squares from the base calibration (or the nominal model) to the basin of the solution. If
+   that solution stays far above the noise and the mode estimates a pose nobody measured (a camera's
+   mount), several starts (`starts`), the lowest cost kept.
    With several sensors, each is then weighed by its actual scatter (one step of variance-component
    estimation), so that a declared noise that is too optimistic for one of them does not let it
    drown the others.
 3. With the robust loss (default): re-solve with a Cauchy loss scaled to each sensor's robust
    spread, then flag observations beyond the 99.99% quantile of that spread as outliers and solve
    once more on the rest (plain least squares, so the covariance is the textbook one).
-4. At the solution: standard deviations and correlations, singular values, condition and O1.
+4. At the solution: standard deviations and correlations, singular values, condition and O1, and per
+   sensor a chi-square test of the residuals against its declared noise (`noise_test`).
 The held-out share and the k-fold cross-validation repeat steps 1-3 on the training part only.
 Self-observation with several cameras, a tracker with cameras, several planes: the same procedure.
 """
@@ -32,11 +35,13 @@ from .calibration import Calibration, Outlier, parameter_estimate
 from .diagnostics import diagnose
 from .fit import Fit
 from .identifiability import find_dependencies, identifiability_report, minimal_set, report
+from .noise_test import noise_tests, sensor_scatter
 from .outliers import OutlierVerdict, inliers, pooled_robust_sigma, problem_outliers, robust_sigma, sort_outliers
 from .problem import Problem
 from .registration import register, registration_params
 from .reports import SolverReport
 from .solver import Robust, SolveResult, levenberg_marquardt, nelder_mead
+from .starts import SOLVED_STARTS, Start, far_above_noise, turned_starts, unknown_poses
 from .validation import Figures, check_share, holdout_split, kfold_splits, sensor_figures
 
 METHODS = ("lm", "nelder-mead")
@@ -65,7 +70,6 @@ def calibrate(
     if method not in METHODS:
         raise InputError(f"unknown method '{method}' ({', '.join(METHODS)})")
     check_share(holdout)
-    p_base = base.params(profile) if base is not None else profile.nominal()
     data = sensors_of(profile, data, m)
     if holdout > 0:
         train_idx, test_idx = holdout_split(data, holdout, seed)
@@ -73,10 +77,8 @@ def calibrate(
         train_idx, test_idx = np.arange(data.n_configurations), np.array([], int)
     train = data.select(train_idx)
     m = observed_mode(profile, train, m)
-    _check_can_fit(profile, train, m, base)
-    if set(registration_params(profile, train.sensors)) & set(m.free):
-        # A tracker set-up of its own: "before" is the old model with only the registration fitted.
-        p_base = register(profile, train, p_base)
+    p_base = start_values(profile, train, m, base)
+    _check_rows(profile, train, m, p_base)
     fit = fit_parameters(
         profile,
         train,
@@ -99,6 +101,9 @@ def calibrate(
         cost_history=fit.cost_history,
         sigma=fit.sigma,
         minimal=minimal,
+        noise_tests=fit.noise_tests,
+        starts=fit.starts,
+        start=fit.start,
     )
     if folds >= 2:
         start = time.perf_counter()
@@ -110,21 +115,59 @@ def calibrate(
     return _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
 
 
-def _check_can_fit(profile: Profile, train: Dataset, mode: Mode, base: Calibration | None) -> None:
-    """Enough observations for the mode, and a tracker's pose either estimated or known from a base."""
-    rows = sum(profile.sensors[s].dim * int(np.sum(train.sensor == s)) for s in train.sensors)
-    if rows < len(mode.free):
-        raise InputError(
-            f"{train.n_observations} observations cannot determine the {len(mode.free)} parameters of mode "
-            f"'{mode.name}'",
-            file=train.source,
-        )
-    reg = set(registration_params(profile, train.sensors))
+def check_can_fit(profile: Profile, data: Dataset, mode: str, base: Calibration | None = None) -> None:
+    """Refuse (InputError) data from which `calibrate` cannot estimate `mode`, as it would on these data
+    as its training part: a registration these data need that neither the mode nor a base gives, or too few
+    observations (`_check_rows`)."""
+    m = profile.mode(mode)
+    data = sensors_of(profile, data, m)
+    m = observed_mode(profile, data, m)
+    _check_rows(profile, data, m, start_values(profile, data, m, base))
+
+
+def start_values(profile: Profile, data: Dataset, mode: Mode, base: Calibration | None) -> np.ndarray:
+    """Where the solver starts: the base calibration (or the nominal model), with each tracker's
+    registration fitted in closed form when the mode estimates it (a tracker set-up of its own: "before"
+    is the old model with only the registration fitted). A tracker whose pose is neither estimated nor
+    known from a base is refused."""
+    p = base.params(profile) if base is not None else profile.nominal()
+    reg = set(registration_params(profile, data.sensors))
     if reg and not reg & set(mode.free) and base is None:
-        devices = ", ".join(profile.sensors[s].name for s in train.sensors if registration_params(profile, [s]))
+        devices = ", ".join(profile.sensors[s].name for s in data.sensors if registration_params(profile, [s]))
         raise InputError(
             f"mode '{mode.name}' does not estimate the registration of '{devices}' (where it stands), which these "
             "data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
+        )
+    return register(profile, data, p) if reg & set(mode.free) else p
+
+
+def _check_rows(profile: Profile, data: Dataset, mode: Mode, p_start: np.ndarray) -> None:
+    """Refuse only observations that leave nothing to check a fit: no parameter of the mode stays free, or
+    the rows are no more than the parameters they determine (each row then goes to fixing a parameter,
+    and the fit passes through every observation, noise and all). Parameters the data cannot tell apart
+    are held and named by the fit (`find_dependencies`), so a mode with more parameters than rows is
+    refused only when the rows do not exceed what they determine."""
+    rows = sum(profile.sensors[s].dim * int(np.sum(data.sensor == s)) for s in data.sensors)
+    n = len(mode.free)
+    if rows > n:  # more rows than parameters: some are left over, whatever the data determine
+        return
+    problem = Problem(profile, data, list(mode.free), p_start, mode.ties)
+    J = problem.residuals_jacobian(problem.x0)[1][: problem.n_data_rows]
+    held = len(find_dependencies(profile, J, problem.free))
+    free = n - held
+    if free == 0:
+        raise InputError(
+            f"{data.n_observations} observations determine none of the {n} parameters of mode '{mode.name}' "
+            "(no parameter changes what they predict): measure configurations that move the parameters",
+            file=data.source,
+        )
+    if rows <= free:
+        raise InputError(
+            f"{data.n_observations} observations ({rows} rows) cannot calibrate mode '{mode.name}': they would fix "
+            f"{free} of its {n} parameters exactly ({held} more held: the data cannot tell them apart), with no row "
+            "left to check the fit against the noise: measure more configurations, or choose a mode with fewer "
+            "parameters",
+            file=data.source,
         )
 
 
@@ -195,18 +238,19 @@ def fit_parameters(
         segments = [(b.rows, b.dim) for b in problem.blocks]
         passes.absorb(nelder_mead(problem.raw_residuals, problem.x0, segments, should_stop=should_stop))
     else:
-        passes.least_squares(initial, robust)
+        # A tracker's registration starts from its closed-form fit (`register`), a bounded pose near its start.
+        settled = frozenset(registration_params(profile, data.sensors)) | frozenset(mode.bounds)
+        passes.least_squares(initial, robust, unknown_poses(profile, problem.free, settled))
     res = passes.last
     x = res.x
     r = problem.residuals(x)
     n_free = len(problem.free)
     n_in = sum(int(problem.included[b.obs].sum()) * b.dim for b in problem.blocks)
     sigma = float(np.sqrt(np.sum(r[: problem.n_data_rows] ** 2) / max(n_in - n_free, 1)))
-    sigmas = {}  # per sensor, of the residuals whitened by its noise model alone (as `inliers` computes them)
-    for b in problem.blocks:
-        rows_in = int(problem.included[b.obs].sum()) * b.dim
-        share = n_free * (b.rows.stop - b.rows.start) / max(problem.n_data_rows, 1)
-        sigmas[b.index] = b.scale * float(np.sqrt(np.sum(r[b.rows] ** 2) / max(rows_in - share, 1)))
+    # Per sensor, of the residuals whitened by its noise model alone (as `inliers` computes them).
+    sigmas = {
+        s: float(np.sqrt(total / max(dof, 1))) for s, (total, _, dof) in sensor_scatter(problem, r, n_free).items()
+    }
     return Fit(
         problem,
         problem.params(x),
@@ -219,6 +263,9 @@ def fit_parameters(
         sigma,
         sigmas,
         passes.verdict,
+        noise_tests(problem, r, n_free),
+        passes.starts,
+        passes.start,
     )
 
 
@@ -239,6 +286,7 @@ class _Passes:
         self.history: list[float] = []
         self.last: SolveResult
         self.verdict: OutlierVerdict | None = None
+        self.starts, self.start = 1, "the start values"  # start vectors tried, and the one that won
 
     def absorb(self, res: SolveResult) -> None:
         self.iterations += res.iterations
@@ -271,9 +319,13 @@ class _Passes:
         )
         return self.last.x
 
-    def least_squares(self, initial: tuple | None, robust: bool) -> None:
+    def least_squares(self, initial: tuple | None, robust: bool, poses: list[tuple[str, list[int]]]) -> None:
+        """`poses`: the free poses nobody measured (`unknown_poses`), turned when the first solution stays
+        far above the noise."""
         problem = self.problem
         x = self.run(problem.x0, None, initial)
+        if poses and far_above_noise(problem, problem.residuals(x)):
+            x = self.best_start(turned_starts(problem, problem.x0, poses, self.should_stop))
         if len(problem.blocks) > 1 or problem.priors:
             if len(problem.blocks) > 1:
                 # Each sensor weighed by its actual scatter, not only its declared noise.
@@ -296,6 +348,18 @@ class _Passes:
             problem.included = ~self.verdict.gross
             problem.prior_scale = pooled_robust_sigma(problem, r)
             self.run(x, None)
+
+    def best_start(self, starts: list[Start]) -> np.ndarray:
+        """The lowest-cost solution: the last one's, or one from the best few of `starts` (by their cost
+        before the full solve)."""
+        best = self.last
+        for start in sorted(starts, key=lambda s: s.cost)[:SOLVED_STARTS]:
+            self.run(start.x, None)
+            if self.last.cost < best.cost:
+                best, self.start = self.last, start.label
+        self.starts += len(starts)
+        self.last = best
+        return best.x
 
 
 def cross_validate(

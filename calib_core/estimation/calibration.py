@@ -99,6 +99,7 @@ class Calibration:
         d["diagnostics"] = [x.to_dict() for x in self.diagnostics]
         d["warnings"] = self.warnings
         d["converged"] = self.converged
+        d["fits_noise"] = self.solver.fits_noise
         d["solve_seconds"] = self.solver.solve_seconds
         d["iterations"] = self.solver.iterations
         return _finite(d)
@@ -181,7 +182,13 @@ class Calibration:
             lines.append(f"  {name}: before {sf['before']}; after {sf['after']}{held}")
         s = self.solver
         outcome = s.status.value if s.converged else f"DID NOT CONVERGE: {s.status.value}"
+        above = [t for t in s.noise_tests if t.rejected]
+        if above:
+            worst = max(above, key=lambda t: t.factor)
+            outcome += f"; residuals {worst.factor:.3g} times the noise '{worst.sensor}' declares"
         work = f"{s.iterations} iterations, {s.evaluations} evaluations, {s.solve_seconds * 1e3:.1f} ms"
+        if s.starts > 1:
+            work += f", {s.starts} starts (kept: {s.start})"
         lines.append(f"  solver: {work} ({outcome})")
         lines += [f"  {d.severity.value}: {d.message}" for d in self.diagnostics]
         return "\n".join(lines)

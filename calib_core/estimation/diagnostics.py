@@ -1,7 +1,8 @@
 """What a user must read before trusting a calibration, as typed diagnostics: parameters held
 because the data cannot separate them, weakly determined groups, rejected outliers, parameters at
 their bounds, a solver that did not converge, a held-out error much worse than the training error,
-a tracker registration that cannot fit, a fit worse than its start."""
+a tracker registration that cannot fit, residuals clearly above a sensor's declared noise, a fit worse
+than its start."""
 
 from __future__ import annotations
 
@@ -15,12 +16,12 @@ from .calibration import Outlier
 from .fit import Fit
 from .identifiability import Report, weak_parameters
 from .reports import Diagnostic, Severity, SolverReport
+from .starts import FAR_ABOVE_NOISE
 from .validation import Figures
 
 # No robot's nominal model is this far off once the tracker's pose is fitted; rows from two tracker
 # set-ups (or the wrong arm) are.
 REGISTRATION_MISFIT_M = 0.05
-NOISE_EXCESS = 100.0  # residual scale over the declared noise beyond which the noise model cannot be right
 HOLDOUT_WORSE = 1.5  # held-out RMS this many times the training RMS: the calibration may not generalise
 
 
@@ -119,22 +120,36 @@ def _frames(frames: Iterable[int]) -> str:
 
 
 def _noise_excess(fit: Fit) -> list[Diagnostic]:
-    """A fit whose residuals are far above a sensor's declared noise: model error the mode cannot
-    take, a noise figure that is wrong, or data in the wrong unit. It may be right (a real robot's
-    model error), so a warning, not an error."""
+    """A sensor whose residuals a chi-square test finds clearly above its declared noise. On a real robot
+    that is usual (model error adds to the noise) and the estimate may still be right, so a warning that
+    says how far above and what a user can do; far above (FAR_ABOVE_NOISE), it may also be a wrong minimum
+    or data in another unit."""
     out = []
-    for b in fit.problem.blocks:
-        ratio = fit.sigmas.get(b.index, 0.0)
-        if ratio > NOISE_EXCESS:
-            out.append(
-                Diagnostic(
-                    Severity.WARNING,
-                    "noise-excess",
-                    f"the fit's residuals are {ratio:.0f} times the noise '{b.sensor.name}' declares: errors "
-                    "the mode cannot model, a noise figure that is too optimistic, or data in the wrong unit "
-                    "(check data.joint_unit and the measurement's unit)",
-                )
+    for test in fit.noise_tests:
+        if not test.rejected:
+            continue
+        if test.factor > FAR_ABOVE_NOISE:
+            tried = f"{fit.starts} starts were tried" if fit.starts > 1 else "only the start values were tried"
+            why = (
+                "beyond errors the mode cannot model and a noise figure that is too optimistic, so large a factor may "
+                f"be a wrong minimum ({tried}; a closer start, a base calibration, may find a better one) or data in "
+                "another unit (data.joint_unit, the measurement's unit): check these before applying it"
             )
+        else:
+            why = (
+                "errors the mode cannot model (unmodelled geometry, compliance, drift: a real robot has some) or a "
+                "noise figure that is too optimistic. The estimate is this mode's best fit and its standard deviations "
+                "use the actual scatter; a mode with more parameters may fit more, or declare the sensor's noise about "
+                f"{test.factor:.2g} times larger (it weighs this sensor against the others and sets the outlier limits)"
+            )
+        out.append(
+            Diagnostic(
+                Severity.WARNING,
+                "noise-excess",
+                f"the residuals of '{test.sensor}' are {test.factor:.3g} times the noise it declares "
+                f"({test.describe()}): {why}",
+            )
+        )
     return out
 
 

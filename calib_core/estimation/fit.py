@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .identifiability import Dependency
 from .outliers import OutlierVerdict
 from .problem import Problem
+from .reports import NoiseTest
 from .solver import SolveStatus
 
 
@@ -25,3 +26,6 @@ class Fit:
     sigma: float  # scale of the whitened residuals at the solution
     sigmas: dict[int, float]  # per sensor (profile index): the scale of its whitened residuals
     verdict: OutlierVerdict | None = None  # the robust pass's flagged observations, sorted (None: no robust pass)
+    noise_tests: list[NoiseTest] = field(default_factory=list)  # per sensor, its residuals against its declared noise
+    starts: int = 1  # start vectors tried (calib_core.estimation.starts)
+    start: str = "the start values"  # the one whose solution was kept

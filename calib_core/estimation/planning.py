@@ -25,6 +25,9 @@ passes that swap a chosen configuration for a candidate while the criterion fall
 sparse where the best configurations lie (near the sensor, at the edge of what it sees), so a plan from
 drawn candidates then draws more about the configurations it chose (REFINE_DEG on every joint) and
 exchanges again: a local refinement, about 8% off the predicted error of a 32-configuration Robonaut plan.
+A plan of a few hundred configurations takes tens of seconds: `plan` reports where it is after each step
+(`progress`: each configuration chosen, each one reconsidered by an exchange) and stops when its caller
+asks (`should_stop`, checked at each step: it raises Cancelled).
 The workspace the error is averaged over is not the plan's candidates (which keep wider margins) but
 configurations the sensor sees with the usual margin, the kind a held-out check draws (`workspace`).
 """
@@ -49,6 +52,7 @@ from .calibrate import observed_mode
 from .identifiability import find_dependencies, minimal_set
 from .problem import Problem
 from .registration import registration_params
+from .solver import Cancelled
 
 Criterion = Literal["task", "d", "random"]
 CRITERIA: tuple[str, ...] = ("task", "d", "random")
@@ -83,6 +87,7 @@ EXCHANGE_PASSES = 2
 REFINE_DRAWS = 24
 REFINE_DEG = 12.0
 REFINE_PASSES = 1
+REFINE_CHUNK = 100  # chosen configurations whose draws are checked and added at once
 # An information matrix (scaled by a typical configuration's) whose smallest eigenvalue is below this share
 # of its largest leaves a parameter direction undetermined: no finite prediction.
 UNDETERMINED = 1e-10
@@ -151,6 +156,54 @@ class Plan:
     history: list[float] = field(default_factory=list)  # predicted mean error after each greedy pick
     candidates: int = 0
     seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class PlanProgress:
+    """Where a plan is (plan's `progress`): its stage, the steps of that stage done and to do, and the share
+    of the whole plan's work done, estimated from the steps (each costs about one search of the candidates)."""
+
+    stage: str  # "drawing" candidates, "choosing" the configurations, "exchanging", "refining" (module doc)
+    done: int
+    total: int
+    fraction: float
+
+
+# The share of a plan's work before its first choice (drawing the candidates, the linearised calibration):
+# about 2 s of a 300-configuration Robonaut plan's 40.
+DRAWING_SHARE = 0.05
+
+
+class _Pace:
+    """Reports a plan's steps to `progress` and raises Cancelled at a step once `should_stop` says so.
+    `stages`: (name, steps, weight) in order; the weights share the work after drawing."""
+
+    def __init__(
+        self,
+        progress: Callable[[PlanProgress], None] | None,
+        should_stop: Callable[[], bool] | None,
+        stages: list[tuple[str, int, float]],
+    ) -> None:
+        self.progress, self.should_stop = progress, should_stop
+        weight = sum(w for _, _, w in stages) or 1.0
+        self.stages: dict[str, tuple[int, float, float]] = {}  # name: steps, share before it, its share
+        before = DRAWING_SHARE
+        for name, steps, w in stages:
+            share = (1.0 - DRAWING_SHARE) * w / weight
+            self.stages[name] = (max(steps, 1), before, share)
+            before += share
+
+    def __call__(self, stage: str, done: int = 0) -> None:
+        if self.should_stop is not None and self.should_stop():
+            raise Cancelled("the plan was cancelled")
+        if self.progress is None:
+            return
+        if stage == "drawing":
+            self.progress(PlanProgress(stage, done, 1, DRAWING_SHARE * done))
+            return
+        steps, before, share = self.stages[stage]
+        done = min(done, steps)
+        self.progress(PlanProgress(stage, done, steps, before + share * done / steps))
 
 
 @dataclass
@@ -249,6 +302,7 @@ def candidates(
     margin_deg: float = JOINT_MARGIN_DEG,
     occlusion: bool = True,
     view_margin_px: float = VIEW_MARGIN_PX,
+    should_stop: Callable[[], bool] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Configurations (N, n_joints) rad and their targets (N,): inside the joint limits less the margin
     and predicted visible with the base model. A profile with a stance structure (NAO: a leg lifted,
@@ -256,7 +310,12 @@ def candidates(
     draws. `count`: about how many (default: CANDIDATES, a stance structure STANCE_CANDIDATES).
     `occlusion=False`: without the costly check that the arm leaves a stereo head's sphere in
     view (`Visibility` makes it for the configurations a plan picks). `view_margin_px`: kept clear of
-    the image border."""
+    the image border. `should_stop`: asked before each batch drawn; Cancelled once it says yes."""
+
+    def check() -> None:
+        if should_stop is not None and should_stop():
+            raise Cancelled("the draw was cancelled")
+
     sim = SimulatedRobot(profile, p_base, margin=view_margin_px, seed=seed)
     if profile.simulation.get("sampling", {}).get("kind") == "contact":
         raise InputError(f"robot '{profile.name}' is calibrated from contacts with planes: there is nothing to plan")
@@ -264,6 +323,7 @@ def candidates(
         count = STANCE_CANDIDATES if count is None else count
         parts = [sim.stance_frames(1)[:2] for _ in range(STANCE_BATCHES)]
         while sum(len(p[0]) for p in parts) < count and len(parts) < MAX_STANCE_BATCHES:
+            check()
             parts.append(sim.stance_frames(1)[:2])
         q, targets = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     else:
@@ -272,6 +332,7 @@ def candidates(
         target = profile.data.target if profile.data.target is not None else (profile.data.target_default or 0)
         found: list[np.ndarray] = []
         for _ in range(50):
+            check()
             draw = sim.rng.uniform(lo, hi, (count, len(lo)))
             found += list(draw[sim.visible(draw, np.full(count, target), occlusion=occlusion)])
             if len(found) >= count:
@@ -509,13 +570,16 @@ class Selection:
                 return int(ok[0])
         return -1
 
-    def exchange(self, passes: int = EXCHANGE_PASSES) -> int:
+    def exchange(self, passes: int = EXCHANGE_PASSES, step: Callable[[int], None] | None = None) -> int:
         """Fedorov exchange: swap a chosen configuration for a candidate while the criterion falls.
-        Returns the number of swaps."""
+        Returns the number of swaps. `step(k)`: called before the k-th (0-based, over all passes) chosen
+        configuration is reconsidered."""
         swaps = 0
-        for _ in range(passes):
+        for p in range(passes):
             improved = False
             for pos in range(len(self.chosen)):
+                if step is not None:
+                    step(p * len(self.chosen) + pos)
                 c = self.chosen[pos]
                 C_without = _rank_update(self.C, self.d.L[c], -1)
                 j = self.best(C_without)
@@ -585,12 +649,16 @@ def plan(
     exchange: bool = True,
     isotropic: bool = False,
     pool: tuple[np.ndarray, np.ndarray] | None = None,
+    progress: Callable[[PlanProgress], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
 ) -> Plan:
     """N configurations that make a calibration in `mode` as accurate as the noise model predicts it
     can be (module doc), from candidates inside the joint limits less `margin_deg` and predicted
     visible with p_base (default: the nominal model). `criterion`: "task" (the predicted error over
     the workspace), "d" (D-optimal) or "random" (the first N candidates, for comparison). `pool`:
-    candidate configurations and targets to choose from instead of drawing them."""
+    candidate configurations and targets to choose from instead of drawing them. `progress`: told where
+    the plan is after each step (PlanProgress); `should_stop`: asked at each step, and the plan raises
+    Cancelled once it says yes."""
     if criterion not in CRITERIA:
         raise InputError(f"unknown criterion '{criterion}' ({', '.join(CRITERIA)})")
     if n < 1:
@@ -599,6 +667,14 @@ def plan(
     p = profile.nominal() if p_base is None else p_base
     profile.mode(mode)  # an unknown mode fails before any sampling
     drawn = pool is None  # a pool given is what to choose from: no refinement beyond it
+    refine = drawn and exchange and criterion != "random" and not _stances(profile)
+    stages = [("choosing", n, 1.0)]
+    if exchange and criterion != "random":
+        stages.append(("exchanging", EXCHANGE_PASSES * n, EXCHANGE_PASSES))
+    if refine:  # with drawing about each choice and checking what it sees: about as long as choosing
+        stages.append(("refining", REFINE_PASSES * n, REFINE_PASSES))
+    pace = _Pace(progress, should_stop, stages)
+    pace("drawing")
     if pool is None:
         count = max(STANCE_CANDIDATES if _stances(profile) else CANDIDATES, 3 * n)
         pool = candidates(
@@ -609,28 +685,34 @@ def plan(
             margin_deg=margin_deg,
             occlusion=False,
             view_margin_px=plan_margins(profile)[0],
+            should_stop=should_stop,
         )
     q, targets = pool
     if n > len(q):
         raise InputError(f"only {len(q)} candidate configurations are predicted visible: ask for at most {len(q)}")
-    d = design(profile, mode, p, q, targets, workspace=workspace(profile, p, seed), isotropic=isotropic, seed=seed)
+    ws = workspace(profile, p, seed)
+    pace("drawing")
+    d = design(profile, mode, p, q, targets, workspace=ws, isotropic=isotropic, seed=seed)
+    pace("drawing", 1)
     admissible = Visibility(profile, p, q, targets)
     history: list[float] = []
     if criterion == "random":
         order = (int(c) for c in np.random.default_rng(seed).permutation(len(q)))
         sel = Selection(d, "task", list(itertools.islice((c for c in order if admissible(np.array([c]))[0]), n)))
+        pace("choosing", n)
     else:
         sel = Selection(d, criterion, admissible=admissible)
-        for _ in range(n):
+        for k in range(n):
             c = sel.best()
             if c < 0:
                 break
             sel.add(c)
             history.append(_mean_error(d, sel.C))
+            pace("choosing", k + 1)
         if exchange:
-            sel.exchange()
-            if drawn and not _stances(profile):
-                _refine(profile, d, admissible, sel, margin_deg, seed)
+            sel.exchange(step=lambda k: pace("exchanging", k))
+            if refine:
+                _refine(profile, d, admissible, sel, margin_deg, seed, pace)
     if len(sel.chosen) < n:
         raise InputError(
             f"only {len(sel.chosen)} of the candidate configurations are predicted visible: ask for at most that"
@@ -640,21 +722,30 @@ def plan(
     return Plan(d.q[rows], d.targets[rows], criterion, predicted, history, len(q), time.perf_counter() - start)
 
 
-def _refine(profile: Profile, d: Design, visible: Visibility, sel: Selection, margin_deg: float, seed: int) -> None:
+def _refine(
+    profile: Profile, d: Design, visible: Visibility, sel: Selection, margin_deg: float, seed: int, pace: _Pace
+) -> None:
     """Local refinement (module doc): REFINE_DRAWS candidates about each chosen configuration, inside the
     limits less the margin and the plan's view margins (occlusion checked when one is about to be chosen),
-    then exchange again."""
+    then exchange again. The draws are checked and added REFINE_CHUNK chosen configurations at a time, so
+    that a cancel is heard between."""
     rng = np.random.default_rng([seed, 2])
     lo, hi = _limits_less_margin(profile, margin_deg)
     chosen = np.array(sel.chosen)
     q = np.repeat(d.q[chosen], REFINE_DRAWS, axis=0)
     q = np.clip(q + rng.normal(0.0, math.radians(REFINE_DEG), q.shape), lo, hi)
     targets = np.repeat(d.targets[chosen], REFINE_DRAWS)
-    seen = visible.sim.visible(q, targets, occlusion=False)
-    if seen.any():
-        d.extend(q[seen], targets[seen])
-        visible.extend(q[seen], targets[seen])
-        sel.exchange(REFINE_PASSES)
+    added = False
+    for at in range(0, len(q), REFINE_CHUNK * REFINE_DRAWS):
+        pace("refining")
+        part = slice(at, at + REFINE_CHUNK * REFINE_DRAWS)
+        seen = visible.sim.visible(q[part], targets[part], occlusion=False)
+        if seen.any():
+            d.extend(q[part][seen], targets[part][seen])
+            visible.extend(q[part][seen], targets[part][seen])
+            added = True
+    if added:
+        sel.exchange(REFINE_PASSES, step=lambda k: pace("refining", k))
 
 
 def _mean_error(d: Design, C: np.ndarray) -> float:

@@ -34,9 +34,52 @@ class Diagnostic:
         return cls(Severity(d["severity"]), str(d["code"]), str(d["message"]))
 
 
+@dataclass(frozen=True)
+class NoiseTest:
+    """One sensor's residuals against its declared noise (calib_core.estimation.noise_test)."""
+
+    sensor: str
+    factor: float  # residual RMS over the declared noise (of the whitened residuals, per row)
+    rows: int  # the included rows tested
+    dof: float  # degrees of freedom: the rows less the sensor's share of the free parameters
+    p_value: float  # the chance of a sum of squares this large if the declared noise were right
+    level: float  # the test rejects the declared noise below this p-value
+
+    @property
+    def rejected(self) -> bool:
+        return self.p_value < self.level
+
+    def describe(self) -> str:
+        """The test in words, for a message."""
+        p = f"p = {self.p_value:.1g}" if self.p_value > 0 else "p < 1e-300"
+        return (
+            f"a chi-square test of its {self.rows} residual rows ({self.dof:.0f} degrees of freedom) rejects the "
+            f"declared noise at the {self.level:.1%} level, {p}"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self) | {"rejected": self.rejected}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> NoiseTest:
+        return cls(
+            str(d["sensor"]),
+            float(d["factor"]),
+            int(d["rows"]),
+            float(d["dof"]),
+            float(d["p_value"]),
+            float(d["level"]),
+        )
+
+
 @dataclass
 class SolverReport:
-    """How the estimate was computed and why the solver stopped (a converged minimum, or a limit)."""
+    """How the estimate was computed and why the solver stopped (a converged minimum, or a limit).
+
+    `converged` is the solver's own criterion: it stopped at a minimum, not at a limit of work. Whether
+    that minimum fits the data as well as the sensors' declared noise says is `fits_noise` (a chi-square
+    test per sensor, `noise_tests`): a converged solve far above the noise is a wrong minimum or a model
+    that misses something, and carries a `noise-excess` warning."""
 
     method: str  # "lm" or "nelder-mead"
     status: SolveStatus
@@ -49,14 +92,23 @@ class SolverReport:
     folds: int = 0  # k of the k-fold cross-validation (0: none)
     cv_seconds: float | None = None
     minimal: bool = False  # a minimal identifiable parameter set, without the mode's priors
+    noise_tests: list[NoiseTest] = field(default_factory=list)  # per sensor (none in files before them)
+    starts: int = 1  # start vectors tried (calib_core.estimation.starts)
+    start: str = "the start values"  # the one whose solution was kept
 
     @property
     def converged(self) -> bool:
         return self.status.converged
 
+    @property
+    def fits_noise(self) -> bool | None:
+        """Whether no sensor's residuals are clearly above its declared noise (None: not tested)."""
+        return None if not self.noise_tests else not any(t.rejected for t in self.noise_tests)
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d.update(status=self.status.code, message=self.status.value, converged=self.converged)
+        d.update(noise_tests=[t.to_dict() for t in self.noise_tests], fits_noise=self.fits_noise)
         return d
 
     @classmethod
@@ -73,6 +125,9 @@ class SolverReport:
             folds=int(d.get("folds", 0)),
             cv_seconds=None if d.get("cv_seconds") is None else float(d["cv_seconds"]),
             minimal=bool(d.get("minimal", False)),
+            noise_tests=[NoiseTest.from_dict(t) for t in d.get("noise_tests", [])],
+            starts=int(d.get("starts", 1)),
+            start=str(d.get("start", "the start values")),
         )
 
 

@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import fnmatch
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..dataset import Dataset
 from ..errors import InputError
+from ..estimation.solver import Cancelled
 from ..model.kinematics import forward, sensor_points, target_points, to_sensor
 from ..model.profile import Profile
 from ..sensors import Sensor
@@ -132,12 +134,16 @@ class SimulatedRobot:
         return robot
 
     # --- configurations ---------------------------------------------------------------------------
-    def configurations(self, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Joint readings (N, n_joints) and, per configuration, the target it shows (N,)."""
+    def configurations(
+        self, n: int | None = None, *, should_stop: Callable[[], bool] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Joint readings (N, n_joints) and, per configuration, the target it shows (N,). `should_stop`: asked
+        before each batch drawn (thousands of NAO's take a minute); Cancelled once it says yes."""
+        stop = should_stop or (lambda: False)
         sampling = self.profile.simulation.get("sampling", {"kind": "uniform"})
         if sampling.get("kind") == "stances":
-            return self._stances(sampling, n)
-        return self._uniform(n or 100)
+            return self._stances(sampling, n, stop)
+        return self._uniform(n or 100, stop)
 
     def clustered(self, n: int, spread: float, wide_share: float) -> tuple[np.ndarray, np.ndarray]:
         """Configurations as a session on a real robot often takes them: most within `spread` (rad) of
@@ -149,11 +155,13 @@ class SimulatedRobot:
         wide = self.rng.random(n) < wide_share
         return np.where(wide[:, None], q_wide, narrow), targets
 
-    def _uniform(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def _uniform(self, n: int, stop: Callable[[], bool] = lambda: False) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.profile.joint_limits()
         target = self.profile.data.target if self.profile.data.target is not None else 0
         found: list[np.ndarray] = []
         for _ in range(200):
+            if stop():
+                raise Cancelled("the draw was cancelled")
             q = self.rng.uniform(lo, hi, (max(4 * n, 64), len(lo)))
             ok = self.visible(q, np.full(len(q), target))
             found += list(q[ok])
@@ -163,7 +171,9 @@ class SimulatedRobot:
             raise InputError(f"found only {len(found)} visible configurations of the {n} asked: ask for fewer")
         return np.array(found[:n]), np.full(n, target)
 
-    def _stances(self, sampling: dict, n: int | None) -> tuple[np.ndarray, np.ndarray]:
+    def _stances(
+        self, sampling: dict, n: int | None, stop: Callable[[], bool] = lambda: False
+    ) -> tuple[np.ndarray, np.ndarray]:
         prof = self.profile
         postures = int(sampling.get("postures", 3))
         per_target = int(sampling.get("stances_per_target", 24))
@@ -177,6 +187,8 @@ class SimulatedRobot:
             for _ in range(per_target * 200 // batch + 1):
                 if got == per_target:
                     break
+                if stop():
+                    raise Cancelled("the draw was cancelled")
                 stances, seen = self._stance_batch(sampling, ranges, ti, batch, postures)
                 whole = seen.reshape(batch, postures).all(axis=1)
                 for b in np.flatnonzero(whole)[: per_target - got]:
