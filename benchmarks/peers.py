@@ -24,14 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from calib_core import load_profile
+from calib_core import calibrate, load_profile
 from calib_core.dataset import Dataset
+from calib_core.estimation.problem import Problem
 from calib_core.io.figaroh_data import (
     POSE_AXIS_M,
     POSE_POINTS,
     ROBOTS,
     PoseErrors,
-    heldout_errors,
     pooled,
     pose_errors,
     rpy_matrix,
@@ -53,6 +53,17 @@ PEER_SETUP = {
     "tiago": {"tool": "wrist_ft_tool_link", "dof": [True] * 3 + [False] * 3, "outlier_m": 0.05, "orient_weight": 0.5},
     "ur10e": {"tool": "wrist_3_link", "dof": [True] * 6, "outlier_m": 0.02, "orient_weight": 0.5},
 }
+
+
+def desk_errors(profile: Profile, robot: str, mode: str) -> tuple[PoseErrors, list[int]]:
+    """The desk's held-out errors (as figaroh_data.heldout_errors) and how many parameters it estimated."""
+    parts, counts = [], []
+    for train, heldout in splits(profile, FOLDER, robot):
+        cal = calibrate(profile, train, mode)
+        p = cal.params(profile)
+        parts.append(pose_errors(profile, heldout, Problem(profile, heldout, [], p, noise_model=False).predict(p)))
+        counts.append(sum(q.estimated for q in cal.parameters))
+    return pooled(parts), sorted(set(counts))
 
 
 def _rows_of(robot: str, data: Dataset) -> list[str]:
@@ -128,14 +139,14 @@ def main() -> None:
             f"no FIGAROH environment at {args.peer_python}: make it with "
             "`python3 -m venv .venv-peer && .venv-peer/bin/pip install figaroh==1.0.2`, or pass --peer-python"
         )
-    print("| robot | mode (desk / FIGAROH) | desk held-out | FIGAROH held-out | ratio | FIGAROH parameters |")
+    print("| robot | mode (desk / FIGAROH) | desk held-out | FIGAROH held-out | ratio | parameters (desk / FIGAROH) |")
     print("|---|---|---|---|---|---|")
     versions = set()
     for robot in args.robots:
         profile = load_profile(FOLDER / ROBOTS[robot].profile)
         for mode, level in MODES.items():
             start = time.perf_counter()
-            desk = heldout_errors(profile, FOLDER, robot, mode)
+            desk, desk_counts = desk_errors(profile, robot, mode)
             peer, info = peer_errors(profile, robot, mode, args.peer_python)
             versions.add(f"figaroh {info['figaroh']}, pinocchio {info['pinocchio']}")
             ratio = desk.rms_mm() / peer.rms_mm()
@@ -144,7 +155,7 @@ def main() -> None:
                 ratios = f"{ratio:.3f} / {ratio_deg:.3f}"
             else:
                 ratios = f"{ratio:.3f}"
-            counts = "-".join(str(n) for n in info["parameters"])
+            counts = " / ".join("-".join(str(n) for n in c) for c in (desk_counts, info["parameters"]))
             print(f"| {robot} | {mode} / {level} | {_cell(desk)} | {_cell(peer)} | {ratios} | {counts} |", flush=True)
             print(f"  ({robot} {mode}: {time.perf_counter() - start:.0f} s)", file=sys.stderr)
     print(f"\n{', '.join(sorted(versions))}; Python {sys.version.split()[0]}")
