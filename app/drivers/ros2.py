@@ -34,6 +34,7 @@ import numpy as np
 
 from calib_core import Calibration, InputError, Profile
 from calib_core.files import write_atomic
+from calib_core.io.camera_images import grey_image
 from calib_core.io.export import calibrated_urdf, offsets_yaml
 from calib_core.units import length_factor
 from calib_core.vision.sighting import Sighting, sight_board, sight_fixture
@@ -329,7 +330,7 @@ class Ros2Driver:
         if info is None:
             return Look(q, target, _not_found(self.profile, target, f"no CameraInfo for {topic} yet"), {})
         try:
-            image = _image_array(msg)
+            image = grey_image(msg)
         except ValueError as exc:
             return Look(q, target, _not_found(self.profile, target, f"{topic}: {exc}"), {})
         if sensor.intrinsics is not None:
@@ -348,7 +349,7 @@ class Ros2Driver:
                 q, target, _not_found(self.profile, target, f"no CameraInfo for {m.topic} and {m.right} yet"), {}
             )
         try:
-            left, right = (_image_array(msg) for msg in pair)
+            left, right = (grey_image(msg) for msg in pair)
             if left.shape != right.shape:
                 sizes = [f"{image.shape[1]} x {image.shape[0]} px" for image in (left, right)]
                 raise ValueError(f"the left image is {sizes[0]}, the right one {sizes[1]}")
@@ -559,13 +560,3 @@ def _stereo_head(
     return replace(
         head, fx_px=fx, fy_px=fy, cx_px=cx, cy_px=cy, width_px=shape[1], height_px=shape[0], baseline_m=baseline_m
     )
-
-
-def _image_array(msg: Any) -> np.ndarray:
-    """A sensor_msgs/Image as a grey uint8 array (mono8, rgb8, bgr8)."""
-    channels = {"mono8": 1, "8UC1": 1, "rgb8": 3, "bgr8": 3}.get(msg.encoding)
-    if channels is None:
-        raise ValueError(f"image encoding {msg.encoding} is not one of mono8, rgb8, bgr8")
-    data = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)[:, : msg.width * channels]
-    image = data.reshape(msg.height, msg.width, channels)
-    return image[:, :, 0] if channels == 1 else image.mean(axis=2).astype(np.uint8)
