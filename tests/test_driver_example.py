@@ -23,6 +23,7 @@ from app.clock import ManualClock
 from app.drivers import LimitError, registry
 from app.drivers.registry import DriverContext, DriverSpec
 from calib_core import InputError, SimulatedRobot, load_profile
+from calib_core.estimation.planning import within_margin
 
 ROOT = Path(__file__).resolve().parent.parent
 DEG = math.pi / 180
@@ -157,7 +158,7 @@ def test_the_example_naoqi_driver_moves_stops_and_looks_through_the_core(naoqi) 
         # full speed (the core's duration is what the velocity limits allow).
         planner = SimulatedRobot.from_profile(nao, seed=7)
         qs, targets = planner.configurations(12)
-        ok = [k for k in range(len(qs)) if targets[k] == 0 and _within(driver, qs[k])]
+        ok = list(np.flatnonzero((targets == 0) & within_margin(nao, qs)))  # the driver's 1 deg margin
         goal = qs[ok[0]]
         driver.set_target(0)
         assert _in_thread(clock, 2, lambda: driver.move_to(goal))
@@ -185,11 +186,3 @@ def test_the_example_naoqi_driver_moves_stops_and_looks_through_the_core(naoqi) 
     finally:
         driver.close()
     assert fake.subscribed == set() and not driver.status().connected
-
-
-def _within(driver: Any, q: np.ndarray) -> bool:
-    try:
-        driver.check(q)
-    except LimitError:
-        return False
-    return True

@@ -309,7 +309,7 @@ def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
     move = server.post("/api/robot/move", json={"robot": "arm", "joints": {"wrist_1": -160.0}})
     assert move.status_code == 202
     wait_until(lambda: abs(watcher.positions(names)[k] - math.radians(-160)) < math.radians(0.2), "at -160 deg")
-    wait_still(watcher, names)
+    watcher.wait_still(names)
     n = len(watcher.seen_commands())
     watcher.set_sim_speed(0.5)  # 320 deg at 92 deg/s: 3.5 s, long enough to stop under way on a loaded machine
     try:
@@ -321,22 +321,9 @@ def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
     stopped = wait_until(lambda: watcher.seen_commands()[n:][1:], "the move and the stop reach the robot")
     last = stopped[-1]
     assert last.points == [] and set(last.joint_names) == set(names)
-    held = wait_still(watcher, names)
+    held = watcher.wait_still(names)
     assert math.radians(-150) < held[k] < math.radians(159)  # stopped between, no jump to the goal
     assert limit_violations(watcher.commands, arm_profile()) == []
-
-
-def wait_still(watcher, names: list[str], for_s: float = 0.3) -> np.ndarray:
-    """The joint states once unchanged for for_s."""
-    deadline = time.monotonic() + 30
-    q, since = watcher.positions(names), time.monotonic()
-    while time.monotonic() - since < for_s:
-        assert time.monotonic() < deadline, "the robot did not come to rest"
-        time.sleep(0.02)
-        now = watcher.positions(names)
-        if not np.array_equal(now, q):
-            q, since = now, time.monotonic()
-    return q
 
 
 @needs_ros2
