@@ -14,7 +14,6 @@ one with the target predicted out of view is skipped with its reason.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -38,7 +37,6 @@ if TYPE_CHECKING:
 DEFAULT_MIN_GAP_DEG = 2.0
 DEFAULT_SETTLE_S = 0.3
 CHECK_CHUNK = 100  # configurations a dry run checks between two reports of its progress
-_SETTLE_POLL_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -244,7 +242,7 @@ def replay(
                 driver.set_target(int(t[k]))
                 if not driver.move_to(out_of_margin(driver, q[k])[0], should_stop=lambda: ctx.cancelled):
                     raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
-                _wait_settled(driver, ctx, settle_s, settle_timeout_s)
+                _settle(driver, ctx, settle_s, settle_timeout_s)
                 frame = capture_frame(store, driver, session_id, index)
                 index, status, reason = frame.index, frame.status, frame.reason
             counts[status] += 1
@@ -328,7 +326,7 @@ def capture_until(
             driver.set_target(target)
             if not driver.move_to(out_of_margin(driver, q)[0], should_stop=lambda: ctx.cancelled):
                 raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
-            _wait_settled(driver, ctx, settle_s, settle_timeout_s)
+            _settle(driver, ctx, settle_s, settle_timeout_s)
             frame = capture_frame(store, driver, session_id)
             sequence.measured(frame.status == "measured")
             counts[frame.status] += 1
@@ -402,11 +400,7 @@ def _check_robot(store: Store, driver: RobotDriver, session_id: str) -> None:
         raise InputError(f"session '{session_id}' is of robot {robot}, not {driver.profile.name}")
 
 
-def _wait_settled(driver: RobotDriver, ctx: JobContext, settle_s: float, timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not driver.settled(settle_s):
-        if ctx.cancelled:
-            raise Cancelled("cancelled")
-        if time.monotonic() > deadline:
-            raise InputError(f"the robot did not settle within {timeout_s:g} s")
-        time.sleep(_SETTLE_POLL_S)
+def _settle(driver: RobotDriver, ctx: JobContext, settle_s: float, timeout_s: float) -> None:
+    """Until the robot has settled (RobotFault when it does not within timeout_s); Cancelled on cancel."""
+    if not driver.wait_settled(settle_s, timeout_s, should_stop=lambda: ctx.cancelled):
+        raise Cancelled("cancelled")

@@ -20,6 +20,7 @@ import viser
 
 from . import security
 from .capture import capture_frame
+from .clock import SYSTEM_CLOCK, Clock
 from .desk_config import DeskConfig, default_config
 from .drivers.registry import DriverContext, DriverSpec
 from .importers import ensure_samples
@@ -49,6 +50,7 @@ class Desk:
         sample_dir: Path | None = SAMPLE_DIR,
         viser_port: int = 0,
         time_scale: float = 1.0,
+        clock: Clock = SYSTEM_CLOCK,
         workers: int = 1,
         loopback: bool = True,
         viewer_linger_s: float = LINGER_S,
@@ -56,13 +58,14 @@ class Desk:
     ) -> None:
         """`loopback`: the desk is reached from this machine only, so a request may name a file on it.
         `viser_port`: the viser server's port on 127.0.0.1 (0: any free one). `limits`: what one request may ask
-        (app/limits.py)."""
+        (app/limits.py). `clock`: what the drivers' waits, settles and timeouts are measured on."""
         self.data_dir = Path(data_dir)
         self.config = config or default_config()
         self.sample_dir = sample_dir
         self.viser_port = viser_port
         self.viewer_linger_s = viewer_linger_s
         self.time_scale = time_scale
+        self.clock = clock
         self.workers = workers
         self.loopback = loopback
         self.limits = limits or Limits()
@@ -76,7 +79,7 @@ class Desk:
         self.store = Store(self.data_dir)
         self.robots = Robots(
             self.store,
-            DriverContext(time_scale=self.time_scale, base_dir=self.config.base_dir),
+            DriverContext(time_scale=self.time_scale, base_dir=self.config.base_dir, clock=self.clock),
             self.limits.unpacked_bytes,
         )
         self.robots.start(self.config)

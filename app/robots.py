@@ -162,7 +162,7 @@ class Robots:
         made: list[Robot] = []
 
         def prepare(model: Profile) -> Robot:
-            made.append(self._instance(name, model, ref, driver, "api"))
+            made.append(self._instance(name, model, ref, driver, "api", options_at="driver_options"))
             return made[0]
 
         record = RobotRecord(name, ref or "", driver and driver.kind, {} if driver is None else driver.options)
@@ -193,10 +193,19 @@ class Robots:
             self._robots[name] = robot
         self.push_active(name)
 
-    def _instance(self, name: str, model: Profile, ref: str | None, spec: DriverSpec | None, origin: str) -> Robot:
-        """The robot `name` of profile `model` (`ref`: its built-in name, if it is one) with its driver."""
+    def _instance(
+        self,
+        name: str,
+        model: Profile,
+        ref: str | None,
+        spec: DriverSpec | None,
+        origin: str,
+        options_at: str = "driver",
+    ) -> Robot:
+        """The robot `name` of profile `model` (`ref`: its built-in name, if it is one) with its driver (a wrong
+        option named `options_at`.<option>)."""
         profile = as_instance(model, name)
-        driver = None if spec is None else drivers.create(spec, profile, self.context)
+        driver = None if spec is None else drivers.create(spec, profile, self.context, options_at=options_at)
         return Robot(
             name=name,
             model=model.name,

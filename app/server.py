@@ -25,6 +25,7 @@ from calib_core import InputError
 
 from . import scene_proxy, security
 from .api_docs import add_docs
+from .clock import SYSTEM_CLOCK, Clock
 from .desk import SAMPLE_DIR, Desk
 from .desk_config import DeskConfig
 from .drivers import RobotFault
@@ -59,6 +60,7 @@ def create_app(
     host: str = "127.0.0.1",
     viser_port: int = 0,
     time_scale: float = 1.0,
+    clock: Clock = SYSTEM_CLOCK,
     workers: int = 1,
     trusted_hosts: Iterable[str] | None = None,
     new_token: bool = False,
@@ -69,7 +71,7 @@ def create_app(
     `app.state.new_token` is the token made at this start (shown once), None when one was stored before.
     `viser_port`: the viser server's port, on 127.0.0.1 whatever `host` is (0: any free one). `trusted_hosts`:
     the Host names answered (None: any). `limits`: the size of an upload and the rows of an import or a
-    calibration (None: app/limits.py's defaults)."""
+    calibration (None: app/limits.py's defaults). `clock`: the drivers' (app/clock.py; a test's ManualClock)."""
     limits = limits or Limits()
     tokens = None
     token = None
@@ -82,6 +84,7 @@ def create_app(
         sample_dir=sample_dir,
         viser_port=viser_port,
         time_scale=time_scale,
+        clock=clock,
         workers=workers,
         loopback=security.is_loopback(host),
         limits=limits,

@@ -18,9 +18,9 @@ class RecordingDriver(SimulatedDriver):
         super().close()
 
 
-def check(profile: Profile, options: Mapping[str, Any], where: str) -> dict[str, Any]:
+def check(profile: Profile, options: Mapping[str, Any], where: str, options_at: str) -> dict[str, Any]:
     if options:
-        raise InputError(f"{where}.{next(iter(options))}: the recording driver has no options")
+        raise InputError(f"{options_at}.{next(iter(options))}: the recording driver has no options")
     return {}
 
 

@@ -167,6 +167,10 @@ class Watcher:
     joints: dict[str, float] = field(default_factory=dict)
     joints_at: float = 0.0
     lock: threading.Lock = field(default_factory=threading.Lock)
+    moved: threading.Condition = field(init=False)  # notified on each joint state
+
+    def __post_init__(self) -> None:
+        self.moved = threading.Condition(self.lock)
 
     def start(self) -> Watcher:
         from sensor_msgs.msg import JointState
@@ -205,6 +209,7 @@ class Watcher:
         with self.lock:
             self.joints = dict(zip(msg.name, msg.position, strict=False))
             self.joints_at = time.monotonic()
+            self.moved.notify_all()
 
     def _on_description(self, msg: Any) -> None:
         with self.lock:
@@ -213,6 +218,19 @@ class Watcher:
     def positions(self, names: list[str]) -> np.ndarray:
         with self.lock:
             return np.array([self.joints[n] for n in names])
+
+    def wait_still(self, names: list[str], for_s: float = 0.3, timeout_s: float = 30.0) -> np.ndarray:
+        """The joint states once unchanged for for_s (as they arrive here), waited for joint state by joint state;
+        timeout_s only bounds a failure."""
+        give_up = time.monotonic() + timeout_s
+        with self.lock:
+            q, since = np.array([self.joints[n] for n in names]), self.joints_at
+            while self.joints_at - since < for_s:
+                assert self.moved.wait(give_up - time.monotonic()), "the robot did not come to rest"
+                now = np.array([self.joints[n] for n in names])
+                if not np.array_equal(now, q):
+                    q, since = now, self.joints_at
+            return q
 
     def set_sim_speed(self, speed: float, timeout_s: float = 10.0) -> None:
         """Set `calib sim-ros2`'s speed parameter (its next trajectories run at that speed)."""
@@ -224,10 +242,9 @@ class Watcher:
             assert client.wait_for_service(timeout_sec=timeout_s)
             value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(speed))
             future = client.call_async(SetParameters.Request(parameters=[Parameter(name="speed", value=value)]))
-            deadline = time.monotonic() + timeout_s
-            while not future.done():
-                assert time.monotonic() < deadline, "the simulated robot did not answer"
-                time.sleep(0.01)
+            answered = threading.Event()
+            future.add_done_callback(lambda _: answered.set())
+            assert answered.wait(timeout_s), "the simulated robot did not answer"
             assert future.result().results[0].successful
         finally:
             self.link.node.destroy_client(client)

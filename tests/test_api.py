@@ -353,11 +353,12 @@ def test_the_robot_moves_within_limits_and_stops(client: TestClient) -> None:
     start = client.get("/api/robot").json()["joints"]
     goal = {"elbow_pitch": start["elbow_pitch"] + 20.0 if start["elbow_pitch"] < 60 else start["elbow_pitch"] - 20}
     assert client.post("/api/robot/move", json={"joints": goal}).status_code == 202
-    time.sleep(0.05)
+    assert client.get("/api/robot").json()["moving"]
     client.post("/api/robot/stop")
     stopped = client.get("/api/robot").json()
     assert not stopped["moving"]
-    time.sleep(0.2)
+    # The readings still for 0.2 s of the robot's time after the stop (waited for on the driver's readings).
+    assert client.app.state.desk.robots.driver("robonaut-a").wait_settled(0.2, timeout_s=10)
     assert client.get("/api/robot").json()["joints"] == stopped["joints"]
     q = np.array([v for v in stopped["joints"].values() if v is not None])
     assert np.all(np.isfinite(q)) and not math.isnan(q.sum())
@@ -366,9 +367,7 @@ def test_the_robot_moves_within_limits_and_stops(client: TestClient) -> None:
 def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None:
     client.post("/api/robot/stop")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "new today"}).json()["id"]
-    deadline = time.monotonic() + 20
-    while client.get("/api/robot", params={"robot": "nao"}).json()["moving"] and time.monotonic() < deadline:
-        time.sleep(0.05)
+    assert client.app.state.desk.robots.driver("nao").wait_settled(0.1, timeout_s=20)
     r = client.post(f"/api/sessions/{sid}/capture")
     assert r.status_code == 201, r.text
     frame = r.json()["frame"]

@@ -1,12 +1,14 @@
 """Capture, dry run, replay and autocapture against the simulated robots, a real Store and real thread jobs:
 frames land with their statuses, a dry run catches limits and views before anything moves, a replay refuses
 a configuration beyond a limit, skips what it cannot see, keeps its frames on cancel and stops the robot,
-pauses and resumes, and re-measures a session in place."""
+pauses and resumes, and re-measures a session in place. Where a test follows motion or settling, the driver
+runs on a ManualClock that the test advances (with the replay's job waiting on it: `threads`)."""
 
 from __future__ import annotations
 
 import csv
 import math
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +17,7 @@ import numpy as np
 import pytest
 
 from app.capture import AutoCapture, capture_frame, dry_run, out_of_margin, replay
+from app.clock import ManualClock
 from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
 from app.jobs import FINISHED, JobManager
@@ -272,23 +275,27 @@ def test_replay_refuses_a_configuration_beyond_a_limit_before_moving(store, jobs
     assert np.array_equal(nao_driver.true_joints_rad(), before)
 
 
+def _done(jobs: JobManager, job: str) -> int:
+    return jobs.get(job)["detail"].get("done", 0)
+
+
 def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao, nao_plan) -> None:
     q, targets = nao_plan
     sid = store.sessions.create("nao", "cancelled", source="capture")
-    with SimulatedDriver(nao, seed=3, time_scale=1.0) as d:  # moves of a few tenths of a second
+    clock = ManualClock()
+    with SimulatedDriver(nao, seed=3, time_scale=1.0, clock=clock) as d:  # moves of a few tenths of a second
         job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q, targets), session_id=sid)
-        _wait(jobs, job, until=lambda s: s["detail"].get("done", 0) >= 1)
-        deadline = time.monotonic() + 5.0
-        while not d.status().moving:  # cancel in the middle of a move
-            assert time.monotonic() < deadline
-            time.sleep(0.002)
+        # Cancelled in the middle of the move to the second configuration (the poller and the job on the clock).
+        clock.run(lambda: _done(jobs, job) >= 1 and d.status().moving, threads=2)
+        moving = d.status()
         jobs.cancel(job)
-        snap = _wait(jobs, job, timeout_s=5.0)
+        clock.run(lambda: jobs.get(job)["state"] in FINISHED, threads=2)
+        snap = _wait(jobs, job)
         assert snap["state"] == "cancelled"
         st = d.status()
-        assert not st.moving and st.message == "stopped"
+        assert moving.moving and not st.moving and st.message == "stopped"
         halted = d.true_joints_rad()
-        time.sleep(0.1)
+        clock.advance(1.0)
         assert np.array_equal(d.true_joints_rad(), halted)
     frames = store.sessions.frames(sid)
     assert 1 <= len(frames) == snap["detail"]["done"] < len(q)
@@ -298,22 +305,24 @@ def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao
 def test_pause_holds_the_replay_and_resume_finishes_it(store, jobs, nao, nao_plan) -> None:
     q, targets = nao_plan[0][:4], nao_plan[1][:4]
     sid = store.sessions.create("nao", "paused", source="capture")
-    with SimulatedDriver(nao, seed=3, time_scale=2.0) as d:
+    clock = ManualClock()
+    with SimulatedDriver(nao, seed=3, time_scale=2.0, clock=clock) as d:
         job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q, targets), session_id=sid)
-        _wait(jobs, job, until=lambda s: s["detail"].get("done", 0) >= 1)
+        # Paused once the move to the second configuration is under way (the poller and the job on the clock).
+        clock.run(lambda: _done(jobs, job) >= 1 and d.status().moving, threads=2)
         jobs.pause(job)
-        # The frame under way finishes; then nothing moves while paused.
-        deadline = time.monotonic() + 5.0
-        while (d.status().moving or not d.settled(0.3)) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(0.3)
+        # The frame under way finishes (its progress reported, the job then holds at its next checkpoint) ...
+        clock.run(lambda: _done(jobs, job) >= 2, threads=2)
         held = len(store.sessions.frames(sid))
         pose = d.true_joints_rad()
-        time.sleep(0.4)
-        assert len(store.sessions.frames(sid)) == held < len(q)
+        # ... then nothing moves and nothing is captured while paused, however long.
+        until = clock.now() + 5.0
+        clock.run(lambda: clock.now() >= until, threads=1, step_s=0.5)
+        assert len(store.sessions.frames(sid)) == held == 2 < len(q)
         assert np.array_equal(d.true_joints_rad(), pose)
         assert jobs.get(job)["state"] == "running" and jobs.get(job)["paused"]
         jobs.resume(job)
+        clock.run(lambda: jobs.get(job)["state"] in FINISHED, threads=2)
         snap = _wait(jobs, job)
     assert snap["state"] == "done"
     assert [f.index for f in store.sessions.frames(sid)] == [1, 2, 3, 4]
@@ -347,23 +356,30 @@ def test_remeasure_replaces_frames_in_place_and_keeps_skipped_ones(store, jobs, 
         assert np.array_equal(new[i].joints_rad, old[i].joints_rad)
 
 
-def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao_driver) -> None:
+def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao) -> None:
     sid = store.sessions.create("nao", "auto", source="capture")
-    d = nao_driver  # time_scale 20: settling 0.3 s takes 15 ms
+    clock = ManualClock()
+    d = SimulatedDriver(nao, seed=3, time_scale=20.0, clock=clock)  # settling 0.3 s takes 15 ms of the clock
     auto = AutoCapture(store, d, sid, min_gap_rad=3 * DEG)
     target = d.status().target
     other_knee = nao.joint("RKneePitch" if target == 0 else "LKneePitch")  # the leg the camera does not watch
 
     def settle() -> None:
-        while not d.settled(0.3):
-            time.sleep(0.005)
+        clock.run(lambda: d.settled(0.3), threads=1)  # the poller
+
+    def move(q: np.ndarray) -> bool:
+        result: list[bool] = []
+        mover = threading.Thread(target=lambda: result.append(d.move_to(q)))
+        mover.start()
+        clock.run(lambda: not mover.is_alive(), threads=2)
+        mover.join()
+        return result == [True]
 
     q = d.true_joints_rad()
     q[other_knee] += 10 * DEG
     d.move_to(q, wait=False)
     assert auto.poll() is None  # moving
-    while d.status().moving:
-        time.sleep(0.002)
+    clock.run(lambda: not d.status().moving, threads=1)
     assert auto.poll() is None  # not yet settled for 0.3 s
     settle()
     first = auto.poll()
@@ -371,11 +387,11 @@ def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao
     settle()
     assert auto.poll() is None  # the same configuration again
     q[other_knee] += 2 * DEG  # less than min_gap
-    assert d.move_to(q)
+    assert move(q)
     settle()
     assert auto.poll() is None
     q[other_knee] += 2 * DEG  # 4 deg from the first frame
-    assert d.move_to(q)
+    assert move(q)
     settle()
     second = auto.poll()
     assert second is not None and second.index == first.index + 1
@@ -383,7 +399,7 @@ def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao
     # configuration is not looked at again.
     d.set_target(1 - target)
     q[other_knee] += 5 * DEG
-    assert d.move_to(q)
+    assert move(q)
     settle()
     assert auto.poll() is None
     assert auto.last_look is not None and auto.last_look.sightings[0].status == "not found"
@@ -392,3 +408,4 @@ def test_autocapture_takes_settled_distinct_well_detected_frames(store, nao, nao
     assert [f.index for f in store.sessions.frames(sid)] == [first.index, second.index]
     # A new AutoCapture continues from the session's last frame.
     assert AutoCapture(store, d, sid, min_gap_rad=3 * DEG).poll() is None
+    d.close()

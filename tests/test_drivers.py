@@ -1,17 +1,18 @@
 """The simulated robot driver: limits with a margin, velocity-limited motion whose joints arrive together, an
 immediate stop, quantised readings, a camera that sees the fixture where the truth puts it, seeded by the
-calibration the robot was given, and a wander that stays within limits."""
+calibration the robot was given, and a wander that stays within limits. Motion and settling are followed on a
+ManualClock that the tests advance: nothing here waits for time to pass."""
 
 from __future__ import annotations
 
 import math
 import threading
-import time
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
+from app.clock import ManualClock
 from app.drivers import LimitError, check_limits
 from app.drivers.simulated import SimulatedDriver
 from calib_core import InputError, SimulatedRobot, load_profile
@@ -31,10 +32,34 @@ def nao():
 
 
 @pytest.fixture
-def driver(rn):
-    d = SimulatedDriver(rn, seed=3, time_scale=10.0)
+def clock() -> ManualClock:
+    return ManualClock()
+
+
+@pytest.fixture
+def driver(rn, clock):
+    d = SimulatedDriver(rn, seed=3, time_scale=10.0, clock=clock)
     yield d
     d.close()
+
+
+def move(d: SimulatedDriver, clock: ManualClock, q: np.ndarray) -> bool:
+    """d.move_to(q) in a thread of its own, the clock run (its poller and that thread) until it returns."""
+    result: list[bool | BaseException] = []
+
+    def run() -> None:
+        try:
+            result.append(d.move_to(q))
+        except BaseException as exc:
+            result.append(exc)
+
+    mover = threading.Thread(target=run)
+    mover.start()
+    clock.run(lambda: not mover.is_alive(), threads=2, limit_s=60)
+    mover.join()
+    if isinstance(result[0], BaseException):
+        raise result[0]
+    return result[0]
 
 
 def _q(rn, **deg: float) -> np.ndarray:
@@ -65,79 +90,72 @@ def test_check_refuses_beyond_limits_naming_joint_value_and_limit(rn, driver) ->
         check_limits(rn, np.zeros(3), DEG)
 
 
-def test_move_beyond_limits_is_refused_and_nothing_moves(rn, driver) -> None:
+def test_move_beyond_limits_is_refused_and_nothing_moves(rn, driver, clock) -> None:
     before = driver.true_joints_rad()
     with pytest.raises(LimitError, match="elbow_roll"):
         driver.move_to(_q(rn, elbow_roll=-90.5))
-    time.sleep(0.05)
+    clock.advance(1.0)  # the robot's truth follows the clock: a move started would have taken it somewhere
     assert not driver.status().moving
     assert np.array_equal(driver.true_joints_rad(), before)
 
 
-def test_motion_keeps_velocity_limits_and_all_joints_arrive_together(rn) -> None:
-    time_scale = 10.0
-    with SimulatedDriver(rn, seed=3, time_scale=time_scale, start_rad=_q(rn)) as d:
+def test_motion_keeps_velocity_limits_and_all_joints_arrive_together(rn, clock) -> None:
+    time_scale, tick_s = 10.0, 0.02  # the poller's period at its 50 Hz
+    with SimulatedDriver(rn, seed=3, time_scale=time_scale, start_rad=_q(rn), clock=clock) as d:
         goal = _q(rn, shoulder_roll=60, wrist_roll=-80, neck_yaw=20, elbow_pitch=10)
         samples: list[tuple[float, np.ndarray]] = []
-        done = threading.Event()
-
-        def sample() -> None:
-            while not done.is_set():
-                st = d.status()
-                samples.append((st.stamp, st.joints_rad))
-                time.sleep(0.002)
-
-        sampler = threading.Thread(target=sample)
-        sampler.start()
-        t0 = time.monotonic()
-        assert d.move_to(goal)
-        elapsed = time.monotonic() - t0
-        done.set()
-        sampler.join()
+        result: list[bool] = []
+        mover = threading.Thread(target=lambda: result.append(d.move_to(goal)))
+        mover.start()
+        while mover.is_alive():  # a sample of each tick of the poller, until move_to returns
+            clock.until_waiting(2, unless=lambda: not mover.is_alive())
+            st = d.status()
+            samples.append((st.stamp, st.joints_rad))
+            clock.advance(tick_s)
+        mover.join()
+        assert result == [True]
         assert np.allclose(d.read_joints(), goal, atol=0.051 * DEG)
 
     velocity = np.array([j.velocity for j in rn.joints]) * time_scale
     step = np.array([j.resolution for j in rn.joints])
     stamps = np.array([s for s, _ in samples])
     qs = np.array([q for _, q in samples])
-    keep = np.r_[True, np.diff(stamps) > 0]  # one sample per state of the motion thread
+    keep = np.r_[True, np.diff(stamps) > 0]  # one sample per tick of the poller
     stamps, qs = stamps[keep], qs[keep]
     assert len(stamps) >= 5
+    elapsed = stamps[np.flatnonzero(np.all(qs == qs[-1], axis=1))[0]]  # the tick the goal was first read
     dq = np.abs(np.diff(qs, axis=0))
     dt = np.diff(stamps)[:, None]
-    # Readings are rounded to the encoder step: allow one step per difference, and 1% on the speed.
-    assert np.all(dq <= velocity * dt * 1.01 + step + 1e-12)
-    # The slowest joint's ratio sets the duration (wrist_roll: 80 deg at 45 deg/s, shoulder_roll: 60 at 30).
+    # Readings are rounded to the encoder step: allow one step per difference.
+    assert np.all(dq <= velocity * dt * (1 + 1e-9) + step + 1e-12)
+    # The slowest joint's ratio sets the duration (wrist_roll: 80 deg at 45 deg/s, shoulder_roll: 60 at 30); the
+    # arrival is seen at the first tick after it.
     expected_s = max(80 / 45, 60 / 30) / time_scale
-    assert expected_s * 0.98 <= elapsed <= expected_s + 0.1
+    assert expected_s - 1e-9 <= elapsed <= expected_s + tick_s + 1e-9
     # Linear interpolation: every sample is start + s (goal - start) with one s for all joints.
     moving = np.abs(goal - _q(rn)) > 0
     s = (qs[:, moving] - _q(rn)[moving]) / (goal - _q(rn))[moving]
     assert np.all(np.ptp(s, axis=1) <= 2 * 0.05 / 10)  # half a 0.1 deg step over the smallest move (10 deg)
 
 
-def test_stop_halts_within_one_tick_and_move_to_returns_false(rn) -> None:
-    rate_hz = 50.0
-    with SimulatedDriver(rn, seed=3, time_scale=1.0, rate_hz=rate_hz, start_rad=_q(rn)) as d:
+def test_stop_halts_where_it_is_and_move_to_returns_false(rn, clock) -> None:
+    with SimulatedDriver(rn, seed=3, time_scale=1.0, start_rad=_q(rn), clock=clock) as d:
         result: list[bool] = []
         mover = threading.Thread(target=lambda: result.append(d.move_to(_q(rn, shoulder_roll=60))))
         mover.start()
-        time.sleep(0.3)
-        last_tick = d.status()  # the readings (0.1 deg steps) and time of the motion thread's last tick
+        clock.run(lambda: clock.now() >= 0.3, threads=2)
+        clock.advance(0.01)  # between two ticks of the poller: stop() halts at this moment, not at the tick
         d.stop()
-        stopped_at = time.monotonic()
         after = d.true_joints_rad()
-        mover.join(timeout=1.0)
-        time.sleep(5 / rate_hz)
-        later = d.true_joints_rad()
+        mover.join()
         st = d.status()
-    assert result == [False] and not mover.is_alive()  # move_to returned (the motion's safety is below)
+        clock.advance(1.0)
+        later = d.true_joints_rad()
+    assert result == [False]  # move_to returned (the motion's safety is below)
     assert not st.moving and st.message == "stopped"
-    # It halts where it was when stop() was called: no further than 30 deg/s carries it from the last
-    # tick to that moment (one tick, 1/50 s, unless the machine delays the motion thread), none after.
-    before = last_tick.joints_rad[0]
-    assert 5 * DEG < before < 30 * DEG
-    assert abs(after[0] - before) <= 30 * DEG * (stopped_at - last_tick.stamp) + 0.05 * DEG + 1e-9
+    assert np.array_equal(st.joints_rad, d.transport.sim.readings(after))  # the readings where it halted
+    # 30 deg/s for 0.31 s: it halts there, and nothing moves after.
+    assert after[0] == pytest.approx(30 * DEG * 0.31)
     assert np.array_equal(later, after)
 
 
@@ -154,12 +172,34 @@ def test_readings_are_quantised_to_the_encoder_step(rn) -> None:
     assert readings[rn.joint("shoulder_roll")] == pytest.approx(12.3 * DEG)
 
 
-def test_settled_needs_the_robot_still_for_the_time_asked(rn) -> None:
-    with SimulatedDriver(rn, seed=3, time_scale=1.0, start_rad=_q(rn)) as d:
-        assert d.move_to(_q(rn, wrist_yaw=1.0))
+def test_settled_needs_the_robot_still_for_the_time_asked(rn, clock) -> None:
+    """Settled: no move under way and the readings unchanged for the time asked, robot time (the clock's times
+    time_scale), as the readings show it (a robot polled seldom is not settled between its readings)."""
+    with SimulatedDriver(rn, seed=3, time_scale=2.0, start_rad=_q(rn), clock=clock) as d:
+        assert move(d, clock, _q(rn, wrist_yaw=1.0))
+        arrived = clock.now()
         assert not d.settled(0.3)
-        time.sleep(0.35)
+        clock.run(lambda: clock.now() >= arrived + 0.14, threads=1)  # 0.28 s of robot time
+        assert not d.settled(0.3)
+        clock.advance(0.019)  # time passes, but no reading comes
+        assert not d.settled(0.3)
+        clock.run(lambda: clock.now() >= arrived + 0.16, threads=1)  # the next reading: 0.32 s
         assert d.settled(0.3)
+
+
+def test_a_move_that_does_not_arrive_times_out_on_the_clock(rn, clock) -> None:
+    """A stalled move (an injected fault) is given up when its duration and the slack have passed on the driver's
+    clock: the robot is stopped and the move reported, as a RobotFault."""
+    from app.drivers import RobotFault
+
+    with SimulatedDriver(rn, seed=3, time_scale=1.0, start_rad=_q(rn), clock=clock, move_slack_s=2.0) as d:
+        d.inject_fault("stall")
+        with pytest.raises(RobotFault, match=r"robonaut-a did not arrive within 3\.0 s \(not responding\)"):
+            move(d, clock, _q(rn, shoulder_roll=30))  # 30 deg at 30 deg/s: 1 s, and 2 s of slack
+        assert 3.0 < clock.now() <= 3.05
+        st = d.status()
+        assert (st.connected, st.moving, st.message) == (True, False, "stopped")
+        assert move(d, clock, _q(rn, shoulder_roll=30))  # the next one arrives
 
 
 def _visit(d: SimulatedDriver, configurations: np.ndarray) -> Iterator[np.ndarray]:
@@ -225,19 +265,19 @@ def test_day_drifts_the_hidden_joint_offsets(rn) -> None:
     assert all(rn.parameter_names[i].endswith(".theta") for i in changed)
 
 
-def test_wander_moves_through_configurations_within_limits(rn) -> None:
+def test_wander_moves_through_configurations_within_limits(rn, clock) -> None:
     lo, hi = rn.joint_limits()
     margin = np.minimum(DEG, (hi - lo) / 2)
-    with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
+    with SimulatedDriver(rn, seed=3, time_scale=50.0, clock=clock) as d:
         start = d.true_joints_rad()
         d.wander(True)
         assert d.status().wandering
         true, stopped = [], 0
-        t_end = time.monotonic() + 1.5
-        while time.monotonic() < t_end:
+        for _ in range(300):  # 1.5 s of the clock, 75 s of the robot's
+            clock.until_waiting(2)  # the poller and the wander
             true.append(d.true_joints_rad())
             stopped += not d.status().moving
-            time.sleep(0.005)
+            clock.advance(0.005)
         d.wander(False)
         st = d.status()
         assert not st.wandering and not st.moving
@@ -249,19 +289,19 @@ def test_wander_moves_through_configurations_within_limits(rn) -> None:
     assert np.all(true_a >= lo + margin - 1e-9) and np.all(true_a <= hi - margin + 1e-9)
 
 
-def test_an_operator_move_or_stop_ends_the_wander(rn) -> None:
-    with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
+def test_an_operator_move_or_stop_ends_the_wander(rn, clock) -> None:
+    with SimulatedDriver(rn, seed=3, time_scale=50.0, clock=clock) as d:
         d.wander(True)
-        time.sleep(0.1)
-        assert d.move_to(_q(rn, shoulder_roll=10))
+        clock.run(lambda: clock.now() >= 0.1, threads=2)
+        assert move(d, clock, _q(rn, shoulder_roll=10))
         assert not d.status().wandering
-        time.sleep(0.1)
+        clock.advance(1.0)
         assert np.allclose(d.true_joints_rad(), _q(rn, shoulder_roll=10))
         d.wander(True)
-        time.sleep(0.1)
+        clock.run(lambda: clock.now() >= 1.2 and d.status().moving, threads=2)
         d.stop()
         halted = d.true_joints_rad()
-        time.sleep(0.1)
+        clock.advance(1.0)
         assert not d.status().wandering
         assert np.array_equal(d.true_joints_rad(), halted)
 

@@ -98,7 +98,7 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
     job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
     assert job["state"] == "failed"
     assert job["error"] == (
-        "replay stopped at configuration 3 of 4: nao disconnected (the link to the robot was lost); the 2 frames "
+        "replay stopped at configuration 3 of 4: nao disconnected: the link to the robot was lost; the 2 frames "
         "before it are kept (start the replay again with resume to go on)"
     )
     kept = _frames(client, sid)
@@ -106,7 +106,7 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
     robot = client.get("/api/robot", params={"robot": "nao"}).json()
     assert (robot["connected"], robot["moving"]) == (False, False)
     r = client.post("/api/robot/move", json={"robot": "nao", "joints": {}})
-    assert r.status_code == 503 and r.json()["detail"] == "nao disconnected (the link to the robot was lost)"
+    assert r.status_code == 503 and r.json()["detail"] == "nao disconnected: the link to the robot was lost"
 
     driver.reconnect()
     dry = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True, "dry_run": True}).json()

@@ -13,6 +13,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 import recording_driver
 from fastapi.testclient import TestClient
@@ -25,7 +26,7 @@ from app.drivers.registry import DriverContext, DriverSpec
 from app.drivers.simulated import SimulatedDriver
 from app.profiles import PROFILE_DIR
 from app.server import create_app
-from calib_core import InputError, load_profile
+from calib_core import InputError, SimulatedRobot, load_profile
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 NAOS = """\
@@ -280,6 +281,20 @@ BROKEN = [
     ({"profile_file": ("p.yaml", b"name: [unclosed")}, ["p.yaml", "not valid YAML"]),
     ({"profile_file": ("arm.yaml", PROFILE.encode()), "urdf_file": ("arm.yaml", b"")}, ["both named arm.yaml"]),
     ({"profile": "nao", "driver": "ros3"}, ["driver: unknown driver kind 'ros3' (known: simulated, ros2)"]),
+    (
+        {"profile": "nao", "driver": "simulated", "driver_options": '{"seed": -1}'},
+        ["driver_options.seed: expected a whole number from 0, got -1"],
+    ),
+    (
+        {"profile": "nao", "driver": "simulated", "driver_options": '{"speed": 2}'},
+        ["driver_options.speed: no such option of the simulated driver (options: seed, day)"],
+    ),
+    (
+        {"profile": "nao", "driver": "simulated", "driver_options": "seed=2"},
+        ["driver_options: not valid JSON (Expecting value at character 0)"],
+    ),
+    ({"profile": "nao", "driver": "simulated", "driver_options": "[2]"}, ["driver_options: expected a JSON object"]),
+    ({"profile": "nao", "driver_options": '{"seed": 2}'}, ["driver_options: options of which driver?"]),
     ({"profile": "r2d2"}, ["r2d2", "does not exist"]),
     ({}, ["give the robot's profile"]),
 ]
@@ -305,6 +320,31 @@ def test_a_broken_profile_answers_422_naming_file_and_field_and_changes_nothing(
         assert client.get("/api/robots").json() == before
         assert store.robots.list() == rows
         assert not (desk_dir / "robots").is_dir() or list((desk_dir / "robots").iterdir()) == []
+
+
+def test_a_robot_added_with_driver_options_keeps_them_after_a_restart(desk_dir: Path) -> None:
+    """`driver_options` (JSON) reach the kind's own checks and its driver, are kept with the robot, and make the
+    same driver after a restart: the simulated NAO of seed 2 on its third day, not the default seed 1 day 1."""
+    nao = load_profile("nao")
+    truth = SimulatedRobot.from_profile(nao, seed=2).on_day(3).true_params
+    assert not np.array_equal(truth, SimulatedRobot.from_profile(nao, seed=1).true_params)
+    for restart in (False, True):
+        with TestClient(create_app(desk_dir, sample_dir=None, time_scale=50.0)) as client:
+            if not restart:
+                form = {
+                    "name": "nao-7",
+                    "profile": "nao",
+                    "driver": "simulated",
+                    "driver_options": '{"seed": 2, "day": 3}',
+                }
+                r = client.post("/api/robots", data=form)
+                assert r.status_code == 201, r.text
+                assert (r.json()["driver"], r.json()["simulated"]) == ("simulated", True)
+            driver = client.app.state.desk.robots.driver("nao-7")
+            assert isinstance(driver, SimulatedDriver)
+            np.testing.assert_array_equal(driver.true_params(), truth)
+            record = client.app.state.desk.store.robots.get("nao-7")
+            assert (record.driver, record.options, record.origin) == ("simulated", {"seed": 2, "day": 3}, "api")
 
 
 def test_a_robot_is_removed_with_its_driver_closed_unless_data_name_it(desk_dir: Path) -> None:

@@ -309,7 +309,7 @@ def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
     move = server.post("/api/robot/move", json={"robot": "arm", "joints": {"wrist_1": -160.0}})
     assert move.status_code == 202
     wait_until(lambda: abs(watcher.positions(names)[k] - math.radians(-160)) < math.radians(0.2), "at -160 deg")
-    wait_still(watcher, names)
+    watcher.wait_still(names)
     n = len(watcher.seen_commands())
     watcher.set_sim_speed(0.5)  # 320 deg at 92 deg/s: 3.5 s, long enough to stop under way on a loaded machine
     try:
@@ -321,22 +321,9 @@ def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
     stopped = wait_until(lambda: watcher.seen_commands()[n:][1:], "the move and the stop reach the robot")
     last = stopped[-1]
     assert last.points == [] and set(last.joint_names) == set(names)
-    held = wait_still(watcher, names)
+    held = watcher.wait_still(names)
     assert math.radians(-150) < held[k] < math.radians(159)  # stopped between, no jump to the goal
     assert limit_violations(watcher.commands, arm_profile()) == []
-
-
-def wait_still(watcher, names: list[str], for_s: float = 0.3) -> np.ndarray:
-    """The joint states once unchanged for for_s."""
-    deadline = time.monotonic() + 30
-    q, since = watcher.positions(names), time.monotonic()
-    while time.monotonic() - since < for_s:
-        assert time.monotonic() < deadline, "the robot did not come to rest"
-        time.sleep(0.02)
-        now = watcher.positions(names)
-        if not np.array_equal(now, q):
-            q, since = now, time.monotonic()
-    return q
 
 
 @needs_ros2
@@ -522,7 +509,8 @@ def test_prismatic_joints_settle_and_arrive_by_thresholds_in_metres(tmp_path):
     from test_prismatic import PROFILE, robot_urdf
     from trajectory_msgs.msg import JointTrajectory
 
-    from app.drivers.ros2 import Ros2Driver
+    from app.clock import ManualClock
+    from app.drivers.ros2 import ros2_driver
     from app.ros2.connection import load_connection
     from app.ros2.link import COMMAND_QOS, Link
 
@@ -536,15 +524,17 @@ def test_prismatic_joints_settle_and_arrive_by_thresholds_in_metres(tmp_path):
     names = [j.name for j in profile.joints]
     lift = names.index("torso_lift")
     link = Link("lift_test")  # no graph traffic: the joint states are handed to the driver as its subscription would
-    driver = Ros2Driver(profile, conn, link)
+    clock = ManualClock()
+    driver = ros2_driver(profile, conn, link, clock=clock)
+    robot = driver.transport
     try:
         q_m = np.array([0.1 if n in ("torso_lift", "telescope") else 0.2 for n in names])  # m and rad
 
         def feed(q: np.ndarray, for_s: float) -> None:
-            end = time.monotonic() + for_s
-            while time.monotonic() < end:
-                driver._on_joints(JointState(name=names, position=[float(v) for v in q]))
-                time.sleep(0.01)
+            """Joint states at 100 Hz of the driver's clock."""
+            for _ in range(round(for_s / 0.01)):
+                clock.advance(0.01)
+                robot._on_joints(JointState(name=names, position=[float(v) for v in q]))
 
         jitter = np.zeros(len(names))
         jitter[lift] = 20e-6  # 0.02 mm: an encoder's flicker, under still_m (0.05 mm)
@@ -553,11 +543,12 @@ def test_prismatic_joints_settle_and_arrive_by_thresholds_in_metres(tmp_path):
             feed(q_m + jitter, 0.05)
             feed(q_m, 0.05)
         assert driver.settled(0.3)
-        driver._on_joints(JointState(name=names, position=[float(v) for v in q_m + 10 * jitter]))  # 0.2 mm: moved
+        robot._on_joints(JointState(name=names, position=[float(v) for v in q_m + 10 * jitter]))  # 0.2 mm: moved
         assert not driver.settled(1.0)
 
         link.node.create_subscription(JointTrajectory, conn.command, lambda _: None, COMMAND_QOS)  # a controller
-        goal = q_m * driver._scale
+        assert robot.controller.wait(30)  # matched (a failure's limit only)
+        goal = q_m * robot._scale
         goal[lift] += 50.0  # mm: 5 cm up
         assert driver.move_to(goal, wait=False)
         off = q_m.copy()
@@ -577,7 +568,8 @@ def test_a_stereo_head_without_a_matching_pair_gives_a_frame_not_found_with_the_
     look saying so (the images handed to the driver as its subscriptions would, no graph traffic)."""
     from sensor_msgs.msg import CameraInfo, Image, JointState
 
-    from app.drivers.ros2 import Ros2Driver
+    from app.clock import ManualClock
+    from app.drivers.ros2 import ros2_driver
     from app.ros2.connection import load_connection
     from app.ros2.link import Link
     from app.ros2.sim_node import Topics, connection_doc
@@ -588,34 +580,43 @@ def test_a_stereo_head_without_a_matching_pair_gives_a_frame_not_found_with_the_
     conn = load_connection(tmp_path / "rn.yaml")
     names = [j.name for j in profile.joints]
     link = Link("stereo_test")
-    driver = Ros2Driver(profile, conn, link)
-    left, right = (driver._on_side("eye", side) for side in ("left", "right"))
-    left_info, right_info = driver._on_info("eye"), driver._on_info("eye", "right_info")
+    clock = ManualClock()
+    driver = ros2_driver(profile, conn, link, clock=clock)
+    robot = driver.transport
+    left, right = (robot._on_side("eye", side) for side in ("left", "right"))
+    left_info, right_info = robot._on_info("eye"), robot._on_info("eye", "right_info")
 
     def image(stamp_s: float) -> Image:
         msg = Image(height=480, width=640, encoding="mono8", step=640, data=bytes(640 * 480))
         msg.header.stamp.sec, msg.header.stamp.nanosec = int(stamp_s), int(stamp_s % 1 * 1e9)
         return msg
 
+    def reason() -> str:
+        """A look's reason, its wait for a measurement (measurement_wait_s) run on the clock."""
+        looks: list = []
+        looking = threading.Thread(target=lambda: looks.append(driver.look()))
+        looking.start()
+        clock.run(lambda: not looking.is_alive(), threads=1, step_s=0.01)
+        looking.join()
+        return looks[0].sightings[0].reason
+
     try:
         t = link.now_s()
         for k in range(3):  # the robot stands still: its settled joint states stamped t - 1 s
             state = JointState(name=names, position=[0.0] * len(names))
             state.header.stamp.sec, state.header.stamp.nanosec = int(t - 1), k
-            driver._on_joints(state)
+            robot._on_joints(state)
         left(image(t))
-        assert driver.look().sightings[0].reason == (
-            "no measurement on /rn_unit/eye/right/image_rect (none received within 0.05 s)"
-        )
+        assert reason() == "no measurement on /rn_unit/eye/right/image_rect (none received within 0.05 s)"
         right(image(t + 0.033))  # the next frame of a 30 Hz camera: no exposure of both
-        assert driver.look().sightings[0].reason == (
+        assert reason() == (
             "no stereo pair on /rn_unit/eye/left/image_rect and /rn_unit/eye/right/image_rect: the left and right "
             "stamps differ by 0.033 s (more than stereo_sync_s 0.005 s)"
         )
         right(image(t + 0.001))  # within 5 ms of the left: one exposure
         left_info(CameraInfo(k=[500.0, 0, 320, 0, 500.0, 240, 0, 0, 1]))
         right_info(CameraInfo(p=[500.0, 0, 320, 0, 0, 500.0, 240, 0, 0, 0, 1, 0]))  # P[0,3] = 0: no baseline
-        assert driver.look().sightings[0].reason == (
+        assert reason() == (
             "/rn_unit/eye/left/image_rect and /rn_unit/eye/right/image_rect: /rn_unit/eye/right/camera_info: its P "
             "gives no baseline (P[0,3] = -fx * baseline, negative for a right camera)"
         )

@@ -1,13 +1,14 @@
 """Safety of the desk: every commanded configuration goes through the limit check, a stop halts motion at
 once (mid-move and mid-replay) and leaves the session consistent, and an apply that is worse than the
-active calibration or moves a parameter beyond its sane bound needs the operator's confirmation."""
+active calibration or moves a parameter beyond its sane bound needs the operator's confirmation. The desk's
+drivers run on a ManualClock that the tests advance: no test waits for motion to take its time."""
 
 from __future__ import annotations
 
 import io
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,34 +17,38 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app import safety
+from app.clock import ManualClock
 from app.drivers import LimitError
+from app.drivers.core import Command
 from app.drivers.simulated import SimulatedDriver
+from app.jobs import FINISHED
 from app.server import create_app
 from calib_core import load_profile
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 
 
+ROBOTS = 3  # the desk's built-in robots, each driver's poller waiting on the clock
+CLOCK = ManualClock()
+
+
 @pytest.fixture(scope="module")
 def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
-    """Robots at twice their velocity limits: slow enough to catch mid-move."""
-    app = create_app(tmp_path_factory.mktemp("safety"), time_scale=2.0)
+    """Robots at twice their velocity limits, on a clock the tests advance."""
+    app = create_app(tmp_path_factory.mktemp("safety"), time_scale=2.0, clock=CLOCK)
     with TestClient(app) as c:
         yield c
 
 
-def wait_for(what: Callable[[], Any], timeout_s: float = 60.0) -> Any:
+def finished(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
+    """The job's snapshot once it has ended (waiting on its versions; timeout_s only bounds a failure)."""
+    jobs = client.app.state.desk.jobs
     deadline = time.monotonic() + timeout_s
-    while not (got := what()):
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
-    return got
-
-
-def finished(client: TestClient, job: str) -> dict:
-    return wait_for(
-        lambda: (j := client.get(f"/api/jobs/{job}").json())["state"] in ("done", "failed", "cancelled") and j
-    )
+    snap = jobs.get(job)
+    while snap["state"] not in FINISHED:
+        assert time.monotonic() < deadline, snap
+        snap = jobs.wait_version(job, snap["version"], 1.0)
+    return snap
 
 
 class Recording:
@@ -80,7 +85,7 @@ def test_every_path_that_moves_checks_the_configuration_first(client: TestClient
         assert client.post("/api/sessions/nao/frames/1/goto").status_code == 202
         sid = client.post("/api/sessions", json={"robot": "nao", "name": "checked"}).json()["id"]
         job = client.post(f"/api/sessions/{sid}/replay", json={"from_session": "nao", "count": None}).json()["job"]
-        wait_for(lambda: sum(c == "move_to" for c, _ in rec.calls) >= 3)
+        CLOCK.run(lambda: sum(c == "move_to" for c, _ in rec.calls) >= 3, threads=ROBOTS + 1)  # and the replay
         client.post("/api/robot/stop")
         finished(client, job)
     finally:
@@ -95,18 +100,23 @@ def test_every_path_that_moves_checks_the_configuration_first(client: TestClient
 def test_the_simulated_robot_checks_every_motion_it_starts() -> None:
     """Operator moves, replays and the wander all start in one place, which checks the limits again."""
     profile = load_profile("robonaut-a")
-    with SimulatedDriver(profile, seed=1, time_scale=50.0) as driver:
-        beyond = driver.read_joints()
+    clock = ManualClock()
+    with SimulatedDriver(profile, seed=1, time_scale=50.0, clock=clock) as driver:
+        robot = driver.transport
+        here = driver.read_joints()
+        beyond = here.copy()
         beyond[profile.joint_names.index("elbow_pitch")] = profile.joints[3].upper + math.radians(0.5)
         with pytest.raises(LimitError, match="elbow_pitch"):
-            driver._begin(beyond, "operator")
+            robot.send(Command(here, beyond, 1.0))  # a command that never went through the driver's check
         # A wander whose pool held a configuration beyond a limit ends rather than go there.
-        driver._visible_configurations = lambda n: (beyond[None, :], np.zeros(1, int))  # type: ignore[method-assign]
+        robot.visible_configurations = lambda n: (beyond[None, :], np.zeros(1, int))  # type: ignore[method-assign]
         start = driver.true_joints_rad()
         driver.wander(True)
-        time.sleep(0.2)
+        robot._wander_thread.join()  # it ended by itself
+        clock.advance(1.0)
         assert np.array_equal(driver.true_joints_rad(), start)
-        assert not driver.status().moving
+        st = driver.status()
+        assert not st.moving and not st.wandering
 
 
 @pytest.mark.parametrize(("offset_deg", "words"), [(5.0, "beyond its upper limit"), (-0.5, "safety margin")])
@@ -147,7 +157,8 @@ def test_stop_halts_a_move_at_once(client: TestClient) -> None:
     start = client.get("/api/robot").json()["joints"]["elbow_pitch"]
     goal = start - 60.0 if start > 0 else start + 60.0
     assert client.post("/api/robot/move", json={"joints": {"elbow_pitch": goal}}).status_code == 202
-    time.sleep(0.2)
+    until = CLOCK.now() + 0.2
+    CLOCK.run(lambda: CLOCK.now() >= until, threads=ROBOTS)
     assert client.get("/api/robot").json()["moving"]
     t0 = time.monotonic()
     stopped = client.post("/api/robot/stop").json()
@@ -155,7 +166,8 @@ def test_stop_halts_a_move_at_once(client: TestClient) -> None:
     assert not stopped["moving"] and stopped["message"] == "stopped"
     here = stopped["joints"]["elbow_pitch"]
     assert min(start, goal) + 1.0 < here < max(start, goal) - 1.0  # halted on the way, not at the goal
-    time.sleep(0.3)
+    CLOCK.advance(1.0)  # the readings of a second later
+    CLOCK.until_waiting(ROBOTS)
     assert client.get("/api/robot").json()["joints"] == stopped["joints"]
 
 
@@ -164,8 +176,11 @@ def test_stop_mid_replay_cancels_it_and_keeps_the_frames(client: TestClient) -> 
     sid = client.post("/api/sessions", json={"robot": "robonaut-a", "name": "stopped replay"}).json()["id"]
     job = client.post(f"/api/sessions/{sid}/replay", json={"count": 6, "seed": 5}).json()["job"]
     # Once a frame is in and the robot is on its way to the next configuration: STOP.
-    wait_for(lambda: client.get(f"/api/jobs/{job}").json()["detail"].get("done", 0) >= 1)
-    wait_for(lambda: client.get("/api/robot", params={"robot": "robonaut-a"}).json()["moving"])
+    robot = client.app.state.desk.robots.driver("robonaut-a")
+    CLOCK.run(
+        lambda: client.get(f"/api/jobs/{job}").json()["detail"].get("done", 0) >= 1 and robot.status().moving,
+        threads=ROBOTS + 1,  # and the replay
+    )
     stopped = client.post("/api/robot/stop").json()
     assert not client.get("/api/robot", params={"robot": "robonaut-a"}).json()["moving"]
     j = finished(client, job)
@@ -177,7 +192,8 @@ def test_stop_mid_replay_cancels_it_and_keeps_the_frames(client: TestClient) -> 
     listed = next(s for s in client.get("/api/sessions").json() if s["id"] == sid)
     assert listed["frames"] == len(frames)
     assert listed["measured"] == sum(f["status"] == "measured" for f in frames)
-    time.sleep(0.5)  # nothing moves or is captured after the stop
+    CLOCK.advance(1.0)  # nothing moves or is captured after the stop
+    CLOCK.until_waiting(ROBOTS)
     assert len(client.get(f"/api/sessions/{sid}").json()["frames"]) == len(frames)
     assert client.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"] == stopped["joints"]
     assert client.get(f"/api/jobs/{job}").json()["state"] == "cancelled"

@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 
 import msgspec
 import numpy as np
@@ -277,7 +278,7 @@ def test_the_live_robot_follows_the_robot_while_it_moves(client: TestClient, mon
     with browser(client, "follower"):
         assert client.post("/api/robot/connect", json={"robot": "nao"}, headers=tab("follower")).status_code == 200
         driver = desk.robots.driver("nao")
-        monkeypatch.setattr(driver, "time_scale", 0.25)  # a move of a second or two
+        monkeypatch.setattr(driver, "motion", replace(driver.motion, time_scale=0.25))  # a move of a second or two
         client.post("/api/sessions/nao/observe", json={"on": True}, headers=tab("follower"))
         viewer = desk.viewers.get("follower")
         wait_until(lambda: viewer.scene.state()["live"], what="the live view")

@@ -5,9 +5,12 @@ are checked with a safety margin before anything moves (a configuration closer t
 refused, naming the joint and the limit in deg, or in the length unit), and every move runs each joint at most
 at its velocity limit, all joints arriving together.
 
-A kind of driver is a module of this package registered by name in registry.py (`simulated`: the robot
-simulated by calib_core, simulated.py); the desk makes one driver per robot that has one, from its
-configuration, and closes it when the desk stops or the robot is removed.
+Every driver is the one core (core.py: limits, velocity limits, state from the stream of joint readings, moves
+that arrive or time out, settling, stop, the detectors) over a small transport per kind of robot. A kind is a
+module of this package registered by name in registry.py (`simulated`: the robot simulated by calib_core,
+simulated.py; `ros2`: a robot on its own ROS 2 graph, ros2.py); docs/drivers.md shows what a new one holds. The
+desk makes one driver per robot that has one, from its configuration, and closes it when the desk stops or the
+robot is removed.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from calib_core import Calibration
 from calib_core.errors import InputError
 from calib_core.model.profile import Profile
 from calib_core.units import length_factor
@@ -144,10 +148,20 @@ class RobotDriver(Protocol):
         """Not moving for at least for_s."""
         ...
 
+    def wait_settled(self, for_s: float, timeout_s: float, should_stop: Callable[[], bool] | None = None) -> bool:
+        """Until settled(for_s): True; False when should_stop() says so; RobotFault when disconnected or not
+        settled within timeout_s."""
+        ...
+
     def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None: ...
 
     def believed_params(self) -> np.ndarray:
         """The parameters the robot works with: the active calibration's, or the nominal model."""
+        ...
+
+    def deploy(self, cal_id: str, cal: Calibration) -> str | None:
+        """Put the calibration on the robot itself (a ROS 2 robot's parameter): what was done, a sentence; None
+        for a robot that takes nothing. RobotFault when the robot refuses or does not answer."""
         ...
 
     def set_target(self, target: int) -> None:

@@ -2,11 +2,13 @@
 
 A kind is a module of this package with two functions:
 
-    check(profile, options, where) -> dict     the options checked, with their defaults (InputError naming
-                                               `where`, the configuration's field, for a wrong one)
-    create(profile, options, context) -> RobotDriver
+    check(profile, options, where, options_at) -> dict    the options checked, with their defaults: InputError
+                                                          naming `where` (the driver's field) when the kind
+                                                          cannot drive this profile, `options_at.<option>` for
+                                                          a wrong option
+    create(profile, options, context) -> RobotDriver      usually core.Driver over the kind's transport
 
-Adding a kind (a ROS 2 robot, say) is that module and one line in KINDS. A kind's module is imported only
+Adding a kind is that module and one line in KINDS (docs/drivers.md). A kind's module is imported only
 when a robot uses it, so a kind whose libraries are not installed costs nothing until then, and its import
 may raise InputError saying what to install.
 """
@@ -21,6 +23,8 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from calib_core import InputError, Profile
+
+from ..clock import SYSTEM_CLOCK, Clock
 
 if TYPE_CHECKING:
     from . import RobotDriver
@@ -45,6 +49,7 @@ class DriverContext:
 
     time_scale: float = 1.0  # the simulated robots' speed (calib serve --sim-speed)
     base_dir: Path = Path()  # relative paths in options are relative to this (the configuration file's folder)
+    clock: Clock = SYSTEM_CLOCK  # what the drivers' waits, settles and timeouts are measured on
 
 
 def kind(name: str, where: str = "driver.kind") -> ModuleType:
@@ -53,14 +58,17 @@ def kind(name: str, where: str = "driver.kind") -> ModuleType:
     return importlib.import_module(KINDS[name])
 
 
-def check(spec: DriverSpec, profile: Profile, where: str = "driver") -> DriverSpec:
-    """The spec with its options checked against the kind and the robot's profile."""
-    options = kind(spec.kind, f"{where}.kind").check(profile, spec.options, where)
+def check(spec: DriverSpec, profile: Profile, where: str = "driver", options_at: str | None = None) -> DriverSpec:
+    """The spec with its options checked against the kind and the robot's profile: InputError naming `where`
+    (the driver's field) or `options_at` (the options' field, default `where`) with the option."""
+    options = kind(spec.kind, f"{where}.kind").check(profile, spec.options, where, options_at or where)
     return DriverSpec(spec.kind, options)
 
 
-def create(spec: DriverSpec, profile: Profile, context: DriverContext) -> RobotDriver:
-    """The robot's driver, its options checked first (InputError naming `driver.<option>`)."""
-    module = kind(spec.kind)
-    options: Mapping[str, Any] = module.check(profile, spec.options, "driver")
+def create(
+    spec: DriverSpec, profile: Profile, context: DriverContext, where: str = "driver", options_at: str | None = None
+) -> RobotDriver:
+    """The robot's driver, its options checked first (check)."""
+    module = kind(spec.kind, f"{where}.kind")
+    options: Mapping[str, Any] = module.check(profile, spec.options, where, options_at or where)
     return module.create(profile, options, context)

@@ -1,4 +1,5 @@
-"""The simulated robot behind the RobotDriver interface (driver kind `simulated`).
+"""The simulated robot behind the RobotDriver interface (driver kind `simulated`): the driver core over the
+robot that calib_core simulates.
 
 Options (desk configuration file, `driver: {kind: simulated, ...}`): `seed` (the robot's hidden truth and
 noise, default 1) and `day` (1: as the profile's truth; later days drift the joint offsets as
@@ -9,27 +10,28 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from calib_core.errors import InputError
-from calib_core.model.profile import Profile, Sensor
+from calib_core.model.profile import Profile
 from calib_core.sim.simulator import SimulatedRobot
 from calib_core.vision.sampling import Sampler
 from calib_core.vision.visibility import Visibility
 
-from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, Look, RobotFault, RobotStatus, check_limits
+from ..clock import SYSTEM_CLOCK, Clock
+from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, RobotFault, RobotStatus, check_limits
+from .core import Command, Driver, Feed, Measurement, Motion, Poller, reads_points, travel_s
 from .registry import DriverContext
 
-MOVE_SLACK_S = 5.0  # real seconds a move may overrun its planned duration before the robot counts as not responding
-_WAIT_POLL_S = 0.01  # how often a waiting move_to asks its caller whether to stop
+MOVE_SLACK_S = 5.0  # seconds a move may overrun its planned duration before the robot counts as not responding
 _WANDER_POOL = 24  # visible configurations the wander picks from
 _WANDER_PAUSE_S = (0.5, 2.0)  # robot time between wander moves
 OPTIONS = {"seed": 1, "day": 1}  # and their defaults
+LOST = "the link to the robot was lost"
 
 
 def can_simulate(profile: Profile) -> bool:
@@ -40,39 +42,10 @@ def can_simulate(profile: Profile) -> bool:
     return bool(profile.simulation) and (sensor.reading in ("stereo", "image") or reads_points(sensor))
 
 
-def check(profile: Profile, options: Mapping[str, Any], where: str) -> dict[str, Any]:
-    """The options with their defaults; InputError (`where`: the field) for a profile the simulator cannot
-    stand in for, an unknown option or a value out of range."""
-    if not can_simulate(profile):
-        raise InputError(
-            f"{where}: {profile.name} cannot be simulated (its profile has no simulation section for its sensor)"
-        )
-    unknown = sorted(set(options) - set(OPTIONS))
-    if unknown:
-        raise InputError(f"{where}.{unknown[0]}: no such option of the simulated driver (options: seed, day)")
-    out = {**OPTIONS, **options}
-    for key, lowest in (("seed", 0), ("day", 1)):
-        value = out[key]
-        if isinstance(value, bool) or not isinstance(value, int) or not lowest <= value <= 2**31:
-            raise InputError(f"{where}.{key}: expected a whole number from {lowest}, got {value!r}")
-    return out
-
-
-def create(profile: Profile, options: Mapping[str, Any], context: DriverContext) -> SimulatedDriver:
-    """A simulated robot from checked options (check)."""
-    return SimulatedDriver(profile, seed=options["seed"], day=options["day"], time_scale=context.time_scale)
-
-
-def reads_points(sensor: Sensor) -> bool:
-    """A sensor that reports 3-D points with no image to detect them in (a laser tracker): the simulated robot
-    reads it directly, with its noise, instead of rendering and detecting."""
-    return sensor.reading == "direct" and sensor.dim == 3
-
-
 def also_read(profile: Profile) -> list[int]:
     """The sensors besides the data format's that each look reads too, directly from the truth with the profile's
-    noise (`SimulatedRobot.read`): those that report points or take images (the Motoman's two cameras, which have
-    no image size to render). A plane measures only what touches it: it is never read here."""
+    noise (`SimulatedRobot.read`): those that report points or take images (the Motoman's two cameras, whose
+    ArUco faces the simulator does not render). A plane measures only what touches it: it is never read here."""
     return [
         s
         for s, sensor in enumerate(profile.sensors)
@@ -80,22 +53,38 @@ def also_read(profile: Profile) -> list[int]:
     ]
 
 
-def readable_targets(profile: Profile) -> list[int]:
-    """The targets a point-reading sensor can be pointed at: those its data format names (the Motoman's
-    reflector on either arm, its `reflector_arm` column), else every single-point target."""
-    named = sorted(set(profile.data.target_values.values()))
-    return named or [t for t, target in enumerate(profile.targets) if target.grid is None and target.points is None]
+def check(profile: Profile, options: Mapping[str, Any], where: str, options_at: str) -> dict[str, Any]:
+    """The options with their defaults; InputError for a profile the simulator cannot stand in for (naming
+    `where`, the driver's field), an unknown option or a value out of range (naming `options_at`.<option>)."""
+    if not can_simulate(profile):
+        raise InputError(
+            f"{where}: {profile.name} cannot be simulated (its profile has no simulation section for its sensor)"
+        )
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise InputError(f"{options_at}.{unknown[0]}: no such option of the simulated driver (options: seed, day)")
+    out = {**OPTIONS, **options}
+    for key, lowest in (("seed", 0), ("day", 1)):
+        value = out[key]
+        if isinstance(value, bool) or not isinstance(value, int) or not lowest <= value <= 2**31:
+            raise InputError(f"{options_at}.{key}: expected a whole number from {lowest}, got {value!r}")
+    return out
+
+
+def create(profile: Profile, options: Mapping[str, Any], context: DriverContext) -> SimulatedDriver:
+    """A simulated robot from checked options (check)."""
+    return SimulatedDriver(
+        profile, seed=options["seed"], day=options["day"], time_scale=context.time_scale, clock=context.clock
+    )
 
 
 @dataclass
 class _Move:
     start: np.ndarray
     goal: np.ndarray
-    t0: float  # time.monotonic()
-    duration_s: float  # real seconds (robot time / time_scale)
+    t0: float  # clock seconds
+    duration_s: float
     owner: str  # "operator" or "wander"
-    done: threading.Event = field(default_factory=threading.Event)
-    arrived: bool = False
     stalled: bool = False  # an injected fault: the robot never gets there
     drops_link: bool = False  # an injected fault: the link is lost halfway
 
@@ -106,19 +95,240 @@ class _Move:
         return self.start + (self.goal - self.start) * s, s >= 1.0
 
 
-class SimulatedDriver:
+class SimulatedTransport:
+    """The simulated robot itself: true joint angles that follow each move linearly on the clock, encoder
+    readings polled at rate_hz, the sensor rendered (or a tracker read) at the true pose, injected faults, and a
+    wander that drives it through visible configurations by itself (someone else driving it)."""
+
+    readings_from = "joint readings"
+
+    def __init__(
+        self,
+        profile: Profile,
+        seed: int,
+        day: int,
+        time_scale: float,
+        rate_hz: float,
+        margin_rad: float,
+        margin_m: float,
+    ) -> None:
+        self.profile = profile
+        self.time_scale, self.rate_hz = time_scale, rate_hz
+        self.margin_rad, self.margin_m = margin_rad, margin_m
+        robot = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)
+        self.sim = robot  # renders, reads a tracker (its rng guarded by _render_lock)
+        self._planner = Sampler(Visibility(profile, robot.true_params), np.random.default_rng(seed + 1))
+        self._also = also_read(profile)
+        data_targets = set(profile.data.target_values.values()) | {profile.data.target}
+        self._other_targets = np.array([t for t in range(len(profile.targets)) if t not in data_targets], int)
+        self._seed = seed
+        self._reads = reads_points(profile.sensors[profile.data.sensor])
+        self._lock = threading.Lock()
+        self._render_lock = threading.Lock()
+        self._planner_lock = threading.Lock()
+        self._q = np.zeros(len(profile.joints))  # true joint angles when no move is under way
+        self._move: _Move | None = None
+        self._link_lost = False
+        self._operator_moves = 0
+        self._fault: tuple[str, int] | None = None  # (kind, the operator move it strikes)
+        self.aim: Callable[[int], None] = lambda target: None  # the driver's set_target: where the wander looks
+        self._wander_stop: threading.Event | None = None
+        self._wander_thread: threading.Thread | None = None
+
+    def home(self) -> tuple[np.ndarray, int]:
+        """A starting pose with the target in view."""
+        qs, targets = self.visible_configurations(8)
+        if len(qs):
+            return qs[0], int(targets[0])
+        lo, hi = self.profile.joint_limits()
+        return (lo + hi) / 2, 0
+
+    def place(self, q: np.ndarray) -> None:
+        """Stand at q before start (checked against the limits less the margin)."""
+        self._check(q)
+        self._q = np.asarray(q, float).copy()
+
+    def visible_configurations(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Configurations whose target the true robot sees, within the limits less the margin."""
+        with self._planner_lock:
+            qs, targets = self._planner.configurations(n)
+        ok = []
+        for q in qs:
+            try:
+                self._check(q)
+            except LimitError:
+                ok.append(False)
+            else:
+                ok.append(True)
+        return qs[ok], targets[ok]
+
+    def _check(self, q: np.ndarray) -> None:
+        check_limits(self.profile, q, self.margin_rad, self.margin_m)
+
+    # --- Transport ------------------------------------------------------------------------------------------
+    def start(self, feed: Feed, clock: Clock) -> None:
+        self.clock = clock
+        self._poller = Poller(self._read, feed, clock, 1.0 / self.rate_hz, f"motion-{self.profile.name}")
+
+    def _read(self) -> tuple[np.ndarray, float]:
+        with self._lock:
+            now = self.clock.now()
+            q = self._advance(now)
+            if self._link_lost:
+                raise RobotFault(LOST)
+            return self.sim.readings(q), now
+
+    def send(self, command: Command) -> None:
+        """The operator's (or a replay's) move: it ends a wander."""
+        with self._lock:
+            self._end_wander()
+            if self._link_lost:
+                raise RobotFault(LOST)
+            move = self._begin(command.goal, "operator", command.duration_s)
+            self._operator_moves += 1
+            if self._fault is not None and self._fault[1] == self._operator_moves:
+                move.stalled, move.drops_link = self._fault[0] == "stall", self._fault[0] == "disconnect"
+                self._fault = None
+
+    def halt(self) -> None:
+        with self._lock:
+            self._end_wander()
+            self._advance(self.clock.now())
+            self._move = None
+        self._poller.poll()  # the readings where it halted, before anyone asks
+
+    def measure(self, since_s: float, target: int) -> Measurement:
+        """Rendered (or read) now: after any readings; the other sensors (`also_read`) read at the same pose."""
+        with self._lock:
+            q = self._advance(self.clock.now()).copy()
+        with self._render_lock:
+            others = [self.sim.read(q, t, s) for s in self._also for t in self._seen_by(q, s)]
+            if self._reads:  # a tracker: the true target position with its noise, no image, no detector
+                measured = self.sim.measure(q[None], np.array([target])).data.measured[0]
+                return Measurement(point=measured, detail={"sensor": "read directly"}, sightings=others)
+            images, head = self.sim.render(q, target)
+        return Measurement(images=images, head=head, sightings=others)
+
+    def _seen_by(self, q: np.ndarray, sensor: int) -> list[int]:
+        """The targets besides the data format's of which `sensor` sees a point at true joint angles q."""
+        targets = self._other_targets
+        if not len(targets):
+            return []
+        view = Visibility(self.profile, self.sim.true_params)
+        seen = view.points(np.repeat(q[None], len(targets), axis=0), targets, sensor)
+        return [int(t) for t in targets[seen.any(axis=1)]]
+
+    def close(self) -> None:
+        self.wander(False)
+        thread = self._wander_thread
+        if thread is not None:
+            thread.join()
+        self._poller.close()
+
+    # --- what only a simulation does ------------------------------------------------------------------------
+    def true_joints_rad(self) -> np.ndarray:
+        with self._lock:
+            return self._advance(self.clock.now()).copy()
+
+    @property
+    def wandering(self) -> bool:
+        return self._wander_stop is not None and not self._wander_stop.is_set()
+
+    def wander(self, on: bool) -> None:
+        """Start or stop the wander (stopping leaves the robot where the wander's move has taken it)."""
+        with self._lock:
+            if on == self.wandering:
+                return
+            if not on:
+                self._end_wander()
+                return
+            if self._link_lost:
+                raise RobotFault(LOST)
+            stop = threading.Event()
+            self._wander_stop = stop
+            self._wander_thread = threading.Thread(
+                target=self._wander, args=(stop,), name=f"wander-{self.profile.name}", daemon=True
+            )
+            self._wander_thread.start()
+
+    def inject_fault(self, kind: str, after_moves: int) -> None:
+        with self._lock:
+            self._fault = (kind, self._operator_moves + after_moves + 1)
+
+    def reconnect(self) -> None:
+        with self._lock:
+            self._link_lost = False
+        self._poller.poll()
+
+    # --- internals ------------------------------------------------------------------------------------------
+    def _advance(self, now: float) -> np.ndarray:
+        """The true joint angles now, the move under way followed (lock held)."""
+        move = self._move
+        if move is None:
+            return self._q
+        self._q, arrived = move.position(now)
+        if move.drops_link and (arrived or now - move.t0 >= move.duration_s / 2):
+            self._link_lost, self._move = True, None  # and it halts there
+        elif arrived:
+            self._q, self._move = move.goal.copy(), None
+        return self._q
+
+    def _begin(self, goal: np.ndarray, owner: str, duration_s: float | None = None) -> _Move:
+        """Every motion starts here (operator, replay, wander): checked against the limits once more. Without
+        `duration_s`: as fast as the velocity limits allow."""
+        self._check(goal)
+        now = self.clock.now()
+        start = self._advance(now).copy()
+        if duration_s is None:
+            duration_s = travel_s(self.profile, start, goal) / self.time_scale
+        move = _Move(start, np.asarray(goal, float).copy(), now, duration_s, owner)
+        self._move = move
+        return move
+
+    def _end_wander(self) -> None:
+        """Lock held: the wander stops, and its move under way halts where it is."""
+        if self._wander_stop is not None:
+            self._wander_stop.set()
+        if self._move is not None and self._move.owner == "wander":
+            self._advance(self.clock.now())
+            self._move = None
+
+    def _wander(self, stop: threading.Event) -> None:
+        rng = np.random.default_rng(self._seed + 2)
+        qs, targets = self.visible_configurations(_WANDER_POOL)
+        try:
+            while len(qs) and not stop.is_set():
+                k = int(rng.integers(len(qs)))
+                with self._lock:
+                    if stop.is_set() or self._link_lost:  # under the lock wander(False) takes: no move after it
+                        return
+                    try:
+                        move = self._begin(qs[k], "wander")
+                    except LimitError:
+                        return  # the pool is checked already; should it hold a bad one, the wander ends
+                self.aim(int(targets[k]))
+                pause_s = rng.uniform(*_WANDER_PAUSE_S) / self.time_scale
+                if self.clock.wait(stop, move.duration_s) or self.clock.wait(stop, pause_s):
+                    return
+        finally:
+            stop.set()  # ended by itself too: no longer wandering
+
+
+class SimulatedDriver(Driver):
     """A simulated robot over calib_core's SimulatedRobot.
 
     Its true parameters are hidden (the profile's simulation truth; `day` > 1 drifts the joint offsets as
-    `calib simulate --day` does, so seed 1 day 2 is the robot of the sample session robonaut-a-day2). A motion
-    thread moves the true joint angles at rate_hz; `time_scale` speeds the robot's clock (moves, pauses and
-    settling) for tests and demos. `look()` renders what the data format's sensor sees at the true pose and
-    runs the detector seeded by the calibration the robot was given, so a better calibration finds the fixture
-    better; a sensor without images (a laser tracker, `reads_points`) is read directly: the true position of the
-    target it is pointed at (`set_target`: the Motoman's reflector on the right or the left arm), with the
-    profile's `simulation.noise.point`. The other sensors (`also_read`) read, in the same look, every target
-    other than the data format's that they see a point of (the Motoman's cameras: both arms' marker faces).
+    `calib simulate --day` does, so seed 1 day 2 is the robot of the sample session robonaut-a-day2).
+    `time_scale` speeds the robot's clock (moves, pauses and settling) for tests and demos. `look()` renders
+    what the sensor sees at the true pose and runs the detector seeded by the calibration the robot was given,
+    so a better calibration finds the fixture better; a sensor without images (a laser tracker,
+    `reads_points`) is read directly: the true position of the target it is pointed at (`set_target`: the
+    Motoman's reflector on the right or the left arm), with the profile's `simulation.noise.point`. The other
+    sensors (`also_read`) read, in the same look, every target other than the data format's that they see a point
+    of (the Motoman's cameras: the marker faces of either arm inside their images).
     """
+
+    transport: SimulatedTransport
 
     def __init__(
         self,
@@ -132,336 +342,59 @@ class SimulatedDriver:
         margin_m: float = DEFAULT_MARGIN_M,
         start_rad: np.ndarray | None = None,
         move_slack_s: float = MOVE_SLACK_S,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
-        if time_scale <= 0 or rate_hz <= 0 or margin_deg < 0 or margin_m < 0:
-            raise ValueError("time_scale and rate_hz must be positive and margin_deg, margin_m not negative")
-        self.profile = profile
-        self.time_scale = float(time_scale)
-        self.rate_hz = float(rate_hz)
-        self.margin_rad = math.radians(margin_deg)
-        self.margin_m = float(margin_m)
-        self.move_slack_s = float(move_slack_s)
-        robot = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)
-        self._sim = robot  # renders and detects, or reads a tracker (its rng is guarded by _render_lock)
-        self._reads = reads_points(profile.sensors[profile.data.sensor])
-        self._also = also_read(profile)
-        data_targets = set(profile.data.target_values.values()) | {profile.data.target}
-        self._other_targets = np.array([t for t in range(len(profile.targets)) if t not in data_targets], int)
-        self._planner = Sampler(Visibility(profile, robot.true_params), np.random.default_rng(seed + 1))
-        self._seed = seed
-        self._velocity = np.array([j.velocity for j in profile.joints])
-        self._lock = threading.Lock()
-        self._render_lock = threading.Lock()
-        self._planner_lock = threading.Lock()
-        q0, t0 = (np.asarray(start_rad, float), 0) if start_rad is not None else self._home()
-        self.check(q0)
-        self._q = q0.copy()  # true joint angles (unquantised readings)
-        self._stamp = time.monotonic()
-        self._still_since = self._stamp
-        self._target = t0
-        self._move: _Move | None = None
-        self._cal_id: str | None = None
-        self._believed = profile.nominal()
-        self._stopped = False
-        self._link_lost = False
-        self._operator_moves = 0
-        self._fault: tuple[str, int] | None = None  # (kind, the operator move it strikes)
-        self._wander_stop: threading.Event | None = None
-        self._wander_thread: threading.Thread | None = None
-        self._closed = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"motion-{profile.name}", daemon=True)
-        self._thread.start()
-
-    # --- lifecycle ----------------------------------------------------------------------------------
-    def close(self) -> None:
-        """Stop motion and the threads; the driver then reports itself disconnected."""
-        self.stop()
-        self._closed.set()
-        self._thread.join()
-        wander = self._wander_thread
-        if wander is not None:
-            wander.join()
-
-    def __enter__(self) -> SimulatedDriver:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    # --- state --------------------------------------------------------------------------------------
-    def status(self) -> RobotStatus:
-        with self._lock:
-            q, stamp, moving = self._q.copy(), self._stamp, self._move is not None
-            wandering = self._wander_stop is not None and not self._wander_stop.is_set()
-            closed = self._closed.is_set()
-            if closed:
-                message = "disconnected"
-            elif self._link_lost:
-                message = "disconnected: the link to the robot was lost"
-            elif wandering:
-                message = "wandering: someone else drives the robot"
-            elif moving:
-                message = "moving"
-            elif self._stopped:
-                message = "stopped"
-            else:
-                message = "idle"
-            return RobotStatus(
-                robot=self.profile.name,
-                connected=not (closed or self._link_lost),
-                moving=moving,
-                joints_rad=self._sim.readings(q),
-                target=self._target,
-                calibration_id=self._cal_id,
-                message=message,
-                stamp=stamp,
-                wandering=wandering,
-            )
-
-    def read_joints(self) -> np.ndarray:
-        with self._lock:
-            self._check_link()
-            return self._sim.readings(self._q)
-
-    def settled(self, for_s: float = 0.3) -> bool:
-        """Not moving for at least for_s of robot time (real time for_s / time_scale)."""
-        with self._lock:
-            still = self._move is None
-            return still and (time.monotonic() - self._still_since) * self.time_scale >= for_s
-
-    def true_joints_rad(self) -> np.ndarray:
-        """The hidden true joint angles (simulation only: for tests and a ground-truth view)."""
-        with self._lock:
-            return self._q.copy()
-
-    def true_params(self) -> np.ndarray:
-        """The hidden true parameters (simulation only: for tests and a ground-truth view)."""
-        return self._sim.true_params.copy()
-
-    # --- seeing -------------------------------------------------------------------------------------
-    def look(self, believed: np.ndarray | None = None) -> Look:
-        with self._lock:
-            self._check_link()
-            q, target = self._q.copy(), self._target
-            p = (self._believed if believed is None else np.asarray(believed, float)).copy()
-        with self._render_lock:
-            if self._reads:
-                first, images = self._sim.read(q, target, self.profile.data.sensor), {}
-            else:
-                cap = self._sim.capture(0, q, target, p)
-                first, images = cap.sighting, cap.images
-            others = [self._sim.read(q, t, s) for s in self._also for t in self._seen_by(q, s)]
-        return Look(self._sim.readings(q), target, [first, *others], images)
-
-    def _seen_by(self, q: np.ndarray, sensor: int) -> list[int]:
-        """The targets besides the data format's of which `sensor` sees a point at true joint angles q."""
-        targets = self._other_targets
-        if not len(targets):
-            return []
-        seen = Visibility(self.profile, self._sim.true_params).points(
-            np.repeat(q[None], len(targets), 0), targets, sensor
+        if time_scale <= 0 or rate_hz <= 0:
+            raise ValueError("time_scale and rate_hz must be positive")
+        margin_rad = math.radians(margin_deg)
+        robot = SimulatedTransport(profile, seed, day, time_scale, rate_hz, margin_rad, margin_m)
+        q0, t0 = (np.asarray(start_rad, float), 0) if start_rad is not None else robot.home()
+        robot.place(q0)
+        step = np.array([j.resolution for j in profile.joints])
+        motion = Motion(
+            tolerance=step / 2 + 1e-12,  # the goal's own reading
+            still=np.zeros(len(step)),  # any change of a reading is motion
+            margin_deg=margin_deg,
+            margin_m=margin_m,
+            move_slack_s=move_slack_s,
+            time_scale=time_scale,
         )
-        return [int(t) for t in targets[seen.any(axis=1)]]
+        super().__init__(profile, robot, motion, clock=clock, target=t0)
+        robot.aim = self.set_target
 
-    def apply_calibration(self, cal_id: str | None, params: np.ndarray | None) -> None:
-        p = self.profile.nominal() if params is None else np.asarray(params, float).copy()
-        if p.shape != (len(self.profile.parameters),):
-            raise ValueError(f"expected {len(self.profile.parameters)} parameters for {self.profile.name}")
-        with self._lock:
-            self._cal_id = cal_id
-            self._believed = p
-
-    def believed_params(self) -> np.ndarray:
-        with self._lock:
-            return self._believed.copy()
-
-    def set_target(self, target: int) -> None:
-        if not 0 <= target < len(self.profile.targets):
-            raise ValueError(f"{self.profile.name} has targets 0..{len(self.profile.targets) - 1}, not {target}")
-        if self._reads and target not in readable_targets(self.profile):
-            names = ", ".join(self.profile.targets[t].name for t in readable_targets(self.profile))
-            sensor = self.profile.sensors[self.profile.data.sensor].name
-            raise InputError(f"the {sensor} reads {names}, not {self.profile.targets[target].name}")
-        with self._lock:
-            self._target = int(target)
-
-    # --- moving -------------------------------------------------------------------------------------
-    def check(self, q_rad: np.ndarray) -> None:
-        check_limits(self.profile, q_rad, self.margin_rad, self.margin_m)
-
-    def move_to(self, q_rad: np.ndarray, *, wait: bool = True, should_stop: Callable[[], bool] | None = None) -> bool:
-        """The operator's (or a replay's) move: it ends a wander."""
-        q = np.asarray(q_rad, dtype=float)
-        self.check(q)
-        self.wander(False)
-        move = self._begin(q, "operator")
-        if not wait:
-            return True
-        limit_s = move.duration_s + self.move_slack_s
-        while not move.done.wait(_WAIT_POLL_S):
-            if should_stop is not None and should_stop():
-                self.stop()
-            elif time.monotonic() - move.t0 > limit_s:
-                self.stop()
-                raise RobotFault(
-                    f"{self.profile.name} did not arrive within {limit_s:.1f} s (not responding); the robot was stopped"
-                )
-        with self._lock:
-            self._check_link()
-        return move.arrived
-
-    def jog(self, joint_name: str, value_deg: float) -> None:
-        """Move one joint to value_deg, the others held where they are headed; does not wait."""
-        with self._lock:
-            q = (self._move.goal if self._move is not None else self._q).copy()
-        q[self.profile.joint(joint_name)] = math.radians(value_deg)
-        self.move_to(q, wait=False)
-
-    def stop(self) -> None:
-        with self._lock:
-            if self._wander_stop is not None:
-                self._wander_stop.set()
-            self._halt(time.monotonic())
-            self._stopped = True
+    def status(self) -> RobotStatus:
+        st = super().status()
+        if not self.transport.wandering:
+            return st
+        message = "wandering: someone else drives the robot" if st.connected else st.message
+        return replace(st, wandering=True, message=message)
 
     def wander(self, on: bool) -> None:
         """Start or stop a scripted wander through random visible configurations, with pauses: the robot
-        driven by someone else. Stopping it halts the wander's current move."""
-        with self._lock:
-            running = self._wander_stop is not None and not self._wander_stop.is_set()
-            if on == running or self._closed.is_set():
-                return
-            if not on:
-                assert self._wander_stop is not None
-                self._wander_stop.set()
-                if self._move is not None and self._move.owner == "wander":
-                    self._halt(time.monotonic())
-                return
-            self._check_link()
-            stop = threading.Event()
-            self._wander_stop = stop
-            self._stopped = False
-            self._wander_thread = threading.Thread(
-                target=self._wander, args=(stop,), name=f"wander-{self.profile.name}", daemon=True
-            )
-            self._wander_thread.start()
+        driven by someone else. Stopping it stops the robot."""
+        if self._closing.is_set():
+            return
+        if on:
+            self.transport.wander(True)
+        elif self.transport.wandering:
+            self.stop()
 
-    # --- faults (simulation only: for tests and demos) ----------------------------------------------
     def inject_fault(self, kind: str, *, after_moves: int = 0) -> None:
         """Make a later move fail as a real robot's can. The move after the next `after_moves` operator moves:
         "disconnect" loses the link halfway (the robot halts and reports itself disconnected until
         reconnect()); "stall" never arrives (a jammed joint, a lost command), so move_to times out."""
         if kind not in ("disconnect", "stall") or after_moves < 0:
             raise ValueError(f"unknown fault '{kind}' or negative after_moves")
-        with self._lock:
-            self._fault = (kind, self._operator_moves + after_moves + 1)
+        self.transport.inject_fault(kind, after_moves)
 
     def reconnect(self) -> None:
         """The link is back (after an injected disconnect)."""
-        with self._lock:
-            self._link_lost = False
+        self.transport.reconnect()
 
-    def _check_link(self) -> None:
-        """Raise RobotFault when the link is lost (lock held)."""
-        if self._link_lost:
-            raise RobotFault(f"{self.profile.name} disconnected (the link to the robot was lost)")
+    def true_joints_rad(self) -> np.ndarray:
+        """The hidden true joint angles (simulation only: for tests and a ground-truth view)."""
+        return self.transport.true_joints_rad()
 
-    # --- internals ----------------------------------------------------------------------------------
-    def _home(self) -> tuple[np.ndarray, int]:
-        """A starting pose with the target in view."""
-        qs, targets = self._visible_configurations(8)
-        if len(qs):
-            return qs[0], int(targets[0])
-        lo, hi = self.profile.joint_limits()
-        return (lo + hi) / 2, 0
-
-    def _visible_configurations(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Configurations whose target the true robot sees, within the limits less the margin."""
-        with self._planner_lock:
-            qs, targets = self._planner.configurations(n)
-        ok = []
-        for q in qs:
-            try:
-                self.check(q)
-            except LimitError:
-                ok.append(False)
-            else:
-                ok.append(True)
-        return qs[ok], targets[ok]
-
-    def _begin(self, goal: np.ndarray, owner: str) -> _Move:
-        with self._lock:
-            return self._begin_locked(goal, owner)
-
-    def _begin_locked(self, goal: np.ndarray, owner: str) -> _Move:
-        """Every motion starts here (operator, replay, wander): checked against the limits once more."""
-        if self._closed.is_set():
-            raise RuntimeError(f"the {self.profile.name} driver is closed")
-        self._check_link()
-        self.check(goal)
-        now = time.monotonic()
-        self._halt(now)
-        delta = np.abs(goal - self._q)
-        if np.any((delta > 0) & (self._velocity <= 0)):
-            raise ValueError("a joint to move has no velocity limit above 0")
-        robot_s = float(np.max(np.where(delta > 0, delta / np.where(self._velocity > 0, self._velocity, 1), 0)))
-        move = _Move(self._q.copy(), goal.copy(), now, robot_s / self.time_scale, owner)
-        if owner == "operator":
-            self._operator_moves += 1
-            if self._fault is not None and self._fault[1] == self._operator_moves:
-                move.stalled, move.drops_link = self._fault[0] == "stall", self._fault[0] == "disconnect"
-                self._fault = None
-        self._move = move
-        self._stopped = False
-        return move
-
-    def _halt(self, now: float) -> None:
-        """End the current move where it is now (lock held)."""
-        move = self._move
-        if move is None:
-            return
-        self._q, _ = move.position(now)
-        self._stamp = now
-        self._still_since = now
-        self._move = None
-        move.done.set()
-
-    def _run(self) -> None:
-        period = 1.0 / self.rate_hz
-        while not self._closed.wait(period):
-            with self._lock:
-                move = self._move
-                if move is None:
-                    continue
-                now = time.monotonic()
-                self._q, arrived = move.position(now)
-                self._stamp = now
-                if move.drops_link and (arrived or now - move.t0 >= move.duration_s / 2):
-                    self._link_lost = True
-                    self._halt(now)
-                elif arrived:
-                    self._q = move.goal.copy()
-                    self._move = None
-                    self._still_since = now
-                    move.arrived = True
-                    move.done.set()
-
-    def _wander(self, stop: threading.Event) -> None:
-        rng = np.random.default_rng(self._seed + 2)
-        qs, targets = self._visible_configurations(_WANDER_POOL)
-        while len(qs) and not stop.is_set():
-            k = int(rng.integers(len(qs)))
-            with self._lock:
-                # Checked under the lock that wander(False) takes: no wander move starts after it.
-                if stop.is_set() or self._closed.is_set() or self._link_lost:
-                    break
-                try:
-                    move = self._begin_locked(qs[k], "wander")
-                except LimitError:
-                    break  # the pool is checked already; should it hold a bad one, the wander ends
-                self._target = int(targets[k])
-            while not move.done.wait(_WAIT_POLL_S) and not stop.is_set():
-                pass
-            if not move.arrived:
-                break
-            stop.wait(rng.uniform(*_WANDER_PAUSE_S) / self.time_scale)
+    def true_params(self) -> np.ndarray:
+        """The hidden true parameters (simulation only: for tests and a ground-truth view)."""
+        return self.transport.sim.true_params.copy()

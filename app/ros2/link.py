@@ -6,12 +6,12 @@ graph is the environment's: ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE and RMW
 
 from __future__ import annotations
 
-import contextlib
 import threading
 from typing import Any
 
 import rclpy
 from rclpy.context import Context
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -51,13 +51,18 @@ class Link:
             raise
         self.executor = MultiThreadedExecutor(num_threads=threads, context=self.context)
         self.executor.add_node(self.node)
+        self._closed = False
         self._thread = threading.Thread(target=self._spin, name=f"ros2-{node_name}", daemon=True)
         self._thread.start()
-        self._closed = False
 
     def _spin(self) -> None:
-        with contextlib.suppress(ExternalShutdownException):  # the context shut down under the spin
+        try:
             self.executor.spin()
+        except ExternalShutdownException:  # the context shut down under the spin
+            pass
+        except InvalidHandle:  # close() shut the executor down while a callback's guard condition fired
+            if not self._closed:
+                raise
 
     def now_s(self) -> float:
         """The node's clock (the graph's time stamps), s."""

@@ -120,7 +120,7 @@ def connection_doc(profile_ref: str, robot: str, profile: Profile, topics: Topic
 
 def sensor_kind(profile: Profile) -> str:
     """How the node publishes the profile's data sensor: "stereo", "image" or "point" (InputError: it cannot)."""
-    from ..drivers.simulated import reads_points
+    from ..drivers.core import reads_points
 
     sensor = profile.sensors[profile.data.sensor]
     if sensor.reading in ("stereo", "image"):
@@ -164,11 +164,11 @@ class SimNode:
         self.stall_apply = stall_apply
         self._closing = threading.Event()
         self.topics = topics
-        from ..drivers.simulated import readable_targets
+        from ..drivers.core import first_target
 
         sensor = profile.sensors[profile.data.sensor]
         self.kind = sensor_kind(profile)
-        self.target = (readable_targets(profile) or [0])[0] if self.kind == "point" else 0
+        self.target = first_target(profile)
         self._lock = threading.Lock()
         lo, hi = profile.joint_limits()
         self._lo, self._hi = lo, hi

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import math
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, File, Form, HTTPException, UploadFile
 from pydantic import BaseModel
@@ -133,13 +134,16 @@ async def add_robot(
     profile_file: Annotated[UploadFile | None, File()] = None,
     urdf_file: Annotated[UploadFile | None, File()] = None,
     driver: Annotated[str | None, Form(max_length=64)] = None,
+    driver_options: Annotated[str | None, Form(max_length=4096)] = None,
     meshes_zip: Annotated[UploadFile | None, File()] = None,
 ) -> RobotOut:
     """Add a robot to the running desk, kept after a restart: `name`, and its profile either uploaded
     (`profile_file`, with `urdf_file` when the profile says `urdf: ...`, and `meshes_zip`: a zip of the URDF's
     meshes, its paths relative to the profile's folder, the description package's root) or named in `profile`
     (a built-in profile, or on a desk bound to loopback a profile file on this machine). `driver`: a driver
-    kind (`simulated`), none for real data only. A broken profile or zip answers 422 naming its file and field
+    kind (`simulated`), none for real data only; `driver_options`: its options as a JSON object (the simulated
+    driver's `{"seed": 2, "day": 3}`), checked by the kind (422 naming `driver_options.<option>`), kept with the
+    robot and used again after a restart. A broken profile or zip answers 422 naming its file and field
     or entry; a zip larger unpacked than the desk's limit 413. A profile file named brings its URDF's meshes
     (app/profile_meshes.py): 413 when they are more or larger together than a zip may hold."""
     files = None
@@ -174,12 +178,27 @@ async def add_robot(
     if driver:
         if driver not in KINDS:
             raise InputError(f"driver: unknown driver kind '{driver}' (known: {', '.join(KINDS)})")
-        spec = DriverSpec(driver)
+        spec = DriverSpec(driver, _driver_options(driver_options))
+    elif driver_options:
+        raise InputError("driver_options: options of which driver? give the driver's kind (driver) too")
     try:
         robot = await asyncio.to_thread(desk.add_robot, name, profile=profile or None, files=files, driver=spec)
     except MeshesTooLarge as exc:  # the meshes of a profile file named: as a zip's
         raise HTTPException(413, str(exc)) from None
     return robot_out(robot)
+
+
+def _driver_options(text: str | None) -> dict[str, Any]:
+    """The `driver_options` form field: a JSON object (empty or absent: none)."""
+    if not text:
+        return {}
+    try:
+        options = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"driver_options: not valid JSON ({exc.msg} at character {exc.pos})") from None
+    if not isinstance(options, dict):
+        raise InputError('driver_options: expected a JSON object of the driver\'s options, like {"seed": 2}')
+    return options
 
 
 class Deleted(BaseModel):

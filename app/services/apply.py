@@ -10,23 +10,15 @@ history row.
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
-from calib_core import Calibration
 from calib_core.estimation.registration import register
 
 from .. import safety
 from ..robots import Robots
 from ..store import Store
-
-
-@runtime_checkable
-class Deploys(Protocol):
-    """A driver that puts a calibration on the robot (app/drivers/ros2.py); returns what it did, a sentence."""
-
-    def deploy(self, cal_id: str, cal: Calibration) -> str: ...
 
 
 class ApplyService:
@@ -59,9 +51,8 @@ class ApplyService:
         """A driver that takes calibrations on the robot itself (a ROS 2 robot's parameter) gets this one first:
         when that fails (RobotFault: refused, not answering) nothing is recorded and the active one stays."""
         driver = self.robots.get(robot).driver
-        if not isinstance(driver, Deploys):
-            return {}
-        return {"deployed": driver.deploy(cal_id, self.store.calibrations.load(cal_id))}
+        done = None if driver is None else driver.deploy(cal_id, self.store.calibrations.load(cal_id))
+        return {} if done is None else {"deployed": done}
 
     def concerns(self, cal_id: str) -> list[str]:
         """Why applying this calibration needs a confirmation (empty: it does not)."""

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag1 import ReaderError as Ros1ReaderError
@@ -52,6 +51,7 @@ from ..sensors import Sensor
 from ..vision.sighting import Capture, Sighting, dataset_from_captures, predicted_points, sight_board, sight_fixture
 from ..vision.stereo import StereoHead, depth_from_pair
 from ..vision.visibility import Visibility
+from .camera_images import grey_compressed, grey_image
 from .session import FrameRecord, write_session
 
 DEFAULT_JOINT_TOPIC = "/joint_states"
@@ -64,22 +64,6 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 IMAGE_TYPES = (IMAGE, COMPRESSED_IMAGE)
-
-# sensor_msgs/Image encodings read: (channels, dtype); colour is turned grey as the detectors want it.
-_ENCODINGS: dict[str, tuple[int, str]] = {
-    "mono8": (1, "u1"),
-    "8UC1": (1, "u1"),
-    "mono16": (1, "u2"),
-    "16UC1": (1, "u2"),
-    "bgr8": (3, "u1"),
-    "rgb8": (3, "u1"),
-    "8UC3": (3, "u1"),
-    "bgra8": (4, "u1"),
-    "rgba8": (4, "u1"),
-    "8UC4": (4, "u1"),
-}
-_TO_GREY = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
-_RGB_TO_GREY = {3: cv2.COLOR_RGB2GRAY, 4: cv2.COLOR_RGBA2GRAY}
 
 # Errors rosbags raises on a file that is not a bag, is cut off or holds malformed messages.
 _BAG_ERRORS = (AnyReaderError, Ros1ReaderError, Ros2ReaderError, SerdeError)
@@ -332,36 +316,15 @@ def _load_images(
 
 
 def decode_image(msg: Any, msgtype: str, topic: str, bag: str) -> np.ndarray | None:
-    """A grey uint8 image (H, W) from an Image or CompressedImage message; None for a compressed image that
-    does not decode (that frame is not found). An encoding this reader does not know is an InputError."""
+    """A grey uint8 image (H, W) from an Image or CompressedImage message (calib_core.io.camera_images); None
+    for a compressed image that does not decode (that frame is not found). An encoding the decoder does not know,
+    or an image shorter than its size says, is an InputError naming the topic."""
     if msgtype == COMPRESSED_IMAGE:
-        data = np.asarray(msg.data, dtype=np.uint8)
-        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
-        return image
-    encoding = str(msg.encoding)
-    if encoding not in _ENCODINGS:
-        raise InputError(
-            f"topic '{topic}': image encoding '{encoding}' is not supported (use one of {', '.join(_ENCODINGS)})",
-            file=bag,
-        )
-    channels, kind = _ENCODINGS[encoding]
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    dtype = np.dtype(kind).newbyteorder(">" if msg.is_bigendian else "<")
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if step < width * channels * dtype.itemsize or data.size < height * step:
-        raise InputError(
-            f"topic '{topic}': an image of {width} x {height} px ({encoding}, row step {step}) "
-            f"holds only {data.size} bytes",
-            file=bag,
-        )
-    rows = data[: height * step].reshape(height, step)[:, : width * channels * dtype.itemsize]
-    pixels = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels)
-    if dtype.itemsize == 2:
-        pixels = (pixels.astype(np.uint32) // 257).astype(np.uint8)  # full 16-bit scale -> 8 bits
-    if channels == 1:
-        return np.ascontiguousarray(pixels[:, :, 0])
-    table = _RGB_TO_GREY if encoding.startswith("rgb") else _TO_GREY
-    return cv2.cvtColor(np.ascontiguousarray(pixels), table[channels])
+        return grey_compressed(msg.data)
+    try:
+        return grey_image(msg)
+    except ValueError as exc:
+        raise InputError(f"topic '{topic}': {exc}", file=bag) from None
 
 
 # --- detecting -----------------------------------------------------------------------------------------------

@@ -202,22 +202,17 @@ class SimulatedRobot:
             return q.copy()
         return np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
 
-    def capture(self, frame: int, q: np.ndarray, target: int, believed: np.ndarray) -> Capture:
-        """Render what the sensor sees in configuration q (one row, rad) and run its detector,
-        seeded by the calibration the robot believes in (`believed`, internal units)."""
+    def render(self, q: np.ndarray, target: int) -> tuple[dict[str, np.ndarray], StereoHead | None]:
+        """What the data sensor sees in configuration q (one row, true joint angles, rad): a stereo head's
+        "left" and "right" images with the head that took them, or a camera's "image" of the board `target`."""
         prof = self.profile
         sensor = prof.sensors[prof.data.sensor]
-        readings = self.readings(q)
         if sensor.reading == "stereo":
             head = StereoHead.from_profile(prof, self.true_params, sensor.name)
             pair = render_pair(prof, self.true_params, q, head, self.rng)
-            depth = depth_from_pair(pair.left, pair.right, head)
-            sighting = sight_fixture(prof, believed, readings, depth, head)
-            return Capture(frame, readings, sighting, {"left": pair.left, "right": pair.right})
+            return {"left": pair.left, "right": pair.right}, head
         if sensor.reading == "image":
-            board = render_board_image(prof, self.true_params, q, target, self.rng)
-            sighting = sight_board(prof, believed, readings, target, board.image)
-            return Capture(frame, readings, sighting, {"image": board.image})
+            return {"image": render_board_image(prof, self.true_params, q, target, self.rng).image}, None
         raise ValueError(f"sensor '{sensor.name}' reads its measurements directly: there is no image to render")
 
     def read(self, q: np.ndarray, target: int, sensor: int) -> Sighting:
@@ -241,6 +236,16 @@ class SimulatedRobot:
         noise = {"pixel": self.pixel_noise, "disparity": self.disparity_noise, "point": self.point_noise}
         measured = prof.sensors[sensor].simulate(p, x[seen], self.rng, noise)
         return Sighting(sensor, target, "measured", "ok", measured, points[seen], vertices[seen], detail)
+
+    def capture(self, frame: int, q: np.ndarray, target: int, believed: np.ndarray) -> Capture:
+        """Render what the sensor sees in configuration q (one row, rad) and run its detector,
+        seeded by the calibration the robot believes in (`believed`, internal units)."""
+        readings = self.readings(q)
+        images, head = self.render(q, target)
+        if head is not None:
+            depth = depth_from_pair(images["left"], images["right"], head)
+            return Capture(frame, readings, sight_fixture(self.profile, believed, readings, depth, head), images)
+        return Capture(frame, readings, sight_board(self.profile, believed, readings, target, images["image"]), images)
 
     def simulate_images(self, n: int | None = None, believed: np.ndarray | None = None) -> ImageSimulation:
         """Random visible configurations, seen through rendered images and the detectors.
