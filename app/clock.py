@@ -1,0 +1,155 @@
+"""Time for code that waits: a time limit, a grace period, a wait for a change with a timeout.
+
+Such code is given a `Clock` rather than reading `time.monotonic`: `SystemClock` (the default) is the real
+one; `ManualClock` stands still until a test advances it, so a test of a time-out neither waits seconds of wall
+time nor fails on a loaded machine because a limit passed too early.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+
+class Timer(Protocol):
+    def cancel(self) -> None:
+        """The call does not happen (if it has not yet)."""
+
+
+class Clock(Protocol):
+    def now(self) -> float:
+        """Seconds on a monotonic scale (only differences mean anything)."""
+
+    def wait(self, cond: threading.Condition, timeout_s: float | None) -> None:
+        """Called holding `cond`, like `cond.wait`: returns once `cond` is notified or `timeout_s` of this clock
+        has passed (None: no timeout), or spuriously; `wait_for` loops."""
+
+    def call_later(self, delay_s: float, fn: Callable[[], object]) -> Timer:
+        """Call `fn` (on some thread) once `delay_s` of this clock has passed."""
+
+
+def wait_for(clock: Clock, cond: threading.Condition, ready: Callable[[], bool], timeout_s: float | None) -> bool:
+    """`cond.wait_for(ready, timeout_s)` on `clock`'s time; called holding `cond`. The last value of `ready()`."""
+    deadline = None if timeout_s is None else clock.now() + timeout_s
+    while not (result := ready()):
+        left = None if deadline is None else deadline - clock.now()
+        if left is not None and left <= 0:
+            break
+        clock.wait(cond, left)
+    return result
+
+
+class SystemClock:
+    """The real clock: time.monotonic, Condition.wait, threading.Timer."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def wait(self, cond: threading.Condition, timeout_s: float | None) -> None:
+        cond.wait(timeout_s)
+
+    def call_later(self, delay_s: float, fn: Callable[[], object]) -> Timer:
+        timer = threading.Timer(max(0.0, delay_s), fn)
+        timer.daemon = True  # a pending time limit never holds the interpreter at exit
+        timer.start()
+        return timer
+
+
+class ClockStalled(AssertionError):
+    """A wait on a ManualClock that nothing ended within its stall limit of wall time: a test waits for a change
+    that does not come, or forgot to advance the clock. Raised in the waiting thread, so the test fails rather
+    than hangs."""
+
+
+@dataclass(order=True)
+class _Call:
+    at: float
+    seq: int
+    fn: Callable[[], object] = field(compare=False)
+    cancelled: bool = field(default=False, compare=False)
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+@dataclass(eq=False)
+class _Waiter:
+    cond: threading.Condition
+    deadline: float | None
+    thread: str
+
+
+class ManualClock:
+    """A clock for tests: its time moves only by `advance`, which runs the calls that come due (in the advancing
+    thread, in order) and wakes the waits whose timeout has passed. A wait with a timeout that sees neither a
+    notification nor its timeout within `stall_s` of wall time raises ClockStalled."""
+
+    def __init__(self, start: float = 0.0, *, stall_s: float = 60.0) -> None:
+        self.stall_s = stall_s
+        self._now = start
+        self._calls: list[_Call] = []
+        self._seq = itertools.count()
+        self._waiters: set[_Waiter] = set()
+        self._state = threading.Condition()  # guards the above; notified when a thread starts waiting
+
+    def now(self) -> float:
+        with self._state:
+            return self._now
+
+    def advance(self, seconds: float) -> None:
+        """Move time on by `seconds`: each call due meanwhile runs at its time (seeing it as `now`, so a call it
+        makes due within the step runs too), then the waits due wake."""
+        if seconds < 0:
+            raise ValueError("a clock does not go back")
+        with self._state:
+            target = self._now + seconds
+        while True:
+            with self._state:
+                if not self._calls or self._calls[0].at > target:
+                    self._now = target
+                    due = [w.cond for w in self._waiters if w.deadline is not None and w.deadline <= target]
+                    break
+                call = heapq.heappop(self._calls)
+                self._now = max(self._now, call.at)
+            if not call.cancelled:
+                call.fn()
+        for cond in due:
+            with cond:  # taken once the waiter is inside cond.wait: the notification cannot be missed
+                cond.notify_all()
+
+    def wait(self, cond: threading.Condition, timeout_s: float | None) -> None:
+        with self._state:
+            deadline = None if timeout_s is None else self._now + timeout_s
+            if deadline is not None and deadline <= self._now:
+                return
+            waiter = _Waiter(cond, deadline, threading.current_thread().name)
+            self._waiters.add(waiter)
+            self._state.notify_all()
+        try:
+            notified = cond.wait(None if deadline is None else self.stall_s)
+            if deadline is not None and not notified and self.now() < deadline:
+                raise ClockStalled(
+                    f"a wait of {timeout_s:g} s on the manual clock saw no change in {self.stall_s:g} s of wall "
+                    "time: advance the clock, or the change waited for does not come"
+                )
+        finally:
+            with self._state:
+                self._waiters.discard(waiter)
+
+    def call_later(self, delay_s: float, fn: Callable[[], object]) -> Timer:
+        with self._state:
+            call = _Call(self._now + max(0.0, delay_s), next(self._seq), fn)
+            heapq.heappush(self._calls, call)
+        return call
+
+    def until_waiting(self, thread: str) -> None:
+        """Block until the thread of that name waits on this clock (a test's sign that a job is held at a
+        pause, say). ClockStalled after `stall_s` of wall time."""
+        with self._state:
+            if not self._state.wait_for(lambda: any(w.thread == thread for w in self._waiters), self.stall_s):
+                raise ClockStalled(f"thread '{thread}' did not wait on the manual clock within {self.stall_s:g} s")
