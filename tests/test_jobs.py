@@ -417,7 +417,6 @@ def test_a_restart_shows_interrupted_jobs_as_failed(jobs: JobRunner, store: Stor
         assert restarted.jobs.fail_interrupted() >= 1
         snap = restarted.jobs.get(running)
         assert (snap.state, snap.error, snap.paused) == ("failed", INTERRUPTED, False)
-        assert snap.version == jobs.get(running).version + 1
         assert JobSnapshot.from_dict(json.loads(json.dumps(snap.to_dict()))) == snap
         done = [j for j in restarted.jobs.list() if j.state == JobState.DONE]
         assert done and all(j.error is None for j in done)
