@@ -18,29 +18,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 from manual_jobs import HOUR_S, manual_clock, manual_runner, wait
+from worker_functions import exploder, sleeper
 
 from app.clock import ManualClock
 from app.errors import NotFound
 from app.importers import ensure_samples
 from app.jobs.runner import JobContext, JobRunner, crashed
 from app.jobs.snapshot import JobSnapshot, JobState
-from app.jobs.worker import WorkerLink
 from app.services.calibration import CalibrationService, solve
 from app.store import INTERRUPTED, Store
 from calib_core import InputError
 from calib_core.estimation.solver import Cancelled
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
-
-
-def sleeper(seconds: float, link: WorkerLink) -> str:
-    """A worker that never looks at its cancel flag (a hung solver)."""
-    time.sleep(seconds)
-    return "slept"
-
-
-def exploder(message: str, link: WorkerLink) -> None:
-    raise RuntimeError(message)
 
 
 @pytest.fixture(scope="module")
