@@ -1,17 +1,9 @@
-"""The job runner: background jobs on threads or in worker processes, each with a versioned snapshot.
+"""The job runner: background jobs on threads or in worker processes (pool.py), each with a versioned snapshot.
 
 It knows no kind of job: a service gives it a function and its data (app/services/calibration.py runs the
-solver in a worker process; app/services/replay.py drives a robot on a thread).
-
-A process job runs in its own spawned process (never forked: the server process runs viser and uvicorn
-threads), so it neither holds the server's GIL nor takes the server down when it crashes. Each worker slot is a
-one-process ProcessPoolExecutor: a crashed or killed worker breaks only its own pool, which fails only its own
-job and is then rebuilt. Workers send their steps through a queue of a spawned multiprocessing Manager (a
-killed client cannot corrupt it) and read their cancel flag from the same Manager; a thread here turns the
-messages into the job's snapshot. A worker still running `timeout_s` after its job started, or
-`cancel_grace_s` after its job was cancelled, is killed by a timer of the runner's clock (app/clock.py), and
-replaced. Workers and the Manager end by themselves when the server dies without cleaning up (SIGKILL):
-app/parent_watch.py.
+solver in a worker process; app/services/replay.py drives a robot on a thread). A worker still running
+`timeout_s` after its job started, or `cancel_grace_s` after its job was cancelled, is killed by a timer of the
+runner's clock (app/clock.py), and replaced.
 
 Every change of a snapshot grows its `version` (wait_version and next_version wait for one); the store keeps
 the snapshot on every change of state.
@@ -22,21 +14,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import multiprocessing
-import os
 import queue
 import secrets
-import signal
 import threading
-import traceback
-from collections import deque
 from collections.abc import Callable
-from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
-from multiprocessing.managers import SyncManager
 from typing import TYPE_CHECKING, Any
 
 from calib_core import InputError
@@ -44,11 +28,11 @@ from calib_core.estimation.solver import Cancelled
 
 from ..clock import Clock, SystemClock, Timer, wait_for
 from ..errors import NotFound
-from ..parent_watch import light_main, watch_parent
 from ..store import StoreWriteError
 from ..store.db import jsonable
+from .pool import WorkerPool
 from .snapshot import JobSnapshot, JobState
-from .worker import WorkerLink, internal_error, one_line, run_in_worker, warm_up
+from .worker import WorkerLink, internal_error, one_line
 
 if TYPE_CHECKING:
     from ..store import Store
@@ -57,6 +41,7 @@ log = logging.getLogger(__name__)
 
 PROGRESS_CAP = 0.95  # an iterative job's end is unknown until it comes: its estimate stays below 1 until then
 SHUTDOWN_GRACE_S = 3.0  # at most this long for cancelled jobs to end at shutdown before their workers are killed
+KILLED_ON_CANCEL = "cancelled"  # a kill's reason when the worker ignored a cancel: the job ends cancelled
 
 Prepare = Callable[["JobContext"], Any]  # builds a process job's payload, in the server
 Finish = Callable[[Any, "JobContext"], str | None]  # turns a process job's value into its result, in the server
@@ -96,8 +81,7 @@ class JobContext:
 class _Job:
     snap: JobSnapshot
     process: bool
-    fn: Callable[[Any, WorkerLink], Any] | None = None  # a process job's worker function and its payload
-    payload: Any = None
+    fn: Callable[[Any, WorkerLink], Any] | None = None  # a process job's worker function
     prepare: Prepare | None = None  # set until the payload is built (the job is not yet queued for a worker)
     finish: Finish | None = None
     pausable: bool = True  # a thread job that may be held at its checkpoints
@@ -106,15 +90,7 @@ class _Job:
     started: float = 0.0
     pid: int | None = None
     kill_reason: str | None = None  # set when the runner kills the worker on purpose
-    resent: bool = False  # handed to a new worker once, its first having died before it started the job
     timer: Timer | None = None  # the running process job's time limit (or cancel grace)
-
-
-@dataclass
-class _Slot:
-    executor: ProcessPoolExecutor
-    job_id: str | None = None
-    generation: int = 0
 
 
 class JobRunner:
@@ -131,8 +107,6 @@ class JobRunner:
         """`workers` worker processes. A worker still running after `timeout_s`, or `cancel_grace_s` after its job
         was cancelled (both on `clock`), is killed: the job fails, or ends cancelled. `scrub` takes the server's
         paths out of a failed job's message (the one the HTTP errors go through)."""
-        if workers < 1:
-            raise ValueError("at least one worker")
         self.store = store
         self.clock = clock or SystemClock()
         self.timeout_s = timeout_s
@@ -143,18 +117,11 @@ class JobRunner:
         self._changed = threading.Condition(self._lock)
         self._watchers: set[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = set()  # streams waiting (next_version)
         self._jobs: dict[str, _Job] = {}
-        self._pending: deque[str] = deque()
         self._closed = False
-        self._ctx = multiprocessing.get_context("spawn")
-        light_main()
-        self._mp = SyncManager(ctx=self._ctx)
-        self._mp.start(watch_parent, (os.getpid(),))
-        self._messages = self._mp.Queue()
-        self._cancel_flags = self._mp.dict()
-        self._slots = [_Slot(self._new_executor()) for _ in range(workers)]
+        self._pool = WorkerPool(
+            workers, started=self._worker_started, stepped=self._worker_stepped, ended=self._worker_ended
+        )
         self.store.jobs.fail_interrupted()
-        self._pump = threading.Thread(target=self._pump_messages, name="jobs-progress", daemon=True)
-        self._pump.start()
         self._loads: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
         self._loader = threading.Thread(target=self._load_payloads, name="jobs-load", daemon=True)
         self._loader.start()
@@ -260,16 +227,12 @@ class JobRunner:
                 return
             job.cancel_requested = True
             job.cancel_at = self.clock.now()
-            waiting = job_id in self._pending or job.prepare is not None
-            if job_id in self._pending:
-                self._pending.remove(job_id)
+            preparing = job.prepare is not None
             if job.process and job.snap.state == JobState.RUNNING:
                 self._arm(job)
             self._changed.notify_all()  # a paused job wakes to see it
-        if waiting:
+        if preparing or (job.process and self._pool.cancel(job_id)):  # not yet in a worker
             self._finish(job, JobState.CANCELLED)
-        elif job.process:
-            self._cancel_flags[job_id] = True
 
     def pause(self, job_id: str) -> None:
         self._set_paused(job_id, True)
@@ -294,16 +257,11 @@ class JobRunner:
             wait_for(self.clock, self._changed, ended, min(self.cancel_grace_s, SHUTDOWN_GRACE_S))
             running = [job for job in live if job.process and job.pid and not job.snap.state.finished]
             for job in running:
-                job.kill_reason = "cancelled"
+                job.kill_reason = KILLED_ON_CANCEL
         for job in running:
-            _kill(job.pid)
+            self._pool.kill(job.snap.id)
         self._loads.put(None)
-        with contextlib.suppress(Exception):
-            self._messages.put(None)  # ends the pump
-        for slot in self._slots:
-            slot.executor.shutdown(wait=True, cancel_futures=True)
-        self._pump.join(timeout=2.0)
-        self._mp.shutdown()
+        self._pool.close()
 
     # --- internals: jobs ----------------------------------------------------------------------------
     def _job(self, job_id: str) -> _Job:
@@ -372,7 +330,7 @@ class JobRunner:
             job.snap.state, job.snap.result, job.snap.error, job.snap.paused = state, result, error, False
             if state == JobState.DONE:
                 job.snap.progress = 1.0
-            job.fn = job.payload = job.prepare = job.finish = None
+            job.fn = job.prepare = job.finish = None
             if job.timer is not None:
                 job.timer.cancel()
                 job.timer = None
@@ -455,78 +413,41 @@ class JobRunner:
         with self._changed:
             job.prepare = None
             wanted = error is None and not (job.snap.state.finished or job.cancel_requested or self._closed)
-            if wanted:
-                job.payload = payload
-                self._pending.append(job.snap.id)
+            fn = job.fn
         if error is not None:
             self._finish(job, JobState.FAILED, error=error)
-        elif wanted:
-            self._dispatch()
-        else:
+            return
+        handed = wanted and fn is not None and self._pool.submit(job.snap.id, fn, payload)
+        # A cancel that came while the job was handed over found it in neither place: it is told the pool now.
+        if not handed or (job.cancel_requested and self._pool.cancel(job.snap.id)):
             self._finish(job, JobState.CANCELLED)
 
-    def _new_executor(self) -> ProcessPoolExecutor:
-        executor = ProcessPoolExecutor(
-            max_workers=1, mp_context=self._ctx, initializer=watch_parent, initargs=(os.getpid(),)
-        )
-        executor.submit(warm_up)
-        return executor
-
-    def _dispatch(self) -> None:
-        """Hand queued process jobs to free worker slots."""
-        submitted = []
+    def _worker_started(self, job_id: str, pid: int) -> None:
         with self._lock:
-            for slot in self._slots:
-                if slot.job_id is not None or not self._pending or self._closed:
-                    continue
-                job = self._jobs[self._pending.popleft()]
-                job_id = job.snap.id
-                slot.job_id = job_id
-                link = WorkerLink(job_id, self._messages, self._cancel_flags)
-                try:
-                    future = slot.executor.submit(run_in_worker, job.fn, job.payload, link)
-                except (BrokenProcessPool, RuntimeError):
-                    # The idle worker died (killed, out of memory) and its pool knows: a new one takes the job.
-                    self._rebuild(slot)
-                    future = slot.executor.submit(run_in_worker, job.fn, job.payload, link)
-                submitted.append((future, partial(self._process_done, job, slot, slot.generation)))
-        # A callback may run at once, in this thread: never while holding the lock (see _save).
-        for future, callback in submitted:
-            future.add_done_callback(callback)
-
-    def _rebuild(self, slot: _Slot) -> None:
-        old = slot.executor
-        slot.executor = self._new_executor()
-        slot.generation += 1
-        old.shutdown(wait=False, cancel_futures=True)
-
-    def _process_done(self, job: _Job, slot: _Slot, generation: int, future: Future) -> None:
-        """Runs on the executor's thread when a worker's future resolves (result, error or crash)."""
-        job_id = job.snap.id
-        broken = False
-        try:
-            outcome, value, trace = future.result()
-        except CancelledError:  # dropped from the pool at shutdown
-            outcome, value, trace = JobState.CANCELLED, None, ""
-        except BrokenProcessPool:
-            broken = True
-            if job.pid is None and not (job.kill_reason or job.cancel_requested or job.resent or self._closed):
-                # The worker died before it took the job (killed while idle, and its pool did not know yet
-                # when the job was handed to it): the job goes to the slot's new worker, once.
-                job.resent = True
-                with self._lock:
-                    if slot.generation == generation:
-                        self._rebuild(slot)
-                    slot.job_id = None
-                    self._pending.appendleft(job_id)
-                self._dispatch()
+            job = self._jobs.get(job_id)
+            if job is None or job.snap.state != JobState.QUEUED:
                 return
-            if job.kill_reason == "cancelled":
-                outcome, value, trace = JobState.CANCELLED, None, ""
+            job.pid = pid
+        self._start(job)
+
+    def _worker_stepped(self, job_id: str, iteration: int, cost: float) -> None:
+        with self._changed:
+            job = self._jobs.get(job_id)
+            if job is None or job.snap.state != JobState.RUNNING:
+                return
+            job.snap.cost.append(cost)
+            job.snap.detail["iterations"] = iteration
+            job.snap.progress = min(PROGRESS_CAP, iteration / (iteration + 5))
+            self._touch(job)
+
+    def _worker_ended(self, job_id: str, outcome: JobState | None, value: Any, trace: str) -> None:
+        """A process job's end, from the pool: its worker's outcome, or None when the worker died under it."""
+        job = self._job(job_id)
+        if outcome is None:
+            if job.kill_reason == KILLED_ON_CANCEL:
+                outcome, value = JobState.CANCELLED, None
             else:
-                outcome, value, trace = JobState.FAILED, job.kill_reason or crashed(job.snap.kind), ""
-        except Exception as exc:  # the payload or the value could not cross the process boundary
-            outcome, value, trace = JobState.FAILED, internal_error(exc), traceback.format_exc()
+                outcome, value = JobState.FAILED, job.kill_reason or crashed(job.snap.kind)
         if trace:
             log.warning("job %s failed in its worker:\n%s", job_id, trace)
         result = None
@@ -538,51 +459,13 @@ class JobRunner:
             except Exception as exc:
                 log.exception("job %s: its result could not be stored", job_id)
                 outcome, value = JobState.FAILED, internal_error(exc)
-        with self._lock:
-            if broken and slot.generation == generation and not self._closed:
-                self._rebuild(slot)
-            slot.job_id = None
-        with contextlib.suppress(Exception):
-            self._cancel_flags.pop(job_id, None)
         self._finish(job, outcome, result=result, error=value if outcome == JobState.FAILED else None)
-        self._dispatch()
-
-    def _pump_messages(self) -> None:
-        """The workers' messages into the snapshots, until shutdown sends None."""
-        while True:
-            try:
-                message = self._messages.get()
-            except (EOFError, OSError):
-                if not self._closed:
-                    log.error("the jobs' progress channel closed: progress is no longer reported")
-                return
-            if message is None:
-                return
-            self._handle(message)
-
-    def _handle(self, message: tuple) -> None:
-        kind, job_id, *values = message
-        with self._changed:
-            job = self._jobs.get(job_id)
-            if job is None or job.snap.state.finished:
-                return
-            if kind == "progress" and job.snap.state == JobState.RUNNING:
-                iteration, cost = values
-                job.snap.cost.append(cost)
-                job.snap.detail["iterations"] = iteration
-                job.snap.progress = min(PROGRESS_CAP, iteration / (iteration + 5))
-                self._touch(job)
-            starting = kind == "start" and job.snap.state == JobState.QUEUED
-            if starting:
-                job.pid = int(values[0])
-        if starting:
-            self._start(job)
 
     # --- internals: the watchdog --------------------------------------------------------------------
     def _deadline(self, job: _Job) -> tuple[float, str]:
         """When a running process job's worker is killed, and why: its cancel grace, or its time limit."""
         if job.cancel_requested:
-            return job.cancel_at + self.cancel_grace_s, "cancelled"
+            return job.cancel_at + self.cancel_grace_s, KILLED_ON_CANCEL
         limit = f"the {_spoken(job.snap.kind)} took longer than its limit of {self.timeout_s:g} s and was stopped"
         return job.started + self.timeout_s, limit
 
@@ -605,12 +488,7 @@ class JobRunner:
             job.kill_reason = reason
             job.timer = None
         log.warning("job %s: killing worker %d (%s)", job.snap.id, job.pid, reason)
-        _kill(job.pid)
-
-
-def _kill(pid: int) -> None:
-    with contextlib.suppress(ProcessLookupError):
-        os.kill(pid, getattr(signal, "SIGKILL", signal.SIGTERM))
+        self._pool.kill(job.snap.id)
 
 
 def _spoken(kind: str) -> str:
