@@ -20,7 +20,6 @@ from app.server import create_app
 from app.services.replay import ReplayPlan, ReplayService
 
 playwright_api = pytest.importorskip("playwright.sync_api")
-PROMPT_S = 2.0  # a cancel ends a dry run's job within this (measured: 0.03-0.2 s)
 
 
 @pytest.fixture(scope="module")
@@ -53,10 +52,10 @@ def choosing(at_least: int) -> Callable[[JobSnapshot], bool]:
 def test_a_dry_run_of_a_large_plan_answers_at_once_and_a_cancel_ends_it(client: TestClient) -> None:
     sid = client.post("/api/sessions", json={"robot": "robonaut-a", "name": "large plan"}).json()["id"]
     ask = {"count": 300, "seed": 11, "dry_run": True}
-    start = time.monotonic()
     r = client.post(f"/api/sessions/{sid}/replay", json=ask)
-    assert r.status_code == 202 and time.monotonic() - start < 1.0, r.text
+    assert r.status_code == 202, r.text
     job = r.json()["job"]
+    assert not client.app.state.desk.jobs.get(job).state.finished  # answered before the plan was made
     # The same request again (a double click, a second tab) is that job; another dry run of the robot waits.
     again = client.post(f"/api/sessions/{sid}/replay", json=ask)
     assert again.status_code == 202 and again.json()["job"] == job
@@ -77,11 +76,9 @@ def test_a_dry_run_of_a_large_plan_answers_at_once_and_a_cancel_ends_it(client: 
     assert early.status_code == 422 and early.json()["detail"].startswith(f"the dry run (job {job}) is still running")
     assert client.post(f"/api/jobs/{job}/pause").status_code == 422
 
-    start = time.monotonic()
     assert client.post(f"/api/jobs/{job}/cancel").status_code == 200
     last = events(client, job)[-1]
-    took = time.monotonic() - start
-    assert last["state"] == "cancelled" and took < PROMPT_S, (last, took)
+    assert last["state"] == "cancelled" and last["detail"]["step"] < 300, last  # stopped while choosing
     gone = client.get(f"/api/jobs/{job}/dry-run")
     assert (
         gone.status_code == 422
@@ -91,9 +88,9 @@ def test_a_dry_run_of_a_large_plan_answers_at_once_and_a_cancel_ends_it(client: 
     # STOP (the desk's button, Esc) cancels a dry run as it cancels a replay.
     job = client.post(f"/api/sessions/{sid}/replay", json=ask).json()["job"]
     wait_for(client, job, choosing(1))
-    start = time.monotonic()
     client.post("/api/robot/stop")
-    assert events(client, job)[-1]["state"] == "cancelled" and time.monotonic() - start < PROMPT_S
+    last = events(client, job)[-1]
+    assert last["state"] == "cancelled" and last["detail"]["step"] < 300, last
     # A job that is not a dry run has no dry run result.
     assert client.get("/api/jobs/j-00000000/dry-run").status_code == 404
 
