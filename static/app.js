@@ -433,7 +433,7 @@ function follow(jobId, onUpdate) {
     es.onmessage = (ev) => {
       const job = JSON.parse(ev.data);
       onUpdate(job);
-      if (!["queued", "running", "paused"].includes(job.state)) {
+      if (!["queued", "running"].includes(job.state)) {
         es.close();
         resolve(job);
       }
