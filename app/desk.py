@@ -34,6 +34,7 @@ from .services.replay import ReplayService
 from .services.review import ReviewService
 from .store import FrameInfo, ProfileFiles, Store
 from .viewers import LINGER_S, Shown, Viewer, Viewers
+from .viser_private import close_share_tunnel
 
 PACKAGE_DIR = Path(__file__).resolve().parent.parent  # the code: no answer names a path under it
 SAMPLE_DIR = Path(str(resources.files("app.sample_sessions")))  # package data, in a wheel as in a checkout
@@ -85,7 +86,7 @@ class Desk:
         drivable = [r.name for r in self.robots.all() if r.drivable]
         self.connected = self.config.connected or (drivable[0] if drivable else None)
         self.viser = viser.ViserServer(host="127.0.0.1", port=self.viser_port, verbose=False)
-        security.close_viser_share(self.viser)
+        close_share_tunnel(self.viser)
         configure(self.viser)
         self.viser_clients = ViserClients(self.viser)
         self.viewers = Viewers(self._shown_first, linger_s=self.viewer_linger_s)

@@ -12,9 +12,10 @@ the API (app/security.py guards `/scene` like `/api`, the websocket included):
 
 Which viser client a proxied websocket became: viser numbers clients in the order it accepts them, and its
 connect callback does not say which request made them, so counting would go wrong as soon as two tabs connect
-at once (or anything else connects to the loopback port). `ViserClients` hooks viser's websocket server, whose
-connect callback runs at the handshake, and records each new connection's peer address with its client id;
-the proxy looks up its own upstream socket's local address, which is that peer address.
+at once (or anything else connects to the loopback port). `ViserClients` hooks viser's websocket server
+(app/viser_private.py), whose connect callback runs at the handshake, and records each new connection's peer
+address with its client id; the proxy looks up its own upstream socket's local address, which is that peer
+address.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from starlette.concurrency import run_in_threadpool
 from websockets.asyncio.client import ClientConnection, connect
 
 from .viewers import VIEWER_PATTERN, TooManyViewers
+from .viser_private import Address, on_connections
 
 CLAIM_TIMEOUT_S = 5.0  # viser reports a connection at its handshake: milliseconds
 OPEN_TIMEOUT_S = 10.0
@@ -41,7 +43,6 @@ SENDABLE_CLOSE_CODES = frozenset({1000, 1001, 1002, 1003, 1007, 1008, 1009, 1010
 ViewerId = Annotated[str, Path(pattern=VIEWER_PATTERN, description="the viewer: an id the page makes")]
 router = APIRouter(include_in_schema=False)
 log = logging.getLogger("calib.scene")
-Address = tuple[str, int]
 
 
 @cache
@@ -54,13 +55,11 @@ class ViserClients:
     """The viser client id of each websocket connection to a viser server, by the connection's peer address."""
 
     def __init__(self, server: viser.ViserServer) -> None:
-        self._websock = server._websock_server  # viser has no public hook at the handshake
         self._lock = threading.Lock()
         self._ids: dict[Address, int] = {}  # reported, not yet claimed
         self._address: dict[int, Address] = {}
         self._waiting: dict[Address, tuple[asyncio.AbstractEventLoop, asyncio.Future[int]]] = {}
-        self._websock.on_client_connect(self._opened)
-        self._websock.on_client_disconnect(self._closed)
+        on_connections(server, self._opened, self._closed)
 
     async def claim(self, connection: ClientConnection) -> int | None:
         """The viser client id of our connection to the viser server; None if viser closed it first (it refuses
@@ -87,9 +86,7 @@ class ViserClients:
         raise TimeoutError(f"viser did not report the connection from {address}")
 
     # --- viser's callbacks, on its event loop ---------------------------------------------------------
-    def _opened(self, conn: object) -> None:
-        client_id = int(conn.client_id)  # type: ignore[attr-defined]
-        address = _address(self._websock._live_connections[client_id].remote_address)
+    def _opened(self, client_id: int, address: Address) -> None:
         with self._lock:
             self._address[client_id] = address
             waiting = self._waiting.pop(address, None)
@@ -99,9 +96,9 @@ class ViserClients:
             loop, future = waiting
             loop.call_soon_threadsafe(_resolve, future, client_id)
 
-    def _closed(self, conn: object) -> None:
+    def _closed(self, client_id: int) -> None:
         with self._lock:
-            address = self._address.pop(int(conn.client_id), None)  # type: ignore[attr-defined]
+            address = self._address.pop(client_id, None)
             if address is not None:
                 self._ids.pop(address, None)
 

@@ -1,5 +1,5 @@
 """Who may talk to the desk: the access token off loopback, the cross-origin guard, request size limits,
-error texts without paths, and the viser server's share tunnel closed.
+error texts without paths (the viser server's share tunnel is closed in app/viser_private.py).
 
 - Bound to loopback (the default), the desk needs no token: only this machine reaches it. Bound to any
   other address, every /api request except /api/health, and the 3-D scene under /scene (its page and its
@@ -306,14 +306,3 @@ class Scrubber:
         if self._pattern is None:
             return text
         return self._pattern.sub(lambda m: Path(m.group()).name or "<data>", text)
-
-
-def close_viser_share(server: Any) -> None:
-    """The share button is hidden, but any websocket client can still send the message that asks viser to
-    tunnel the scene through an external service: drop its handlers (viser has no public switch)."""
-    from viser import _messages
-
-    websock = server._websock_server
-    for message in (_messages.ShareUrlRequest, _messages.ShareUrlDisconnect):
-        if message in websock._incoming_handlers:
-            websock.unregister_handler(message)

@@ -21,7 +21,16 @@ BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```", re.S | re.M)
 # Set-up commands (the ROS 2 blocks too: tests/test_ros2.py runs their two processes) and benchmarks.
 NOT_RUN = re.compile(r"^(bash scripts/|\.venv/bin/python benchmarks/|\.venv/bin/pip install|python3 -m venv)", re.M)
 DROPPED = re.compile(r"^(source \.venv/bin/activate|calib serve)\b.*$", re.M)  # the venv is this one
-DOCS = ["README.md", "docs/bag-import.md", "docs/urdf-robots.md"]
+DOCS = [
+    "README.md",
+    "docs/bag-import.md",
+    "docs/urdf-robots.md",
+    "docs/dashboard.md",
+    "docs/robots.md",
+    "docs/command-line.md",
+    "docs/calibration.md",
+    "docs/planning.md",
+]
 
 
 def examples(doc: str) -> list[tuple[str, str]]:
@@ -53,4 +62,4 @@ def test_the_examples_run_as_written(doc: str, tmp_path: Path) -> None:
                 f"{doc}: this {lang} example failed:\n{body}\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
             )
             ran += 1
-    assert ran >= 2
+    assert ran >= 1  # the doc has examples, and the test sees them

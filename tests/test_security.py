@@ -27,10 +27,10 @@ from app.security import (
     TOKEN_FILE,
     Scrubber,
     TokenFile,
-    close_viser_share,
     is_loopback,
 )
 from app.server import create_app
+from app.viser_private import close_share_tunnel
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 LOCAL = "http://127.0.0.1:8000"
@@ -286,7 +286,7 @@ def test_no_websocket_client_can_open_the_viser_share_tunnel() -> None:
     plain = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     closed = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
-        close_viser_share(closed)
+        close_share_tunnel(closed)
         assert _share_requests(plain) == [1]  # the message works: viser would tunnel the scene out
         assert _share_requests(closed) == []
     finally:

@@ -27,7 +27,18 @@ def test_every_package_of_the_tree_is_in_the_wheel() -> None:
         for p in (ROOT / top).rglob("__init__.py")
     }
     mapped = {name: ROOT / folder for name, folder in tool["package-dir"].items()}
-    assert set(tool["packages"]) == tree | set(mapped)
+    # Folders of data whose names Python could import are listed too, or setuptools warns at every install.
+    roots = {**{top: ROOT / top for top in ("app", "calib_core")}, **mapped}
+    data = {
+        ".".join((name, *d.relative_to(folder).parts))
+        for name, folder in roots.items()
+        for d in folder.rglob("*")
+        if d.is_dir()
+        and "__pycache__" not in d.parts
+        and all(part.isidentifier() for part in d.relative_to(folder).parts)
+        and not (d / "__init__.py").exists()
+    }
+    assert set(tool["packages"]) == tree | set(mapped) | data
     assert all((folder / "__init__.py").is_file() for folder in mapped.values())
 
 

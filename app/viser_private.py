@@ -1,0 +1,48 @@
+"""Every use of viser's private names, in one place: the desk needs two things viser has no public API for.
+
+- Which client a websocket became: viser's connect callback does not say which request made the client, so
+  the scene proxy (app/scene_proxy.py) hooks viser's websocket server, whose callbacks run at the handshake,
+  and reads the connection's peer address there.
+- The share tunnel closed: the share button is hidden (`configure_theme`), but any websocket client can still
+  send the message that asks viser to tunnel the scene through an external service; its handlers are dropped.
+
+pyproject.toml pins viser to the minor version these were written and tested against (tests/test_security.py,
+tests/test_viewers.py); a new minor version is taken only once they pass on it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import viser
+
+Address = tuple[str, int]
+
+
+def on_connections(
+    server: viser.ViserServer, opened: Callable[[int, Address], None], closed: Callable[[int], None]
+) -> None:
+    """Call `opened(client_id, peer_address)` as viser accepts a websocket, `closed(client_id)` as one closes
+    (on viser's event loop)."""
+    websock = server._websock_server
+
+    def _opened(conn: object) -> None:
+        client_id = int(conn.client_id)  # type: ignore[attr-defined]
+        host, port = websock._live_connections[client_id].remote_address[:2]
+        opened(client_id, (str(host), int(port)))
+
+    def _closed(conn: object) -> None:
+        closed(int(conn.client_id))  # type: ignore[attr-defined]
+
+    websock.on_client_connect(_opened)
+    websock.on_client_disconnect(_closed)
+
+
+def close_share_tunnel(server: viser.ViserServer) -> None:
+    """Drop viser's handlers of the share request, so no websocket client can tunnel the scene out."""
+    from viser import _messages
+
+    websock = server._websock_server
+    for message in (_messages.ShareUrlRequest, _messages.ShareUrlDisconnect):
+        if message in websock._incoming_handlers:
+            websock.unregister_handler(message)
