@@ -31,7 +31,7 @@ from .store import Observations, StoreWriteError
 if TYPE_CHECKING:
     from calib_core.estimation.planning import SequentialPlan
 
-    from .jobs import JobContext
+    from .jobs.runner import JobContext
     from .store import FrameInfo, Store
 
 DEFAULT_MIN_GAP_DEG = 2.0

@@ -24,12 +24,13 @@ from .clock import SYSTEM_CLOCK, Clock
 from .desk_config import DeskConfig, default_config
 from .drivers.registry import DriverContext, DriverSpec
 from .importers import ensure_samples
-from .jobs import JobManager
+from .jobs.runner import JobRunner
 from .limits import Limits
 from .robots import Robot, Robots
 from .scene import configure
 from .scene_proxy import ViserClients
 from .services.apply import ApplyService
+from .services.calibration import CalibrationService
 from .services.observe import Observer
 from .services.replay import ReplayService
 from .services.review import ReviewService
@@ -85,7 +86,8 @@ class Desk:
         self.robots.start(self.config)
         if self.sample_dir is not None and self.sample_dir.is_dir():
             ensure_samples(self.store, self.sample_dir, self.robots.names())
-        self.jobs = JobManager(self.store, workers=self.workers, scrub=self.scrub, max_rows=self.limits.rows)
+        self.jobs = JobRunner(self.store, workers=self.workers, scrub=self.scrub)
+        self.calibration = CalibrationService(self.store, self.jobs, max_rows=self.limits.rows)
         drivable = [r.name for r in self.robots.all() if r.drivable]
         self.connected = self.config.connected or (drivable[0] if drivable else None)
         self.viser = viser.ViserServer(host="127.0.0.1", port=self.viser_port, verbose=False)

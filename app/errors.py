@@ -1,6 +1,6 @@
 """The desk's own error: an id it does not know. app/server.py answers it 404 with its sentence.
 
-Repositories, the job manager and the review raise it for unknown ids; nothing catches KeyError or
+Repositories, the job runner and the review raise it for unknown ids; nothing catches KeyError or
 IndexError on their behalf, so a stray one is a bug (500), not "not found".
 """
 

@@ -3,7 +3,7 @@
 One process, one uvicorn worker: the viser server runs its own threads on a loopback port, started and
 stopped in the app's lifespan, and browsers reach it through this app (app/scene_proxy.py: its client page
 and its websocket under /scene, behind the same guard as the API); calibrations run in a spawn process pool
-(app/jobs.py).
+(app/jobs/runner.py).
 """
 
 from __future__ import annotations

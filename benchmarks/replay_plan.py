@@ -19,16 +19,17 @@ from pathlib import Path
 
 from fastapi.testclient import TestClient
 
+from app.jobs.snapshot import JobSnapshot
 from app.server import create_app
 from app.services.replay import ReplayPlan
 
 
-def wait(client: TestClient, job: str, ok: Callable[[dict], bool]) -> dict:
+def wait(client: TestClient, job: str, ok: Callable[[JobSnapshot], bool]) -> JobSnapshot:
     """The job's snapshot once `ok` holds or it has ended, woken by each change of the job."""
     jobs = client.app.state.desk.jobs
     snap = jobs.get(job)
-    while not ok(snap) and snap["state"] in ("queued", "running"):
-        snap = jobs.wait_version(job, snap["version"], 60.0)
+    while not ok(snap) and not snap.state.finished:
+        snap = jobs.wait_version(job, snap.version, 60.0)
     return snap
 
 
@@ -52,15 +53,15 @@ def main() -> None:
             dry_ms = 1e3 * (time.perf_counter() - t0)
             assert r.status_code == 202, r.text
             job = wait(client, r.json()["job"], lambda j: False)
-            assert job["state"] == "done", job
+            assert job.state == "done", job
             job_ms = 1e3 * (time.perf_counter() - t0)
             r = client.post(url, json={"count": count, "seed": count + 2, "dry_run": True})
-            wait(client, r.json()["job"], lambda j: j["detail"].get("stage") == "choosing")
+            wait(client, r.json()["job"], lambda j: j.detail.get("stage") == "choosing")
             t0 = time.perf_counter()
             client.post(f"/api/jobs/{r.json()['job']}/cancel")
             job = wait(client, r.json()["job"], lambda j: False)
             cancel_ms = 1e3 * (time.perf_counter() - t0)
-            assert job["state"] in ("cancelled", "done"), job
+            assert job.state in ("cancelled", "done"), job
             t0 = time.perf_counter()
             r = client.post(url, json={"count": count, "seed": count})
             start_ms = 1e3 * (time.perf_counter() - t0)

@@ -145,8 +145,11 @@ def new_nao_session(browser, url: str, name: str) -> tuple:
     page.click("#new-session-toggle")
     page.fill("#new-session input[name=name]", name)
     page.click("#new-session button[type=submit]")
-    page.wait_for_selector("#tab-observe:not([hidden])")
     page.wait_for_selector("#sessions li.selected")
+    # Its review (an empty frame list's header) is the last thing the page loads for a new session, in the same
+    # task as its last step, showing step 1: a tab clicked before then would be switched back to Observe.
+    page.wait_for_selector("#frames th", state="attached")  # in step 4, hidden
+    page.wait_for_selector("#tab-observe:not([hidden])")
     return page, page.get_attribute("#sessions li.selected", "data-session")
 
 

@@ -36,13 +36,14 @@ def client(tmp_path_factory: pytest.TempPathFactory) -> TestClient:
 
 
 def wait_job(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
+    """The job's answer once it has finished, woken by each of its changes (its server-sent events)."""
+    jobs = client.app.state.desk.jobs
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        j = client.get(f"/api/jobs/{job}").json()
-        if j["state"] not in ("queued", "running", "paused"):
-            return j
-        time.sleep(0.1)
-    raise AssertionError(f"job {job} did not finish: {j}")
+    snap = jobs.get(job)
+    while not snap.state.finished:
+        assert time.monotonic() < deadline, f"job {job} did not finish: {snap}"
+        snap = jobs.wait_version(job, snap.version, deadline - time.monotonic())
+    return client.get(f"/api/jobs/{job}").json()
 
 
 def dry_run(client: TestClient, session_id: str, ask: dict) -> dict:
@@ -114,7 +115,7 @@ def test_an_import_or_a_calibration_beyond_the_desks_limits_is_refused_up_front_
     text = (SAMPLES / "robonaut-a-day1" / "data.csv").read_bytes()
     n_rows = len(text.decode().strip().splitlines()) - 1
     before = len(client.get("/api/sessions").json())
-    limits, max_rows = desk.limits, desk.jobs.max_rows
+    limits, max_rows = desk.limits, desk.calibration.max_rows
     try:
         desk.limits = Limits(upload_bytes=limits.upload_bytes, rows=n_rows - 1)
         r = client.post(
@@ -136,7 +137,7 @@ def test_an_import_or_a_calibration_beyond_the_desks_limits_is_refused_up_front_
         assert r.status_code == 413
         assert r.json()["detail"] == "day1.csv: larger than 0.00195312 MB (the desk's upload limit, --max-upload-mb)"
         assert len(client.get("/api/sessions").json()) == before
-        desk.jobs.max_rows = n_rows - 1
+        desk.calibration.max_rows = n_rows - 1
         jobs_before = len(client.get("/api/jobs").json())
         r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "full"})
         assert r.status_code == 422
@@ -146,7 +147,7 @@ def test_an_import_or_a_calibration_beyond_the_desks_limits_is_refused_up_front_
         )
         assert len(client.get("/api/jobs").json()) == jobs_before
     finally:
-        desk.limits, desk.jobs.max_rows = limits, max_rows
+        desk.limits, desk.calibration.max_rows = limits, max_rows
 
 
 def test_a_reading_beyond_a_joint_limit_imports_with_a_note_naming_line_and_column(client: TestClient) -> None:
@@ -225,7 +226,7 @@ def test_bad_requests_answer_4xx_with_a_sentence(
 
 
 def test_unknown_ids_answer_404_with_the_sentence_of_the_store(client: TestClient) -> None:
-    """NotFound (raised by the store, the job manager and the review) is what answers 404."""
+    """NotFound (raised by the store, the job runner and the review) is what answers 404."""
     for path, sentence in [
         ("/api/sessions/s-nothere", "no session 's-nothere' on this desk"),
         ("/api/sessions/nao/frames/99999/goto", "session 'nao' has no frame 99999"),

@@ -20,7 +20,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.cli import main as calib
-from app.jobs import JobContext
+from app.jobs.runner import JobContext
 from app.server import create_app
 from calib_core import InputError, load_profile
 from calib_core.safe_yaml import MAX_DEPTH, MAX_NODES, load_yaml
@@ -114,7 +114,7 @@ def test_a_desk_file_that_is_an_alias_bomb_exits_2(tmp_path: Path, capsys: pytes
 
 
 def _waiting_in_wait_version() -> int:
-    """Threads parked in JobManager.wait_version (where a stream used to wait for its job's next change)."""
+    """Threads parked in JobRunner.wait_version (where a stream used to wait for its job's next change)."""
     return sum(
         1 for frame in sys._current_frames().values() if any(f.f_code.co_name == "wait_version" for f in _stack(frame))
     )

@@ -212,6 +212,16 @@ def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(tmp_pa
         assert "HeadYaw" in scene_frame(page).evaluate(SCENE)["links"]
         assert {urlsplit(u).netloc for u in sockets} == {f"{address}:{port}"}
         assert "token" not in page.url  # read once, then removed from the address bar
+
+        # Opened without it (the bare address): the page asks once, however many of its first requests the server
+        # refused at once, and goes on with the operator's answer; its scene comes through too.
+        asked: list[str] = []
+        bare = browser.new_context(viewport={"width": 1300, "height": 900}).new_page()
+        bare.on("dialog", lambda d: (asked.append(d.type), d.accept(server.token)))
+        bare.goto(url)
+        bare.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        wait_for_scene(bare)
+        assert asked == ["prompt"]
         browser.close()
 
 

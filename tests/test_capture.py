@@ -9,18 +9,19 @@ from __future__ import annotations
 import csv
 import math
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from manual_jobs import manual_runner, wait
 
 from app.capture import AutoCapture, capture_frame, dry_run, out_of_margin, replay
 from app.clock import ManualClock
 from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
-from app.jobs import FINISHED, JobManager
+from app.jobs.runner import JobRunner
+from app.jobs.snapshot import JobState
 from app.store import Store
 from calib_core import InputError, Problem, SimulatedRobot, Visibility, load_profile
 from calib_core.io.session import read_session
@@ -47,10 +48,9 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Store]:
 
 
 @pytest.fixture(scope="module")
-def jobs(store: Store) -> Iterator[JobManager]:
-    manager = JobManager(store, workers=1)
-    yield manager
-    manager.shutdown()
+def jobs(store: Store) -> Iterator[JobRunner]:
+    with manual_runner(store) as runner:
+        yield runner
 
 
 @pytest.fixture(scope="module")
@@ -69,15 +69,6 @@ def nao_driver(nao) -> Iterator[SimulatedDriver]:
     d = SimulatedDriver(nao, seed=3, time_scale=20.0)
     yield d
     d.close()
-
-
-def _wait(jobs: JobManager, job_id: str, until=lambda s: s["state"] in FINISHED, timeout_s: float = 30.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    snap = jobs.get(job_id)
-    while not until(snap):
-        assert time.monotonic() < deadline, f"job {snap['state']}, detail {snap['detail']}"
-        snap = jobs.wait_version(job_id, snap["version"], 0.5)
-    return snap
 
 
 def test_capture_frame_stores_what_the_robot_sees(store, nao, nao_driver) -> None:
@@ -216,9 +207,9 @@ def test_replay_captures_frames_with_their_statuses(store, jobs, nao, nao_plan, 
     plan_t = np.array([targets[0], targets[1], 1 - targets[0], targets[2]])
     sid = store.sessions.create("nao", "replay", source="capture")
     job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, nao_driver, sid, plan_q, plan_t), session_id=sid)
-    snap = _wait(jobs, job)
-    assert snap["state"] == "done", snap["error"]
-    assert snap["result"] == sid and snap["progress"] == 1.0
+    snap = wait(jobs, job)
+    assert snap.state == JobState.DONE, snap.error
+    assert snap.result == sid and snap.progress == 1.0
     frames = store.sessions.frames(sid)
     assert [f.index for f in frames] == [1, 2, 3, 4]
     assert frames[2].status == "skipped" and frames[2].reason.endswith("not predicted in view")
@@ -229,7 +220,7 @@ def test_replay_captures_frames_with_their_statuses(store, jobs, nao, nao_plan, 
     for f, k in zip(captured, [0, 1, 3], strict=True):
         assert f.target == plan_t[k] and set(f.images) == {"image"}
         assert np.all(np.abs(f.joints_rad - plan_q[k]) <= 0.05 * DEG + 1e-12)  # the readings of the pose
-    detail = snap["detail"]
+    detail = snap.detail
     assert (detail["done"], detail["total"], detail["skipped"]) == (4, 4, 1)
     assert detail["measured"] == sum(f.status == "measured" for f in frames)
     assert detail["frame"] == 4 and detail["status"] == frames[3].status
@@ -246,8 +237,8 @@ def test_replay_drives_a_configuration_inside_the_margin_to_its_edge(store, jobs
     sid = store.sessions.create("robonaut-a", "margin", source="capture")
     with SimulatedDriver(rn, seed=3, time_scale=50.0) as d:
         job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q[None], targets), session_id=sid)
-        snap = _wait(jobs, job)
-        assert snap["state"] == "done", snap["error"]
+        snap = wait(jobs, job)
+        assert snap.state == JobState.DONE, snap.error
         assert d.true_joints_rad()[wrist] <= hi[wrist] - DEG + 1e-9
     (frame,) = store.sessions.frames(sid)
     assert frame.status in ("measured", "not found")
@@ -265,9 +256,9 @@ def test_replay_refuses_a_configuration_beyond_a_limit_before_moving(store, jobs
         lambda ctx: replay(ctx, store, nao_driver, sid, np.array([q[0], bad]), targets[:2]),
         session_id=sid,
     )
-    snap = _wait(jobs, job)
-    assert snap["state"] == "failed"
-    assert snap["error"] == (
+    snap = wait(jobs, job)
+    assert snap.state == JobState.FAILED
+    assert snap.error == (
         "replay refused before moving: configuration 2: LKneePitch 125.0 deg is beyond its upper limit "
         "121.0 deg (margin 1.0 deg)"
     )
@@ -275,8 +266,8 @@ def test_replay_refuses_a_configuration_beyond_a_limit_before_moving(store, jobs
     assert np.array_equal(nao_driver.true_joints_rad(), before)
 
 
-def _done(jobs: JobManager, job: str) -> int:
-    return jobs.get(job)["detail"].get("done", 0)
+def _done(jobs: JobRunner, job: str) -> int:
+    return jobs.get(job).detail.get("done", 0)
 
 
 def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao, nao_plan) -> None:
@@ -289,16 +280,16 @@ def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao
         clock.run(lambda: _done(jobs, job) >= 1 and d.status().moving, threads=2)
         moving = d.status()
         jobs.cancel(job)
-        clock.run(lambda: jobs.get(job)["state"] in FINISHED, threads=2)
-        snap = _wait(jobs, job)
-        assert snap["state"] == "cancelled"
+        clock.run(lambda: jobs.get(job).state.finished, threads=2)
+        snap = wait(jobs, job)
+        assert snap.state == JobState.CANCELLED
         st = d.status()
         assert moving.moving and not st.moving and st.message == "stopped"
         halted = d.true_joints_rad()
         clock.advance(1.0)
         assert np.array_equal(d.true_joints_rad(), halted)
     frames = store.sessions.frames(sid)
-    assert 1 <= len(frames) == snap["detail"]["done"] < len(q)
+    assert 1 <= len(frames) == snap.detail["done"] < len(q)
     assert all(f.status in ("measured", "not found") for f in frames)
 
 
@@ -320,11 +311,11 @@ def test_pause_holds_the_replay_and_resume_finishes_it(store, jobs, nao, nao_pla
         clock.run(lambda: clock.now() >= until, threads=1, step_s=0.5)
         assert len(store.sessions.frames(sid)) == held == 2 < len(q)
         assert np.array_equal(d.true_joints_rad(), pose)
-        assert jobs.get(job)["state"] == "running" and jobs.get(job)["paused"]
+        assert jobs.get(job).state == JobState.RUNNING and jobs.get(job).paused
         jobs.resume(job)
-        clock.run(lambda: jobs.get(job)["state"] in FINISHED, threads=2)
-        snap = _wait(jobs, job)
-    assert snap["state"] == "done"
+        clock.run(lambda: jobs.get(job).state.finished, threads=2)
+        snap = wait(jobs, job)
+    assert snap.state == JobState.DONE
     assert [f.index for f in store.sessions.frames(sid)] == [1, 2, 3, 4]
 
 
@@ -346,8 +337,8 @@ def test_remeasure_replaces_frames_in_place_and_keeps_skipped_ones(store, jobs, 
         ),
         session_id=sid,
     )
-    snap = _wait(jobs, job)
-    assert snap["state"] == "done", snap["error"]
+    snap = wait(jobs, job)
+    assert snap.state == JobState.DONE, snap.error
     new = {f.index: f for f in store.sessions.frames(sid)}
     assert sorted(new) == [10, 11, 12]
     assert (new[11].captured, new[11].status, new[11].images) == (old[11].captured, old[11].status, old[11].images)

@@ -3,7 +3,7 @@
 restart, and no job Manager or worker process of it left running), a calibration worker killed through the
 API, a job failing on a file error (its message names no path of the server), and a data directory that
 refuses writes (507, nothing half-written). The store's own killed-writer and sweep tests are in
-test_store.py, the worker crash and time-out tests at the JobManager level in test_jobs.py."""
+test_store.py, the worker crash and time-out tests at the job runner's level in test_jobs.py."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ import pytest
 from browser import Server, free_port
 from fastapi.testclient import TestClient
 
-from app.jobs import CRASHED
+from app.jobs.runner import crashed
 from app.server import create_app
 from app.services.replay import ReplayPlan
 from app.store import INTERRUPTED, Store
@@ -161,12 +161,13 @@ def test_a_calibration_worker_killed_through_the_api_fails_its_job_and_the_serve
     r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "full", "folds": 20})
     job_id = r.json()["job"]
     deadline = time.monotonic() + 30
-    while jobs.worker_pid(job_id) is None:
-        assert time.monotonic() < deadline and jobs.get(job_id)["state"] not in FINISHED
-        time.sleep(0.01)
+    snap = jobs.get(job_id)
+    while snap.state != "running":  # a process job runs once its worker has said which it is
+        assert time.monotonic() < deadline and not snap.state.finished, snap
+        snap = jobs.wait_version(job_id, snap.version, deadline - time.monotonic())
     os.kill(jobs.worker_pid(job_id), signal.SIGKILL)
     job = wait_job(client.get, job_id, timeout_s=15)
-    assert (job["state"], job["error"]) == ("failed", CRASHED)
+    assert (job["state"], job["error"]) == ("failed", crashed("calibration"))
     assert client.get("/api/health").status_code == 200
 
 
@@ -545,4 +546,4 @@ def test_sigterm_stops_calib_serve_promptly_with_jobs_running(tmp_path: Path) ->
     print(f"\nSIGTERM with a calibration and a replay running: calib serve stopped in {took:.2f} s")
     assert took < 8.0, f"calib serve took {took:.1f} s to stop on SIGTERM"
     store = Store(data)
-    assert store.jobs.get(replay_job)["state"] == "cancelled" and store.jobs.get(cal_job)["state"] == "cancelled"
+    assert store.jobs.get(replay_job).state == "cancelled" and store.jobs.get(cal_job).state == "cancelled"

@@ -21,7 +21,6 @@ from app.clock import ManualClock
 from app.drivers import LimitError
 from app.drivers.core import Command
 from app.drivers.simulated import SimulatedDriver
-from app.jobs import FINISHED
 from app.server import create_app
 from calib_core import load_profile
 
@@ -45,10 +44,10 @@ def finished(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
     jobs = client.app.state.desk.jobs
     deadline = time.monotonic() + timeout_s
     snap = jobs.get(job)
-    while snap["state"] not in FINISHED:
+    while not snap.state.finished:
         assert time.monotonic() < deadline, snap
-        snap = jobs.wait_version(job, snap["version"], 1.0)
-    return snap
+        snap = jobs.wait_version(job, snap.version, 1.0)
+    return client.get(f"/api/jobs/{job}").json()
 
 
 class Recording:

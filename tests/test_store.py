@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -17,6 +18,7 @@ import pytest
 
 from app.errors import NotFound
 from app.importers import ensure_samples, import_csv, import_session_folder
+from app.jobs.snapshot import JobSnapshot, JobState
 from app.store import INTERRUPTED, FrameInfo, Observations, Store
 from app.store.files import SWEEP_AGE_S
 from calib_core import Calibration, InputError, calibrate, load_profile, parse_dataset, read_dataset, to_csv
@@ -462,23 +464,26 @@ def test_concurrent_writers_and_readers(tmp_path: Path) -> None:
 
 def test_jobs_persist_and_a_restart_fails_the_interrupted(tmp_path: Path) -> None:
     store = Store(tmp_path)
-    base = {"progress": 0.5, "result": None, "error": None, "session": None, "detail": {}, "cost": [1.0]}
-    for i, state in enumerate(["done", "running", "queued", "cancelled"]):
-        t = f"2026-01-01T00:00:0{i}.000+00:00"
-        store.jobs.save({**base, "id": f"j-{i}", "kind": "replay", "state": state, "created": t, "updated": t})
-    store.jobs.save({**base, "id": "j-0", "kind": "replay", "state": "done", "created": "x", "updated": "y"})
+
+    def job(i: int, state: JobState, t: str) -> JobSnapshot:
+        return JobSnapshot(f"j-{i}", "replay", state, 0.5, None, None, None, t, t, cost=[1.0], paused=True)
+
+    for i, state in enumerate([JobState.DONE, JobState.RUNNING, JobState.QUEUED, JobState.CANCELLED]):
+        store.jobs.save(job(i, state, f"2026-01-01T00:00:0{i}.000+00:00"))
+    store.jobs.save(replace(job(0, JobState.DONE, "x"), updated="y"))
     again = Store(tmp_path)
     assert again.jobs.fail_interrupted() == 2
-    jobs = {j["id"]: j for j in again.jobs.list()}
-    assert [j["id"] for j in again.jobs.list()][:3] == ["j-3", "j-2", "j-1"]
-    assert {k: (j["state"], j["error"]) for k, j in jobs.items()} == {
+    jobs = {j.id: j for j in again.jobs.list()}
+    assert [j.id for j in again.jobs.list()][:3] == ["j-3", "j-2", "j-1"]
+    assert {k: (j.state, j.error) for k, j in jobs.items()} == {
         "j-0": ("done", None),
         "j-1": ("failed", INTERRUPTED),
         "j-2": ("failed", INTERRUPTED),
         "j-3": ("cancelled", None),
     }
     assert again.jobs.fail_interrupted() == 0
-    assert again.jobs.get("j-1")["cost"] == [1.0]
+    assert again.jobs.get("j-1").cost == [1.0] and not again.jobs.get("j-1").paused
+    assert (again.jobs.get("j-1").version, again.jobs.get("j-0").version) == (1, 0)
 
 
 # The schema of the first dashboard (version 1, no version recorded), as it was written to disk.
@@ -551,7 +556,8 @@ def test_a_store_made_with_the_first_schema_opens_and_keeps_its_data(tmp_path: P
     assert store.calibrations.load("c-0ld00001").values() == full.values()
     assert store.calibrations.active("nao") == "c-0ld00001"
     assert [h["note"] for h in store.calibrations.history("nao")] == ["kept"]
-    assert store.jobs.get("j-0ld")["state"] == "done"
+    old = store.jobs.get("j-0ld")  # the first dashboard kept no progress, detail, cost, version or pause
+    assert (old.state, old.session, old.progress, old.detail, old.cost, old.version) == ("done", None, 0.0, {}, [], 0)
     assert ensure_samples(store, samples) == []  # the samples were imported by the old store already
     # The new table is there and empty: a robot of the old store is its built-in profile's instance.
     assert store.robots.list() == [] and store.robots.profile("nao").name == "nao"

@@ -68,7 +68,12 @@ def test_an_installed_wheel_serves_the_page_and_the_samples(tmp_path: Path) -> N
     with served(tmp_path / "data", 90.0, calib=venv / "bin" / "calib", cwd=elsewhere, env=env) as server:
         page = server.get("/")
         assert page.status_code == 200 and "<title>" in page.text and "app.js" in page.text
-        assert server.get("/app.js").status_code == 200
+        # The page's modules (app.js imports static/js/*.js), each with a type a browser runs a module script of.
+        modules = ["app.js", *(f"js/{p.name}" for p in sorted((ROOT / "static" / "js").glob("*.js")))]
+        for module in modules:
+            got = server.get(f"/{module}")
+            assert got.status_code == 200, module
+            assert got.headers["content-type"].split(";")[0] in ("text/javascript", "application/javascript"), module
         assert server.get("/vendor/swagger-ui/swagger-ui-bundle.js").status_code == 200  # /docs offline
         sessions = {s["id"]: s for s in server.get("/api/sessions").json()}
         assert set(SAMPLES) <= set(sessions), sessions.keys()

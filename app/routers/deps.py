@@ -9,7 +9,7 @@ from fastapi import Depends, Header, HTTPException, Request, UploadFile
 from fastapi import Path as PathParam
 
 from ..desk import Desk
-from ..jobs import JobManager
+from ..jobs.runner import JobRunner
 from ..robots import Robots
 from ..store import Store
 from ..validation import FRAME_MAX, FRAME_MIN
@@ -27,7 +27,7 @@ def get_store(desk: DeskDep) -> Store:
     return desk.store
 
 
-def get_jobs(desk: DeskDep) -> JobManager:
+def get_jobs(desk: DeskDep) -> JobRunner:
     return desk.jobs
 
 
@@ -50,7 +50,7 @@ def get_viewer(
 
 
 StoreDep = Annotated[Store, Depends(get_store)]
-JobsDep = Annotated[JobManager, Depends(get_jobs)]
+JobsDep = Annotated[JobRunner, Depends(get_jobs)]
 RobotsDep = Annotated[Robots, Depends(get_robots)]
 ViewerDep = Annotated[Viewer, Depends(get_viewer)]
 FrameIndex = Annotated[int, PathParam(ge=FRAME_MIN, le=FRAME_MAX, description="a frame number")]

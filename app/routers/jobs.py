@@ -1,63 +1,47 @@
 """Jobs (calibrations, replays, dry runs): list, one, its progress as server-sent events, cancel / pause /
-resume; a dry run job's result."""
+resume; a dry run job's result. A job is answered as its snapshot (app/jobs/snapshot.py)."""
 
 from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncIterator
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.sse import EventSourceResponse
-from pydantic import BaseModel
 
+from ..jobs.snapshot import JobSnapshot
 from .deps import DeskDep, JobsDep
 from .models import DryRun
 
 router = APIRouter()
 
 
-class JobOut(BaseModel):
-    id: str
-    kind: str  # "calibration" | "replay" | "dry_run"
-    state: str  # "queued" | "running" | "done" | "failed" | "cancelled"
-    progress: float  # 0..1
-    result: str | None  # a calibration job's calibration id, a replay's or a dry run's session id
-    error: str | None  # why it failed, one sentence
-    session: str | None
-    created: str
-    updated: str
-    detail: dict[str, Any] = {}  # what the job reports as it runs (phase, frames measured, iterations, ...)
-    cost: list[float | None] = []  # a calibration's cost per iteration
-    version: int = 0  # grows with every change
-    paused: bool = False
-
-
 @router.get("/jobs")
-def jobs(jobs: JobsDep, session: str | None = None) -> list[JobOut]:
-    return [JobOut.model_validate(j) for j in jobs.list(session)]
+def jobs(jobs: JobsDep, session: str | None = None) -> list[JobSnapshot]:
+    return jobs.list(session)
 
 
 @router.get("/jobs/{job_id}")
-def job(jobs: JobsDep, job_id: str) -> JobOut:
-    return JobOut.model_validate(jobs.get(job_id))
+def job(jobs: JobsDep, job_id: str) -> JobSnapshot:
+    return jobs.get(job_id)
 
 
-def _first_snapshot(jobs: JobsDep, job_id: str) -> dict[str, Any]:
+def _first_snapshot(jobs: JobsDep, job_id: str) -> JobSnapshot:
     """Taken before the stream starts, so an unknown job answers 404 rather than breaking the stream."""
     return jobs.get(job_id)
 
 
 @router.get("/jobs/{job_id}/events", response_class=EventSourceResponse)
 async def job_events(
-    request: Request, jobs: JobsDep, job_id: str, first: Annotated[dict[str, Any], Depends(_first_snapshot)]
-) -> AsyncIterator[JobOut]:
+    request: Request, jobs: JobsDep, job_id: str, first: Annotated[JobSnapshot, Depends(_first_snapshot)]
+) -> AsyncIterator[JobSnapshot]:
     """The job's snapshot now and on every change, until it has finished."""
     snap = first
-    yield JobOut.model_validate(snap)
-    while snap["state"] in ("queued", "running", "paused") and not await request.is_disconnected():
-        snap = await jobs.next_version(job_id, snap["version"], 1.0) or await asyncio.to_thread(jobs.get, job_id)
-        yield JobOut.model_validate(snap)
+    yield snap
+    while not snap.state.finished and not await request.is_disconnected():
+        snap = await jobs.next_version(job_id, snap.version, 1.0) or await asyncio.to_thread(jobs.get, job_id)
+        yield snap
 
 
 @router.get("/jobs/{job_id}/dry-run")
@@ -69,6 +53,6 @@ def dry_run_result(desk: DeskDep, job_id: str) -> DryRun:
 
 
 @router.post("/jobs/{job_id}/{action}")
-def job_action(jobs: JobsDep, job_id: str, action: Literal["cancel", "pause", "resume"]) -> JobOut:
+def job_action(jobs: JobsDep, job_id: str, action: Literal["cancel", "pause", "resume"]) -> JobSnapshot:
     {"cancel": jobs.cancel, "pause": jobs.pause, "resume": jobs.resume}[action](job_id)
-    return JobOut.model_validate(jobs.get(job_id))
+    return jobs.get(job_id)

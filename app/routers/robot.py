@@ -124,9 +124,9 @@ def move(desk: DeskDep, body: MoveRequest) -> RobotState:
 def stop(desk: DeskDep, robots: RobotsDep, jobs: JobsDep) -> RobotState | None:
     """Halt every robot and every motion job (replays, and the dry runs that plan them) at once; the connected
     robot's state (None: no robot to drive)."""
-    for job_snapshot in jobs.list():
-        if job_snapshot["kind"] in ("replay", "dry_run") and job_snapshot["state"] in ("queued", "running", "paused"):
-            jobs.cancel(job_snapshot["id"])
+    for job in jobs.list():
+        if job.kind in ("replay", "dry_run") and not job.state.finished:
+            jobs.cancel(job.id)
     for r in robots.all():
         if r.driver is None:
             continue

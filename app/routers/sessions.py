@@ -15,7 +15,7 @@ from ..capture import Until
 from ..importers import import_csv
 from ..services.replay import ReplayPlan
 from ..validation import ID, IMAGE_NAME
-from .deps import DeskDep, FrameIndex, JobsDep, RobotsDep, StoreDep, ViewerDep, read_upload
+from .deps import DeskDep, FrameIndex, RobotsDep, StoreDep, ViewerDep, read_upload
 from .models import DryRun, FrameOut, JobStarted, RobotState, frame_out, robot_state
 
 router = APIRouter()
@@ -164,8 +164,8 @@ class CalibrationRequest(BaseModel):
 
 
 @router.post("/sessions/{session_id}/calibrations", status_code=202)
-def start_calibration(jobs: JobsDep, session_id: str, body: CalibrationRequest) -> JobStarted:
-    return JobStarted(job=jobs.submit_calibration(session_id, body.mode, body.base, body.holdout, folds=body.folds))
+def start_calibration(desk: DeskDep, session_id: str, body: CalibrationRequest) -> JobStarted:
+    return JobStarted(job=desk.calibration.submit(session_id, body.mode, body.base, body.holdout, folds=body.folds))
 
 
 @router.get("/files/sessions/{session_id}/images/{name}", responses={200: {"content": {"image/jpeg": {}}}})

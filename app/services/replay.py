@@ -29,7 +29,8 @@ from calib_core.vision.visibility import Visibility
 from ..capture import Until, capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
 from ..errors import NotFound
-from ..jobs import JobContext, JobManager
+from ..jobs.runner import JobContext, JobRunner
+from ..jobs.snapshot import JobState
 from ..robots import Robots
 from ..store import Store
 
@@ -41,7 +42,6 @@ PLANS_KEPT = 8  # recent plans kept, so that a replay after its dry run drives t
 DRY_RUNS_KEPT = 8  # results of recent dry run jobs kept for dry_run_result
 # A dry run job's progress: planning up to this share, then checking every configuration, then predicting.
 PLANNING_SHARE, CHECKING_SHARE = 0.9, 0.07
-ACTIVE = ("queued", "running")
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ def default_mode(profile: Profile, mode: str | None) -> str:
 
 
 class ReplayService:
-    def __init__(self, store: Store, robots: Robots, jobs: JobManager) -> None:
+    def __init__(self, store: Store, robots: Robots, jobs: JobRunner) -> None:
         self.store = store
         self.robots = robots
         self.jobs = jobs
@@ -155,7 +155,7 @@ class ReplayService:
         count = self._check(session_id, _counted(plan))
         with self._starting:
             running = self._checking.get(robot)
-            if running is not None and self.jobs.get(running[0])["state"] in ACTIVE:
+            if running is not None and not self.jobs.get(running[0]).state.finished:
                 if running[1:] == (session_id, plan):
                     return running[0]
                 raise InputError(
@@ -178,13 +178,13 @@ class ReplayService:
     def dry_run_result(self, job_id: str) -> dict[str, Any]:
         """What a dry run job found (the dry run's answer), once it is done."""
         job = self.jobs.get(job_id)
-        if job["kind"] != "dry_run":
-            raise NotFound(f"job '{job_id}' is a {job['kind']}, not a dry run: it has no dry run result")
-        if job["state"] in ACTIVE:
-            raise InputError(f"the dry run (job {job_id}) is still {job['state']}: its result comes when it is done")
-        if job["state"] != "done":
-            why = f": {job['error']}" if job["error"] else ""
-            raise InputError(f"the dry run (job {job_id}) ended {job['state']}{why}; it has no result")
+        if job.kind != "dry_run":
+            raise NotFound(f"job '{job_id}' is a {job.kind}, not a dry run: it has no dry run result")
+        if not job.state.finished:
+            raise InputError(f"the dry run (job {job_id}) is still {job.state}: its result comes when it is done")
+        if job.state != JobState.DONE:
+            why = f": {job.error}" if job.error else ""
+            raise InputError(f"the dry run (job {job_id}) ended {job.state}{why}; it has no result")
         with self._lock:
             result = self._dry_runs.get(job_id)
         if result is None:
@@ -200,7 +200,7 @@ class ReplayService:
         robot = self.store.sessions.get(session_id).robot
         with self._starting:
             running = self._driving.get(robot)
-            if running is not None and self.jobs.get(running[0])["state"] in ACTIVE:
+            if running is not None and not self.jobs.get(running[0]).state.finished:
                 if running[1:] == (session_id, plan):
                     return running[0]
                 raise InputError(

@@ -1,0 +1,76 @@
+"""The worker's side of a process job: what runs in the spawned worker process.
+
+A worker imports this module, its job function's module and what that needs; none of the server's (the store,
+the routers, viser). Its initializer, app/parent_watch.py's watch_parent, imports nothing of the project.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from calib_core.errors import InputError
+from calib_core.errors import Cancelled
+
+from .snapshot import JobState
+
+CANCEL_POLL_S = 0.05  # how often a worker asks the Manager whether it was cancelled (a rate, not a time limit)
+
+
+@dataclass
+class WorkerLink:
+    """What a worker process holds of its job: the progress queue and the cancel flags (Manager proxies)."""
+
+    job_id: str
+    messages: Any
+    cancelled: Any
+    _next_poll: float = 0.0
+    _stop: bool = False
+
+    def send(self, kind: str, *values: Any) -> None:
+        # Progress is best-effort: a lost message never fails the job.
+        with contextlib.suppress(Exception):
+            self.messages.put((kind, self.job_id, *values))
+
+    def progress(self, iteration: int, cost: float) -> None:
+        """An iterative job's step: its iteration and cost (the snapshot's `cost` and progress estimate)."""
+        self.send("progress", int(iteration), float(cost))
+
+    def should_stop(self) -> bool:
+        now = time.monotonic()
+        if not self._stop and now >= self._next_poll:
+            self._next_poll = now + CANCEL_POLL_S
+            with contextlib.suppress(Exception):
+                self._stop = bool(self.cancelled.get(self.job_id, False))
+        return self._stop
+
+
+def run_in_worker(fn: Callable[[Any, WorkerLink], Any], payload: Any, link: WorkerLink) -> tuple[JobState, Any, str]:
+    """(outcome, value, traceback): (DONE, result), (CANCELLED, None) or (FAILED, one-line message)."""
+    link.send("start", os.getpid())
+    try:
+        return JobState.DONE, fn(payload, link), ""
+    except Cancelled:
+        return JobState.CANCELLED, None, ""
+    except InputError as exc:
+        return JobState.FAILED, one_line(str(exc)), ""
+    except Exception as exc:
+        return JobState.FAILED, internal_error(exc), traceback.format_exc()
+
+
+def warm_up() -> int:
+    """Run first in every new worker: spawning and importing numpy and SciPy (with Cancelled) take a second or two."""
+    return os.getpid()
+
+
+def internal_error(exc: BaseException) -> str:
+    return one_line(f"internal error: {type(exc).__name__}: {exc}")
+
+
+def one_line(text: str) -> str:
+    return " ".join(text.split())

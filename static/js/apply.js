@@ -1,0 +1,92 @@
+// Step 5, Apply: the calibration under review sent to the robot, its exports, the history of applies; the
+// header's active calibration.
+
+import { api } from "./api.js";
+import { $, act, el, fmt, toast } from "./dom.js";
+import { state } from "./state.js";
+
+let applying = false;  // an apply of this page is in flight
+
+export function renderApply() {
+  const id = state.newCal;
+  $("#apply-what").textContent = id ? `${id}` : "— (run or pick a calibration)";
+  $("#apply").disabled = !id;
+  for (const f of ["json", "yaml", "urdf"]) {
+    const a = $(`#export-${f}`);
+    if (id) a.href = `/api/calibrations/${id}/export?format=${f}`;
+    else a.removeAttribute("href");
+  }
+}
+
+// A calibration worse than the active one, or moving a parameter beyond its sane bound, is applied only
+// when the operator confirms the server's reasons (409); null when not applied.
+async function applyCalibration(id, note) {
+  try {
+    return await api("POST", `/calibrations/${id}/apply`, { note });
+  } catch (err) {
+    if (err.status !== 409 || !err.data || !err.data.reasons) throw err;
+    const ask = `${err.data.detail}\n\n- ${err.data.reasons.join("\n- ")}\n\nApply it anyway?`;
+    if (!window.confirm(ask)) {
+      toast("Not applied.", "info");
+      return null;
+    }
+    return api("POST", `/calibrations/${id}/apply`, { note, confirm: true });
+  }
+}
+
+async function applyNew() {
+  if (applying) return;  // a double click: one apply
+  applying = true;
+  $("#apply").disabled = true;
+  try {
+    const r = await applyCalibration(state.newCal, "");
+    if (r) await applied(r);
+  } finally {
+    applying = false;
+    renderApply();
+  }
+}
+
+async function applied(r) {
+  await refreshActive();
+  $("#apply-state").textContent = r.recorded ? `Active: ${r.active} (previous: ${r.previous || "nominal model"})`
+    : `Active: ${r.active} (it already was: sent to the robot again, history unchanged)`;
+  toast(r.recorded ? "Applied to the robot." : "Already the active calibration: sent to the robot again.", "info");
+}
+
+// The header and the Apply panel both say which calibration the robot runs; the history says for each apply
+// when, which mode, and the mean error before and after (held out too) on the calibration's own session.
+export function activeCalibration() {
+  return Promise.all([api("GET", `/robot/calibration?robot=${state.robot}`), api("GET", `/robot/history?robot=${state.robot}`)]);
+}
+
+// `asked`: activeCalibration() already under way (none: asked now).
+export async function refreshActive(asked = null) {
+  const [a, history] = await (asked || activeCalibration());
+  const active = a.id ? `${a.id} (${a.mode})` : "nominal model";
+  $("#active-cal").textContent = active;
+  $("#active-cal").dataset.id = a.id || "";
+  $("#apply-active").textContent = active;
+  $("#apply-active").dataset.id = a.id || "";
+  const t = $("#history");
+  t.replaceChildren(el("tr", {}, ...["applied", "calibration and its mean error", ""].map((h) => el("th", {}, h))));
+  for (const [k, h] of history.entries()) {
+    const f = h.figures || {};
+    const u = (f.after && f.after.unit) || "";
+    const errors = [f.before && `before ${fmt(f.before.mean)}`, f.after && `after ${fmt(f.after.mean)}`,
+      f.holdout_after && `held out ${fmt(f.holdout_after.mean)}`].filter(Boolean).join(" → ");
+    const current = k === 0 && h.calibration === a.id;  // the newest apply: what the robot runs
+    t.append(el("tr", { "data-calibration": h.calibration, title: h.note || "" },
+      el("td", {}, h.time.replace("T", " ").slice(0, 16)),
+      el("td", {}, el("b", {}, h.mode || "—"), ` ${errors}${u ? ` ${u}` : ""}`, el("br", {}),
+        el("small", {}, `${h.calibration}${h.session ? ` · ${h.session}` : ""}`)),
+      el("td", {}, current ? el("small", {}, "active") : el("button", { class: "small", onclick: () => act(async () => {
+        const r = await applyCalibration(h.calibration, "re-applied from history");
+        if (r) await applied(r);
+      }) }, "re-apply"))));
+  }
+}
+
+export function wireApply() {
+  $("#apply").addEventListener("click", () => act(applyNew));
+}

@@ -1,0 +1,93 @@
+// Step 3, Calibrate: a calibration job of the session, its progress and cost curve, the session's calibrations.
+
+import { api, follow } from "./api.js";
+import { axes, ticks } from "./charts.js";
+import { jobControls } from "./controls.js";
+import { $, act, el, fmt, toast } from "./dom.js";
+import { loadReview, unit } from "./review.js";
+import { state } from "./state.js";
+import { showTab } from "./tabs.js";
+
+// The session's calibrations, newest first: in this step's list and start-from choice, and the Review's choices.
+export async function loadCalibrations() {
+  state.calibrations = (await api("GET", `/sessions/${state.session.id}/calibrations`)).reverse();
+  const base = $("#base");
+  base.replaceChildren(el("option", { value: "" }, "nominal model"), el("option", { value: "active" }, "robot's active calibration"));
+  const oldSel = $("#review-old");
+  const newSel = $("#review-new");
+  oldSel.replaceChildren(el("option", { value: "active" }, "robot's active"), el("option", { value: "" }, "nominal model"));
+  newSel.replaceChildren(el("option", { value: "" }, "(none)"));
+  const ul = $("#calibrations");
+  ul.replaceChildren();
+  for (const c of state.calibrations) {
+    const after = c.figures && c.figures.after ? `${fmt(c.figures.after.mean)} ${unit()}` : "";
+    const label = `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)} · ${after}`;
+    for (const s of [base, oldSel, newSel]) s.append(el("option", { value: c.id }, label));
+    ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => loadReview("active", c.id)) }, label));
+  }
+}
+
+async function startCalibration() {
+  if (!state.session) throw new Error("select a session first");
+  const baseValue = $("#base").value;
+  const base = baseValue === "active" ? (await api("GET", `/robot/calibration?robot=${state.session.robot}`)).id : baseValue || null;
+  const body = { mode: $("#mode").value, base, holdout: +$("#holdout").value };
+  const { job } = await api("POST", `/sessions/${state.session.id}/calibrations`, body);
+  state.job = { id: job, live: true };
+  jobControls();
+  const done = await follow(job, (j) => {
+    state.job.live = ["queued", "running"].includes(j.state);
+    jobControls();
+    $("#job-progress").value = j.progress;
+    const loading = j.state === "queued" && j.detail && j.detail.phase === "loading" ? " · reading the session's frames" : "";
+    $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${loading}` +
+      (j.cost && j.cost.length ? ` · iteration ${j.cost.length - 1}, cost ${j.cost[j.cost.length - 1].toExponential(3)}` : "");
+    drawCurve($("#cost-curve"), j.cost || []);
+  });
+  if (done.state === "done") {
+    const converged = done.detail.converged !== false;
+    if (!converged) $("#job-state").textContent = `done, but the solver did not converge (${done.detail.solver_status})`;
+    await loadCalibrations();
+    await loadReview("active", done.result);
+    showTab("review");
+    if (converged) toast("Calibration done: review it, then apply.", "info");
+    else toast(`The calibration did not converge (${done.detail.solver_status}): read the warnings before applying.`, "error");
+  }
+}
+
+// The solver's cost per iteration, on a log scale.
+function drawCurve(canvas, ys) {
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  if (ys.length < 1) return;
+  const ls = ys.map((y) => Math.log10(Math.max(y, 1e-300)));
+  const lo = Math.floor(Math.min(...ls));
+  const hi = Math.max(Math.ceil(Math.max(...ls)), lo + 1);
+  const last = Math.max(1, ls.length - 1);
+  const box = { left: 46, top: 8, right: canvas.width - 10, bottom: canvas.height - 30 };
+  box.x = (i) => box.left + (i / last) * (box.right - box.left);
+  box.y = (l) => box.bottom - ((l - lo) / (hi - lo)) * (box.bottom - box.top);
+  ctx.strokeStyle = "#1d5bd8";
+  ctx.lineWidth = 1.5;
+  ctx.beginPath();
+  ls.forEach((l, i) => (i ? ctx.lineTo(box.x(i), box.y(l)) : ctx.moveTo(box.x(i), box.y(l))));
+  ctx.stroke();
+  const xt = ticks(0, last, 4).filter((v) => Number.isInteger(v)).map((v) => [v, String(v)]);
+  const yt = ticks(lo, hi, 3).filter((v) => Number.isInteger(v)).map((v) => [v, `1e${v}`]);
+  axes(ctx, box, xt, yt, "iteration", "cost");
+}
+
+export function wireCalibrate() {
+  $("#holdout").addEventListener("input", () => ($("#holdout-out").textContent = `${Math.round($("#holdout").value * 100)}%`));
+  $("#calibrate-start").addEventListener("click", () => act(async () => {
+    const button = $("#calibrate-start");
+    if (button.disabled) return;  // a double click: one calibration
+    button.disabled = true;
+    try {
+      await startCalibration();
+    } finally {
+      jobControls();
+    }
+  }));
+  $("#calibrate-cancel").addEventListener("click", () => state.job && act(() => api("POST", `/jobs/${state.job.id}/cancel`)));
+}

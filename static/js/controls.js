@@ -1,0 +1,32 @@
+// The buttons that start or stop work, enabled only when they can act.
+
+import { $ } from "./dom.js";
+import { replayControls } from "./replay.js";
+import { state } from "./state.js";
+
+const MOTION_CONTROLS = ["#capture", "#observe-on", "#autocapture", "#wander", "#dry-run", "#replay-start",
+  "#goto", "#new-session button"];
+
+// Calibrate with a session of measured frames and no calibration of the page running, Cancel while one runs,
+// Capture with a session and a robot standing still (no capture in flight), Stop while the desk has a robot to
+// stop; the Replay step's buttons as replayControls says.
+export function jobControls() {
+  const drivable = state.robots[state.robot].drivable;
+  const calibrating = Boolean(state.job && state.job.live);
+  $("#calibrate-start").disabled = !state.session || !state.session.measured || calibrating;
+  $("#calibrate-cancel").disabled = !calibrating;
+  $("#capture").disabled = !drivable || !state.session || Boolean(state.moving) || Boolean(state.capturing);
+  $("#stop").disabled = !Object.values(state.robots).some((r) => r.drivable);
+  replayControls(state.replaySnap);
+}
+
+export function showDrivable() {
+  const drivable = state.robots[state.robot].drivable;
+  for (const sel of MOTION_CONTROLS) $(sel).disabled = !drivable;
+  jobControls();
+  document.body.dataset.drivable = drivable ? "1" : "0";
+  if (!drivable) {
+    $("#robot-state").textContent = `${state.robot}: real data only (no robot to drive; import its sessions)`;
+    $("#robot-state").className = "pill";
+  }
+}

@@ -1,0 +1,47 @@
+// The page's small helpers: a selector, an element builder, text written only when it changes, figures
+// formatted, and the toast that says what went wrong.
+
+export const $ = (sel) => document.querySelector(sel);
+
+// d decimals; a small figure (a laser tracker's errors in metres) keeps d significant digits instead of 0.000.
+export const fmt = (v, d = 3) => {
+  if (v === null || v === undefined || Number.isNaN(v)) return "—";
+  const x = Number(v);
+  return x !== 0 && Math.abs(x) < 0.01 ? x.toPrecision(d) : x.toFixed(d);
+};
+
+// Text written only when it changes (no layout or repaint for the same words).
+export const setText = (e, text) => {
+  if (e.textContent !== text) e.textContent = text;
+};
+
+export const el = (tag, attrs = {}, ...children) => {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "onclick") e.addEventListener("click", v);
+    else if (k === "class") e.className = v;
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  return e;
+};
+
+let toastTimer = null;
+export function toast(message, kind = "error") {
+  const t = $("#toast");
+  t.textContent = message;
+  t.className = kind;
+  t.hidden = false;
+  clearTimeout(toastTimer);
+  toastTimer = setTimeout(() => (t.hidden = true), 6000);
+}
+
+// An operator's action: its error said in the toast (null returned).
+export async function act(fn) {
+  try {
+    return await fn();
+  } catch (err) {
+    toast(err.message);
+    return null;
+  }
+}

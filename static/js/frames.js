@@ -1,0 +1,203 @@
+// The Review's frames: the sortable list, the selected frame and its figures, stepping and playing through
+// them, frames captured meanwhile. A selected frame is shown in the 3-D scene and the 2-D view at once.
+
+import { api } from "./api.js";
+import { $, act, el, fmt, toast } from "./dom.js";
+import { loadReview, unit } from "./review.js";
+import { drawSplit } from "./split.js";
+import { DEBUG, state } from "./state.js";
+
+let reviewStale = false;  // frames captured since the review was loaded: the server's review lacks them
+
+function sortedRows(rows = state.review.table) {
+  const { key, dir } = state.sort;
+  const v = (r) => (r[key] === null || r[key] === undefined ? -Infinity : r[key]);
+  // dir -1: largest first (worst first for errors); frames without an error go last either way.
+  return [...rows].sort((a, b) => {
+    const va = v(a);
+    const vb = v(b);
+    if (va === vb) return a.index - b.index;
+    if (typeof va === "string" || typeof vb === "string") return dir * String(vb).localeCompare(String(va));
+    if (va === -Infinity) return 1;
+    if (vb === -Infinity) return -1;
+    return dir < 0 ? vb - va : va - vb;
+  });
+}
+
+// A frame's new-minus-old error (null without both) and its word: better (the new calibration's error is
+// smaller), worse, or same (within 1% of the old error).
+const change = (r) => (r.err_old === null || r.err_new === null || r.err_new === undefined ? null : r.err_new - r.err_old);
+const verdict = (r) => {
+  const d = change(r);
+  if (d === null) return "";
+  return Math.abs(d) <= 0.01 * Math.abs(r.err_old) ? "same" : d < 0 ? "better" : "worse";
+};
+
+const signed = (v) => (v > 0 ? "+" : v < 0 ? "−" : "±") + fmt(Math.abs(v));
+
+// The frame list, sorted; stepping (◀ ▶|, the slider, play) follows its order.
+export function renderFrames() {
+  const t = $("#frames");
+  const u = unit();
+  const cols = [["index", "frame"], ["status", "status"], ["err_old", `old ${u}`], ["err_new", `new ${u}`],
+    ["change", `new−old ${u}`]];
+  const withChange = state.review.table.map((r) => ({ ...r, change: change(r) }));
+  t.replaceChildren(el("tr", {}, ...cols.map(([k, label]) => el("th", {
+    "data-sort": k,
+    onclick: () => {
+      state.sort = { key: k, dir: state.sort.key === k ? -state.sort.dir : -1 };
+      renderFrames();
+      if (state.frame !== null) $("#frame-slider").value = state.frameOrder.indexOf(state.frame);
+    },
+  }, label + (state.sort.key === k ? (state.sort.dir < 0 ? " ▼" : " ▲") : "")))));
+  const rows = sortedRows(withChange);
+  state.frameOrder = rows.map((r) => r.index);
+  for (const r of rows) {
+    const v = verdict(r);
+    t.append(el("tr", {
+      "data-frame": r.index,
+      class: `${r.index === state.frame ? "selected" : ""} ${r.heldout ? "heldout" : ""}`,
+      onclick: () => selectFrame(r.index),
+    }, el("td", {}, r.index + (r.heldout ? "*" : "")), el("td", {}, r.status), el("td", {}, fmt(r.err_old)),
+    el("td", {}, fmt(r.err_new)), el("td", { class: v, "data-verdict": v }, r.change === null ? "—" : signed(r.change))));
+  }
+}
+
+// The selected frame's figures: old and new error, their difference, better or worse.
+function renderFrameSummary(index) {
+  const r = state.review && state.review.table.find((x) => x.index === index);
+  const box = $("#frame-summary");
+  if (!r) {
+    box.replaceChildren();
+    return;
+  }
+  const u = unit();
+  const v = verdict(r);
+  const parts = [el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`), ` ${r.status} · old calibration `,
+    el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
+  if (state.review.new) {
+    parts.push(" · new calibration ", el("span", { class: "green" }, `${fmt(r.err_new)} ${u}`));
+    if (v) parts.push(" · ", el("span", { class: v, "data-verdict": v }, `${signed(change(r))} ${u} (${v})`));
+  }
+  box.replaceChildren(...parts);
+  box.dataset.frame = index;
+}
+
+// Latest wins: while a scene update is in flight only the newest request waits behind it.
+let selecting = false;
+let pending = null;
+export async function selectFrame(index) {
+  if (index === undefined || index === null) return;
+  if (reviewStale) {  // the server's review is made anew
+    reviewStale = false;
+    await act(() => loadReview(...state.reviewAsked));
+  }
+  state.frame = index;
+  $("#frame-slider").value = state.frameOrder.indexOf(index);
+  $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
+  // Only the rows that change (a session may have thousands).
+  for (const tr of document.querySelectorAll("#frames tr.selected")) if (+tr.dataset.frame !== index) tr.classList.remove("selected");
+  const row = document.querySelector(`#frames tr[data-frame="${index}"]`);
+  if (row) {
+    row.classList.add("selected");
+    row.scrollIntoView({ block: "nearest" });
+  }
+  renderFrameSummary(index);
+  if (selecting) {
+    pending = index;
+    return;
+  }
+  selecting = true;
+  try {
+    // The scene and the 2-D view at once: neither waits for the other.
+    const [r] = await Promise.all([
+      api("POST", "/review/frame", { index, all: $("#all-frames").checked, overlay: $("#overlay").checked }),
+      drawSplit(index),
+    ]);
+    if (DEBUG) $("#scene-ms").textContent = `scene ${r.server_ms.toFixed(1)} ms`;
+  } catch (err) {
+    toast(err.message);
+  } finally {
+    selecting = false;
+  }
+  if (pending !== null && pending !== index) {
+    const next = pending;
+    pending = null;
+    await selectFrame(next);
+  } else pending = null;
+}
+
+function step(d) {
+  const i = Math.min(Math.max(state.frameOrder.indexOf(state.frame) + d, 0), state.frameOrder.length - 1);
+  return selectFrame(state.frameOrder[i]);
+}
+
+let playTimer = null;
+function togglePlay() {
+  if (playTimer) {
+    clearInterval(playTimer);
+    playTimer = null;
+    $("#play").textContent = "▶";
+    return;
+  }
+  $("#play").textContent = "❚❚";
+  playTimer = setInterval(() => {
+    const i = state.frameOrder.indexOf(state.frame);
+    if (i >= state.frameOrder.length - 1) togglePlay();
+    else step(1);
+  }, 400);
+}
+
+// Frames captured while the page looks on (a replay, auto-capture) join the frame list at once: fetched with
+// the session, shown without errors (none computed yet) until the review is next loaded. Latest wins.
+let refreshing = null;
+export async function showNewFrames(sid) {
+  if (refreshing) {
+    refreshing.again = true;
+    return;
+  }
+  refreshing = { again: false };
+  try {
+    do {
+      refreshing.again = false;
+      if (!state.session || state.session.id !== sid) return;
+      const s = await api("GET", `/sessions/${sid}`);
+      if (!state.session || state.session.id !== sid) return;
+      state.session = s;
+      const li = document.querySelector(`#sessions li[data-session="${sid}"] small`);
+      if (li) li.textContent = ` ${s.robot} · ${s.measured}/${s.frames.length} frames measured`;
+      if (!state.review || state.review.session !== sid) continue;
+      const rows = new Map(state.review.table.map((row) => [row.index, row]));
+      let changed = false;
+      for (const f of s.frames) {
+        const row = rows.get(f.index);
+        if (row && row.status === f.status) continue;
+        if (row) Object.assign(row, { status: f.status, err_old: null, err_new: null });
+        else state.review.table.push({ index: f.index, status: f.status, err_old: null, err_new: null, heldout: false });
+        changed = true;
+      }
+      if (!changed) continue;
+      reviewStale = true;  // selecting one loads the review again
+      renderFrames();  // the frame list's order is the stepping order
+      $("#frame-slider").max = Math.max(0, state.frameOrder.length - 1);
+    } while (refreshing.again);
+  } catch (err) {
+    toast(err.message);
+  } finally {
+    refreshing = null;
+  }
+}
+
+export function wireFrames() {
+  $("#frame-slider").addEventListener("input", () => selectFrame(state.frameOrder[+$("#frame-slider").value]));
+  $("#step-back").addEventListener("click", () => step(-1));
+  $("#step-fwd").addEventListener("click", () => step(+1));
+  $("#play").addEventListener("click", togglePlay);
+  $("#overlay").addEventListener("change", () => selectFrame(state.frame));
+  $("#all-frames").addEventListener("change", () => selectFrame(state.frame));
+  $("#goto").addEventListener("click", () => act(async () => {
+    if (!state.session || state.frame === null) throw new Error("select a frame first");
+    await api("POST", `/sessions/${state.session.id}/frames/${state.frame}/goto`);
+    toast(`Driving to frame ${state.frame}'s configuration.`, "info");
+  }));
+}

@@ -1,0 +1,118 @@
+// Step 1, Observe: the joint sliders and readings, the robot's streamed state, watching live, capturing.
+
+import { api } from "./api.js";
+import { jobControls } from "./controls.js";
+import { $, act, el, setText, toast } from "./dom.js";
+import { showNewFrames } from "./frames.js";
+import { loadSessions } from "./sessions.js";
+import { state } from "./state.js";
+
+let driving = null;    // {since}: the sliders show the page's move target until the robot stopped after it
+let readings = {};     // joint name -> degrees, the robot's last streamed readings
+let autoCaptured = 0;  // frames auto-captured so far by the session's observation
+
+// The joint sliders show the configuration the operator asks for, within the joint limits less the driver's
+// safety margin (the server refuses a move closer to a limit). Moving one sends the whole configuration the
+// sliders show: a joint still on its way keeps its target, not the reading it had when another slider moved.
+export function buildJoints() {
+  const t = $("#joints");
+  t.replaceChildren();
+  const robot = state.robots[state.robot];
+  driving = null;
+  for (const j of robot.joints) {
+    const revolute = j.lower_deg !== null;
+    const m = revolute ? Math.min(robot.margin_deg || 0, (j.upper_deg - j.lower_deg) / 2) : 0;
+    const slider = el("input", { type: "range", min: j.lower_deg + m, max: j.upper_deg - m, step: 0.1, "data-joint": j.name });
+    slider.disabled = !robot.drivable || !revolute;
+    slider.addEventListener("change", moveToSliders);
+    t.append(el("tr", {}, el("td", {}, j.name), el("td", {}, slider), el("td", { "data-reading": j.name }, "—")));
+  }
+}
+
+const SLIDERS_FOLLOW_AFTER_MS = 300;  // a move's answer comes before its first "moving" state: wait that long
+
+async function moveToSliders() {
+  const joints = {};
+  for (const s of document.querySelectorAll("input[data-joint]")) if (!s.disabled) joints[s.dataset.joint] = +s.value;
+  driving = { since: Infinity };  // the sliders show the target, not the readings, until the robot stops
+  try {
+    await api("POST", "/robot/move", { joints });
+    driving = { since: performance.now() };
+  } catch (err) {
+    driving = null;
+    slidersToReadings(true);
+    toast(`Move refused: ${err.message}`);
+  }
+}
+
+// The sliders follow the robot's readings while the page is not driving it (a wander, a replay, another tab);
+// `all`: the slider in the operator's hand too.
+function slidersToReadings(all = false) {
+  for (const [name, deg] of Object.entries(readings)) {
+    const slider = document.querySelector(`input[data-joint="${name}"]`);
+    if (!slider || deg === null || (!all && document.activeElement === slider)) continue;
+    if (Math.abs(+slider.value - deg) > 0.06) slider.value = deg;  // a step is 0.1 deg: the same position unwritten
+  }
+}
+
+// The connected robot's state, streamed while the desk has a robot to drive.
+export function robotEvents() {
+  state.events = true;
+  const es = new EventSource("/api/robot/events");
+  es.onmessage = (ev) => {
+    const r = JSON.parse(ev.data);
+    if (r.robot !== state.robot) return;
+    // Ten times a second: the page is written only where something changed (a repaint of an unchanged page
+    // costs a software-rendered browser as much as a changed one, and slows the 3-D view of every tab).
+    setText($("#robot-state"), `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`);
+    $("#robot-state").classList.toggle("moving", r.moving);
+    if (Boolean(state.moving) !== r.moving) {
+      state.moving = r.moving;
+      jobControls();
+    }
+    readings = r.joints;
+    for (const [name, deg] of Object.entries(r.joints)) {
+      const cell = document.querySelector(`[data-reading="${name}"]`);
+      if (cell) setText(cell, deg === null ? "—" : `${deg.toFixed(1)}°`);
+    }
+    if (driving && !r.moving && performance.now() - driving.since > SLIDERS_FOLLOW_AFTER_MS) driving = null;
+    if (!driving) slidersToReadings();
+    const o = r.observing;
+    if (o && state.session && o.session === state.session.id && o.captured > autoCaptured) showNewFrames(o.session);
+    autoCaptured = o ? o.captured : 0;
+    setText($("#observe-state"), o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "");
+  };
+  es.onerror = () => {
+    $("#robot-state").textContent = "server unreachable";
+    es.close();
+    setTimeout(robotEvents, 2000);
+  };
+}
+
+async function setObserve() {
+  if (!state.session) throw new Error("select or create a session first");
+  await api("POST", `/sessions/${state.session.id}/observe`, { on: $("#observe-on").checked || $("#autocapture").checked, autocapture: $("#autocapture").checked });
+}
+
+async function captureNow() {
+  if (!state.session) throw new Error("select or create a session first");
+  if (state.capturing) return;  // a double click: one frame
+  state.capturing = true;
+  jobControls();
+  let frame;
+  try {
+    ({ frame } = await api("POST", `/sessions/${state.session.id}/capture`));
+  } finally {
+    state.capturing = false;
+    jobControls();
+  }
+  toast(`Frame ${frame.index}: ${frame.status}${frame.reason && frame.reason !== "ok" ? ` (${frame.reason})` : ""}`, "info");
+  await loadSessions(state.session.id);
+}
+
+export function wireObserve() {
+  $("#capture").addEventListener("click", () => act(captureNow));
+  $("#observe-on").addEventListener("change", () => act(setObserve));
+  $("#autocapture").addEventListener("change", () => act(setObserve));
+  $("#wander").addEventListener("change", () => act(() => api("POST", "/robot/wander", { on: $("#wander").checked })));
+}

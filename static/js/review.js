@@ -1,0 +1,114 @@
+// Step 4, Review: an old and a new calibration over the session's frames; the error summary, the histogram,
+// the new calibration's warnings and parameters.
+
+import { api } from "./api.js";
+import { renderApply } from "./apply.js";
+import { axes, ticks } from "./charts.js";
+import { $, act, el, fmt } from "./dom.js";
+import { renderFrames, selectFrame } from "./frames.js";
+import { forgetMarks } from "./split.js";
+import { state } from "./state.js";
+
+export const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
+
+// `sensor`: whose observations (a session of several sensors); null: the data format's sensor.
+export async function loadReview(old, neu, sensor = null) {
+  const body = { session: state.session.id, old: old || null, new: neu || null, sensor };
+  state.review = await api("POST", "/review", body);
+  forgetMarks();  // the server's marks are of this review from now on
+  state.reviewAsked = [old, neu, sensor];
+  state.newCal = state.review.new;
+  $("#review-old").value = old || "";
+  $("#review-new").value = neu || "";
+  const sensors = $("#review-sensor");
+  const names = [...new Set([state.review.sensor, ...state.review.sensors])];
+  sensors.replaceChildren(...names.map((s) => el("option", { value: s }, s)));
+  sensors.value = state.review.sensor;
+  $("#review-sensor-label").hidden = state.review.sensors.length < 2;
+  // What the scene could not show as asked (a URDF robot's mesh that cannot be read): said once per review.
+  $("#review-warnings").replaceChildren(...(state.review.warnings || []).map((w) => el("p", { class: "warning" }, w)));
+  const rows = state.review.table;
+  state.sort = { key: state.newCal ? "err_new" : "err_old", dir: -1 };
+  const slider = $("#frame-slider");
+  slider.max = Math.max(0, rows.length - 1);
+  renderFrames();
+  renderSummary();
+  await renderParameters();
+  renderApply();
+  if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
+}
+
+function renderSummary() {
+  const s = state.review.summary;
+  const u = s.unit;
+  const cols = [["old", "old calibration"], ["new", "new calibration"], ["heldout_old", "held-out, old"],
+    ["heldout_new", "held-out, new"]]
+    .filter(([k]) => s[k]);
+  const t = $("#summary");
+  t.replaceChildren(el("tr", {}, el("th", {}, `error (${u})`), ...cols.map(([, l]) => el("th", {}, l))));
+  for (const k of ["mean", "rms", "max", "n"]) {
+    t.append(el("tr", { "data-figure": k }, el("td", {}, k === "rms" ? "RMS" : k),
+      ...cols.map(([c]) => el("td", { "data-col": c }, k === "n" ? s[c][k] : fmt(s[c][k])))));
+  }
+  drawHistogram($("#histogram"), s.histogram);
+}
+
+async function renderParameters() {
+  const t = $("#parameters");
+  const w = $("#warnings");
+  t.replaceChildren();
+  w.replaceChildren();
+  if (!state.newCal) return;
+  const cal = await api("GET", `/calibrations/${state.newCal}`);
+  if (!cal.converged) {
+    w.append(el("p", { class: "warning", "data-code": "not-converged" },
+      `⚠ Did not converge: ${cal.solver.message} after ${cal.solver.iterations} iterations.`));
+  }
+  for (const d of cal.diagnostics.filter((d) => d.severity === "warning" && d.code !== "not-converged")) {
+    w.append(el("p", { class: "warning", "data-code": d.code }, `⚠ ${d.message}`));
+  }
+  if (cal.outliers.length) {
+    w.append(el("p", {}, `Outliers left out: ${cal.outliers.map((o) => `frame ${o.frame} (${fmt(o.error, 2)} ${o.unit})`).join(", ")}`));
+  }
+  // "start": where the solver started (the nominal model or the calibration it was based on), not the review's
+  // old calibration.
+  t.append(el("tr", {}, ...[["parameter", ""], ["start", "the value the calibration started from"],
+    ["calibrated", "the value it found"], ["change", "calibrated − start"], ["std", ""], ["unit", ""]]
+    .map(([h, title]) => el("th", { title }, h))));
+  for (const p of cal.parameters) {
+    if (!p.estimated && Math.abs(p.value - p.base) < 1e-12) continue;
+    t.append(el("tr", { class: p.estimated ? "" : "fixed", title: p.note || "" },
+      el("td", {}, p.label), el("td", {}, fmt(p.base, 4)), el("td", {}, fmt(p.value, 4)),
+      el("td", {}, fmt(p.value - p.base, 4)), el("td", {}, p.std === null ? "held" : fmt(p.std, 4)), el("td", {}, p.unit)));
+  }
+}
+
+function drawHistogram(canvas, hist) {
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  if (!hist || !hist.edges || hist.edges.length < 2) return;
+  const n = hist.edges.length - 1;
+  const series = [["old", "#0050ff"], ["new", "#00b000"]].filter(([k]) => hist[k]);
+  const top = Math.max(1, ...series.flatMap(([k]) => hist[k]));
+  const lo = hist.edges[0];
+  const hi = hist.edges[n];
+  const box = { left: 46, top: 8, right: canvas.width - 10, bottom: canvas.height - 30 };
+  box.x = (v) => box.left + ((v - lo) / (hi - lo)) * (box.right - box.left);
+  box.y = (v) => box.bottom - (v / top) * (box.bottom - box.top);
+  const bw = (box.right - box.left) / n;
+  series.forEach(([k, c], si) => {
+    ctx.fillStyle = c;
+    hist[k].forEach((v, i) => {
+      const bh = box.bottom - box.y(v);
+      ctx.fillRect(box.left + i * bw + (si * bw) / series.length, box.bottom - bh, bw / series.length - 1, bh);
+    });
+  });
+  const yt = ticks(0, top, 3).filter((v) => Number.isInteger(v)).map((v) => [v, String(v)]);
+  axes(ctx, box, ticks(lo, hi, 5).map((v) => [v, fmt(v, 2)]), yt, `error (${unit()})`, "observations");
+}
+
+export function wireReview() {
+  const reviewAgain = () => act(() => loadReview($("#review-old").value, $("#review-new").value, $("#review-sensor").value || null));
+  $("#review-load").addEventListener("click", reviewAgain);
+  $("#review-sensor").addEventListener("change", reviewAgain);
+}

@@ -1,0 +1,65 @@
+// The header's robot: which one this page drives, a robot added to the running desk, STOP.
+
+import { api } from "./api.js";
+import { showDrivable } from "./controls.js";
+import { $, act, el, toast } from "./dom.js";
+import { refreshActive } from "./apply.js";
+import { buildJoints, robotEvents } from "./observe.js";
+import { fillReplaySources } from "./replay.js";
+import { closeSession } from "./sessions.js";
+import { state } from "./state.js";
+
+export function fillRobots() {
+  for (const r of Object.values(state.robots)) addRobotOption(r);
+  $("#robot-select").value = state.robot;
+}
+
+function addRobotOption(r) {
+  $("#robot-select").append(el("option", { value: r.name }, r.drivable ? r.name : `${r.name} (real data only)`));
+}
+
+// A robot with real data only (no driver) has sessions imported from CSV, calibrations and reviews,
+// but nothing to connect to or move: its capture and motion controls are disabled.
+// This tab's 3-D scene shows the connected robot: a session and review of another robot are closed.
+export async function connect(robot) {
+  if (state.robots[robot].drivable) await api("POST", "/robot/connect", { robot });
+  state.robot = robot;
+  if (state.session && state.session.robot !== robot) closeSession();
+  fillReplaySources();
+  buildJoints();
+  showDrivable();
+  await refreshActive();
+}
+
+// A robot added to the running desk: a profile file (with its URDF when it says `urdf: ...`, and a zip of
+// that URDF's meshes) or a built-in profile's name (another NAO), and a driver or none (real data only).
+async function addRobot(e) {
+  e.preventDefault();
+  const form = new FormData(e.target);
+  for (const key of ["profile_file", "urdf_file", "meshes_zip"]) if (!form.get(key) || !form.get(key).size) form.delete(key);
+  for (const key of ["profile", "driver"]) if (!form.get(key)) form.delete(key);
+  const robot = await api("POST", "/robots", form);
+  state.robots[robot.name] = robot;
+  addRobotOption(robot);
+  e.target.reset();
+  $("#robot-select").value = robot.name;
+  await connect(robot.name);
+  if (robot.drivable && !state.events) robotEvents();
+  toast(`Robot ${robot.name} (${robot.model}) is on the desk.`, "info");
+}
+
+async function stopAll() {
+  $("#wander").checked = false;
+  await act(() => api("POST", "/robot/stop"));
+  toast("Stopped.", "info");
+}
+
+export function wireRobots() {
+  const sel = $("#robot-select");
+  sel.addEventListener("change", () => act(() => connect(sel.value)));
+  $("#stop").addEventListener("click", stopAll);
+  document.addEventListener("keydown", (e) => {
+    if (e.key === "Escape") stopAll();
+  });
+  $("#add-robot").addEventListener("submit", (e) => act(() => addRobot(e)));
+}
