@@ -14,8 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from calib_core.errors import InputError
-from calib_core.errors import Cancelled
+from calib_core.errors import Cancelled, InputError
 
 from .snapshot import JobState
 
