@@ -78,7 +78,8 @@ def edit_tree(doc, edits: list[tuple[str, int, object]]):
         if kind == "delete":
             del parent[path[-1]]
         else:
-            parent[path[-1]] = float("nan") if kind == "nan" else value
+            # a copy: a list or dict among the values is one object for every example, never to be edited in place
+            parent[path[-1]] = float("nan") if kind == "nan" else copy.deepcopy(value)
     return doc
 
 
