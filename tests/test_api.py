@@ -17,33 +17,20 @@ import numpy as np
 import pytest
 import yaml
 import yourdfpy
+from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 from test_viewers import browser
 
 from app.drivers.simulated import can_simulate
 from app.limits import Limits
-from app.server import create_app
 from calib_core import load_profile, parse_dataset, to_csv
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 
 
 @pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> TestClient:
-    app = create_app(tmp_path_factory.mktemp("data"), time_scale=20.0)
-    with TestClient(app) as c:
-        yield c
-
-
-def wait_job(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
-    """The job's answer once it has finished, woken by each of its changes (its server-sent events)."""
-    jobs = client.app.state.desk.jobs
-    deadline = time.monotonic() + timeout_s
-    snap = jobs.get(job)
-    while not snap.state.finished:
-        assert time.monotonic() < deadline, f"job {job} did not finish: {snap}"
-        snap = jobs.wait_version(job, snap.version, deadline - time.monotonic())
-    return client.get(f"/api/jobs/{job}").json()
+def desk_options() -> dict:
+    return {"time_scale": 20.0}
 
 
 def dry_run(client: TestClient, session_id: str, ask: dict) -> dict:

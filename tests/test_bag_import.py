@@ -42,16 +42,16 @@ from calib_core.vision.stereo import StereoHead, render_pair
 
 
 @pytest.fixture(scope="module")
-def nao() -> tuple[Drive, Images]:
+def nao_drive() -> tuple[Drive, Images]:
     """4 poses (two per leg), each held 1 s; 1 s moves, one of them with a 0.45 s pause halfway; 4 images/s."""
     drive = _drive("nao", 4, seed=7, hold_s=1.0, move_s=1.0, pause_at=1)
     return drive, _nao_images(drive, 4.0)
 
 
 @pytest.fixture(scope="module")
-def nao_bags(nao: tuple[Drive, Images], tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def nao_bags(nao_drive: tuple[Drive, Images], tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("bags")
-    drive, images = nao
+    drive, images = nao_drive
     return {
         "ros1": _write_bag(d / "nao.bag", drive, images, BagSpec(ros=1)),
         "ros2": _write_bag(d / "nao_ros2", drive, images, BagSpec(ros=2, compressed=True)),
@@ -108,8 +108,8 @@ def test_the_speed_is_the_fastest_joint_in_deg_per_s() -> None:
 
 
 @pytest.mark.parametrize("ros", ["ros1", "ros2"])
-def test_nao_bag_gives_one_frame_per_held_pose(ros: str, nao, nao_bags, tmp_path: Path) -> None:
-    drive, images = nao
+def test_nao_bag_gives_one_frame_per_held_pose(ros: str, nao_drive, nao_bags, tmp_path: Path) -> None:
+    drive, images = nao_drive
     out = tmp_path / "session"
     result = import_bag(nao_bags[ros], drive.robot.profile, out)
     holds = drive.holds()
@@ -152,17 +152,17 @@ def test_nao_bag_gives_one_frame_per_held_pose(ros: str, nao, nao_bags, tmp_path
         assert np.abs(stored.astype(float) - original).mean() < 2.0  # the same picture, through JPEG
 
 
-def test_header_stamps_missing_uses_the_record_times(nao, tmp_path: Path) -> None:
+def test_header_stamps_missing_uses_the_record_times(nao_drive, tmp_path: Path) -> None:
     """Zero stamps everywhere: the bag's record times (images 30 ms late) give the same periods."""
-    drive, images = nao
+    drive, images = nao_drive
     bag = _write_bag(tmp_path / "nostamps.bag", drive, images, BagSpec(ros=1, stamps=False))
     result = import_bag(bag, drive.robot.profile, tmp_path / "s")
     assert len(result.still_periods) == len(drive) and result.measured == len(drive)
 
 
-def test_a_frame_whose_detector_finds_nothing_is_kept(nao, tmp_path: Path) -> None:
+def test_a_frame_whose_detector_finds_nothing_is_kept(nao_drive, tmp_path: Path) -> None:
     """The last hold's images are blank: that frame stays, "not found", with its joints and image."""
-    drive, images = nao
+    drive, images = nao_drive
     a, b = drive.holds()[-1]
     blanked = Images(
         images.times_s,
@@ -185,8 +185,8 @@ def test_a_frame_whose_detector_finds_nothing_is_kept(nao, tmp_path: Path) -> No
     )
 
 
-def test_a_still_period_without_an_image_is_kept_as_not_found(nao, tmp_path: Path) -> None:
-    drive, images = nao
+def test_a_still_period_without_an_image_is_kept_as_not_found(nao_drive, tmp_path: Path) -> None:
+    drive, images = nao_drive
     a, b = drive.holds()[1]
     keep = (images.times_s < a) | (images.times_s > b)
     gappy = Images(
@@ -357,16 +357,16 @@ def test_bad_bags_exit_2_and_write_nothing(nao_bags, tmp_path: Path, capsys: pyt
     assert "exists and is not a session folder" in err
 
 
-def test_a_joint_no_message_names_is_an_error(nao, tmp_path: Path) -> None:
-    drive, images = nao
+def test_a_joint_no_message_names_is_an_error(nao_drive, tmp_path: Path) -> None:
+    drive, images = nao_drive
     bag = _write_bag(tmp_path / "nohead.bag", drive, images, BagSpec(ros=1, drop_joint="HeadPitch"))
     with pytest.raises(InputError, match=r"joint 'HeadPitch' of robot 'nao' is in no message on topic '/joint_states'"):
         import_bag(bag, drive.robot.profile, tmp_path / "s")
     assert not (tmp_path / "s").exists()
 
 
-def test_images_of_another_size_are_an_error(nao, tmp_path: Path) -> None:
-    drive, images = nao
+def test_images_of_another_size_are_an_error(nao_drive, tmp_path: Path) -> None:
+    drive, images = nao_drive
     small = Images(images.times_s, {"image": [cv2.resize(p, (320, 240)) for p in images.pictures["image"]]})
     bag = _write_bag(tmp_path / "small.bag", drive, small, BagSpec(ros=1))
     with pytest.raises(InputError, match=r"images of 320 x 240 px.*640 x 480 px"):

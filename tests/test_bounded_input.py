@@ -21,7 +21,6 @@ from fastapi.testclient import TestClient
 
 from app.cli import main as calib
 from app.jobs.runner import JobContext
-from app.server import create_app
 from calib_core import InputError, load_profile
 from calib_core.safe_yaml import MAX_DEPTH, MAX_NODES, load_yaml
 
@@ -54,12 +53,6 @@ def test_a_yaml_document_beyond_its_bounds_is_refused_before_it_is_built() -> No
         "elbow": {"lower": -90, "upper": 90},
         "wrist": {"lower": -90, "upper": 45},
     }
-
-
-@pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
-    with TestClient(create_app(tmp_path_factory.mktemp("data"), time_scale=50.0)) as c:
-        yield c
 
 
 def _stored(client: TestClient) -> tuple:

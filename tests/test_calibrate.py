@@ -78,11 +78,6 @@ def gauge_equivalent_truth(profile, cal: Calibration, truth: np.ndarray, data: D
 
 
 @pytest.fixture(scope="module")
-def rn():
-    return load_profile("robonaut-a")
-
-
-@pytest.fixture(scope="module")
 def rn_robot(rn):
     return SimulatedRobot.from_profile(rn, seed=11)
 
@@ -327,11 +322,6 @@ NAO_21 = [
     *(s + j for s in "LR" for j in ("HipYawPitch", "HipRoll", "HipPitch", "KneePitch", "AnklePitch", "AnkleRoll")),
     *(s + k for s in "LR" for k in ("RotZ", "TransX", "TransY")),
 ]
-
-
-@pytest.fixture(scope="module")
-def nao():
-    return load_profile("nao")
 
 
 @pytest.fixture(scope="module")

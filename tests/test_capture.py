@@ -31,23 +31,6 @@ SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 
 
 @pytest.fixture(scope="module")
-def nao():
-    return load_profile("nao")
-
-
-@pytest.fixture(scope="module")
-def rn():
-    return load_profile("robonaut-a")
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Store]:
-    s = Store(tmp_path_factory.mktemp("data"))
-    yield s
-    s.close()
-
-
-@pytest.fixture(scope="module")
 def jobs(store: Store) -> Iterator[JobRunner]:
     with manual_runner(store) as runner:
         yield runner

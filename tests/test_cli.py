@@ -155,12 +155,12 @@ def workflows(tmp_path_factory: pytest.TempPathFactory, pool: ThreadPoolExecutor
 
 
 @pytest.fixture(scope="module")
-def robonaut(workflows: dict[str, Future], help_runs: dict) -> dict:
+def robonaut_runs(workflows: dict[str, Future], help_runs: dict) -> dict:
     return workflows["robonaut"].result()
 
 
 @pytest.fixture(scope="module")
-def nao(workflows: dict[str, Future]) -> dict:
+def nao_runs(workflows: dict[str, Future]) -> dict:
     return workflows["nao"].result()
 
 
@@ -171,11 +171,11 @@ def _mean_distance(rows: list[dict[str, str]], measured: list[str], predicted: l
     return total / len(rows)
 
 
-def test_simulate_writes_the_robonaut_csv_format(robonaut: dict) -> None:
-    proc = ok(robonaut["sim1"])
+def test_simulate_writes_the_robonaut_csv_format(robonaut_runs: dict) -> None:
+    proc = ok(robonaut_runs["sim1"])
     assert "day1.csv" in proc.stdout
     assert "note" not in proc.stderr and "see the notes" not in proc.stdout  # the profile has a simulation
-    header, rows = read_rows(robonaut["dir"] / "day1.csv")
+    header, rows = read_rows(robonaut_runs["dir"] / "day1.csv")
     assert sorted(header) == sorted(ROBONAUT_COLUMNS)
     assert len(rows) == 67
     assert len({r["frame"] for r in rows}) == 67
@@ -183,12 +183,12 @@ def test_simulate_writes_the_robonaut_csv_format(robonaut: dict) -> None:
         assert all(math.isfinite(float(r[c])) for c in ROBONAUT_COLUMNS)
 
 
-def test_solve_full_prints_figures_and_writes_the_calibration(robonaut: dict) -> None:
-    proc = ok(robonaut["full"])
+def test_solve_full_prints_figures_and_writes_the_calibration(robonaut_runs: dict) -> None:
+    proc = ok(robonaut_runs["full"])
     out = proc.stdout
     assert re.search(r"before.*\d", out), out
     assert re.search(r"after.*\d", out), out
-    cal = json.loads((robonaut["dir"] / "full.json").read_text(encoding="utf-8"))
+    cal = json.loads((robonaut_runs["dir"] / "full.json").read_text(encoding="utf-8"))
     assert cal["robot"] == "robonaut-a"
     assert cal["mode"] == "full"
 
@@ -219,11 +219,11 @@ def test_solve_full_prints_figures_and_writes_the_calibration(robonaut: dict) ->
     assert cal["solve_seconds"] == cal["solver"]["solve_seconds"]
 
 
-def test_solve_daily_on_a_later_day_with_a_held_out_half(robonaut: dict) -> None:
-    ok(robonaut["sim2"])
-    proc = ok(robonaut["daily"])
+def test_solve_daily_on_a_later_day_with_a_held_out_half(robonaut_runs: dict) -> None:
+    ok(robonaut_runs["sim2"])
+    proc = ok(robonaut_runs["daily"])
     assert re.search(r"held out", proc.stdout), proc.stdout
-    cal = json.loads((robonaut["dir"] / "daily.json").read_text(encoding="utf-8"))
+    cal = json.loads((robonaut_runs["dir"] / "daily.json").read_text(encoding="utf-8"))
     assert cal["robot"] == "robonaut-a"
     assert cal["mode"] == "daily"
     f = cal["figures"]
@@ -232,7 +232,9 @@ def test_solve_daily_on_a_later_day_with_a_held_out_half(robonaut: dict) -> None
     assert f["after"]["mean"] < 0.25 * f["before"]["mean"]
     assert f["holdout_after"]["mean"] < 0.25 * f["holdout_before"]["mean"]
     # daily estimates only the joint offsets and keeps the rest of the full calibration
-    full = {p["name"]: p for p in json.loads((robonaut["dir"] / "full.json").read_text(encoding="utf-8"))["parameters"]}
+    full = {
+        p["name"]: p for p in json.loads((robonaut_runs["dir"] / "full.json").read_text(encoding="utf-8"))["parameters"]
+    }
     for p in cal["parameters"]:
         if not p["name"].endswith(".theta"):
             assert not p["estimated"], p["name"]
@@ -360,11 +362,11 @@ def test_a_solve_that_hits_the_iteration_limit_says_it_did_not_converge(tmp_path
     ).items()
 
 
-def test_predict_with_the_calibration_is_close_to_the_measurements(robonaut: dict) -> None:
-    proc = ok(robonaut["predict"])
+def test_predict_with_the_calibration_is_close_to_the_measurements(robonaut_runs: dict) -> None:
+    proc = ok(robonaut_runs["predict"])
     assert "pred.csv" in proc.stdout
-    in_header, in_rows = read_rows(robonaut["dir"] / "day1.csv")
-    header, rows = read_rows(robonaut["dir"] / "pred.csv")
+    in_header, in_rows = read_rows(robonaut_runs["dir"] / "day1.csv")
+    header, rows = read_rows(robonaut_runs["dir"] / "pred.csv")
     assert header == [*in_header, "pred_x", "pred_y", "pred_z"]
     assert len(rows) == len(in_rows)
     for r, s in zip(rows, in_rows, strict=True):
@@ -372,12 +374,12 @@ def test_predict_with_the_calibration_is_close_to_the_measurements(robonaut: dic
     assert _mean_distance(rows, ["x", "y", "z"], ["pred_x", "pred_y", "pred_z"]) < 1.0
 
 
-def test_predict_without_calibration_uses_the_nominal_model(robonaut: dict) -> None:
-    ok(robonaut["predict"])
-    proc = ok(robonaut["nominal"])
+def test_predict_without_calibration_uses_the_nominal_model(robonaut_runs: dict) -> None:
+    ok(robonaut_runs["predict"])
+    proc = ok(robonaut_runs["nominal"])
     assert "nominal" in proc.stdout
-    _, calibrated = read_rows(robonaut["dir"] / "pred.csv")
-    header, nominal = read_rows(robonaut["dir"] / "pred_nominal.csv")
+    _, calibrated = read_rows(robonaut_runs["dir"] / "pred.csv")
+    header, nominal = read_rows(robonaut_runs["dir"] / "pred_nominal.csv")
     assert header[-3:] == ["pred_x", "pred_y", "pred_z"]
     cols = (["x", "y", "z"], ["pred_x", "pred_y", "pred_z"])
     e_nominal = _mean_distance(nominal, *cols)
@@ -388,16 +390,16 @@ def test_predict_without_calibration_uses_the_nominal_model(robonaut: dict) -> N
 # --- happy paths: NAO ---------------------------------------------------------------------------
 
 
-def test_nao_simulate_solve_predict(nao: dict) -> None:
-    ok(nao["sim"])
-    header, rows = read_rows(nao["dir"] / "nao.csv")
+def test_nao_simulate_solve_predict(nao_runs: dict) -> None:
+    ok(nao_runs["sim"])
+    header, rows = read_rows(nao_runs["dir"] / "nao.csv")
     assert sorted(header) == sorted(NAO_COLUMNS)
     assert {r["chain"] for r in rows} <= {"left", "right"}
     assert {int(r["vertex"]) for r in rows} <= set(range(24))
 
-    proc = ok(nao["full"])
+    proc = ok(nao_runs["full"])
     assert re.search(r"before.*\d", proc.stdout) and re.search(r"after.*\d", proc.stdout)
-    cal = json.loads((nao["dir"] / "nao.json").read_text(encoding="utf-8"))
+    cal = json.loads((nao_runs["dir"] / "nao.json").read_text(encoding="utf-8"))
     assert cal["robot"] == "nao" and cal["mode"] == "full"
     params = {p["name"]: p for p in cal["parameters"]}
     paper = ["CamYaw", "CamPitch", "CamRoll"]
@@ -413,8 +415,8 @@ def test_nao_simulate_solve_predict(nao: dict) -> None:
     assert f["after"]["mean"] < 0.1 * f["before"]["mean"]
     assert cal["iterations"] >= 1 and cal["solve_seconds"] > 0
 
-    ok(nao["predict"])
-    pheader, prow = read_rows(nao["dir"] / "pred.csv")
+    ok(nao_runs["predict"])
+    pheader, prow = read_rows(nao_runs["dir"] / "pred.csv")
     assert pheader == [*header, "pred_u", "pred_v"]
     assert len(prow) == len(rows)
     assert _mean_distance(prow, ["u", "v"], ["pred_u", "pred_v"]) < 3.0
@@ -615,17 +617,19 @@ SENTINEL = '{"sentinel": "an older calibration that a failed solve must keep"}\n
 
 
 @pytest.fixture(scope="module")
-def error_runs(tmp_path_factory: pytest.TempPathFactory, pool: ThreadPoolExecutor, robonaut: dict, nao: dict) -> dict:
+def error_runs(
+    tmp_path_factory: pytest.TempPathFactory, pool: ThreadPoolExecutor, robonaut_runs: dict, nao_runs: dict
+) -> dict:
     """Every bad command, started concurrently in one folder of bad files; id -> (folder, future)."""
-    ok(robonaut["full"])
-    ok(nao["full"])
+    ok(robonaut_runs["full"])
+    ok(nao_runs["full"])
     d = tmp_path_factory.mktemp("errors")
     _prepare_bad_files(
         d,
-        robonaut["dir"] / "day1.csv",
-        nao["dir"] / "nao.csv",
-        nao["dir"] / "nao.json",
-        robonaut["dir"] / "full.json",
+        robonaut_runs["dir"] / "day1.csv",
+        nao_runs["dir"] / "nao.csv",
+        nao_runs["dir"] / "nao.json",
+        robonaut_runs["dir"] / "full.json",
     )
     cases = [*ERROR_CASES, *(p.values[0] for p in REGRESSION_CASES)]
     for c in cases:

@@ -21,16 +21,6 @@ from calib_core.vision.sighting import predicted_points
 DEG = math.pi / 180
 
 
-@pytest.fixture(scope="module")
-def rn():
-    return load_profile("robonaut-a")
-
-
-@pytest.fixture(scope="module")
-def nao():
-    return load_profile("nao")
-
-
 @pytest.fixture
 def clock() -> ManualClock:
     return ManualClock()

@@ -7,42 +7,24 @@ plan it checked. The API in-process, and the page's Replay step in a real browse
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from desk_jobs import wait_for
 from fastapi.testclient import TestClient
 
 from app.jobs.snapshot import JobSnapshot
-from app.server import create_app
 from app.services.replay import ReplayPlan, ReplayService
 
 playwright_api = pytest.importorskip("playwright.sync_api")
-
-
-@pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> TestClient:
-    with TestClient(create_app(tmp_path_factory.mktemp("data"), time_scale=50.0)) as c:
-        yield c
 
 
 def events(client: TestClient, job: str) -> list[dict]:
     """The job's server-sent events, until the stream ends with the job."""
     with client.stream("GET", f"/api/jobs/{job}/events") as stream:
         return [json.loads(line[5:]) for line in stream.iter_lines() if line.startswith("data:")]
-
-
-def wait_for(client: TestClient, job: str, ok: Callable[[JobSnapshot], bool], timeout_s: float = 120.0) -> JobSnapshot:
-    """The job's snapshot once `ok` holds for it, woken by each change of the job (what its events send)."""
-    jobs = client.app.state.desk.jobs
-    deadline = time.monotonic() + timeout_s
-    snap = jobs.get(job)
-    while not ok(snap):
-        assert not snap.state.finished and time.monotonic() < deadline, snap
-        snap = jobs.wait_version(job, snap.version, deadline - time.monotonic())
-    return snap
 
 
 def choosing(at_least: int) -> Callable[[JobSnapshot], bool]:

@@ -11,13 +11,11 @@ import errno
 import itertools
 import os
 import secrets
-import shutil
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from contextlib import suppress
 from pathlib import Path
 
@@ -26,10 +24,10 @@ import httpx
 import numpy as np
 import pytest
 from browser import Server, free_port
+from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 
 from app.jobs.runner import crashed
-from app.server import create_app
 from app.services.replay import ReplayPlan
 from app.store import INTERRUPTED, Store
 from calib_core import load_profile, read_dataset
@@ -39,11 +37,11 @@ SAMPLES = ROOT / "sample_sessions"
 FINISHED = ("done", "failed", "cancelled")
 
 
-def wait_job(get, job_id: str, timeout_s: float = 60.0) -> dict:
-    """Poll GET /api/jobs/{id} (`get`: a TestClient's or a Server's get) until the job has finished."""
+def served_job(server: Server, job_id: str, timeout_s: float = 60.0) -> dict:
+    """Poll a `calib serve`'s GET /api/jobs/{id} until the job has finished (in-process: desk_jobs.wait_job)."""
     deadline = time.monotonic() + timeout_s
     while True:
-        job = get(f"/api/jobs/{job_id}").json()
+        job = server.get(f"/api/jobs/{job_id}").json()
         if job["state"] in FINISHED:
             return job
         assert time.monotonic() < deadline, f"job still {job['state']}: {job}"
@@ -52,23 +50,20 @@ def wait_job(get, job_id: str, timeout_s: float = 60.0) -> dict:
 
 # --- in-process: one app with the Robonaut day-1 sample --------------------------------------------------
 @pytest.fixture(scope="module")
-def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("data")
+def desk_options(sample_copy) -> dict:
+    return {"sample_dir": sample_copy("robonaut-a-day1")}
 
 
 @pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory, data_dir: Path) -> Iterator[TestClient]:
-    samples = tmp_path_factory.mktemp("samples")
-    shutil.copytree(SAMPLES / "robonaut-a-day1", samples / "robonaut-a-day1")
-    with TestClient(create_app(data_dir, sample_dir=samples, time_scale=50.0)) as c:
-        yield c
+def data_dir(client: TestClient) -> Path:
+    return client.app.state.desk.data_dir
 
 
 @pytest.fixture(scope="module")
 def daily(client: TestClient) -> str:
     """A daily calibration of the day-1 sample (to apply)."""
     r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"})
-    job = wait_job(client.get, r.json()["job"])
+    job = wait_job(client, r.json()["job"])
     assert job["state"] == "done", job
     return job["result"]
 
@@ -95,7 +90,7 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
     plan = {"count": 4, "seed": 1}
     q_plan = _plan_rad(client, sid, 4, 1)
     driver.inject_fault("disconnect", after_moves=2)
-    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
+    job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
     assert job["state"] == "failed"
     assert job["error"] == (
         "replay stopped at configuration 3 of 4: nao disconnected: the link to the robot was lost; the 2 frames "
@@ -110,9 +105,9 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
 
     driver.reconnect()
     dry = client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True, "dry_run": True}).json()
-    assert wait_job(client.get, dry["job"])["state"] == "done"
+    assert wait_job(client, dry["job"])["state"] == "done"
     assert len(client.get(f"/api/jobs/{dry['job']}/dry-run").json()["configurations"]) == 2
-    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
+    job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
     assert job["state"] == "done", job
     frames = _frames(client, sid)
     assert [f["index"] for f in frames] == [1, 2, 3, 4]
@@ -122,7 +117,7 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
     # so does the dry run's.
     for dry_run in (False, True):
         ask = {**plan, "resume": True, "dry_run": dry_run}
-        job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json=ask).json()["job"])
+        job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json=ask).json()["job"])
         assert job["state"] == "failed" and job["error"].startswith("nothing to resume"), job
 
 
@@ -135,7 +130,7 @@ def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestCl
     try:
         driver.inject_fault("stall", after_moves=1)
         t0 = time.monotonic()
-        job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
+        job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
         elapsed_s = time.monotonic() - t0
     finally:
         driver.move_slack_s = 5.0
@@ -148,7 +143,7 @@ def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestCl
     assert [f["index"] for f in _frames(client, sid)] == [1]
     robot = client.get("/api/robot", params={"robot": "nao"}).json()
     assert (robot["connected"], robot["moving"]) == (True, False)
-    job = wait_job(client.get, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
+    job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json={**plan, "resume": True}).json()["job"])
     assert job["state"] == "done", job
     assert _each_configuration_once(client, _frames(client, sid), q_plan)
 
@@ -166,7 +161,7 @@ def test_a_calibration_worker_killed_through_the_api_fails_its_job_and_the_serve
         assert time.monotonic() < deadline and not snap.state.finished, snap
         snap = jobs.wait_version(job_id, snap.version, deadline - time.monotonic())
     os.kill(jobs.worker_pid(job_id), signal.SIGKILL)
-    job = wait_job(client.get, job_id, timeout_s=15)
+    job = wait_job(client, job_id, timeout_s=15)
     assert (job["state"], job["error"]) == ("failed", crashed("calibration"))
     assert client.get("/api/health").status_code == 200
 
@@ -181,7 +176,7 @@ def test_a_job_that_fails_on_a_file_error_names_the_file_but_no_path_of_the_serv
     folder.write_text("not a folder")
     try:
         r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"})
-        job = wait_job(client.get, r.json()["job"])
+        job = wait_job(client, r.json()["job"])
     finally:
         folder.unlink()
         (data_dir / "calibrations.away").rename(folder)
@@ -234,7 +229,7 @@ def test_a_full_disk_fails_a_capture_and_a_calibration_and_writes_nothing(
         m.setattr(os, "fsync", fsync)
         _refused(client.post(f"/api/sessions/{capture_session}/capture"), "no space left on device")
         r = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"})
-        job = wait_job(client.get, r.json()["job"])
+        job = wait_job(client, r.json()["job"])
     assert (job["state"], job["error"]) == ("failed", "the data directory cannot be written (no space left on device)")
     assert _state(client, data_dir) == before
     # Once the disk takes writes again, so does the store.
@@ -260,7 +255,7 @@ def test_a_read_only_database_fails_import_capture_apply_and_calibration_and_wri
         _refused(client.post(f"/api/sessions/{capture_session}/capture"), reason)
         _refused(client.post(f"/api/calibrations/{daily}/apply", json={"confirm": True}), reason)
         job = wait_job(
-            client.get, client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"}).json()["job"]
+            client, client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"}).json()["job"]
         )
         assert (job["state"], job["error"]) == ("failed", f"the data directory cannot be written ({reason})")
         assert _state(client, data_dir) == before
@@ -357,9 +352,7 @@ class _Applier(threading.Thread):
 
 
 def _calibrate(server: Server, session_id: str, mode: str) -> str:
-    job = wait_job(
-        server.get, server.post(f"/api/sessions/{session_id}/calibrations", json={"mode": mode}).json()["job"]
-    )
+    job = served_job(server, server.post(f"/api/sessions/{session_id}/calibrations", json={"mode": mode}).json()["job"])
     assert job["state"] == "done", job
     return job["result"]
 

@@ -12,7 +12,6 @@ and "3" for 3, on purpose). Findings are fixed at their root and pinned by the r
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -53,12 +52,6 @@ class LifespanOwned:
             else:
                 await send({"type": "lifespan.shutdown.complete"})
                 return
-
-
-@pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
-    with TestClient(create_app(tmp_path_factory.mktemp("fuzz-data"), time_scale=50.0)) as c:
-        yield c
 
 
 @pytest.fixture(scope="module")

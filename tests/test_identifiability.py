@@ -17,11 +17,6 @@ PROFILES = Path(__file__).parent / "profiles"
 
 
 @pytest.fixture(scope="module")
-def rn():
-    return load_profile("robonaut-a")
-
-
-@pytest.fixture(scope="module")
 def rn_case(rn):
     sim = SimulatedRobot.from_profile(rn, seed=7).simulate(67)
     return sim, calibrate(rn, sim.data, "full")
@@ -80,11 +75,6 @@ def test_holding_did_not_hurt_the_fit(rn, rn_case) -> None:
 
 
 # --- NAO: head offsets against camera rotations ----------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def nao():
-    return load_profile("nao")
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,6 @@ module: its time limits pass when a test advances the clock, never on wall time.
 import json
 import math
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -30,22 +29,17 @@ from app.store import INTERRUPTED, Observations, Store
 from calib_core import InputError
 from calib_core.errors import Cancelled
 
-SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
-
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory: pytest.TempPathFactory) -> Store:
-    samples = tmp_path_factory.mktemp("samples")
-    for name in ("robonaut-a-day1", "nao"):
-        shutil.copytree(SAMPLES / name, samples / name)
-    store = Store(tmp_path_factory.mktemp("data"))
-    ensure_samples(store, samples)
+def sample_store(store: Store, sample_copy) -> Store:
+    """The module's store with Robonaut's first day and NAO among its sessions."""
+    ensure_samples(store, sample_copy("robonaut-a-day1", "nao"))
     return store
 
 
 @pytest.fixture(scope="module")
-def jobs(store: Store) -> Iterator[JobRunner]:
-    with manual_runner(store) as runner:
+def jobs(sample_store: Store) -> Iterator[JobRunner]:
+    with manual_runner(sample_store) as runner:
         yield runner
 
 
@@ -55,8 +49,8 @@ def clock(jobs: JobRunner) -> ManualClock:
 
 
 @pytest.fixture(scope="module")
-def calibrations(store: Store, jobs: JobRunner) -> CalibrationService:
-    return CalibrationService(store, jobs)
+def calibrations(sample_store: Store, jobs: JobRunner) -> CalibrationService:
+    return CalibrationService(sample_store, jobs)
 
 
 def wait_running(jobs: JobRunner, job_id: str) -> int:
@@ -81,7 +75,7 @@ def slow_job(calibrations: CalibrationService) -> str:
 
 
 def test_a_calibration_job_recovers_the_samples_truth(
-    jobs: JobRunner, calibrations: CalibrationService, store: Store
+    jobs: JobRunner, calibrations: CalibrationService, sample_store: Store
 ) -> None:
     job_id = calibrations.submit("robonaut-a-day1", "full", None, 0.3)
     seen = []
@@ -95,36 +89,36 @@ def test_a_calibration_job_recovers_the_samples_truth(
     assert all(p <= 0.95 for _, p in seen)
     assert len(snap.cost) > 2 and snap.cost[-1] < snap.cost[0] / 100
 
-    cal = store.calibrations.load(snap.result)
-    info = store.calibrations.info(snap.result)
+    cal = sample_store.calibrations.load(snap.result)
+    info = sample_store.calibrations.info(snap.result)
     assert (info.session_id, info.holdout, info.mode, cal.source) == ("robonaut-a-day1", 0.3, "full", "robonaut-a-day1")
-    measured = [f.index for f in store.sessions.frames("robonaut-a-day1") if f.status == "measured"]
+    measured = [f.index for f in sample_store.sessions.frames("robonaut-a-day1") if f.status == "measured"]
     train, held = cal.frames["train"], cal.frames["holdout"]
     assert sorted(train + held) == measured and not set(train) & set(held) and len(held) == round(0.3 * len(measured))
     after, before = cal.figures["after"].rms, cal.figures["before"].rms
     assert after < before / 50 and cal.figures["holdout_after"].rms < cal.figures["holdout_before"].rms / 20
     assert snap.detail["after_rms"] == pytest.approx(after)
 
-    truth = store.sessions.get("robonaut-a-day1").truth
+    truth = sample_store.sessions.get("robonaut-a-day1").truth
     offsets = [p for p in cal.parameters if p.name.endswith(".theta") and p.estimated and p.note is None]
     assert len(offsets) >= 8
     for p in offsets:
         assert abs(p.value - truth[p.name]) < 4 * p.std + 0.05, p.name
     # ... where the nominal model was far off: the job really estimated them.
     assert sum(abs(p.nominal - truth[p.name]) > 10 * p.std for p in offsets) >= len(offsets) // 2
-    assert store.jobs.get(job_id) == snap
+    assert sample_store.jobs.get(job_id) == snap
 
 
 def test_a_base_calibration_is_the_starting_point(
-    jobs: JobRunner, calibrations: CalibrationService, store: Store
+    jobs: JobRunner, calibrations: CalibrationService, sample_store: Store
 ) -> None:
     full = wait(jobs, calibrations.submit("robonaut-a-day1", "full", None, 0.0))
     daily = wait(jobs, calibrations.submit("robonaut-a-day1", "daily", full.result, 0.0))
     assert daily.state == JobState.DONE, daily.error
-    cal = store.calibrations.load(daily.result)
-    assert store.calibrations.info(daily.result).base_id == full.result
+    cal = sample_store.calibrations.load(daily.result)
+    assert sample_store.calibrations.info(daily.result).base_id == full.result
     # Starting from the full calibration, a daily one starts (and stays) near its after-error.
-    assert cal.figures["before"].rms < 2 * store.calibrations.load(full.result).figures["after"].rms
+    assert cal.figures["before"].rms < 2 * sample_store.calibrations.load(full.result).figures["after"].rms
 
 
 @pytest.mark.parametrize(
@@ -149,7 +143,7 @@ def test_a_bad_request_is_refused_before_a_job_exists(
 
 
 def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(
-    jobs: JobRunner, calibrations: CalibrationService, store: Store
+    jobs: JobRunner, calibrations: CalibrationService, sample_store: Store
 ) -> None:
     before = len(jobs.list())
     with pytest.raises(NotFound):
@@ -160,12 +154,12 @@ def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(
     nao_cal = wait(jobs, calibrations.submit("nao", "full", None, 0.0)).result
     with pytest.raises(InputError, match="is for robot 'nao', not 'robonaut-a'"):
         calibrations.submit("robonaut-a-day1", "full", nao_cal, 0.0)
-    sid = store.sessions.create("robonaut-a", "three frames", source="capture")
+    sid = sample_store.sessions.create("robonaut-a", "three frames", source="capture")
     with pytest.raises(InputError, match="no measured frames"):
         calibrations.submit(sid, "full", None, 0.0)
     for k in range(3):
-        obs = Observations.of(store.sessions.profile("robonaut-a"), 0, np.ones((1, 3)))
-        store.sessions.add_frame(
+        obs = Observations.of(sample_store.sessions.profile("robonaut-a"), 0, np.ones((1, 3)))
+        sample_store.sessions.add_frame(
             sid, index=None, joints_rad=np.full(10, 0.1 * k), target=0, status="measured", observations=obs
         )
     with pytest.raises(
@@ -175,18 +169,18 @@ def test_unknown_sessions_and_bases_foreign_bases_and_too_few_frames(
 
 
 def test_a_mode_of_more_parameters_than_rows_runs_when_the_rows_exceed_what_they_determine(
-    jobs: JobRunner, calibrations: CalibrationService, store: Store
+    jobs: JobRunner, calibrations: CalibrationService, sample_store: Store
 ) -> None:
     """Robonaut's `full` frees 23 parameters, of which no data of one sphere determine more than 19: seven of
     the sample's frames (21 rows) are calibrated, the rest held by name (the request was refused before, 21 <
     23); six (18 rows, no more than what they determine) are refused before a job exists."""
-    profile = store.sessions.profile("robonaut-a")
-    sample = store.sessions.dataset("robonaut-a-day1", profile)
+    profile = sample_store.sessions.profile("robonaut-a")
+    sample = sample_store.sessions.dataset("robonaut-a-day1", profile)
     for n in (6, 7):
-        sid = store.sessions.create("robonaut-a", f"{n} frames", source="capture")
+        sid = sample_store.sessions.create("robonaut-a", f"{n} frames", source="capture")
         for c in range(n):
             obs = sample.cfg == c
-            store.sessions.add_frame(
+            sample_store.sessions.add_frame(
                 sid,
                 index=None,
                 joints_rad=sample.joints[c],
@@ -201,25 +195,25 @@ def test_a_mode_of_more_parameters_than_rows_runs_when_the_rows_exceed_what_they
             assert len(jobs.list()) == before
     snap = wait(jobs, calibrations.submit(sid, "full", None, 0.0))
     assert snap.state == JobState.DONE, snap.error
-    cal = store.calibrations.load(snap.result)
+    cal = sample_store.calibrations.load(snap.result)
     assert len(cal.identifiability.free) == 19 and len(cal.identifiability.held_fixed) == 4
     assert cal.figures["after"].rms < cal.figures["before"].rms / 10
 
 
 def test_a_calibration_request_answers_before_its_data_are_read_and_cancels_while_they_are(
-    jobs: JobRunner, calibrations: CalibrationService, store: Store, monkeypatch: pytest.MonkeyPatch
+    jobs: JobRunner, calibrations: CalibrationService, sample_store: Store, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Reading the session, the held-out split and the solve grow with the data: they run in the job, so the
     request answers at once (a 96,000-frame session held it for minutes) and the job can be cancelled while
     the data are still being read."""
     release = threading.Event()
-    read = store.sessions.dataset
+    read = sample_store.sessions.dataset
 
     def slow_read(*args, **kwargs):
         release.wait(60)
         return read(*args, **kwargs)
 
-    monkeypatch.setattr(store.sessions, "dataset", slow_read)
+    monkeypatch.setattr(sample_store.sessions, "dataset", slow_read)
     t0 = time.monotonic()
     loading = calibrations.submit("robonaut-a-day1", "daily", None, 0.5)
     after = calibrations.submit("robonaut-a-day1", "daily", None, 0.25)
@@ -234,8 +228,10 @@ def test_a_calibration_request_answers_before_its_data_are_read_and_cancels_whil
     assert jobs.get(loading).state == JobState.CANCELLED and jobs.get(loading).detail["phase"] == "loading"
 
 
-def test_cancel_a_running_and_a_queued_job(jobs: JobRunner, calibrations: CalibrationService, store: Store) -> None:
-    n_cals = len(store.calibrations.list())
+def test_cancel_a_running_and_a_queued_job(
+    jobs: JobRunner, calibrations: CalibrationService, sample_store: Store
+) -> None:
+    n_cals = len(sample_store.calibrations.list())
     running = slow_job(calibrations)
     queued = calibrations.submit("robonaut-a-day1", "full", None, 0.0)
     pid = wait_running(jobs, running)
@@ -247,8 +243,11 @@ def test_cancel_a_running_and_a_queued_job(jobs: JobRunner, calibrations: Calibr
     assert snap.state == JobState.CANCELLED and snap.result is None
     # The manual clock stood still, so its cancel grace never passed: the solver saw the flag, its worker lives.
     assert alive(pid)
-    assert len(store.calibrations.list()) == n_cals
-    assert store.jobs.get(running).state == JobState.CANCELLED and store.jobs.get(queued).state == JobState.CANCELLED
+    assert len(sample_store.calibrations.list()) == n_cals
+    assert (
+        sample_store.jobs.get(running).state == JobState.CANCELLED
+        and sample_store.jobs.get(queued).state == JobState.CANCELLED
+    )
     jobs.cancel(running)  # a finished job: nothing to do
     with pytest.raises(InputError, match="a calibration job runs in a worker process and cannot be paused"):
         jobs.pause(running)
@@ -257,11 +256,11 @@ def test_cancel_a_running_and_a_queued_job(jobs: JobRunner, calibrations: Calibr
 
 
 def test_the_same_calibration_asked_twice_while_it_runs_is_one_job(
-    jobs: JobRunner, calibrations: CalibrationService, store: Store
+    jobs: JobRunner, calibrations: CalibrationService, sample_store: Store
 ) -> None:
     """A double click on Calibrate, or two tabs asking at once: one job, one calibration; another request
     (another held-out share) is another job, and once the first is done the same request runs again."""
-    n_cals = len(store.calibrations.list())
+    n_cals = len(sample_store.calibrations.list())
     running = slow_job(calibrations)
     ask = ("robonaut-a-day1", "full", None, 0.3)
     with ThreadPoolExecutor(4) as pool:
@@ -272,7 +271,7 @@ def test_the_same_calibration_asked_twice_while_it_runs_is_one_job(
     jobs.cancel(running)
     (first,) = ids
     assert wait(jobs, first).state == JobState.DONE and wait(jobs, other).state == JobState.DONE
-    assert len(store.calibrations.list()) == n_cals + 2
+    assert len(sample_store.calibrations.list()) == n_cals + 2
     assert calibrations.submit(*ask) != first
 
 
@@ -395,7 +394,7 @@ def test_thread_job_results_and_failures(jobs: JobRunner) -> None:
         jobs.pause(jobs.submit_thread("dry_run", lambda ctx: None, session_id=None, pausable=False))
 
 
-def test_a_restart_shows_interrupted_jobs_as_failed(jobs: JobRunner, store: Store) -> None:
+def test_a_restart_shows_interrupted_jobs_as_failed(jobs: JobRunner, sample_store: Store) -> None:
     release = threading.Event()
 
     def capture(ctx: JobContext) -> None:
@@ -404,7 +403,7 @@ def test_a_restart_shows_interrupted_jobs_as_failed(jobs: JobRunner, store: Stor
     running = jobs.submit_thread("replay", capture, session_id="nao")
     wait(jobs, running, lambda s: s.state == JobState.RUNNING)
     try:
-        restarted = Store(store.data_dir)  # what a new server process sees after a kill
+        restarted = Store(sample_store.data_dir)  # what a new server process sees after a kill
         assert restarted.jobs.fail_interrupted() >= 1
         snap = restarted.jobs.get(running)
         assert (snap.state, snap.error, snap.paused) == ("failed", INTERRUPTED, False)

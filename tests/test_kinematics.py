@@ -94,20 +94,15 @@ def _robonaut_csv(n: int, seed: int) -> tuple[str, list[dict[str, float]]]:
     return out.getvalue(), qs
 
 
-@pytest.fixture(scope="module")
-def robonaut():
-    return load_profile("robonaut-a")
-
-
 @pytest.mark.parametrize("which", ["nominal", "truth"])
-def test_robonaut_prediction_matches_spec_chain(robonaut, which: str) -> None:
+def test_robonaut_prediction_matches_spec_chain(rn, which: str) -> None:
     text, qs = _robonaut_csv(40, seed=1)
-    data = parse_dataset(robonaut, text, "random.csv")
+    data = parse_dataset(rn, text, "random.csv")
     if which == "nominal":
-        table, p = RN_TABLE_I, robonaut.nominal()
+        table, p = RN_TABLE_I, rn.nominal()
     else:
-        table, p = RN_TABLE_II, robonaut.true_params()
-    pred = Problem(robonaut, data, [], p, noise_model=False).predict(p)
+        table, p = RN_TABLE_II, rn.true_params()
+    pred = Problem(rn, data, [], p, noise_model=False).predict(p)
     expected = np.array([robonaut_reference(table, RN_PE, q) for q in qs])
     assert pred.shape == (40, 3)
     # The points span tens of cm, so agreement to 1e-9 cm is not an accident.
@@ -115,13 +110,13 @@ def test_robonaut_prediction_matches_spec_chain(robonaut, which: str) -> None:
     np.testing.assert_allclose(pred, expected, rtol=0, atol=1e-9)
 
 
-def test_robonaut_prediction_moves_with_the_fixture_point(robonaut) -> None:
+def test_robonaut_prediction_moves_with_the_fixture_point(rn) -> None:
     """P_e is a parameter: moving it in the profile moves the prediction as the spec chain says."""
     text, qs = _robonaut_csv(10, seed=2)
-    data = parse_dataset(robonaut, text, "random.csv")
+    data = parse_dataset(rn, text, "random.csv")
     pe = np.array([12.5, -1.5, 3.0])
-    p = robonaut.params_from_display({"fixture.x": pe[0], "fixture.y": pe[1], "fixture.z": pe[2]})
-    pred = Problem(robonaut, data, [], p, noise_model=False).predict(p)
+    p = rn.params_from_display({"fixture.x": pe[0], "fixture.y": pe[1], "fixture.z": pe[2]})
+    pred = Problem(rn, data, [], p, noise_model=False).predict(p)
     expected = np.array([robonaut_reference(RN_TABLE_I, pe, q) for q in qs])
     np.testing.assert_allclose(pred, expected, rtol=0, atol=1e-9)
 
@@ -193,11 +188,6 @@ def nao_reference(params: dict[str, float], side: str, q: dict[str, float], p: n
 
 
 @pytest.fixture(scope="module")
-def nao():
-    return load_profile("nao")
-
-
-@pytest.fixture(scope="module")
 def nao_sim(nao):
     return SimulatedRobot.from_profile(nao, seed=5).simulate()
 
@@ -256,31 +246,31 @@ def _random_robonaut_data(profile, n: int, seed: int):
     return replace(data, measured=rng.normal(0, 30, data.measured.shape))
 
 
-def test_robonaut_jacobian_all_parameters(robonaut) -> None:
+def test_robonaut_jacobian_all_parameters(rn) -> None:
     rng = np.random.default_rng(11)
-    data = _random_robonaut_data(robonaut, 25, seed=3)
-    free = list(range(len(robonaut.parameters)))
-    problem = Problem(robonaut, data, free, perturbed(robonaut, rng), noise_model=False)
-    nonzero = check_jacobian(problem, robonaut.parameter_names)
+    data = _random_robonaut_data(rn, 25, seed=3)
+    free = list(range(len(rn.parameters)))
+    problem = Problem(rn, data, free, perturbed(rn, rng), noise_model=False)
+    nonzero = check_jacobian(problem, rn.parameter_names)
     # Every kinematic parameter (10 joints x 4 DH values + P_e) moves the point; only the
     # intrinsics of a point3d sensor do not.
     assert nonzero == 43
 
 
-def test_robonaut_jacobian_full_mode_with_ties_and_noise_model(robonaut) -> None:
+def test_robonaut_jacobian_full_mode_with_ties_and_noise_model(rn) -> None:
     """The mode's free set with its ties, whitened by the stereo noise model (a fixed W)."""
     rng = np.random.default_rng(12)
-    data = SimulatedRobot.from_profile(robonaut, seed=4).simulate(30).data
-    mode = robonaut.mode("full")
-    p0 = perturbed(robonaut, rng)
+    data = SimulatedRobot.from_profile(rn, seed=4).simulate(30).data
+    mode = rn.mode("full")
+    p0 = perturbed(rn, rng)
     for tie in mode.ties:
         p0[tie.follower] = tie.sign * p0[tie.leader]
-    problem = Problem(robonaut, data, list(mode.free), p0, mode.ties, noise_model=True)
+    problem = Problem(rn, data, list(mode.free), p0, mode.ties, noise_model=True)
     # The ties hold in the parameters the problem builds.
     p = problem.params(problem.x0 + 0.01)
     for tie in mode.ties:
         assert p[tie.follower] == pytest.approx(tie.sign * p[tie.leader], abs=1e-12)
-    names = [robonaut.parameters[i].name for i in mode.free]
+    names = [rn.parameters[i].name for i in mode.free]
     assert check_jacobian(problem, names) == len(mode.free)
 
 

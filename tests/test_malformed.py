@@ -15,7 +15,6 @@ import json
 import math
 import re
 import shutil
-from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -29,7 +28,6 @@ from test_dataset import mutate, mutation, small_csv
 
 from app.cli import main as calib
 from app.importers import import_session_folder
-from app.server import create_app
 from app.store import Store
 from calib_core import Calibration, InputError, calibrate, load_profile, read_dataset
 from calib_core.io.session import read_session
@@ -87,9 +85,8 @@ def edit_tree(doc, edits: list[tuple[str, int, object]]):
 
 
 @pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
-    with TestClient(create_app(tmp_path_factory.mktemp("malformed-data"), sample_dir=None, time_scale=50.0)) as c:
-        yield c
+def desk_options() -> dict:
+    return {"sample_dir": None}
 
 
 @pytest.mark.parametrize("robot", BUILTIN_PROFILES)
@@ -302,11 +299,6 @@ def small_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (folder / "session.json").write_text(json.dumps(meta), encoding="utf-8")
     read_session(folder)  # the cut is itself a valid session
     return folder
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory: pytest.TempPathFactory) -> Store:
-    return Store(tmp_path_factory.mktemp("store"))
 
 
 SESSION_VALUES = st.one_of(

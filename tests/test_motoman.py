@@ -30,11 +30,6 @@ from calib_core.model.kinematics import forward
 DATA = Path(__file__).resolve().parents[1] / "sample_sessions" / "motoman-ctu"
 
 
-@pytest.fixture(scope="module")
-def mm():
-    return load_profile("motoman")
-
-
 def dh_matrix(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
     """Rot_z(theta) Trans_z(d) Trans_x(a) Rot_x(alpha), written out (Utils/KinUtils/dhpars2tfmat.m)."""
     ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
@@ -48,15 +43,15 @@ def reference_chain(rows: list[list[float]], q: list[float]) -> np.ndarray:
     return T
 
 
-def random_configurations(mm, n: int, seed: int) -> np.ndarray:
+def random_configurations(motoman, n: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    lo, hi = (np.array(v) for v in mm.joint_limits())
-    q = rng.uniform(lo, hi, size=(n, len(mm.joints)))
-    q[:, mm.joint("E")] = rng.normal(0, 1e-4, n)  # E stands still, as in every CTU file
+    lo, hi = (np.array(v) for v in motoman.joint_limits())
+    q = rng.uniform(lo, hi, size=(n, len(motoman.joints)))
+    q[:, motoman.joint("E")] = rng.normal(0, 1e-4, n)  # E stands still, as in every CTU file
     return q
 
 
-def test_kinematics_match_the_data_sets_dh_convention(mm) -> None:
+def test_kinematics_match_the_data_sets_dh_convention(motoman) -> None:
     """Reflectors, marker faces and cameras against the README's nominal rows, multiplied by hand."""
     right = [
         [0, -0.263, math.radians(15), -math.pi / 2],
@@ -69,27 +64,29 @@ def test_kinematics_match_the_data_sets_dh_convention(mm) -> None:
     ]
     left = [list(r) for r in right]
     left[0][2] = -math.radians(15)
-    p = mm.nominal()
-    qs = random_configurations(mm, 20, 1)
-    poses = forward(mm, p, qs)
+    p = motoman.nominal()
+    qs = random_configurations(motoman, 20, 1)
+    poses = forward(motoman, p, qs)
     for arm, rows, end in ((1, right, [0.045, 0.245, 0, -0.38]), (2, left, [0.05, 0.25, 0, 0])):
         names = ["E"] + [f"{j}{arm}" for j in "SLURBT"]
         for n, q in enumerate(qs):
-            T = reference_chain([*rows, end], [q[mm.joint(j)] for j in names] + [0.0])
-            lr = mm.frame(f"LR{arm}")
+            T = reference_chain([*rows, end], [q[motoman.joint(j)] for j in names] + [0.0])
+            lr = motoman.frame(f"LR{arm}")
             np.testing.assert_allclose(poses.t[lr][n], T[:3, 3], atol=1e-12)
             np.testing.assert_allclose(poses.R[lr][n], T[:3, :3], atol=1e-12)
     # Camera 1 after the toolbox's calibration: base -> head (E) -> eye.
-    cam = mm.frame("camera1")
+    cam = motoman.frame("camera1")
     for n, q in enumerate(qs):
-        T = reference_chain([[0.0741, 1.8034, -2.5086, -2.7753], [0, -0.567, 0, 0.2863]], [q[mm.joint("E")], 0.0])
+        T = reference_chain([[0.0741, 1.8034, -2.5086, -2.7753], [0, -0.567, 0, 0.2863]], [q[motoman.joint("E")], 0.0])
         np.testing.assert_allclose(poses.t[cam][n], T[:3, 3], atol=1e-12)
 
 
-def synthetic_tracker(mm, truth: np.ndarray, n: int, seed: int, noise_m: float = 2e-5, arm: str = "right") -> Dataset:
+def synthetic_tracker(
+    motoman, truth: np.ndarray, n: int, seed: int, noise_m: float = 2e-5, arm: str = "right"
+) -> Dataset:
     """What a tracker standing at `truth`'s registration would report for random configurations."""
-    q = random_configurations(mm, n, seed)
-    target = mm.target("LR1" if arm == "right" else "LR2")
+    q = random_configurations(motoman, n, seed)
+    target = motoman.target("LR1" if arm == "right" else "LR2")
     data = Dataset(
         robot="motoman",
         frame_ids=np.arange(1, n + 1),
@@ -99,43 +96,43 @@ def synthetic_tracker(mm, truth: np.ndarray, n: int, seed: int, noise_m: float =
         point=np.zeros((n, 3)),
         vertex=np.full(n, -1),
         measured=np.zeros((n, 3)),
-        sensor=np.full(n, mm.data.sensor),
+        sensor=np.full(n, motoman.data.sensor),
     )
     rng = np.random.default_rng(seed + 100)
-    exact = Problem(mm, data, [], truth).predict(truth)
+    exact = Problem(motoman, data, [], truth).predict(truth)
     return replace(data, measured=exact + rng.normal(0, noise_m, exact.shape))
 
 
-def perturbed_truth(mm, seed: int) -> np.ndarray:
+def perturbed_truth(motoman, seed: int) -> np.ndarray:
     """The nominal model with mm-sized and sub-degree errors on the full mode's parameters, and a
     tracker standing 3 m away, turned by 100 deg."""
     rng = np.random.default_rng(seed)
-    truth = mm.nominal().copy()
-    for i in mm.mode("full").free:
-        kind = mm.parameters[i].kind
+    truth = motoman.nominal().copy()
+    for i in motoman.mode("full").free:
+        kind = motoman.parameters[i].kind
         truth[i] += rng.normal(0, 0.002) if kind == "length" else rng.normal(0, math.radians(0.2))
-    reg = registration_params(mm)
+    reg = registration_params(motoman)
     truth[reg] = [2.5, -1.2, 0.4, math.radians(100), math.radians(3), math.radians(-2)]
     return truth
 
 
 @pytest.mark.parametrize("mode", ["offsets", "full"])
-def test_calibration_recovers_a_hidden_truth_and_the_tracker_pose(mm, mode: str) -> None:
-    truth = perturbed_truth(mm, 7)
+def test_calibration_recovers_a_hidden_truth_and_the_tracker_pose(motoman, mode: str) -> None:
+    truth = perturbed_truth(motoman, 7)
     if mode == "offsets":  # only the offsets and the reflector row differ from nominal
-        keep = set(mm.mode("offsets").free)
-        truth = np.where([i in keep for i in range(len(truth))], truth, mm.nominal())
-    data = synthetic_tracker(mm, truth, 300, seed=3)
-    cal = calibrate(mm, data, mode, holdout=0.3, seed=1)
-    p = cal.params(mm)
+        keep = set(motoman.mode("offsets").free)
+        truth = np.where([i in keep for i in range(len(truth))], truth, motoman.nominal())
+    data = synthetic_tracker(motoman, truth, 300, seed=3)
+    cal = calibrate(motoman, data, mode, holdout=0.3, seed=1)
+    p = cal.params(motoman)
     assert cal.figures["holdout_before"].rms > 20 * cal.figures["holdout_after"].rms
     assert cal.figures["holdout_after"].rms < 2.5 * math.sqrt(3) * 2e-5  # the tracker's noise, 3 axes
-    reg = registration_params(mm)
+    reg = registration_params(motoman)
     np.testing.assert_allclose(p[reg][:3], truth[reg][:3], atol=1e-4)  # m
     np.testing.assert_allclose(p[reg][3:], truth[reg][3:], atol=math.radians(0.02))
-    for i in observed_mode(mm, data, mm.mode(mode)).free:
-        tol = 5e-4 if mm.parameters[i].kind == "length" else math.radians(0.05)
-        assert abs(p[i] - truth[i]) < tol, (mm.parameters[i].name, p[i], truth[i])
+    for i in observed_mode(motoman, data, motoman.mode(mode)).free:
+        tol = 5e-4 if motoman.parameters[i].kind == "length" else math.radians(0.05)
+        assert abs(p[i] - truth[i]) < tol, (motoman.parameters[i].name, p[i], truth[i])
 
 
 def test_rigid_fit_needs_points_off_a_line() -> None:
@@ -144,33 +141,33 @@ def test_rigid_fit_needs_points_off_a_line() -> None:
         rigid_fit(a, a)
 
 
-def test_the_other_arm_is_left_alone_and_rows_of_two_setups_are_warned_about(mm) -> None:
-    truth = perturbed_truth(mm, 8)
-    data = synthetic_tracker(mm, truth, 120, seed=4)
-    cal = calibrate(mm, data, "offsets")
+def test_the_other_arm_is_left_alone_and_rows_of_two_setups_are_warned_about(motoman) -> None:
+    truth = perturbed_truth(motoman, 8)
+    data = synthetic_tracker(motoman, truth, 120, seed=4)
+    cal = calibrate(motoman, data, "offsets")
     estimated = {q.name for q in cal.parameters if q.estimated}
     assert "L1.offset" in estimated and "L2.offset" not in estimated
     assert not any("L2" in w for w in cal.warnings)
     moved = replace(data, measured=data.measured + np.where(np.arange(120) < 60, 0.0, 1.5)[:, None])
-    mixed = calibrate(mm, moved, "offsets")
+    mixed = calibrate(motoman, moved, "offsets")
     assert any("two tracker set-ups" in w for w in mixed.warnings)
 
 
-def test_csv_without_frame_column_and_default_arm(mm) -> None:
-    truth = perturbed_truth(mm, 9)
-    data = synthetic_tracker(mm, truth, 10, seed=5)
-    text = to_csv(mm, data)
+def test_csv_without_frame_column_and_default_arm(motoman) -> None:
+    truth = perturbed_truth(motoman, 9)
+    data = synthetic_tracker(motoman, truth, 10, seed=5)
+    text = to_csv(motoman, data)
     header = text.splitlines()[0].split(",")
     assert "frame" not in header and "reflector_arm" in header
-    back = parse_dataset(mm, text)
+    back = parse_dataset(motoman, text)
     np.testing.assert_allclose(back.measured, data.measured, atol=1e-6)
     # Without the reflector_arm column every row is the right arm's.
     cols = [c for c in header if c != "reflector_arm"]
     rows = list(csv.DictReader(text.splitlines()))
     no_arm = "\n".join([",".join(cols)] + [",".join(r[c] for c in cols) for r in rows])
-    assert (parse_dataset(mm, no_arm).target == mm.target("LR1")).all()
+    assert (parse_dataset(motoman, no_arm).target == motoman.target("LR1")).all()
     with pytest.raises(InputError, match="'middle' is not one of right, left"):
-        parse_dataset(mm, text.replace("\nright,", "\nmiddle,", 1))
+        parse_dataset(motoman, text.replace("\nright,", "\nmiddle,", 1))
 
 
 @pytest.mark.parametrize(
@@ -178,20 +175,20 @@ def test_csv_without_frame_column_and_default_arm(mm) -> None:
     [("feb2019-A-right", "full", 0.42), ("feb2019-B-right-cube", "full", 0.073), ("aug2019-right", "full", 2.52)],
 )
 def test_real_tracker_data_held_out_as_good_as_plain_least_squares(
-    mm, subset: str, mode: str, readme_rms_mm: float
+    motoman, subset: str, mode: str, readme_rms_mm: float
 ) -> None:
     """Mean held-out RMS over 10 random 70/30 splits, within 5% of the README's plain least squares
     (the same splits' count there), with every robot parameter within 25 mm and 2 deg of nominal."""
-    data = leica_subset(mm, DATA, subset)
-    rms, nominal = [], mm.nominal()
+    data = leica_subset(motoman, DATA, subset)
+    rms, nominal = [], motoman.nominal()
     for seed in range(10):
-        cal = calibrate(mm, data, mode, holdout=0.3, seed=seed)
-        p = cal.params(mm)
+        cal = calibrate(motoman, data, mode, holdout=0.3, seed=seed)
+        p = cal.params(motoman)
         test = data.select(holdout_split(data, 0.3, seed)[1])
-        e = np.linalg.norm(Problem(mm, test, [], p).predict(p) - test.measured, axis=1)
+        e = np.linalg.norm(Problem(motoman, test, [], p).predict(p) - test.measured, axis=1)
         rms.append(1000 * np.sqrt(np.mean(e**2)))
-        for i, prm in enumerate(mm.parameters):
-            if i in registration_params(mm):
+        for i, prm in enumerate(motoman.parameters):
+            if i in registration_params(motoman):
                 continue
             limit = 0.025 if prm.kind == "length" else math.radians(2.0)
             assert abs(p[i] - nominal[i]) <= limit, (prm.name, p[i] - nominal[i])
@@ -235,27 +232,27 @@ def test_cli_solves_one_setup_and_predicts_in_the_tracker_frame(tmp_path: Path) 
     assert not (tmp_path / "x.json").exists()
 
 
-def test_identifiability_names_what_the_tracker_cannot_separate(mm) -> None:
+def test_identifiability_names_what_the_tracker_cannot_separate(motoman) -> None:
     """Freeing S, T and the torso row: the data cannot tell them from the registration and the
     reflector row while E stands still, and the report says which."""
-    data = leica_subset(mm, DATA, "feb2019-A-right")
-    names = mm.parameter_names
+    data = leica_subset(motoman, DATA, "feb2019-A-right")
+    names = motoman.parameter_names
     extra = [names.index(n) for n in ("TT1.offset", "TT1.d", "S1.offset", "T1.offset", "T1.d")]
-    free = list(observed_mode(mm, data, mm.mode("full")).free) + extra
-    p0 = register(mm, data, mm.nominal())
-    problem = Problem(mm, data, free, p0)
-    deps = find_dependencies(mm, problem.residuals_jacobian(problem.x0)[1][: problem.n_data_rows], free)
+    free = list(observed_mode(motoman, data, motoman.mode("full")).free) + extra
+    p0 = register(motoman, data, motoman.nominal())
+    problem = Problem(motoman, data, free, p0)
+    deps = find_dependencies(motoman, problem.residuals_jacobian(problem.x0)[1][: problem.n_data_rows], free)
     held = {names[d.fixed] for d in deps}
     assert held == {"TT1.offset", "TT1.d", "S1.offset", "T1.offset", "T1.d"}
-    text = " ".join(d.describe(mm) for d in deps)
+    text = " ".join(d.describe(motoman) for d in deps)
     assert "yaw(tracker)" in text and "offset(LR1)" in text
 
 
-def camera_truth(mm, rng: np.random.Generator, truth: np.ndarray | None = None) -> np.ndarray:
+def camera_truth(motoman, rng: np.random.Generator, truth: np.ndarray | None = None) -> np.ndarray:
     """`truth` (default nominal) with mm-sized, sub-degree and 10 px errors on the cameras mode's parameters."""
-    truth = mm.nominal().copy() if truth is None else truth.copy()
-    for i in mm.mode("cameras").free:
-        kind = mm.parameters[i].kind
+    truth = motoman.nominal().copy() if truth is None else truth.copy()
+    for i in motoman.mode("cameras").free:
+        kind = motoman.parameters[i].kind
         if kind == "length":
             truth[i] += rng.normal(0, 0.002)
         elif kind == "angle":
@@ -265,13 +262,13 @@ def camera_truth(mm, rng: np.random.Generator, truth: np.ndarray | None = None) 
     return truth
 
 
-def synthetic_cameras(mm, truth: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Dataset:
+def synthetic_cameras(motoman, truth: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Dataset:
     """Both cameras' pixels (0.5 px noise) of the marker faces in front of them, configurations q."""
     n = len(q)
     parts = []
     for cam in ("camera1", "camera2"):
         cfg = np.repeat(np.arange(n), 40)
-        target = np.tile(np.repeat([mm.target("markers1"), mm.target("markers2")], 20), n)
+        target = np.tile(np.repeat([motoman.target("markers1"), motoman.target("markers2")], 20), n)
         vertex = np.tile(np.arange(20), 2 * n)
         data = Dataset(
             "motoman",
@@ -279,26 +276,30 @@ def synthetic_cameras(mm, truth: np.ndarray, q: np.ndarray, rng: np.random.Gener
             q,
             cfg,
             target,
-            mm.targets[target[0]].points[vertex],
+            motoman.targets[target[0]].points[vertex],
             vertex,
             np.zeros((40 * n, 2)),
-            np.full(40 * n, [s.name for s in mm.sensors].index(cam)),
+            np.full(40 * n, [s.name for s in motoman.sensors].index(cam)),
         )
-        uv = Problem(mm, data, [], truth).predict(truth)
-        x = Problem(mm, data, [], truth).sensor_points(truth)
+        uv = Problem(motoman, data, [], truth).predict(truth)
+        x = Problem(motoman, data, [], truth).sensor_points(truth)
         seen = (x[:, 2] > 0.3) & (np.abs(uv - 2500).max(axis=1) < 2500)  # in front, inside a 5000 px image
         data = data.observations(seen)
-        exact = Problem(mm, data, [], truth).predict(truth)
+        exact = Problem(motoman, data, [], truth).predict(truth)
         parts.append(replace(data, measured=exact + rng.normal(0, 0.5, exact.shape)))
     return merge(parts)
 
 
-def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
+def test_self_observation_recovers_a_hidden_truth_from_pixels(motoman) -> None:
     """Two cameras seeing the marker faces of both arms, pixels made from a hidden truth."""
     rng = np.random.default_rng(11)
-    truth = camera_truth(mm, rng)
+    truth = camera_truth(motoman, rng)
     cal = calibrate(
-        mm, synthetic_cameras(mm, truth, random_configurations(mm, 150, 12), rng), "cameras", holdout=0.3, seed=2
+        motoman,
+        synthetic_cameras(motoman, truth, random_configurations(motoman, 150, 12), rng),
+        "cameras",
+        holdout=0.3,
+        seed=2,
     )
     assert set(cal.sensor_figures) == {"camera1", "camera2"}
     for f in cal.sensor_figures.values():
@@ -306,31 +307,35 @@ def test_self_observation_recovers_a_hidden_truth_from_pixels(mm) -> None:
         assert f["after"].rms < 1.0  # px: the 0.5 px noise
         assert f["holdout_after"].rms < 1.3 * f["after"].rms
         assert f["holdout_after"].n > 0.2 * (f["holdout_after"].n + f["after"].n)
-    p = cal.params(mm)
-    offsets = [mm.param(f"{j}{a}.offset") for j in "LURB" for a in (1, 2)]
+    p = cal.params(motoman)
+    offsets = [motoman.param(f"{j}{a}.offset") for j in "LURB" for a in (1, 2)]
     for i in offsets:
-        assert abs(p[i] - truth[i]) < math.radians(0.05), mm.parameters[i].name
+        assert abs(p[i] - truth[i]) < math.radians(0.05), motoman.parameters[i].name
     # The reported standard deviations are honest: every estimate within 4 of them of the truth.
-    z = [abs(e.value - mm.to_display(i, truth[i])) / e.std for i, e in enumerate(cal.parameters) if e.std]
+    z = [abs(e.value - motoman.to_display(i, truth[i])) / e.std for i, e in enumerate(cal.parameters) if e.std]
     assert max(z) < 4.0, max(z)
 
 
-def test_tracker_and_cameras_in_one_calibration(mm) -> None:
+def test_tracker_and_cameras_in_one_calibration(motoman) -> None:
     """One session's three sensors: the tracker's 3-D points (m) and both cameras' pixels of the same
     poses, each weighed by its own noise, solved together; a hidden truth in the robot, the tracker's
     pose and the cameras, recovered within the reported standard deviations."""
     rng = np.random.default_rng(21)
-    free = set(mm.mode("tracker-cameras").free)
+    free = set(motoman.mode("tracker-cameras").free)
     truth = camera_truth(
-        mm, rng, np.where([i in free for i in range(len(mm.parameters))], perturbed_truth(mm, 8), mm.nominal())
+        motoman,
+        rng,
+        np.where([i in free for i in range(len(motoman.parameters))], perturbed_truth(motoman, 8), motoman.nominal()),
     )
-    q = random_configurations(mm, 120, 22)
-    tracker = synthetic_tracker(mm, truth, 120, seed=23)
-    tracker = replace(tracker, joints=q, measured=Problem(mm, replace(tracker, joints=q), [], truth).predict(truth))
+    q = random_configurations(motoman, 120, 22)
+    tracker = synthetic_tracker(motoman, truth, 120, seed=23)
+    tracker = replace(
+        tracker, joints=q, measured=Problem(motoman, replace(tracker, joints=q), [], truth).predict(truth)
+    )
     tracker = replace(tracker, measured=tracker.measured + rng.normal(0, 2e-5, tracker.measured.shape))
-    data = merge([tracker, synthetic_cameras(mm, truth, q, rng)])
+    data = merge([tracker, synthetic_cameras(motoman, truth, q, rng)])
     assert data.sensors == [0, 1, 2] and data.n_configurations == 120
-    cal = calibrate(mm, data, "tracker-cameras", holdout=0.25, seed=1)
+    cal = calibrate(motoman, data, "tracker-cameras", holdout=0.25, seed=1)
     assert cal.converged and set(cal.sensor_figures) == {"tracker", "camera1", "camera2"}
     assert cal.sensor_figures["tracker"]["holdout_after"].rms < 1e-4  # m: the 20 um noise
     for name in ("camera1", "camera2"):
@@ -339,45 +344,47 @@ def test_tracker_and_cameras_in_one_calibration(mm) -> None:
     offsets = [f"{j}{a}.offset" for j in "LURB" for a in (1, 2)]
     for e in cal.parameters:
         if e.name in offsets and e.name not in held:
-            i = mm.param(e.name)
-            assert abs(e.value - mm.to_display(i, truth[i])) < 4 * e.std, (e.name, e.value, e.std)
+            i = motoman.param(e.name)
+            assert abs(e.value - motoman.to_display(i, truth[i])) < 4 * e.std, (e.name, e.value, e.std)
 
 
-def test_mixed_sensors_have_an_exact_jacobian(mm) -> None:
+def test_mixed_sensors_have_an_exact_jacobian(motoman) -> None:
     """3-D points and pixels in one problem: every column against central differences."""
     rng = np.random.default_rng(31)
-    q = random_configurations(mm, 80, 32)
-    tracker = replace(synthetic_tracker(mm, mm.nominal(), 80, seed=33), joints=q)
-    data = merge([tracker, synthetic_cameras(mm, mm.nominal(), q, rng)])
+    q = random_configurations(motoman, 80, 32)
+    tracker = replace(synthetic_tracker(motoman, motoman.nominal(), 80, seed=33), joints=q)
+    data = merge([tracker, synthetic_cameras(motoman, motoman.nominal(), q, rng)])
     data = replace(data, measured=data.measured + rng.normal(0, 0.01, data.measured.shape))
     assert data.sensors == [0, 1, 2]
-    mode = mm.mode("tracker-cameras")
-    problem = Problem(mm, data, list(mode.free), camera_truth(mm, rng, perturbed_truth(mm, 9)), mode.ties, mode.priors)
-    assert check_jacobian(problem, [mm.parameters[i].name for i in mode.free]) > 40
+    mode = motoman.mode("tracker-cameras")
+    problem = Problem(
+        motoman, data, list(mode.free), camera_truth(motoman, rng, perturbed_truth(motoman, 9)), mode.ties, mode.priors
+    )
+    assert check_jacobian(problem, [motoman.parameters[i].name for i in mode.free]) > 40
 
 
-def test_a_real_recording_of_three_sensors_calibrates_per_mode(mm) -> None:
+def test_a_real_recording_of_three_sensors_calibrates_per_mode(motoman) -> None:
     """The left arm's 6x6x6 cube as one session: per pose the tracker's reading and both cameras'
     pixels. Each mode fits the sensors it names (the tracker's modes the tracker alone, exactly as on
     the tracker file); `tracker-cameras` fits all three, each weighed by its own scatter."""
-    data = recording(mm, DATA, "leica_left_hand_6x6x6_dataset.mat")
+    data = recording(motoman, DATA, "leica_left_hand_6x6x6_dataset.mat")
     assert data.sensors == [0, 1, 2] and data.n_configurations == 216
     assert int(np.sum(data.sensor == 0)) == 208  # the poses the tracker read
-    alone = calibrate(mm, leica_subset(mm, DATA, "feb2019-left-cube"), "offsets")
-    in_session = calibrate(mm, data, "offsets")
+    alone = calibrate(motoman, leica_subset(motoman, DATA, "feb2019-left-cube"), "offsets")
+    in_session = calibrate(motoman, data, "offsets")
     assert in_session.sensor_figures == {}  # the tracker's observations only
     assert in_session.figures["after"].rms == pytest.approx(alone.figures["after"].rms, rel=1e-9)
-    both = calibrate(mm, data, "tracker-cameras", holdout=0.3)
+    both = calibrate(motoman, data, "tracker-cameras", holdout=0.3)
     assert both.converged
     f = both.sensor_figures
     assert f["tracker"]["holdout_after"].rms < 0.7 * f["tracker"]["holdout_before"].rms
     for cam in ("camera1", "camera2"):
         assert f[cam]["holdout_after"].rms < 0.1 * f[cam]["holdout_before"].rms
     with pytest.raises(InputError, match="fits observations of tracker"):
-        calibrate(mm, data.of_sensor(1), "offsets")
+        calibrate(motoman, data.of_sensor(1), "offsets")
 
 
-def test_real_camera_pixels_calibrate_and_the_tracker_agrees(mm) -> None:
+def test_real_camera_pixels_calibrate_and_the_tracker_agrees(motoman) -> None:
     """The CTU pixels (four source files, for speed): the camera-only calibration explains them far
     better than nominal, and the tracker it never saw finds the left arm's cube no worse."""
     sources = {
@@ -386,46 +393,50 @@ def test_real_camera_pixels_calibrate_and_the_tracker_agrees(mm) -> None:
         "no_leica_self_upper1_4x4_dataset.mat",
         "no_leica_wall_table1_5x5_dataset.mat",
     }
-    cal = calibrate(mm, camera_dataset(mm, DATA, sources), "cameras")
+    cal = calibrate(motoman, camera_dataset(motoman, DATA, sources), "cameras")
     for f in cal.sensor_figures.values():
         assert f["after"].median < 0.4 * f["before"].median
-    cube = leica_subset(mm, DATA, "feb2019-left-cube")
+    cube = leica_subset(motoman, DATA, "feb2019-left-cube")
     errors = {}
-    for label, p in (("nominal", mm.nominal()), ("cameras", cal.params(mm))):
-        q = register(mm, cube, p)
-        errors[label] = np.sqrt(np.mean(np.sum((Problem(mm, cube, [], q).predict(q) - cube.measured) ** 2, axis=1)))
+    for label, p in (("nominal", motoman.nominal()), ("cameras", cal.params(motoman))):
+        q = register(motoman, cube, p)
+        errors[label] = np.sqrt(
+            np.mean(np.sum((Problem(motoman, cube, [], q).predict(q) - cube.measured) ** 2, axis=1))
+        )
     assert errors["cameras"] < errors["nominal"]
 
 
-def test_a_parameter_beyond_its_bound_stops_there_with_a_warning(mm) -> None:
+def test_a_parameter_beyond_its_bound_stops_there_with_a_warning(motoman) -> None:
     """The toolbox's bound on the reflector row is 5 cm: a reflector mounted 8 cm further out is
     not physical for the profile, and the calibration says so instead of wandering off."""
-    truth = mm.nominal().copy()
-    d = mm.param("LR1.d")
+    truth = motoman.nominal().copy()
+    d = motoman.param("LR1.d")
     truth[d] += 0.08
-    truth[registration_params(mm)] = [2.0, 1.0, 0.5, 0.3, 0.0, 0.0]
-    data = synthetic_tracker(mm, truth, 150, seed=6)
-    cal = calibrate(mm, data, "offsets")
-    p = cal.params(mm)
-    assert abs(p[d] - mm.nominal()[d]) <= 0.05 + 1e-12
+    truth[registration_params(motoman)] = [2.0, 1.0, 0.5, 0.3, 0.0, 0.0]
+    data = synthetic_tracker(motoman, truth, 150, seed=6)
+    cal = calibrate(motoman, data, "offsets")
+    p = cal.params(motoman)
+    assert abs(p[d] - motoman.nominal()[d]) <= 0.05 + 1e-12
     assert any("d(LR1)" in w and "bound" in w for w in cal.warnings), cal.warnings
 
 
-def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(mm) -> None:
-    truth = perturbed_truth(mm, 10)
-    data = synthetic_tracker(mm, truth, 60, seed=7)
-    offsets = mm.mode("offsets")
-    arm_only = replace(offsets, name="arm", free=tuple(i for i in offsets.free if i not in registration_params(mm)))
-    mm = replace(mm, modes={**mm.modes, "arm": arm_only})
+def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(motoman) -> None:
+    truth = perturbed_truth(motoman, 10)
+    data = synthetic_tracker(motoman, truth, 60, seed=7)
+    offsets = motoman.mode("offsets")
+    arm_only = replace(
+        offsets, name="arm", free=tuple(i for i in offsets.free if i not in registration_params(motoman))
+    )
+    motoman = replace(motoman, modes={**motoman.modes, "arm": arm_only})
     with pytest.raises(InputError, match="does not estimate the registration of 'tracker'"):
-        calibrate(mm, data, "arm")
-    first = calibrate(mm, data, "registration")
-    again = calibrate(mm, data, "arm", first)  # the registration comes from the base
+        calibrate(motoman, data, "arm")
+    first = calibrate(motoman, data, "registration")
+    again = calibrate(motoman, data, "arm", first)  # the registration comes from the base
     assert again.figures["before"].rms < 0.01  # m: the base's registration puts the model in place
     with pytest.raises(
         InputError, match="mode 'cameras' fits observations of camera1, camera2; these data hold tracker"
     ):
-        calibrate(mm, data, "cameras")
+        calibrate(motoman, data, "cameras")
 
 
 def test_cli_self_observe_writes_a_calibration_export_takes(tmp_path: Path) -> None:

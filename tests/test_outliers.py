@@ -11,17 +11,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib_core import SimulatedRobot, calibrate, load_profile
+from calib_core import SimulatedRobot, calibrate
 from calib_core.estimation.problem import Problem
 
 GROSS_M = 0.02  # a misread reflector: 20 mm
 
 
 @pytest.fixture(scope="module")
-def motoman():
-    profile = load_profile("motoman")
-    tracker = [s.name for s in profile.sensors].index("tracker")
-    return profile.with_noise({"model": "isotropic", "sigma": 0.00005}, tracker)
+def tracked(motoman):
+    """The Motoman with a tracker of 0.05 mm noise."""
+    tracker = [s.name for s in motoman.sensors].index("tracker")
+    return motoman.with_noise({"model": "isotropic", "sigma": 0.00005}, tracker)
 
 
 def session(profile, seed: int, n: int, outlier_rate: float = 0.0):
@@ -35,32 +35,32 @@ def max_error_mm(profile, data, p) -> float:
 
 
 @pytest.fixture(scope="module")
-def fresh(motoman):
-    return session(motoman, seed=101, n=400)
+def fresh(tracked):
+    return session(tracked, seed=101, n=400)
 
 
-def test_model_error_beyond_the_limit_is_kept_and_held_out_is_no_worse(motoman, fresh) -> None:
-    sim = session(motoman, seed=2, n=200)
-    robust = calibrate(motoman, sim.data, "offsets")
-    plain = calibrate(motoman, sim.data, "offsets", robust=False)
+def test_model_error_beyond_the_limit_is_kept_and_held_out_is_no_worse(tracked, fresh) -> None:
+    sim = session(tracked, seed=2, n=200)
+    robust = calibrate(tracked, sim.data, "offsets")
+    plain = calibrate(tracked, sim.data, "offsets", robust=False)
     kept = [d for d in robust.diagnostics if d.code == "model-error"]
     assert robust.outliers == []
     assert len(kept) == 1 and int(kept[0].message.split()[0]) >= 10  # far beyond the limit, and kept
-    e_robust = max_error_mm(motoman, fresh.data, robust.params(motoman))
-    e_plain = max_error_mm(motoman, fresh.data, plain.params(motoman))
+    e_robust = max_error_mm(tracked, fresh.data, robust.params(tracked))
+    e_plain = max_error_mm(tracked, fresh.data, plain.params(tracked))
     assert e_robust <= 1.01 * e_plain, (e_robust, e_plain)
 
 
-def test_failed_detections_among_model_error_are_still_rejected(motoman, fresh) -> None:
-    sim = session(motoman, seed=3, n=200, outlier_rate=0.05)
+def test_failed_detections_among_model_error_are_still_rejected(tracked, fresh) -> None:
+    sim = session(tracked, seed=3, n=200, outlier_rate=0.05)
     injected = {int(f) for f in sim.data.frame_ids[sim.data.cfg[sim.outliers]]}
-    robust = calibrate(motoman, sim.data, "offsets")
+    robust = calibrate(tracked, sim.data, "offsets")
     flagged = {o.frame for o in robust.outliers}
     assert len(injected) >= 4
     assert flagged == injected, (sorted(injected), sorted(flagged))
     assert all(o.sigmas is not None and o.sigmas > 4.6 for o in robust.outliers)
     assert any(d.code == "outliers" and "failed detection" in d.message for d in robust.diagnostics)
-    plain = calibrate(motoman, sim.data, "offsets", robust=False)
-    e_robust = max_error_mm(motoman, fresh.data, robust.params(motoman))
-    e_plain = max_error_mm(motoman, fresh.data, plain.params(motoman))
+    plain = calibrate(tracked, sim.data, "offsets", robust=False)
+    e_robust = max_error_mm(tracked, fresh.data, robust.params(tracked))
+    e_plain = max_error_mm(tracked, fresh.data, plain.params(tracked))
     assert e_robust < e_plain, (e_robust, e_plain)

@@ -32,11 +32,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def rn():
-    return load_profile("robonaut-a")
-
-
-@pytest.fixture(scope="module")
 def rn_pool(rn):
     """Candidates planned with the nominal model (a robot never calibrated)."""
     return candidates(rn, rn.nominal(), seed=3, count=400)

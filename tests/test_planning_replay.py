@@ -10,19 +10,12 @@ import os
 from pathlib import Path
 
 import pytest
+from desk_jobs import wait_job
 from fastapi.testclient import TestClient
-from test_api import dry_run, wait_job
-
-from app.server import create_app
+from test_api import dry_run
 
 playwright_api = pytest.importorskip("playwright.sync_api")
 SHOTS = os.environ.get("CALIB_SCREENSHOTS")  # a folder: keep a screenshot of the Replay step
-
-
-@pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> TestClient:
-    with TestClient(create_app(tmp_path_factory.mktemp("data"), time_scale=50.0)) as c:
-        yield c
 
 
 def test_dry_run_predicts_the_accuracy_of_the_planned_configurations(client: TestClient) -> None:

@@ -39,7 +39,7 @@ def session(name: str, n: int, unmeasured: int = 0, seed: int = 4) -> tuple[Prof
 
 
 @pytest.fixture(scope="module")
-def robonaut() -> tuple[Profile, Simulation, list[Frame], Review]:
+def robonaut_review() -> tuple[Profile, Simulation, list[Frame], Review]:
     profile, sim, frames = session("robonaut-a", 40, unmeasured=2)
     heldout = set(range(1, 11))
     review = Review.build(profile, frames, sim.data, profile.nominal(), sim.true_params, heldout_frames=heldout)
@@ -47,14 +47,14 @@ def robonaut() -> tuple[Profile, Simulation, list[Frame], Review]:
 
 
 @pytest.fixture(scope="module")
-def nao() -> tuple[Profile, Simulation, list[Frame], Review]:
+def nao_review() -> tuple[Profile, Simulation, list[Frame], Review]:
     profile, sim, frames = session("nao", 12, unmeasured=1)
     review = Review.build(profile, frames, sim.data, profile.nominal(), sim.true_params)
     return profile, sim, frames, review
 
 
-def test_robonaut_errors_are_noise_for_the_truth_and_large_for_nominal(robonaut) -> None:
-    profile, sim, frames, review = robonaut
+def test_robonaut_errors_are_noise_for_the_truth_and_large_for_nominal(robonaut_review) -> None:
+    profile, sim, frames, review = robonaut_review
     data = sim.data
     table = review.table()
     assert [r["index"] for r in table] == [f.index for f in frames]
@@ -76,8 +76,8 @@ def test_robonaut_errors_are_noise_for_the_truth_and_large_for_nominal(robonaut)
     assert len(s["histogram"]["edges"]) == len(s["histogram"]["old"]) + 1
 
 
-def test_heldout_figures_use_only_heldout_frames(robonaut) -> None:
-    _, _, _, review = robonaut
+def test_heldout_figures_use_only_heldout_frames(robonaut_review) -> None:
+    _, _, _, review = robonaut_review
     s = review.summary()
     rows = [r for r in review.table() if r["heldout"]]
     assert [r["index"] for r in rows] == list(range(1, 11)) and s["heldout_frames"] == 10
@@ -89,8 +89,8 @@ def test_heldout_figures_use_only_heldout_frames(robonaut) -> None:
         assert s[f"heldout_{side}"]["mean"] != pytest.approx(s[side]["mean"])
 
 
-def test_frames_without_a_measurement_have_no_error_but_a_prediction(robonaut) -> None:
-    _, _, _, review = robonaut
+def test_frames_without_a_measurement_have_no_error_but_a_prediction(robonaut_review) -> None:
+    _, _, _, review = robonaut_review
     row = review.table()[-1]
     assert row == {"index": 42, "status": "not found", "target": 0, "err_old": None, "err_new": None, "heldout": False}
     g = review.frame_geometry(42)
@@ -99,8 +99,8 @@ def test_frames_without_a_measurement_have_no_error_but_a_prediction(robonaut) -
     assert marks["measured"] == [None] and marks["new"][0] is not None
 
 
-def test_robonaut_marks_project_where_the_truth_projects(robonaut) -> None:
-    profile, sim, _, review = robonaut
+def test_robonaut_marks_project_where_the_truth_projects(robonaut_review) -> None:
+    profile, sim, _, review = robonaut_review
     sensor = profile.sensors[profile.data.sensor]
     truth_px = sensor.project(sim.true_params, sim.exact)
     for k in (0, 7, 23):
@@ -112,9 +112,9 @@ def test_robonaut_marks_project_where_the_truth_projects(robonaut) -> None:
         assert np.linalg.norm(np.array(marks["old"][0]) - truth_px[k]) > 10
 
 
-def test_robonaut_geometry_agrees_with_each_sides_urdf(robonaut) -> None:
+def test_robonaut_geometry_agrees_with_each_sides_urdf(robonaut_review) -> None:
     """The scene shows the URDF generated for each side at the readings: the points must sit on it."""
-    _, _, frames, review = robonaut
+    _, _, frames, review = robonaut_review
     for side in ("old", "new"):
         urdf = yourdfpy.URDF.load(io.StringIO(review.urdf[side]), build_scene_graph=True, load_meshes=False)
         for f in (frames[0], frames[5], frames[-1]):
@@ -129,8 +129,8 @@ def test_robonaut_geometry_agrees_with_each_sides_urdf(robonaut) -> None:
     assert distance_cm == pytest.approx(review.table()[2]["err_new"])
 
 
-def test_nao_errors_and_marks(nao) -> None:
-    _, sim, frames, review = nao
+def test_nao_errors_and_marks(nao_review) -> None:
+    _, sim, frames, review = nao_review
     s = review.summary()
     n_measured = len(frames) - 1
     assert s["unit"] == "px" and s["old"]["n"] == s["new"]["n"] == 24 * n_measured
@@ -145,10 +145,10 @@ def test_nao_errors_and_marks(nao) -> None:
     np.testing.assert_allclose(marks["new"], sim.exact[24:48], atol=1e-6)
 
 
-def test_nao_measured_vertices_lie_on_each_sides_predicted_board(nao) -> None:
+def test_nao_measured_vertices_lie_on_each_sides_predicted_board(nao_review) -> None:
     """Back-projected pixels: on the plane of the board the side predicts, and seen by that side's
     camera exactly at the measured pixel."""
-    profile, sim, frames, review = nao
+    profile, sim, frames, review = nao_review
     sensor = profile.sensors[profile.data.sensor]
     for k in (0, 4, 9):
         g = review.frame_geometry(frames[k].index)
@@ -167,8 +167,8 @@ def test_nao_measured_vertices_lie_on_each_sides_predicted_board(nao) -> None:
         assert noise_m < np.linalg.norm(g.predicted_m["old"] - g.predicted_m["new"], axis=1).mean() / 3
 
 
-def test_without_a_new_calibration_only_the_old_side(robonaut) -> None:
-    profile, sim, frames, _ = robonaut
+def test_without_a_new_calibration_only_the_old_side(robonaut_review) -> None:
+    profile, sim, frames, _ = robonaut_review
     review = Review.build(profile, frames, sim.data, profile.nominal(), None)
     s = review.summary()
     assert s["new"] is None and s["heldout_new"] is None and s["histogram"]["new"] is None
@@ -178,8 +178,8 @@ def test_without_a_new_calibration_only_the_old_side(robonaut) -> None:
     assert set(review.urdf) == {"old"}
 
 
-def test_a_session_with_nothing_measured(robonaut) -> None:
-    profile, _, frames, _ = robonaut
+def test_a_session_with_nothing_measured(robonaut_review) -> None:
+    profile, _, frames, _ = robonaut_review
     review = Review.build(profile, frames[-2:], None, profile.nominal(), None)
     s = review.summary()
     assert s["measured"] == 0 and s["old"] == {"mean": None, "rms": None, "max": None, "n": 0}
@@ -187,8 +187,8 @@ def test_a_session_with_nothing_measured(robonaut) -> None:
     assert [r["err_old"] for r in review.table()] == [None, None]
 
 
-def test_unknown_frame_is_a_clear_error(robonaut) -> None:
-    _, _, _, review = robonaut
+def test_unknown_frame_is_a_clear_error(robonaut_review) -> None:
+    _, _, _, review = robonaut_review
     for call in (review.frame_geometry, review.marks, review.row):
         with pytest.raises(NotFound, match=r"frame 999 is not in this review \(frames 1\.\.42\)"):
             call(999)

@@ -4,7 +4,6 @@ and a pose step that sends only the frames of the joints that moved."""
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -37,18 +36,11 @@ URDF = """<robot name="every_joint">
 </robot>"""
 
 
-@pytest.fixture
-def server() -> Iterator[viser.ViserServer]:
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield s
-    s.stop()
-
-
-def test_every_link_is_where_yourdfpys_kinematics_put_it(server: viser.ViserServer) -> None:
+def test_every_link_is_where_yourdfpys_kinematics_put_it(viser_server: viser.ViserServer) -> None:
     model = yourdfpy.URDF.load(io.StringIO(URDF))
     urdf = yourdfpy.URDF.load(io.StringIO(URDF), build_scene_graph=False, load_meshes=False)
-    server.scene.add_frame("/copy", show_axes=False)
-    copy = RobotCopy(server, urdf, "/copy")
+    viser_server.scene.add_frame("/copy", show_axes=False)
+    copy = RobotCopy(viser_server, urdf, "/copy")
     assert copy.joint_names == ["j_turn", "j_spin", "j_slide"]  # the mimic joint follows j_turn
     assert set(copy.links) == {"base", "turn", "spin", "slide", "twin", "tool"}
     assert copy.links["tool"] == "/copy/visual/turn/spin/slide/twin/tool"
@@ -62,20 +54,20 @@ def test_every_link_is_where_yourdfpys_kinematics_put_it(server: viser.ViserServ
         np.testing.assert_array_equal(copy.cfg, cfg)
         for link, node in copy.links.items():
             want = model.get_transform(frame_to=link, frame_from="base")
-            np.testing.assert_allclose(node_pose(server, node, "/copy/visual"), want, atol=1e-6, err_msg=link)
+            np.testing.assert_allclose(node_pose(viser_server, node, "/copy/visual"), want, atol=1e-6, err_msg=link)
         sphere = next(name for name, v in added.items() if v.link == "tool")
         want = model.get_transform(frame_to="tool", frame_from="base") @ added[sphere].T_link_visual
-        np.testing.assert_allclose(node_pose(server, sphere, "/copy/visual"), want, atol=1e-6)
+        np.testing.assert_allclose(node_pose(viser_server, sphere, "/copy/visual"), want, atol=1e-6)
 
 
-def test_a_step_sends_only_the_joints_that_moved(server: viser.ViserServer) -> None:
+def test_a_step_sends_only_the_joints_that_moved(viser_server: viser.ViserServer) -> None:
     """Turning j_slide alone re-sends the slide frame's position and nothing else; the fixed tool joint and the
     unmoved joints' frames are never sent again."""
     urdf = yourdfpy.URDF.load(io.StringIO(URDF), build_scene_graph=False, load_meshes=False)
-    server.scene.add_frame("/copy", show_axes=False)
-    copy = RobotCopy(server, urdf, "/copy")
+    viser_server.scene.add_frame("/copy", show_axes=False)
+    copy = RobotCopy(viser_server, urdf, "/copy")
     copy.update_cfg(np.array([0.4, 1.0, 0.1]))
-    handles = {link: server.scene.get_handle_by_name(node) for link, node in copy.links.items()}
+    handles = {link: viser_server.scene.get_handle_by_name(node) for link, node in copy.links.items()}
     before = {link: (tuple(h.wxyz), tuple(h.position)) for link, h in handles.items()}
     sent: list[tuple[str, str]] = []
     # Record every pose assignment through the handles' class: what a frame step sends to the browsers.
@@ -103,8 +95,8 @@ def test_a_step_sends_only_the_joints_that_moved(server: viser.ViserServer) -> N
     assert [link for link in handles if after[link] != before[link]] == ["slide"]
 
 
-def test_a_urdf_with_two_root_links_is_refused_by_name(server: viser.ViserServer) -> None:
+def test_a_urdf_with_two_root_links_is_refused_by_name(viser_server: viser.ViserServer) -> None:
     text = '<robot name="two"><link name="a"/><link name="b"/></robot>'
     urdf = yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=False, load_meshes=False)
     with pytest.raises(ValueError, match=r"the URDF 'two' has 2 root links \(a, b\)"):
-        RobotCopy(server, urdf, "/copy")
+        RobotCopy(viser_server, urdf, "/copy")

@@ -4,7 +4,6 @@ kinematics; a mesh that cannot be found falls back to simple shapes with one war
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -83,13 +82,6 @@ def write_text(path: Path, text: str) -> Path:
     return path
 
 
-@pytest.fixture(scope="module")
-def server() -> Iterator[viser.ViserServer]:
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield server
-    server.stop()
-
-
 def _review(profile_path: Path) -> Review:
     profile = load_profile(profile_path)
     sim = SimulatedRobot.from_profile(profile, seed=3).simulate(4)
@@ -97,7 +89,7 @@ def _review(profile_path: Path) -> Review:
 
 
 def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links(
-    server: viser.ViserServer, tmp_path: Path
+    viser_server: viser.ViserServer, tmp_path: Path
 ) -> None:
     review = _review(meshed_arm(tmp_path))
     profile = review.profile
@@ -111,7 +103,7 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
     }
     fore = next(v for v in look.visuals if v.link == "fore")
     np.testing.assert_allclose(np.ptp(fore.vertices, axis=0), [0.05, 0.05, 0.25], atol=1e-6)  # scale="1 1 2"
-    scene = ReviewScene(server)
+    scene = ReviewScene(viser_server)
     scene.load(review)
     index = int(review.indices[2])
     scene.select(index)
@@ -130,24 +122,24 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
                 f = profile.frame(v["link"])
                 T_base_link[:3, :3], T_base_link[:3, 3] = poses.R[f][0], poses.t[f][0] * to_m
             want = T_base_link @ visual.T_link_visual
-            got = node_pose(server, name, f"/review/{side}/base")
+            got = node_pose(viser_server, name, f"/review/{side}/base")
             np.testing.assert_allclose(got, want, atol=1e-6, err_msg=f"{side} {name}")
     # The copies differ where the calibrations differ (j2, j3 offsets and j3's origin): the forearm's mesh.
     fore_nodes = {
         s: next(n for n, v in state["urdf"][s]["looks"].items() if v["link"] == "fore") for s in ("old", "new")
     }
-    old, new = (node_pose(server, fore_nodes[s], f"/review/{s}/base")[:3, 3] for s in ("old", "new"))
+    old, new = (node_pose(viser_server, fore_nodes[s], f"/review/{s}/base")[:3, 3] for s in ("old", "new"))
     assert np.linalg.norm(new - old) > 0.01
     # A frame step moves the link frames; the mesh nodes stay the ones sent at the load (none sent again).
-    handles = {name: server.scene.get_handle_by_name(name) for name in state["urdf"]["new"]["looks"]}
+    handles = {name: viser_server.scene.get_handle_by_name(name) for name in state["urdf"]["new"]["looks"]}
     scene.select(int(review.indices[0]))
     assert set(scene.state()["urdf"]["new"]["looks"]) == set(handles)
-    assert all(server.scene.get_handle_by_name(name) is h for name, h in handles.items())
+    assert all(viser_server.scene.get_handle_by_name(name) is h for name, h in handles.items())
     # The overlay's translucent old copy has them too, in its tint.
     scene.set_overlay(True)
     ghost = scene.state()["urdf"]["ghost"]["looks"]
     assert sorted(v["link"] for v in ghost.values()) == ["base_link", "fore", "shoulder", "upper"]
-    assert all(server.scene.get_handle_by_name(name).opacity == GHOST_RGBA[3] for name in ghost)
+    assert all(viser_server.scene.get_handle_by_name(name).opacity == GHOST_RGBA[3] for name in ghost)
     # The generated bodies of links with their own visuals are gone; the reflector (the profile's) stays.
     robot = scene._copies["new"].urdf  # the copy's model as the scene drew it
     materials = {v.material.name for link in robot.robot.links for v in link.visuals if v.material is not None}
@@ -155,12 +147,12 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
 
 
 def test_a_missing_mesh_falls_back_to_simple_shapes_with_one_warning(
-    server: viser.ViserServer, tmp_path: Path, caplog: pytest.LogCaptureFixture
+    viser_server: viser.ViserServer, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     path = meshed_arm(tmp_path, meshes=False)
     with caplog.at_level("WARNING", logger="app.robot_look"):
         review = _review(path)
-        scene = ReviewScene(server)
+        scene = ReviewScene(viser_server)
         scene.load(review)
         scene.select(int(review.indices[1]))
         scene.load(review)  # again: read once, said once

@@ -10,7 +10,6 @@ import os
 import shutil
 import stat
 import zipfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -220,10 +219,8 @@ def test_a_mesh_of_a_named_profile_file_that_is_not_there_leaves_the_robot_added
         assert _review_warnings(client, "meshed", profile) == [look.warning]
 
 
-def test_a_named_profile_files_meshes_too_large_together_are_refused_413(
-    desk: tuple[TestClient, Path], tmp_path: Path
-) -> None:
-    client, data_dir = desk
+def test_a_named_profile_files_meshes_too_large_together_are_refused_413(client: TestClient, tmp_path: Path) -> None:
+    data_dir = client.app.state.desk.data_dir
     profile = meshed_arm(tmp_path)
     (profile.parent / "meshes" / "upper.stl").write_bytes(bytes(3 * 2**20))  # the desk takes 2 MB of meshes
     before = client.get("/api/robots").json()
@@ -238,10 +235,8 @@ def test_a_named_profile_files_meshes_too_large_together_are_refused_413(
 
 
 @pytest.fixture(scope="module")
-def desk(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, Path]]:
-    data_dir = tmp_path_factory.mktemp("meshes") / "data"
-    with TestClient(create_app(data_dir, sample_dir=None, limits=LIMITS)) as client:
-        yield client, data_dir
+def desk_options() -> dict:
+    return {"sample_dir": None, "limits": LIMITS}
 
 
 STL = b"solid x\nendsolid x\n"
@@ -300,10 +295,8 @@ def _lying_size() -> bytes:
 
 
 @pytest.mark.parametrize("case", list(BAD))
-def test_a_bad_meshes_zip_is_refused_naming_the_problem_and_changes_nothing(
-    desk: tuple[TestClient, Path], case: str
-) -> None:
-    client, data_dir = desk
+def test_a_bad_meshes_zip_is_refused_naming_the_problem_and_changes_nothing(client: TestClient, case: str) -> None:
+    data_dir = client.app.state.desk.data_dir
     form, data, status, words = BAD[case]
     data = {"crc": _crc_broken, "size": _lying_size}[data]() if isinstance(data, str) else data
     before = client.get("/api/robots").json()

@@ -9,13 +9,13 @@ closed.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 import recording_driver
+from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 from test_urdf_import import JOINTS, PROFILE, arm_urdf
 
@@ -35,14 +35,6 @@ robots:
   - {name: nao-2, profile: nao, driver: {kind: simulated, seed: 2}}
 connected: nao-2
 """
-
-
-def wait_job(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while (j := client.get(f"/api/jobs/{job}").json())["state"] in ("queued", "running"):
-        assert time.monotonic() < deadline, j
-        time.sleep(0.1)
-    return j
 
 
 def write(path: Path, text: str) -> Path:

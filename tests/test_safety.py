@@ -8,12 +8,12 @@ from __future__ import annotations
 import io
 import math
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 
 from app import safety
@@ -21,7 +21,6 @@ from app.clock import ManualClock
 from app.drivers import LimitError
 from app.drivers.core import Command
 from app.drivers.simulated import SimulatedDriver
-from app.server import create_app
 from calib_core import load_profile
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
@@ -32,22 +31,9 @@ CLOCK = ManualClock()
 
 
 @pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
+def desk_options() -> dict:
     """Robots at twice their velocity limits, on a clock the tests advance."""
-    app = create_app(tmp_path_factory.mktemp("safety"), time_scale=2.0, clock=CLOCK)
-    with TestClient(app) as c:
-        yield c
-
-
-def finished(client: TestClient, job: str, timeout_s: float = 120.0) -> dict:
-    """The job's snapshot once it has ended (waiting on its versions; timeout_s only bounds a failure)."""
-    jobs = client.app.state.desk.jobs
-    deadline = time.monotonic() + timeout_s
-    snap = jobs.get(job)
-    while not snap.state.finished:
-        assert time.monotonic() < deadline, snap
-        snap = jobs.wait_version(job, snap.version, 1.0)
-    return client.get(f"/api/jobs/{job}").json()
+    return {"time_scale": 2.0, "clock": CLOCK}
 
 
 class Recording:
@@ -86,7 +72,7 @@ def test_every_path_that_moves_checks_the_configuration_first(client: TestClient
         job = client.post(f"/api/sessions/{sid}/replay", json={"from_session": "nao", "count": None}).json()["job"]
         CLOCK.run(lambda: sum(c == "move_to" for c, _ in rec.calls) >= 3, threads=ROBOTS + 1)  # and the replay
         client.post("/api/robot/stop")
-        finished(client, job)
+        wait_job(client, job)
     finally:
         nao.driver = sim
     moves = [k for k, (call, _) in enumerate(rec.calls) if call == "move_to"]
@@ -182,7 +168,7 @@ def test_stop_mid_replay_cancels_it_and_keeps_the_frames(client: TestClient) -> 
     )
     stopped = client.post("/api/robot/stop").json()
     assert not client.get("/api/robot", params={"robot": "robonaut-a"}).json()["moving"]
-    j = finished(client, job)
+    j = wait_job(client, job)
     assert j["state"] == "cancelled", j
     frames = client.get(f"/api/sessions/{sid}").json()["frames"]
     assert 1 <= len(frames) < 6
@@ -219,7 +205,7 @@ def test_sane_bounds_per_parameter_kind() -> None:
 def test_apply_asks_for_confirmation_when_worse_or_beyond(client: TestClient) -> None:
     def calibrate(session: str, body: dict) -> str:
         r = client.post(f"/api/sessions/{session}/calibrations", json=body)
-        j = finished(client, r.json()["job"])
+        j = wait_job(client, r.json()["job"])
         assert j["state"] == "done", j
         return j["result"]
 

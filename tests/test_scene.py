@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,14 +40,7 @@ def build(name: str, n: int, *, new: bool = True) -> Review:
 
 
 @pytest.fixture(scope="module")
-def server() -> Iterator[viser.ViserServer]:
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield server
-    server.stop()
-
-
-@pytest.fixture(scope="module")
-def robonaut() -> Review:
+def robonaut_review() -> Review:
     return build("robonaut-a", 12)
 
 
@@ -57,14 +49,14 @@ def _points(state: dict, name: str) -> np.ndarray:
     return np.array(node["points"] if "points" in node else node["segments"])
 
 
-def test_select_shows_the_frame_on_both_copies(server: viser.ViserServer, robonaut: Review) -> None:
-    scene = ReviewScene(server, URDF_DIR / "robonaut-a.urdf")
+def test_select_shows_the_frame_on_both_copies(viser_server: viser.ViserServer, robonaut_review: Review) -> None:
+    scene = ReviewScene(viser_server, URDF_DIR / "robonaut-a.urdf")
     assert scene.robot == "robonaut-a"
-    scene.load(robonaut)
+    scene.load(robonaut_review)
     assert scene.state()["index"] == 1
     scene.select(5)
     state = scene.state()
-    g = robonaut.frame_geometry(5)
+    g = robonaut_review.frame_geometry(5)
     assert state["index"] == 5 and not state["overlay"] and not state["all"]
     for side, color in (("old", BLUE), ("new", GREEN)):
         base = f"/review/{side}/base/frame"
@@ -81,19 +73,19 @@ def test_select_shows_the_frame_on_both_copies(server: viser.ViserServer, robona
         np.testing.assert_allclose(segments[:, 1], g.measured_m[side], atol=1e-6)
         joints = state["urdf"][side]["joints"]
         assert state["urdf"][side]["shown"]
-        np.testing.assert_allclose([joints[n] for n in robonaut.profile.joint_names], g.joints_rad, atol=1e-12)
+        np.testing.assert_allclose([joints[n] for n in robonaut_review.profile.joint_names], g.joints_rad, atol=1e-12)
         assert state["nodes"][f"/review/{side}/label"]["text"] == f"{side} calibration"
     # Side by side along the world y: old on the left (-y), new on the right, apart by more than the robot.
     y_old = state["nodes"]["/review/old"]["position"][1]
     y_new = state["nodes"]["/review/new"]["position"][1]
-    span_m = robonaut.bounds_m[1] - robonaut.bounds_m[0]
+    span_m = robonaut_review.bounds_m[1] - robonaut_review.bounds_m[0]
     assert y_new - y_old > span_m.max() * 0.5 and y_old < y_new
     assert "ghost" not in state["urdf"] and not state["live"]  # built when the overlay is first asked for
 
 
-def test_overlay_and_show_all_change_the_scene(server: viser.ViserServer, robonaut: Review) -> None:
-    scene = ReviewScene(server)
-    scene.load(robonaut)
+def test_overlay_and_show_all_change_the_scene(viser_server: viser.ViserServer, robonaut_review: Review) -> None:
+    scene = ReviewScene(viser_server)
+    scene.load(robonaut_review)
     scene.select(3)
     scene.set_overlay(True)
     state = scene.state()
@@ -102,7 +94,9 @@ def test_overlay_and_show_all_change_the_scene(server: viser.ViserServer, robona
     assert state["urdf"]["ghost"]["shown"] and not state["urdf"]["old"]["shown"] and state["urdf"]["new"]["shown"]
     ghost = state["urdf"]["ghost"]["joints"]
     np.testing.assert_allclose(
-        [ghost[n] for n in robonaut.profile.joint_names], robonaut.frame_geometry(3).joints_rad, atol=1e-12
+        [ghost[n] for n in robonaut_review.profile.joint_names],
+        robonaut_review.frame_geometry(3).joints_rad,
+        atol=1e-12,
     )
     scene.set_overlay(False)
     state = scene.state()
@@ -112,7 +106,7 @@ def test_overlay_and_show_all_change_the_scene(server: viser.ViserServer, robona
     scene.show_all(True)
     state = scene.state()
     for side in ("old", "new"):
-        measured, predicted = robonaut.all_points(side)
+        measured, predicted = robonaut_review.all_points(side)
         assert len(measured) == 12  # the frame without a measurement has nothing to show here
         np.testing.assert_allclose(_points(state, f"/review/{side}/base/all/measured"), measured, atol=1e-6)
         np.testing.assert_allclose(_points(state, f"/review/{side}/base/all/predicted"), predicted, atol=1e-6)
@@ -123,9 +117,11 @@ def test_overlay_and_show_all_change_the_scene(server: viser.ViserServer, robona
     assert scene.state()["nodes"]["/review/new/base/frame/predicted"]["shown"]
 
 
-def test_a_frame_without_a_measurement_shows_only_its_prediction(server: viser.ViserServer, robonaut: Review) -> None:
-    scene = ReviewScene(server)
-    scene.load(robonaut)
+def test_a_frame_without_a_measurement_shows_only_its_prediction(
+    viser_server: viser.ViserServer, robonaut_review: Review
+) -> None:
+    scene = ReviewScene(viser_server)
+    scene.load(robonaut_review)
     scene.select(13)
     state = scene.state()
     for side in ("old", "new"):
@@ -134,28 +130,30 @@ def test_a_frame_without_a_measurement_shows_only_its_prediction(server: viser.V
         assert not state["nodes"][f"{base}/measured"]["shown"] and not state["nodes"][f"{base}/lines"]["shown"]
 
 
-def test_selecting_a_frame_that_is_not_there_is_a_clear_error(server: viser.ViserServer, robonaut: Review) -> None:
-    scene = ReviewScene(server)
+def test_selecting_a_frame_that_is_not_there_is_a_clear_error(
+    viser_server: viser.ViserServer, robonaut_review: Review
+) -> None:
+    scene = ReviewScene(viser_server)
     with pytest.raises(ValueError, match="no review is loaded"):
         scene.select(1)
-    scene.load(robonaut)
+    scene.load(robonaut_review)
     scene.select(2)
     with pytest.raises(NotFound, match=r"frame 0 is not in this review \(frames 1\.\.13\)"):
         scene.select(0)
     assert scene.state()["index"] == 2
 
 
-def test_without_a_new_calibration_only_the_old_copy(server: viser.ViserServer) -> None:
-    scene = ReviewScene(server)
+def test_without_a_new_calibration_only_the_old_copy(viser_server: viser.ViserServer) -> None:
+    scene = ReviewScene(viser_server)
     scene.load(build("robonaut-a", 4, new=False))
     state = scene.state()
     assert not state["nodes"]["/review/new"]["shown"] and state["nodes"]["/review/old"]["shown"]
     assert state["nodes"]["/review/old/base/frame/predicted"]["color"] == BLUE
 
 
-def test_nao_board_and_switching_robots(server: viser.ViserServer, robonaut: Review) -> None:
-    scene = ReviewScene(server)
-    scene.load(robonaut)
+def test_nao_board_and_switching_robots(viser_server: viser.ViserServer, robonaut_review: Review) -> None:
+    scene = ReviewScene(viser_server)
+    scene.load(robonaut_review)
     review = build("nao", 6)
     scene.load(review)
     scene.select(4)
@@ -171,12 +169,14 @@ def test_nao_board_and_switching_robots(server: viser.ViserServer, robonaut: Rev
     assert state["nodes"]["/review/old/base"]["wxyz"] == pytest.approx([1.0, 0.0, 0.0, 0.0])
 
 
-def test_live_view_replaces_the_review_until_the_next_select(server: viser.ViserServer, robonaut: Review) -> None:
-    scene = ReviewScene(server)
-    scene.load(robonaut)
-    profile = robonaut.profile
+def test_live_view_replaces_the_review_until_the_next_select(
+    viser_server: viser.ViserServer, robonaut_review: Review
+) -> None:
+    scene = ReviewScene(viser_server)
+    scene.load(robonaut_review)
+    profile = robonaut_review.profile
     p = profile.true_params()
-    q = robonaut.frame_geometry(2).joints_rad
+    q = robonaut_review.frame_geometry(2).joints_rad
     point_cm = np.array([[3.0, 60.0, -1.0]])  # a detection in the eye frame
     sighting = Sighting(0, 0, "measured", "ok", point_cm, np.full((1, 3), np.nan), np.array([-1]))
     scene.show_live(profile, Look(q, [sighting]), p)
@@ -211,22 +211,22 @@ def _link_nodes(urdf_text: str, node: str) -> set[str]:
 
 
 def test_switching_robots_removes_everything_the_previous_one_showed(
-    server: viser.ViserServer, robonaut: Review
+    viser_server: viser.ViserServer, robonaut_review: Review
 ) -> None:
     """A Robonaut review (and its live view), then a NAO review: no node of a Robonaut copy is left in viser
     (what a browser gets), and the scene shows NAO's copies only."""
-    scene = ReviewScene(server, URDF_DIR / "robonaut-a.urdf")
-    scene.load(robonaut)
-    profile = robonaut.profile
+    scene = ReviewScene(viser_server, URDF_DIR / "robonaut-a.urdf")
+    scene.load(robonaut_review)
+    profile = robonaut_review.profile
     sighting = Sighting(0, 0, "measured", "ok", np.array([[3.0, 60.0, -1.0]]), np.full((1, 3), np.nan), np.array([-1]))
     scene.set_overlay(True)
-    scene.show_live(profile, Look(robonaut.frame_geometry(2).joints_rad, [sighting]), profile.true_params())
+    scene.show_live(profile, Look(robonaut_review.frame_geometry(2).joints_rad, [sighting]), profile.true_params())
     state = scene.state()
     assert set(state["urdf"]) == {"old", "ghost", "new", "live"}
     texts = {slot: scene._copies[slot].text for slot in state["urdf"]}
     before = {name for slot, c in state["urdf"].items() for name in _link_nodes(texts[slot], c["node"])}
     assert any(name.endswith("/wrist_yaw/fixture") for name in before)  # the arm and its sphere
-    assert all(server.scene.get_handle_by_name(name) is not None for name in before)
+    assert all(viser_server.scene.get_handle_by_name(name) is not None for name in before)
 
     nao = build("nao", 3, new=False)
     scene.load(nao)
@@ -234,11 +234,12 @@ def test_switching_robots_removes_everything_the_previous_one_showed(
     assert state["robot"] == "nao" and not state["live"] and not state["nodes"]["/live"]["shown"]
     assert set(state["urdf"]) == {"old", "ghost"}  # no new calibration: no Robonaut copy stays on that side
     scene.set_overlay(False)
-    left = sorted(name for name in before if server.scene.get_handle_by_name(name) is not None)
+    left = sorted(name for name in before if viser_server.scene.get_handle_by_name(name) is not None)
     assert left == [], f"{len(left)} Robonaut nodes left, e.g. {left[:3]}"
     for c in state["urdf"].values():
         assert set(c["joints"]) == set(nao.profile.joint_names)
-        assert all(server.scene.get_handle_by_name(n) is not None for n in _link_nodes(nao.urdf["old"], c["node"]))
+        nodes = _link_nodes(nao.urdf["old"], c["node"])
+        assert all(viser_server.scene.get_handle_by_name(n) is not None for n in nodes)
     # Robonaut's detection and points went with it: the only points shown are NAO's frame on the old side.
     shown = {n for n, v in state["nodes"].items() if v["kind"] in ("points", "lines", "rings") and v["shown"]}
     assert shown == {f"/review/old/base/frame/{part}" for part in ("measured", "predicted", "lines")}

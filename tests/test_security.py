@@ -32,7 +32,6 @@ from app.security import (
 from app.server import create_app
 from app.viser_private import close_share_tunnel
 
-SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 LOCAL = "http://127.0.0.1:8000"
 
 

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib_core import Problem, SimulatedRobot, Visibility, load_profile
+from calib_core import Problem, SimulatedRobot, Visibility
 from calib_core.model.kinematics import forward
 from calib_core.vision.stereo import SPHERE, StereoHead, no_depth_band_px, render_pair, sphere_views
 
@@ -34,11 +34,6 @@ LEG = ["HipYawPitch", "HipRoll", "HipPitch", "KneePitch", "AnklePitch", "AnkleRo
 
 
 @pytest.fixture(scope="module")
-def rn():
-    return load_profile("robonaut-a")
-
-
-@pytest.fixture(scope="module")
 def rn_robot(rn):
     return SimulatedRobot.from_profile(rn, seed=17)
 
@@ -46,11 +41,6 @@ def rn_robot(rn):
 @pytest.fixture(scope="module")
 def rn_sim(rn_robot):
     return rn_robot.simulate(600)
-
-
-@pytest.fixture(scope="module")
-def nao():
-    return load_profile("nao")
 
 
 @pytest.fixture(scope="module")

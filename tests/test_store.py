@@ -23,18 +23,14 @@ from app.store import INTERRUPTED, FrameInfo, Observations, Store
 from app.store.files import SWEEP_AGE_S
 from calib_core import Calibration, InputError, calibrate, load_profile, parse_dataset, read_dataset, to_csv
 
-SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 SAMPLE_NAMES = ["robonaut-a-day1", "robonaut-a-day2", "nao"]
 ROBONAUT = load_profile("robonaut-a")
 
 
 @pytest.fixture(scope="module")
-def samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def samples(sample_copy) -> Path:
     """A private copy of the sample sessions (another process may rewrite the originals meanwhile)."""
-    dst = tmp_path_factory.mktemp("samples")
-    for name in SAMPLE_NAMES:
-        shutil.copytree(SAMPLES / name, dst / name)
-    return dst
+    return sample_copy(*SAMPLE_NAMES)
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,6 @@ from starlette.testclient import WebSocketTestSession
 from starlette.websockets import WebSocketDisconnect
 
 from app.desk import Desk
-from app.server import create_app
 from app.viewers import Viewer
 
 PROTOCOL = f"viser-v{viser.__version__}"
@@ -64,12 +63,6 @@ def browser(client: TestClient, viewer: str, width: int = 640) -> Iterator[WebSo
         v = client.app.state.desk.viewers.get(viewer)
         wait_until(lambda: v.scene is not None and v.client_id in v.connections, what=f"viewer {viewer}'s scene")
         yield ws
-
-
-@pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
-    with TestClient(create_app(tmp_path_factory.mktemp("viewers"), time_scale=50.0)) as c:
-        yield c
 
 
 def tab(viewer: str) -> dict[str, str]:

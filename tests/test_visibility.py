@@ -4,16 +4,10 @@ test the simulator, the planner, the dry run and bag import share."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from calib_core import Visibility, load_profile
 from calib_core.model.kinematics import sensor_points
 from calib_core.vision.sampling import Sampler
-
-
-@pytest.fixture(scope="module")
-def nao():
-    return load_profile("nao")
 
 
 def test_points_are_the_ones_inside_the_image_and_a_board_is_seen_only_whole(nao) -> None:

@@ -1,0 +1,97 @@
+"""Fixtures shared by the test modules, and the markers' effects.
+
+Profiles (`rn`, `nao`, `motoman`), a store and a desk are the module's: a module's tests may share what one of
+them changed (a desk's sessions, say), another module starts from a fresh one. `client` is an in-process desk
+(create_app in a TestClient); a module that needs it otherwise (no samples, another clock) overrides
+`desk_options`. `sample_copy` copies sample sessions where a test may change or break them.
+
+Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where Debian's chromium is missing),
+`subprocess` (starts `calib`, `calib serve` or another program, beyond a desk's own job workers) and `slow`;
+`scripts/test.sh --fast` runs the tests that have none of them.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import viser
+from fastapi.testclient import TestClient
+
+from app.server import create_app
+from app.store import Store
+from calib_core import Profile, load_profile
+
+SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if shutil.which("chromium") is None:
+        skip = pytest.mark.skip(reason="Debian's chromium is not installed")
+        for item in items:
+            if item.get_closest_marker("browser"):
+                item.add_marker(skip)
+
+
+# --- the built-in robots ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def rn() -> Profile:
+    return load_profile("robonaut-a")
+
+
+@pytest.fixture(scope="module")
+def nao() -> Profile:
+    return load_profile("nao")
+
+
+@pytest.fixture(scope="module")
+def motoman() -> Profile:
+    return load_profile("motoman")
+
+
+# --- stores and desks ---------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def sample_copy(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Path]:
+    """`sample_copy(*names)`: a new folder holding a copy of those sample sessions (a desk's `sample_dir`)."""
+
+    def copy(*names: str) -> Path:
+        folder = tmp_path_factory.mktemp("samples")
+        for name in names:
+            shutil.copytree(SAMPLES / name, folder / name)
+        return folder
+
+    return copy
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Store]:
+    """An empty store of the module's."""
+    s = Store(tmp_path_factory.mktemp("store"))
+    yield s
+    s.close()
+
+
+@pytest.fixture(scope="module")
+def desk_options() -> dict[str, Any]:
+    """create_app's options for the module's desk beyond the defaults of `client`: a module overrides this."""
+    return {}
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory: pytest.TempPathFactory, desk_options: dict[str, Any]) -> Iterator[TestClient]:
+    """The module's in-process desk: the sample sessions and simulated robots at 50 times their speed, unless
+    `desk_options` says otherwise; started once for the module's tests, stopped after them."""
+    app = create_app(tmp_path_factory.mktemp("desk"), **{"time_scale": 50.0, **desk_options})
+    with TestClient(app) as c:
+        yield c
+
+
+@pytest.fixture
+def viser_server() -> Iterator[viser.ViserServer]:
+    """A viser server of the test's own, on loopback and a free port."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    yield server
+    server.stop()
