@@ -1,10 +1,17 @@
 #!/usr/bin/env bash
 # Installs the test dependencies into .venv (made if missing; pip runs only when pyproject.toml changed
 # since the last install, scripts/venv.sh), Debian's chromium for the browser tests (apt-get, when it is
-# missing), and runs ruff and the whole test suite.
+# missing), and runs ruff and the whole test suite: what CI runs.
+#   --fast  ruff, then the tests marked neither slow, browser nor subprocess (pyproject.toml): calib_core and
+#           the API in-process, in under a minute. Options after it go to pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if ! command -v chromium >/dev/null 2>&1; then
+FAST=false
+if [ "${1:-}" = "--fast" ]; then
+    FAST=true
+    shift
+fi
+if ! $FAST && ! command -v chromium >/dev/null 2>&1; then
     SUDO=$([ "$(id -u)" = 0 ] && echo "" || echo "sudo")
     $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
@@ -13,4 +20,8 @@ source scripts/venv.sh
 ensure_venv '.[test,ros2]'
 .venv/bin/ruff format --check calib_core app tests benchmarks
 .venv/bin/ruff check calib_core app tests benchmarks
-.venv/bin/python -m pytest -q --durations=25 "$@"
+if $FAST; then
+    .venv/bin/python -m pytest -q -m "not slow and not browser and not subprocess" "$@"
+else
+    .venv/bin/python -m pytest -q --durations=25 "$@"
+fi

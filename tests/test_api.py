@@ -352,6 +352,7 @@ def test_the_robot_moves_within_limits_and_stops(client: TestClient) -> None:
     assert np.all(np.isfinite(q)) and not math.isnan(q.sum())
 
 
+@pytest.mark.slow
 def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None:
     client.post("/api/robot/stop")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "new today"}).json()["id"]
@@ -381,6 +382,7 @@ def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None
     assert off["observing"] is None
 
 
+@pytest.mark.slow
 def test_a_replay_asked_twice_is_one_job_and_another_replay_of_the_robot_waits(client: TestClient) -> None:
     """A double click on Start (or two tabs): one replay; a different replay of the same robot while it drives is
     refused naming the job; once that one is aborted, it starts."""
@@ -518,6 +520,7 @@ def _observed(client: TestClient, session: str, timeout_s: float = 10.0) -> dict
     raise AssertionError(f"no live reading while observing {session}: {observing}")
 
 
+@pytest.mark.slow
 def test_the_simulated_motoman_replays_and_calibrates_to_its_tracker_noise(client: TestClient) -> None:
     """Connect the Motoman, replay 20 planned configurations (each frame a tracker reading of the right arm's
     reflector), then calibrate. Every commanded configuration is inside the joint limits; the session's CSV is
@@ -610,6 +613,7 @@ def test_the_simulated_motoman_replays_and_calibrates_to_its_tracker_noise(clien
     assert len(errors) == 20 and np.all(errors < 10 * noise_m), errors
 
 
+@pytest.mark.slow
 def test_a_session_of_three_sensors_calibrates_in_each_mode(client: TestClient) -> None:
     """The motoman-left-cube sample (real CTU data): per pose the tracker's reading and both cameras' face
     centres. The session says what each sensor saw per frame; a calibration in `tracker-cameras` fits the

@@ -3,7 +3,6 @@ with every request to anywhere but the desk refused, headless Chromium still lis
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -11,7 +10,7 @@ import pytest
 from browser import launch, served
 
 playwright_api = pytest.importorskip("playwright.sync_api")
-pytestmark = pytest.mark.skipif(shutil.which("chromium") is None, reason="Debian's chromium is not installed")
+pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
 
 def test_the_openapi_page_renders_offline(tmp_path: Path) -> None:

@@ -107,6 +107,7 @@ def test_the_speed_is_the_fastest_joint_in_deg_per_s() -> None:
 # --- NAO: one camera, two boards ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ros", ["ros1", "ros2"])
 def test_nao_bag_gives_one_frame_per_held_pose(ros: str, nao_drive, nao_bags, tmp_path: Path) -> None:
     drive, images = nao_drive
@@ -152,6 +153,7 @@ def test_nao_bag_gives_one_frame_per_held_pose(ros: str, nao_drive, nao_bags, tm
         assert np.abs(stored.astype(float) - original).mean() < 2.0  # the same picture, through JPEG
 
 
+@pytest.mark.slow
 def test_header_stamps_missing_uses_the_record_times(nao_drive, tmp_path: Path) -> None:
     """Zero stamps everywhere: the bag's record times (images 30 ms late) give the same periods."""
     drive, images = nao_drive
@@ -160,6 +162,7 @@ def test_header_stamps_missing_uses_the_record_times(nao_drive, tmp_path: Path) 
     assert len(result.still_periods) == len(drive) and result.measured == len(drive)
 
 
+@pytest.mark.slow
 def test_a_frame_whose_detector_finds_nothing_is_kept(nao_drive, tmp_path: Path) -> None:
     """The last hold's images are blank: that frame stays, "not found", with its joints and image."""
     drive, images = nao_drive
@@ -185,6 +188,7 @@ def test_a_frame_whose_detector_finds_nothing_is_kept(nao_drive, tmp_path: Path)
     )
 
 
+@pytest.mark.slow
 def test_a_still_period_without_an_image_is_kept_as_not_found(nao_drive, tmp_path: Path) -> None:
     drive, images = nao_drive
     a, b = drive.holds()[1]
@@ -280,6 +284,7 @@ def test_joint_names_may_be_the_data_columns_and_a_fixed_joint_may_be_absent(tmp
 # --- Robonaut: a stereo pair ---------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_robonaut_stereo_bag(tmp_path: Path) -> None:
     """3 poses held 0.8 s, pairs at 3 Hz on ROS 2: the BallFinder's centres are the true ones to millimetres."""
     drive = _drive("robonaut-a", 3, seed=11, hold_s=0.8, move_s=0.6)
@@ -302,6 +307,7 @@ def test_robonaut_stereo_bag(tmp_path: Path) -> None:
 # --- the command and bad input ---------------------------------------------------------------------------------------
 
 
+@pytest.mark.subprocess
 def test_the_command_writes_the_session(nao_bags, tmp_path: Path) -> None:
     """`calib import-bag` as a user runs it: exit 0, a summary line, a session the store can import."""
     out = tmp_path / "day1"
@@ -324,6 +330,7 @@ def _bad(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
     return err
 
 
+@pytest.mark.slow
 def test_bad_bags_exit_2_and_write_nothing(nao_bags, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
     base = ["--robot", "nao", "--out", str(out)]
@@ -357,6 +364,7 @@ def test_bad_bags_exit_2_and_write_nothing(nao_bags, tmp_path: Path, capsys: pyt
     assert "exists and is not a session folder" in err
 
 
+@pytest.mark.slow
 def test_a_joint_no_message_names_is_an_error(nao_drive, tmp_path: Path) -> None:
     drive, images = nao_drive
     bag = _write_bag(tmp_path / "nohead.bag", drive, images, BagSpec(ros=1, drop_joint="HeadPitch"))
@@ -365,6 +373,7 @@ def test_a_joint_no_message_names_is_an_error(nao_drive, tmp_path: Path) -> None
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow
 def test_images_of_another_size_are_an_error(nao_drive, tmp_path: Path) -> None:
     drive, images = nao_drive
     small = Images(images.times_s, {"image": [cv2.resize(p, (320, 240)) for p in images.pictures["image"]]})

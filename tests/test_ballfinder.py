@@ -12,6 +12,7 @@ from calib_core.vision.ballfinder import FinderOptions
 from calib_core.vision.depth_scenes import H_PX, RADIUS_M, W_PX, case, detect, random_centre, render, seed_near
 
 
+@pytest.mark.slow
 def test_centre_within_millimetres_with_a_seed_15_cm_off():
     """Nominal noise, 0.4-1.2 m. At 1.2 m about one sphere in 200 is not found (its own shape's check)."""
     rng = np.random.default_rng(1)
@@ -47,6 +48,7 @@ def test_found_without_a_seed():
         assert np.linalg.norm(found.center_m - centre) <= 0.006
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seeded", [True, False])
 @pytest.mark.parametrize("scene", ["absent", "occluded"])
 def test_not_found_when_the_sphere_is_absent_or_hidden(scene, seeded):
@@ -60,6 +62,7 @@ def test_not_found_when_the_sphere_is_absent_or_hidden(scene, seeded):
         assert found.reason != "ok"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("radius_m", [0.5 * RADIUS_M, 1.5 * RADIUS_M])
 def test_not_found_with_a_radius_wrong_by_half(radius_m):
     rng = np.random.default_rng(4)

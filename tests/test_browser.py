@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import time
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from app.scene import ReviewScene, display_rotation
 from calib_core import load_profile
 
 playwright_api = pytest.importorskip("playwright.sync_api")
-pytestmark = pytest.mark.skipif(shutil.which("chromium") is None, reason="Debian's chromium is not installed")
+pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 SHOTS = os.environ.get("CALIB_SCREENSHOTS")
 
 

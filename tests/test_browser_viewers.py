@@ -5,7 +5,6 @@ tab's viewer goes, and after a server restart the page reloads its scene and sho
 from __future__ import annotations
 
 import hashlib
-import shutil
 import socket
 import time
 from pathlib import Path
@@ -19,7 +18,7 @@ from browser import free_port, launch, listening, served, wait_for_scene
 from test_viewers import PROTOCOL, camera_message
 
 playwright_api = pytest.importorskip("playwright.sync_api")
-pytestmark = pytest.mark.skipif(shutil.which("chromium") is None, reason="Debian's chromium is not installed")
+pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
 # What the page's own iframe shows, read from viser's client store: the names under the old copy's URDF (its
 # robot's links), and the selected frame: its predictions and its measurements (points, and whether shown; NAO's

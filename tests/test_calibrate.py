@@ -162,6 +162,7 @@ def test_daily_calibration_on_a_later_day(rn, rn_full, day2, day2_daily) -> None
             assert not est.estimated and est.value == base[est.name], est.name
 
 
+@pytest.mark.slow
 def test_nelder_mead_reaches_nearly_the_lm_error(rn, rn_full, day2, day2_daily) -> None:
     _, train, fresh = day2
     nm = calibrate(rn, train.data, "daily", base=rn_full, method="nelder-mead")

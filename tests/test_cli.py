@@ -33,6 +33,7 @@ from calib_core import load_profile
 ROOT = Path(__file__).resolve().parents[1]
 CALIB = Path(sys.executable).with_name("calib")
 TIMEOUT = 180
+pytestmark = pytest.mark.subprocess
 
 
 def _command() -> list[str]:

@@ -134,6 +134,7 @@ def test_the_example_driver_is_one_module_of_about_150_lines() -> None:
     assert len(example().splitlines()) <= 150
 
 
+@pytest.mark.slow
 def test_the_example_naoqi_driver_moves_stops_and_looks_through_the_core(naoqi) -> None:
     nao = load_profile("nao")
     with pytest.raises(InputError, match=r"^driver\.camera: expected 0 \(the upper camera\) or 1"):

@@ -203,6 +203,7 @@ def _visit(d: SimulatedDriver, configurations: np.ndarray) -> Iterator[np.ndarra
         yield q
 
 
+@pytest.mark.slow
 def test_look_finds_the_sphere_within_1_cm_of_the_truth(rn) -> None:
     """In typical visible configurations (a few, since the forearm can hide the sphere), the BallFinder
     seeded by the nominal model measures the fixture centre where the hidden truth puts it."""

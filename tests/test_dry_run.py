@@ -31,6 +31,7 @@ def choosing(at_least: int) -> Callable[[JobSnapshot], bool]:
     return lambda j: j.detail.get("stage") == "choosing" and j.detail["step"] >= at_least
 
 
+@pytest.mark.slow
 def test_a_dry_run_of_a_large_plan_answers_at_once_and_a_cancel_ends_it(client: TestClient) -> None:
     sid = client.post("/api/sessions", json={"robot": "robonaut-a", "name": "large plan"}).json()["id"]
     ask = {"count": 300, "seed": 11, "dry_run": True}
@@ -77,6 +78,7 @@ def test_a_dry_run_of_a_large_plan_answers_at_once_and_a_cancel_ends_it(client: 
     assert client.get("/api/jobs/j-00000000/dry-run").status_code == 404
 
 
+@pytest.mark.slow
 def test_a_dry_run_jobs_result_is_the_dry_run_and_the_replay_after_it_drives_that_plan(
     client: TestClient, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -117,6 +119,8 @@ def test_a_dry_run_jobs_result_is_the_dry_run_and_the_replay_after_it_drives_tha
     assert r.status_code == 200 and len(r.json()["configurations"]) == 6
 
 
+@pytest.mark.browser
+@pytest.mark.subprocess
 def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(tmp_path: Path) -> None:
     from browser import launch, new_nao_session, served
 

@@ -20,6 +20,7 @@ def _twin(robot: SimulatedRobot, seed: int) -> SimulatedRobot:
     return SimulatedRobot(robot.profile, robot.true_params, robot.pixel_noise, robot.disparity_noise, seed=seed)
 
 
+@pytest.mark.slow
 def test_nao_calibrated_from_its_own_images() -> None:
     """4 stances x 3 head postures per leg, every board found; the 21 parameters from the detected
     vertices predict held-out stances as well as those from the simulator's exact vertices with its
@@ -42,6 +43,7 @@ def test_nao_calibrated_from_its_own_images() -> None:
     assert _heldout_rms(nao, held, nao.nominal()) > 20 * floor
 
 
+@pytest.mark.slow
 def test_robonaut_daily_calibration_from_rendered_stereo() -> None:
     """A later day: joint offsets drifted; the detectors seeded by the first day's calibration find the
     sphere in the stereo depth of nearly every configuration, to about a millimetre, and the daily

@@ -84,6 +84,7 @@ def _each_configuration_once(client: TestClient, frames: list[dict], q_plan: np.
     return bool((near.sum(axis=1) == 1).all() and (near.sum(axis=0) == 1).all())
 
 
+@pytest.mark.slow
 def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan(client: TestClient) -> None:
     driver = client.app.state.desk.robots.driver("nao")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "disconnect"}).json()["id"]
@@ -121,6 +122,7 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
         assert job["state"] == "failed" and job["error"].startswith("nothing to resume"), job
 
 
+@pytest.mark.slow
 def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestClient) -> None:
     driver = client.app.state.desk.robots.driver("nao")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "stall"}).json()["id"]
@@ -407,6 +409,7 @@ def _kill_leaving_no_children(server: Server) -> float:
         _kill(server)
 
 
+@pytest.mark.subprocess
 def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -512,6 +515,7 @@ def test_sigkill_mid_replay_calibration_and_apply_leaves_a_consistent_store(
     store.close()
 
 
+@pytest.mark.subprocess
 def test_sigterm_stops_calib_serve_promptly_with_jobs_running(tmp_path: Path) -> None:
     """SIGTERM (a service manager's stop) with a calibration solving in its worker and a replay driving the robot:
     the server exits within seconds, leaves no process behind, and the jobs are stored as cancelled."""

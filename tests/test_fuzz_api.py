@@ -31,6 +31,7 @@ MAX_EXAMPLES = 10  # per operation and test: 32 + 15 operations, under 500 reque
 
 # The document does not depend on the data directory: a throwaway app gives it without starting.
 schema = schemathesis.openapi.from_dict(create_app(Path("unused")).openapi())
+pytestmark = pytest.mark.slow  # hundreds of generated requests
 schema.config.max_stream_events = 3  # the robot's stream sends one every 0.1 s, forever
 
 

@@ -14,6 +14,7 @@ from calib_core import Problem, SimulatedRobot, Visibility, calibrate, load_prof
 from calib_core.estimation.identifiability import find_dependencies, report
 
 PROFILES = Path(__file__).parent / "profiles"
+pytestmark = pytest.mark.slow  # Monte Carlo over simulated datasets and calibrations of each
 
 
 @pytest.fixture(scope="module")

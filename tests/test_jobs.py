@@ -74,6 +74,7 @@ def slow_job(calibrations: CalibrationService) -> str:
     return calibrations.submit("nao", "full", None, 0.0, method="nelder-mead")
 
 
+@pytest.mark.slow
 def test_a_calibration_job_recovers_the_samples_truth(
     jobs: JobRunner, calibrations: CalibrationService, sample_store: Store
 ) -> None:
@@ -293,6 +294,7 @@ def test_a_failing_worker_fails_its_job_with_one_line(jobs: JobRunner, calibrati
     assert (wait(jobs, job_id).state, jobs.get(job_id).error) == ("failed", "no session 's-nothere' on this desk")
 
 
+@pytest.mark.slow
 def test_a_killed_worker_fails_its_job_and_the_next_job_runs(jobs: JobRunner, calibrations: CalibrationService) -> None:
     job_id = slow_job(calibrations)
     os.kill(wait_running(jobs, job_id), 9)
@@ -415,6 +417,7 @@ def test_a_restart_shows_interrupted_jobs_as_failed(jobs: JobRunner, sample_stor
         wait(jobs, running)
 
 
+@pytest.mark.subprocess
 def test_a_worker_imports_none_of_the_servers_modules() -> None:
     """What a calibration's worker process imports (its main module, the worker's side, the job's function) holds
     no module of the server: not the store, the runner, the routers, viser or FastAPI."""
@@ -451,6 +454,7 @@ if __name__ == "__main__":
 """
 
 
+@pytest.mark.subprocess
 def test_spawned_children_do_not_import_the_servers_script(tmp_path: Path) -> None:
     """A spawned child imports the parent's main script before its initializer (the server watch) runs: with the
     `calib` console script that is the whole command line, seconds on a loaded machine, during which a SIGKILLed

@@ -201,6 +201,7 @@ def test_nao_board_vertices_match_spec(nao) -> None:
         np.testing.assert_allclose(np.array(got), np.array(expected), atol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["nominal", "truth"])
 def test_nao_prediction_matches_spec_chain(nao, nao_sim, which: str) -> None:
     # Round-trip through the spec's CSV format; the reference reads the CSV columns itself.

@@ -89,6 +89,7 @@ def desk_options() -> dict:
     return {"sample_dir": None}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("robot", BUILTIN_PROFILES)
 @FUZZ
 @given(ops=st.lists(mutation, min_size=1, max_size=5))
@@ -116,6 +117,7 @@ def test_a_mutated_csv_imports_whole_or_answers_422_naming_the_line(client: Test
         assert client.delete(f"/api/sessions/{sid}").status_code == 200
 
 
+@pytest.mark.slow
 @FUZZ
 @given(raw=st.binary(max_size=64))
 @example(raw=b"\xff\xfe\x00\x00")
@@ -166,6 +168,7 @@ image_bytes = st.one_of(
 )
 
 
+@pytest.mark.slow
 @FUZZ
 @given(raw=image_bytes, suffix=st.sampled_from([".png", ".jpg", ".bmp", ""]))
 @example(raw=b"", suffix=".png")
@@ -205,6 +208,7 @@ depth_bytes = st.one_of(
 )
 
 
+@pytest.mark.slow
 @FUZZ
 @given(raw=depth_bytes)
 @example(raw=_npy(np.full((24, 32), np.nan, np.float32)))
@@ -229,6 +233,7 @@ def test_detect_sphere_on_a_damaged_depth_map_exits_2_naming_it(
 PROFILE_DOC = yaml.safe_load(PROFILE_YAML.read_text(encoding="utf-8"))
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
 @given(edits=st.lists(tree_edit, min_size=1, max_size=4))
 def test_a_mutated_profile_loads_or_raises_input_error_naming_the_file(tmp_path_factory, edits) -> None:
@@ -252,6 +257,7 @@ def calibration_doc() -> dict:
     return cal.to_dict()
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
 @given(edits=st.lists(tree_edit, min_size=1, max_size=4), as_text=st.sampled_from(["json", "truncated"]))
 def test_a_mutated_calibration_file_loads_or_raises_input_error(
@@ -308,6 +314,7 @@ SESSION_VALUES = st.one_of(
 session_edit = st.tuples(st.sampled_from(["delete", "replace", "nan"]), st.integers(0, 1 << 16), SESSION_VALUES)
 
 
+@pytest.mark.slow
 @settings(max_examples=50, deadline=None, suppress_health_check=list(HealthCheck))
 @given(edits=st.lists(session_edit, min_size=1, max_size=3))
 def test_a_mutated_session_folder_imports_whole_or_leaves_nothing(

@@ -174,6 +174,7 @@ def test_csv_without_frame_column_and_default_arm(motoman) -> None:
     ("subset", "mode", "readme_rms_mm"),
     [("feb2019-A-right", "full", 0.42), ("feb2019-B-right-cube", "full", 0.073), ("aug2019-right", "full", 2.52)],
 )
+@pytest.mark.slow
 def test_real_tracker_data_held_out_as_good_as_plain_least_squares(
     motoman, subset: str, mode: str, readme_rms_mm: float
 ) -> None:
@@ -363,6 +364,7 @@ def test_mixed_sensors_have_an_exact_jacobian(motoman) -> None:
     assert check_jacobian(problem, [motoman.parameters[i].name for i in mode.free]) > 40
 
 
+@pytest.mark.slow
 def test_a_real_recording_of_three_sensors_calibrates_per_mode(motoman) -> None:
     """The left arm's 6x6x6 cube as one session: per pose the tracker's reading and both cameras'
     pixels. Each mode fits the sensors it names (the tracker's modes the tracker alone, exactly as on
@@ -384,6 +386,7 @@ def test_a_real_recording_of_three_sensors_calibrates_per_mode(motoman) -> None:
         calibrate(motoman, data.of_sensor(1), "offsets")
 
 
+@pytest.mark.slow
 def test_real_camera_pixels_calibrate_and_the_tracker_agrees(motoman) -> None:
     """The CTU pixels (four source files, for speed): the camera-only calibration explains them far
     better than nominal, and the tracker it never saw finds the left arm's cube no worse."""
@@ -439,6 +442,7 @@ def test_a_mode_without_the_registration_needs_a_base_from_the_same_setup(motoma
         calibrate(motoman, data, "cameras")
 
 
+@pytest.mark.slow
 def test_cli_self_observe_writes_a_calibration_export_takes(tmp_path: Path) -> None:
     cal, yaml_out = tmp_path / "cams.json", tmp_path / "cams.yaml"
     sources = ["--source", "leica_left_hand_6x6x6_dataset.mat", "--source", "no_leica_wall_table1_5x5_dataset.mat"]

@@ -46,6 +46,7 @@ def floor_px(profile, data, p: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((pred[:, :2] - data.measured[:, :2]) ** 2, axis=1))))
 
 
+@pytest.mark.slow
 def test_fits_with_the_declared_noise_are_warned_about_at_the_tests_level() -> None:
     """150 simulated sessions of a tracker arm measured with exactly the noise its profile declares, in a
     mode that holds the simulated errors: the test's p-values are uniform (the degrees of freedom are
@@ -64,6 +65,7 @@ def test_fits_with_the_declared_noise_are_warned_about_at_the_tests_level() -> N
     assert warned <= 2
 
 
+@pytest.mark.slow
 def test_residuals_clearly_above_the_declared_noise_are_warned_about_with_the_factor(wrist_known) -> None:
     """5 px of corner noise where the camera declares 0.3 px: the old rule (100 times the noise) said
     nothing. The warning names the sensor, the factor and the test; `converged` stays the solver's own
@@ -86,6 +88,7 @@ def test_residuals_clearly_above_the_declared_noise_are_warned_about_with_the_fa
     assert "noise-excess" not in [d.code for d in quiet.diagnostics] and quiet.solver.fits_noise is True
 
 
+@pytest.mark.slow
 def test_a_camera_mount_started_300_mm_and_90_deg_off_reaches_the_noise_floor(wrist) -> None:
     """From the profile's guess alone the solver settles hundreds of pixels off and calls it converged
     (11 of 30 such far starts reached the floor); turned through the cube's rotations with the translation

@@ -142,6 +142,7 @@ def test_splits_are_figaroh_protocol_and_repeated_kfold(profiles) -> None:
         assert not set(train.frame_ids) & set(heldout.frame_ids)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("robot, mode", sorted(PEER_MM))
 def test_the_desk_is_at_least_as_good_as_figaroh(profiles, robot: str, mode: str) -> None:
     """Held-out RMS to the micrometre (and for the UR10e's camera poses to the thousandth of a degree)."""

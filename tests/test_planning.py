@@ -59,6 +59,7 @@ def _calibrated_error(profile, q, targets, seed, heldout, mode="full") -> float:
     return _error_against_truth(profile, cal.params(profile), heldout)
 
 
+@pytest.mark.slow
 def test_plan_within_limits_less_margin_and_predicted_visible(rn) -> None:
     planned = plan(rn, "full", 12, seed=1)
     assert planned.q.shape == (12, len(rn.joints))
@@ -139,6 +140,7 @@ def test_plan_beats_random_configurations_against_the_truth(rn, rn_pool, rn_held
     assert np.mean(ours) < 0.8 * np.mean(drawn), (ours, drawn)
 
 
+@pytest.mark.slow
 def test_nao_plan_stays_within_the_stance_structure() -> None:
     nao = load_profile("nao")
     planned = plan(nao, "full", 10, seed=2)
@@ -157,6 +159,7 @@ def test_nao_plan_stays_within_the_stance_structure() -> None:
     assert planned.predicted.unit == "px"
 
 
+@pytest.mark.subprocess
 def test_cli_plan_writes_the_configurations(tmp_path) -> None:
     out = tmp_path / "plan.csv"
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}

@@ -18,6 +18,7 @@ playwright_api = pytest.importorskip("playwright.sync_api")
 SHOTS = os.environ.get("CALIB_SCREENSHOTS")  # a folder: keep a screenshot of the Replay step
 
 
+@pytest.mark.slow
 def test_dry_run_predicts_the_accuracy_of_the_planned_configurations(client: TestClient) -> None:
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "planned"}).json()["id"]
     dry = dry_run(client, sid, {"count": 8, "seed": 4})
@@ -33,6 +34,7 @@ def test_dry_run_predicts_the_accuracy_of_the_planned_configurations(client: Tes
     assert bad.status_code == 422 and "unknown mode 'weekly'" in bad.json()["detail"]
 
 
+@pytest.mark.slow
 def test_capture_until_the_predicted_error_reaches_the_target(client: TestClient) -> None:
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "until"}).json()["id"]
     target = 0.25  # px: reached after about eight measured frames
@@ -52,6 +54,8 @@ def test_capture_until_the_predicted_error_reaches_the_target(client: TestClient
     assert clash.status_code in (400, 422) and "until" in clash.json()["detail"]
 
 
+@pytest.mark.browser
+@pytest.mark.subprocess
 def test_until_and_the_prediction_in_the_browser(tmp_path: Path) -> None:
     from browser import launch, new_nao_session, served
 

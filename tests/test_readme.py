@@ -38,6 +38,7 @@ def examples(doc: str) -> list[tuple[str, str]]:
 
 
 @pytest.mark.parametrize("doc", DOCS)
+@pytest.mark.subprocess
 def test_the_examples_run_as_written(doc: str, tmp_path: Path) -> None:
     work = tmp_path / "clone"
     work.mkdir()

@@ -237,6 +237,7 @@ def test_a_plane_s_distances_are_placed_along_its_normal(probe_arm) -> None:
             assert marks["measured"] == marks["old"] == marks["new"] == [None]
 
 
+@pytest.mark.slow
 def test_a_plane_sensor_s_review_answers_through_the_api(probe_arm, tmp_path: Path) -> None:
     """The probe arm added from its profile file, its touches imported as CSV: the review, a frame selected
     and its marks answer 200 for every plane (a 1-D measurement answered 500 before)."""

@@ -315,12 +315,12 @@ MESHES = """() => Object.fromEntries(Object.entries(window.__viserSceneTree.getS
   .map(([k, v]) => [k, v.message.props.vertices.length]))"""
 
 
+@pytest.mark.browser
+@pytest.mark.subprocess
 def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(tmp_path: Path) -> None:
     """The page's "Add a robot" with a profile, its URDF and a zip of its meshes; a session imported for it:
     the review's scene in the browser holds the STL mesh (its own vertices, not a stand-in) and no warning."""
     sync_api = pytest.importorskip("playwright.sync_api")
-    if shutil.which("chromium") is None:
-        pytest.skip("Debian's chromium is not installed")
     profile = meshed_arm(tmp_path)
     root = profile.parent
     meshes = tmp_path / "meshes.zip"

@@ -154,6 +154,7 @@ def _import_nao(client: TestClient, robot: str) -> str:
     return r.json()["id"]
 
 
+@pytest.mark.slow
 def test_two_robots_of_one_profile_keep_their_own_calibrations(naos: tuple[Path, DeskConfig]) -> None:
     data_dir, config = naos
     with TestClient(create_app(data_dir, config=config, sample_dir=SAMPLES, time_scale=50.0)) as client:
@@ -208,6 +209,7 @@ def _add(client: TestClient, **form: str | tuple[str, bytes]) -> object:
     return client.post("/api/robots", data=data, files=files or None)
 
 
+@pytest.mark.slow
 def test_robots_added_while_the_desk_runs_stay_after_a_restart(desk_dir: Path, tmp_path: Path) -> None:
     robonaut_yaml = (PROFILE_DIR / "robonaut-a.yaml").read_bytes()
     with TestClient(create_app(desk_dir, sample_dir=None, time_scale=50.0)) as client:
@@ -292,6 +294,7 @@ BROKEN = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("form", "words"), BROKEN)
 def test_a_broken_profile_answers_422_naming_file_and_field_and_changes_nothing(
     desk_dir: Path, form: dict, words: list[str]
@@ -314,6 +317,7 @@ def test_a_broken_profile_answers_422_naming_file_and_field_and_changes_nothing(
         assert not (desk_dir / "robots").is_dir() or list((desk_dir / "robots").iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_robot_added_with_driver_options_keeps_them_after_a_restart(desk_dir: Path) -> None:
     """`driver_options` (JSON) reach the kind's own checks and its driver, are kept with the robot, and make the
     same driver after a restart: the simulated NAO of seed 2 on its third day, not the default seed 1 day 1."""

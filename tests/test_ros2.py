@@ -124,6 +124,7 @@ def _frames(server, session: str) -> list[dict]:
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_session_on_the_graph_recovers_the_truth_and_apply_sets_the_parameter(graph):
     server, watcher = graph.server, graph.watcher
     robots = {r["name"]: r for r in server.get("/api/robots").json()}
@@ -164,6 +165,7 @@ def test_session_on_the_graph_recovers_the_truth_and_apply_sets_the_parameter(gr
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_observe_while_someone_else_drives_captures_each_still_pose_measured_where_it_stood(graph):
     """The paper's other way of gathering data: the desk only watches (observe with autocapture) while another
     node drives the arm through poses. Each pose it stood still in becomes one frame, with the joint readings
@@ -214,6 +216,7 @@ def test_observe_while_someone_else_drives_captures_each_still_pose_measured_whe
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_a_camera_robot_is_measured_by_the_detectors_in_images_from_its_topics(graph):
     server = graph.server
     assert {r["name"]: r["drivable"] for r in server.get("/api/robots").json()}["nao-ros"] is True
@@ -247,6 +250,7 @@ ROBONAUT_ARM = ("shoulder_pitch", "elbow_roll", "elbow_pitch", "wrist_roll", "wr
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_robonaut_stereo_pair_is_measured_and_its_daily_calibration_finds_the_drifted_offsets(graph):
     """Robonaut's rectified stereo pair over ROS 2, through the project's stereo matching and BallFinder: the
     first day's full calibration (the sample session, imported) applied, a daily replay planned for it, and
@@ -290,6 +294,7 @@ def test_robonaut_stereo_pair_is_measured_and_its_daily_calibration_finds_the_dr
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
     server, watcher = graph.server, graph.watcher
     names = [j.name for j in arm_profile().joints]
@@ -327,6 +332,7 @@ def test_stop_mid_replay_sends_the_empty_trajectory_and_the_robot_holds(graph):
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_robot_killed_mid_replay_fails_the_job_keeps_frames_and_resumes_when_back(graph):
     server, sim, watcher = graph.server, graph.sim, graph.watcher
     sid = server.post("/api/sessions", json={"robot": "arm", "name": "lost"}).json()["id"]
@@ -374,6 +380,7 @@ BAD = {  # case: (its topics' namespace, the description, the joint names, what 
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path):
     """The three cases side by side (each a `calib serve` of its own on topics of its own: a process start is
     most of a case's time)."""
@@ -450,6 +457,7 @@ def test_without_the_extra_serve_ros2_says_to_install_it(tmp_path, monkeypatch, 
 
 
 @needs_ros2
+@pytest.mark.subprocess
 def test_a_missing_or_stale_measurement_gives_a_frame_not_found_with_the_reason(graph, tmp_path):
     from geometry_msgs.msg import PointStamped
 

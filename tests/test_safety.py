@@ -56,6 +56,7 @@ class Recording:
         return getattr(self.inner, name)
 
 
+@pytest.mark.slow
 def test_every_path_that_moves_checks_the_configuration_first(client: TestClient) -> None:
     """API move, goto and replay call the driver's check with the very configuration before move_to."""
     desk = client.app.state.desk
@@ -156,6 +157,7 @@ def test_stop_halts_a_move_at_once(client: TestClient) -> None:
     assert client.get("/api/robot").json()["joints"] == stopped["joints"]
 
 
+@pytest.mark.slow
 def test_stop_mid_replay_cancels_it_and_keeps_the_frames(client: TestClient) -> None:
     client.post("/api/robot/stop")
     sid = client.post("/api/sessions", json={"robot": "robonaut-a", "name": "stopped replay"}).json()["id"]
@@ -202,6 +204,7 @@ def test_sane_bounds_per_parameter_kind() -> None:
     assert safety.parameter_jumps(robonaut, q, p, "the nominal model", from_nominal=True) == []
 
 
+@pytest.mark.slow
 def test_apply_asks_for_confirmation_when_worse_or_beyond(client: TestClient) -> None:
     def calibrate(session: str, body: dict) -> str:
         r = client.post(f"/api/sessions/{session}/calibrations", json=body)

@@ -30,6 +30,7 @@ def radians_copy(path: Path) -> None:
             w.writerow({k: (str(math.radians(float(v))) if k.endswith("_deg") and v else v) for k, v in r.items()})
 
 
+@pytest.mark.subprocess
 def test_radians_in_a_degree_profile_exit_2_naming_file_and_column(tmp_path: Path) -> None:
     # Before this check the solve "succeeded": 308 mm RMS after calibration, exit 0.
     radians_copy(tmp_path / "rad.csv")

@@ -281,6 +281,7 @@ def _share_requests(server: viser.ViserServer) -> list[int]:
     return asked
 
 
+@pytest.mark.slow
 def test_no_websocket_client_can_open_the_viser_share_tunnel() -> None:
     plain = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     closed = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
@@ -390,6 +391,8 @@ def test_no_page_of_another_site_can_frame_the_desk(local: TestClient) -> None:
     assert scene.headers["content-security-policy"] == "frame-ancestors 'self'"
 
 
+@pytest.mark.browser
+@pytest.mark.subprocess
 def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(tmp_path: Path) -> None:
     """Clickjacking: a page on another origin frames the desk to have a click start the scripted wander. In a
     real browser the frame stays empty, while the same page frames one of its own pages; the desk's own page

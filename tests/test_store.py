@@ -244,6 +244,7 @@ for i in range(100000):
 """
 
 
+@pytest.mark.subprocess
 def test_a_killed_writer_leaves_a_consistent_store(tmp_path: Path, samples: Path) -> None:
     csv_path = samples / "robonaut-a-day1" / "data.csv"
     proc = subprocess.Popen(

@@ -69,6 +69,7 @@ def tab(viewer: str) -> dict[str, str]:
     return {"X-Viewer": viewer}
 
 
+@pytest.mark.slow
 def test_two_viewers_review_different_robots_without_moving_each_other(client: TestClient) -> None:
     desk: Desk = client.app.state.desk
     with browser(client, "tab-a", 601), browser(client, "tab-b", 602):
@@ -196,6 +197,7 @@ def test_concurrent_scene_connections_each_become_their_own_viser_client(client:
             t.join(timeout=30)
 
 
+@pytest.mark.slow
 def test_a_closed_tabs_viewer_goes_and_the_default_stays(client: TestClient) -> None:
     viewers = client.app.state.desk.viewers
     linger = viewers.linger_s
@@ -222,6 +224,7 @@ def test_the_proxy_forwards_viser_closing_without_its_subprotocol(client: TestCl
         assert "Version mismatch" in message["reason"]
 
 
+@pytest.mark.slow
 def test_the_live_view_goes_to_the_viewers_watching_only(client: TestClient) -> None:
     """Observe's live view is shown to the viewer that asked (and others that joined); a viewer reviewing a
     session meanwhile keeps its review in its scene."""
@@ -264,6 +267,7 @@ def test_viewers_are_listed_and_the_scene_is_no_api(client: TestClient) -> None:
     assert "/api/viewers" in paths and not any(p.startswith("/scene") for p in paths)
 
 
+@pytest.mark.slow
 def test_the_live_robot_follows_the_robot_while_it_moves(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
     """Observe shows the robot at its readings mid-motion (a replay, the sliders), not only once it stands still:
     the live copy passes through poses between the start and the goal."""

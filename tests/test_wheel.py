@@ -11,6 +11,7 @@ import sysconfig
 import tomllib
 from pathlib import Path
 
+import pytest
 from browser import served
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,6 +43,7 @@ def test_every_package_of_the_tree_is_in_the_wheel() -> None:
     assert all((folder / "__init__.py").is_file() for folder in mapped.values())
 
 
+@pytest.mark.subprocess
 def test_an_installed_wheel_serves_the_page_and_the_samples(tmp_path: Path) -> None:
     wheels, venv, elsewhere = tmp_path / "wheels", tmp_path / "venv", tmp_path / "elsewhere"
     elsewhere.mkdir()
