@@ -17,14 +17,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from calib_core import InputError, Profile, parse_dataset
+from calib_core import FrameStatus, InputError, Profile, parse_dataset
 from calib_core.io.csv_format import readings_beyond_limits
 from calib_core.io.session import read_session, session_robot
 
 from .store import NewFrame, Observations, Store
 from .store.db import StoreWriteError, now, writing
 from .store.files import fsync_dir, write_bytes
-from .store.sessions import FRAME_STATUSES
 from .validation import check_role
 
 log = logging.getLogger(__name__)
@@ -61,8 +60,6 @@ def import_session_folder(
     frames = []
     for fr in s.frames:
         where = f"{folder / 'session.json'}"
-        if fr.status not in FRAME_STATUSES:
-            raise InputError(f"frame {fr.frame}: unknown status '{fr.status}'", file=where)
         q = np.zeros(len(profile.joints))
         for jname, deg in fr.joints_deg.items():
             if jname not in profile.joint_names:
@@ -74,9 +71,9 @@ def import_session_folder(
             c = int(np.flatnonzero(data.frame_ids == fr.frame)[0])
             known = ~np.isnan(data.joints[c])
             q[known] = data.joints[c, known]  # the CSV's readings are the ones the observations used
-            status = "measured"
-        elif status == "measured":
-            raise InputError(f"frame {fr.frame} is 'measured' but data.csv has no row of it", file=where)
+            status = FrameStatus.MEASURED
+        elif status == FrameStatus.MEASURED:
+            raise InputError(f"frame {fr.frame} is '{status}' but data.csv has no row of it", file=where)
         frames.append(NewFrame(fr.frame, q, 0, status, fr.reason, {}, fr.detail, obs))
     for frame, target in zip(frames, _frame_targets(profile, frames), strict=True):
         frame.target = target
@@ -119,7 +116,7 @@ def import_csv(store: Store, robot: str, name: str, text: str, filename: str) ->
     frames = []
     joints = np.nan_to_num(data.joints)  # joints a row did not need: 0
     for fid, q, obs in zip(data.frame_ids, joints, Observations.each(data), strict=True):
-        frames.append(NewFrame(int(fid), q, int(obs.target[0]), "measured", "", {}, {}, obs))
+        frames.append(NewFrame(int(fid), q, int(obs.target[0]), FrameStatus.MEASURED, "", {}, {}, obs))
     store.sessions.add_whole(
         sid, robot, name, description=f"imported from {filename}", source="import", truth=None, frames=frames
     )

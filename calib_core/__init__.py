@@ -32,6 +32,7 @@ _EXPORTS = {
     "Simulation": "sim.simulator",
     "Visibility": "vision.visibility",
     "Evaluation": "estimation.evaluation",
+    "FrameStatus": "frame_status",
     "AccuracyPrediction": "estimation.planning",
     "Plan": "estimation.planning",
     "calibrate": "estimation.calibrate",
@@ -54,6 +55,7 @@ __all__ = [
     "Calibration",
     "Dataset",
     "Evaluation",
+    "FrameStatus",
     "InputError",
     "Plan",
     "Problem",
@@ -96,6 +98,7 @@ if TYPE_CHECKING:
     from .estimation.problem import Problem
     from .estimation.registration import register
     from .files import write_atomic
+    from .frame_status import FrameStatus
     from .io.csv_format import parse_dataset, read_dataset, select_rows, to_csv
     from .model.loader import load_profile
     from .model.profile import Profile

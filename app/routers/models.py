@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel
 
-from calib_core import Profile
+from calib_core import FrameStatus, Profile
 
 from ..desk import Desk
 from ..store import FrameInfo
@@ -19,7 +19,7 @@ class FrameOut(BaseModel):
     index: int
     joints: dict[str, float | None]  # deg, by joint name
     target: str
-    status: str  # "measured" | "not found" | "skipped" | "pending"
+    status: FrameStatus
     reason: str
     images: dict[str, str]  # role -> URL
     detail: dict[str, Any]  # what the detector reported
