@@ -23,15 +23,15 @@ import numpy as np
 
 from calib_core import FrameStatus
 from calib_core.errors import Cancelled, InputError
-from calib_core.model.profile import Profile
+from calib_core.model import Profile
 from calib_core.units import length_factor
-from calib_core.vision.visibility import VIEW_MARGIN_PX, Visibility
+from calib_core.vision import VIEW_MARGIN_PX, Visibility
 
 from .drivers import LimitError, Look, RobotDriver, RobotFault
 from .store import Observations, StoreWriteError
 
 if TYPE_CHECKING:
-    from calib_core.estimation.planning import SequentialPlan
+    from calib_core.estimation import SequentialPlan
 
     from .jobs.runner import JobContext
     from .store import FrameInfo, Store

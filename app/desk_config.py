@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from calib_core import InputError
-from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
 from .drivers import registry

@@ -18,8 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib_core import FrameStatus, InputError, Profile, parse_dataset
-from calib_core.io.csv_format import readings_beyond_limits
-from calib_core.io.session import read_session, session_robot
+from calib_core.io import read_session, readings_beyond_limits, session_robot
 
 from .store import NewFrame, Observations, Store
 from .store.db import StoreWriteError, now, writing

@@ -28,9 +28,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from calib_core import Dataset, FrameStatus, Profile
-from calib_core.estimation.validation import figures
-from calib_core.io.urdf_export import to_urdf
-from calib_core.model.kinematics import forward, to_sensor
+from calib_core.estimation import figures
+from calib_core.io import to_urdf
+from calib_core.model import forward, to_sensor
 from calib_core.sensors import Sensor
 from calib_core.units import length_factor
 

@@ -30,8 +30,8 @@ import trimesh
 import yourdfpy
 
 from calib_core import Profile
-from calib_core.io.urdf_export import BODY
-from calib_core.model.urdf_import import profile_urdf_path
+from calib_core.io import BODY
+from calib_core.model import profile_urdf_path
 
 log = logging.getLogger(__name__)
 

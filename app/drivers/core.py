@@ -23,12 +23,10 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from calib_core import Calibration, FrameStatus
+from calib_core import Calibration, FrameStatus, Profile, Sensor
 from calib_core.errors import InputError
-from calib_core.model.profile import Profile, Sensor
 from calib_core.units import length_factor
-from calib_core.vision.sighting import Sighting, sight_board, sight_fixture
-from calib_core.vision.stereo import StereoHead, depth_from_pair
+from calib_core.vision import Sighting, StereoHead, depth_from_pair, sight_board, sight_fixture
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, Look, RobotFault, RobotStatus, check_limits

@@ -8,7 +8,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, Response
 from pydantic import BaseModel, ConfigDict, Field
 
-from calib_core.io.export import calibrated_urdf, offsets_yaml
+from calib_core.io import calibrated_urdf, offsets_yaml
 
 from .deps import DeskDep, RobotsDep, StoreDep
 

@@ -11,7 +11,7 @@ from fastapi import APIRouter, File, Form, HTTPException, UploadFile
 from pydantic import BaseModel
 
 from calib_core import InputError
-from calib_core.model.profile import Profile
+from calib_core.model import Profile
 
 from ..drivers.registry import KINDS, DriverSpec
 from ..profiles import file_name, is_builtin

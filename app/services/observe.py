@@ -16,7 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from calib_core import FrameStatus, Profile
-from calib_core.estimation.registration import register, registration_params
+from calib_core.estimation import register, registration_params
 
 from ..capture import AutoCapture, look_outcome
 from ..drivers import Look, RobotDriver

@@ -21,10 +21,9 @@ from typing import Any
 import numpy as np
 
 from calib_core import FrameStatus, InputError, Profile
-from calib_core.estimation.planning import Plan, PlanProgress, SequentialPlan, predict_accuracy
-from calib_core.estimation.planning import plan as plan_configurations
-from calib_core.vision.sampling import Sampler
-from calib_core.vision.visibility import Visibility
+from calib_core.estimation import Plan, PlanProgress, SequentialPlan, predict_accuracy
+from calib_core.estimation import plan as plan_configurations
+from calib_core.vision import Sampler, Visibility
 
 from ..capture import Until, capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver

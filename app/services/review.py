@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from calib_core import Dataset, InputError, Profile
-from calib_core.estimation.registration import register, registration_params
+from calib_core.estimation import register, registration_params
 
 from ..review import Review
 from ..robot_look import robot_look

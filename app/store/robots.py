@@ -21,7 +21,7 @@ from typing import Any, TypeVar
 import yaml
 
 from calib_core import InputError, Profile
-from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import load_yaml
 
 from ..errors import NotFound

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core import Dataset, FrameStatus, InputError, Profile, to_csv
-from calib_core.io.session import csv_sensors
+from calib_core.io import csv_sensors
 
 from ..errors import NotFound
 from ..validation import check_id, check_joints_rad, check_role, check_target
