@@ -3,23 +3,72 @@
 from __future__ import annotations
 
 import json
-from typing import Any, Literal
+from typing import Literal
 
 from fastapi import APIRouter, Response
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
 
+from calib_core.estimation import Correlation, Diagnostic, HeldParameter, Outlier, ParameterEstimate
 from calib_core.io import calibrated_urdf, offsets_yaml
 
 from .deps import DeskDep, RobotsDep, StoreDep
+from .models import Figures
 
 router = APIRouter()
 
 
-class CalibrationOut(BaseModel):
-    """The calibration file (format calib-calibration/1: every parameter with its unit and standard deviation,
-    the figures before and after, the solver, identifiability, outliers, warnings) and where it came from."""
+class NoiseTest(BaseModel):
+    """One sensor's residuals against its declared noise (calib_core.estimation.NoiseTest)."""
 
-    model_config = ConfigDict(extra="allow")
+    sensor: str
+    factor: float  # residual RMS over the declared noise
+    rows: int
+    dof: float
+    p_value: float
+    level: float
+    rejected: bool  # p_value < level: the residuals are clearly above the declared noise
+
+
+class Solver(BaseModel):
+    """How the solver stopped (calib_core.estimation.SolverReport): `status` a code, `message` in words."""
+
+    method: str  # "lm" | "nelder-mead"
+    status: str
+    iterations: int
+    evaluations: int
+    solve_seconds: float
+    robust: bool
+    cost_history: list[float]
+    sigma: float | None  # scale of the whitened residuals at the solution
+    folds: int  # k of the k-fold cross-validation (0: none)
+    cv_seconds: float | None
+    minimal: bool  # a minimal identifiable parameter set, without the mode's priors
+    noise_tests: list[NoiseTest]
+    starts: int
+    start: str  # the start whose solution was kept
+    message: str
+    converged: bool
+    fits_noise: bool | None  # None: not tested
+
+
+class Identifiability(BaseModel):
+    """What the data determine (calib_core.estimation.IdentifiabilityReport)."""
+
+    free: list[str]
+    held_fixed: list[HeldParameter]
+    singular_values: list[float]
+    rank: int
+    condition: float | None  # None: infinite
+    o1: float | None
+    correlations: list[Correlation]
+    inflation: dict[str, float]  # per parameter: its standard deviation over what it would be alone
+    note: str
+
+
+class CalibrationOut(BaseModel):
+    """The calibration file (format calib-calibration/1, calib_core.estimation.Calibration: every parameter with
+    its unit and standard deviation, the figures before and after, the solver, identifiability, outliers,
+    diagnostics) and where it came from."""
 
     id: str
     robot: str  # the robot it was made for and may be applied to
@@ -27,9 +76,23 @@ class CalibrationOut(BaseModel):
     session: str | None
     base: str | None
     holdout: float
-    parameters: list[dict[str, Any]]
-    figures: dict[str, Any]
-    warnings: list[Any]
+    parameters: list[ParameterEstimate]  # display units
+    figures: dict[str, Figures]  # before, after; holdout_before, holdout_after; cv_after
+    warnings: list[str]  # the messages of the diagnostics of severity warning
+    method: str
+    created: str
+    source: str
+    solver: Solver
+    identifiability: Identifiability
+    outliers: list[Outlier]
+    diagnostics: list[Diagnostic]
+    frames: dict[str, list[int]]  # "holdout": the frames held out
+    sensor_figures: dict[str, dict[str, Figures]]  # with several sensors: each one's figures, by name
+    format: str
+    converged: bool
+    fits_noise: bool | None
+    solve_seconds: float
+    iterations: int
 
 
 @router.get("/calibrations/{cal_id}")

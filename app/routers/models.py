@@ -4,15 +4,41 @@ functions that make them from the desk's objects."""
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
-from pydantic import BaseModel
+from pydantic import BaseModel, Field, JsonValue
 
 from calib_core import FrameStatus, Profile
 
 from ..desk import Desk
 from ..store import FrameInfo
+
+
+class ObserveState(BaseModel):
+    """The session observed and what its live view sees (app/services/observe.py); a field without a value yet
+    is left out."""
+
+    session: str
+    autocapture: bool
+    captured: int  # frames autocapture kept
+    last_frame: int | None = Field(None, exclude_if=lambda v: v is None)  # the latest of them
+    detection: str | None = Field(None, exclude_if=lambda v: v is None)  # the latest look's status, or "moving"
+    reason: str | None = Field(None, exclude_if=lambda v: v is None)  # why it found nothing ("ok": it measured)
+    message: str | None = Field(None, exclude_if=lambda v: v is None)  # the latest look's failure
+
+
+class Figures(BaseModel):
+    """A calibration's error figures over its observations (calib_core.estimation.Figures as the calibration
+    file holds them: mean, RMS, max and median None when there were none)."""
+
+    n: int
+    mean: float | None
+    rms: float | None
+    max: float | None
+    median: float | None
+    unit: str
+    rms_axes: list[float]  # per measurement coordinate (x, y, z or u, v)
+    excluded: int = 0  # observations left out as outliers
 
 
 class FrameOut(BaseModel):
@@ -22,7 +48,7 @@ class FrameOut(BaseModel):
     status: FrameStatus
     reason: str
     images: dict[str, str]  # role -> URL
-    detail: dict[str, Any]  # what the detector reported
+    detail: dict[str, JsonValue]  # the detector's own record (its figures; a session folder's, as it came)
     captured: str
     observations: dict[str, int] = {}  # sensor name -> how many observations it made in this frame
 
@@ -37,7 +63,7 @@ class RobotState(BaseModel):
     target: str
     calibration: str | None  # the calibration the robot runs with (None: the nominal model)
     message: str
-    observing: dict[str, Any] | None  # the session observed and what the live view sees
+    observing: ObserveState | None  # None: not observing
 
 
 class JobStarted(BaseModel):

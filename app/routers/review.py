@@ -5,10 +5,10 @@ reviewing different sessions never move each other (app/viewers.py)."""
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
+
+from calib_core import FrameStatus
 
 from ..validation import FRAME_MAX, FRAME_MIN
 from .deps import DeskDep, FrameIndex, ViewerDep
@@ -25,11 +25,44 @@ class ReviewRequest(BaseModel):
 
 class ReviewRow(BaseModel):
     index: int
-    status: str
+    status: FrameStatus
     target: int
     err_old: float | None  # None: not measured
     err_new: float | None
     heldout: bool
+
+
+class ReviewFigures(BaseModel):
+    """The distances between prediction and measurement of the measured observations (app/review.py): their mean,
+    RMS and max (None: none measured) and their count."""
+
+    mean: float | None
+    rms: float | None
+    max: float | None
+    n: int
+
+
+class Histogram(BaseModel):
+    """The observations' errors in bins of the review's unit (no bins: nothing measured, or no error at all)."""
+
+    edges: list[float]
+    old: list[int]
+    new: list[int] | None  # None: no new calibration
+
+
+class ReviewSummary(BaseModel):
+    """Counted over observations, like a calibration's figures; heldout_* over the new calibration's held-out
+    frames (None: it held none out, or there is no new calibration)."""
+
+    unit: str
+    frames: int
+    measured: int  # frames with a measurement of the sensor reviewed
+    heldout_frames: int
+    old: ReviewFigures
+    heldout_old: ReviewFigures | None
+    new: ReviewFigures | None  # None: no new calibration
+    heldout_new: ReviewFigures | None
+    histogram: Histogram
 
 
 class ReviewOut(BaseModel):
@@ -40,7 +73,7 @@ class ReviewOut(BaseModel):
     sensor: str  # the sensor the table, the summary and the scene's red marks are of
     sensors: list[str]  # the sensors the session has observations of
     table: list[ReviewRow]
-    summary: dict[str, Any]  # old and new mean, RMS, max (held out too), unit, histogram
+    summary: ReviewSummary
     warnings: list[str] = []  # what the scene could not show as asked (a URDF robot's mesh that cannot be read)
 
 

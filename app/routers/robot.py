@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncIterator
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.sse import EventSourceResponse
@@ -16,7 +16,7 @@ from calib_core import InputError
 from ..drivers import Wandering
 from ..validation import joints_from_deg
 from .deps import DeskDep, JobsDep, RobotsDep, StoreDep, ViewerDep
-from .models import RobotState, robot_state
+from .models import Figures, RobotState, robot_state
 
 ROBOT_EVENT_PERIOD_S = 0.1
 router = APIRouter()
@@ -51,7 +51,7 @@ class ActiveCalibration(BaseModel):
     session: str | None = None
     created: str | None = None
     applied: str | None = None  # when it was applied
-    figures: dict[str, Any] | None = None
+    figures: dict[str, Figures] | None = None  # before, after; holdout_before, holdout_after; cv_after
 
 
 @router.get("/robot/calibration")
@@ -75,6 +75,16 @@ def robot_calibration(desk: DeskDep, store: StoreDep, robot: str | None = None) 
     )
 
 
+class FiguresBrief(BaseModel):
+    """A calibration's figure in the apply history: its mean, RMS and max error over n observations."""
+
+    mean: float | None
+    rms: float | None
+    max: float | None
+    n: int
+    unit: str
+
+
 class Applied(BaseModel):
     seq: int
     time: str
@@ -82,7 +92,7 @@ class Applied(BaseModel):
     previous: str | None
     mode: str
     session: str | None
-    figures: dict[str, Any]  # before, after and held-out after: n, mean, rms, max, unit
+    figures: dict[str, FiguresBrief]  # before, after and held-out after (holdout_after)
     note: str
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import asyncio
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Form, HTTPException, Response, UploadFile
 from fastapi.responses import FileResponse
@@ -16,7 +16,7 @@ from ..importers import import_csv
 from ..services.replay import ReplayPlan
 from ..validation import ID, IMAGE_NAME
 from .deps import DeskDep, FrameIndex, RobotsDep, StoreDep, ViewerDep, read_upload
-from .models import DryRun, FrameOut, JobStarted, RobotState, frame_out, robot_state
+from .models import DryRun, Figures, FrameOut, JobStarted, ObserveState, RobotState, frame_out, robot_state
 
 router = APIRouter()
 
@@ -62,7 +62,7 @@ class CalibrationSummary(BaseModel):
     created: str
     base: str | None
     holdout: float
-    figures: dict[str, Any]
+    figures: dict[str, Figures]  # before, after; holdout_before, holdout_after; cv_after
 
 
 @router.get("/sessions")
@@ -195,7 +195,7 @@ class ObserveRequest(BaseModel):
 
 
 class Observing(BaseModel):
-    observing: dict[str, Any] | None  # the session observed and what the live view sees; None: not observing
+    observing: ObserveState | None  # None: not observing
 
 
 @router.post("/sessions/{session_id}/observe")
