@@ -93,6 +93,20 @@ def _app_imports(name: str) -> set[str]:
     return {m for m in _imports(_FILES[name]) if m in _MODULES and m != name}
 
 
+def test_the_store_imports_nothing_above_it() -> None:
+    """The store is the bottom of the desk: below it only the checks every door shares, the errors and the job
+    snapshot it keeps."""
+    below = {"app", "app.errors", "app.validation", "app.jobs", "app.jobs.snapshot"}
+    upward = {
+        f"{name} imports {m}"
+        for name in _MODULES
+        if name.startswith("app.store")
+        for m in _app_imports(name)
+        if not m.startswith("app.store") and m not in below
+    }
+    assert upward == set()
+
+
 def test_app_has_no_import_cycle() -> None:
     graph = {name: _app_imports(name) for name in _MODULES}
     done: set[str] = set()

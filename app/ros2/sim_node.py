@@ -83,7 +83,7 @@ class Topics:
 def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
     """The profile (a built-in name or a file; `urdf` for a profile that says `urdf: ros2`) and the URDF
     text the node publishes (the profile's own URDF, a built-in's shipped one, or one drawn from the model)."""
-    from ..profiles import builtin_urdf
+    from ..store.profiles import builtin_urdf
 
     if robot in BUILTIN_PROFILES:
         profile = load_profile(robot)

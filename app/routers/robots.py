@@ -14,10 +14,10 @@ from calib_core import InputError
 from calib_core.model import Profile
 
 from ..drivers.registry import KINDS, DriverSpec
-from ..profiles import file_name, is_builtin
 from ..robots import Robot
 from ..store import ProfileFiles
 from ..store.meshes import MeshesTooLarge, check_archive
+from ..store.profiles import file_name, is_builtin
 from .deps import DeskDep, RobotsDep, read_upload
 
 VERSION = "0.4.0"
