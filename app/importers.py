@@ -20,6 +20,7 @@ import numpy as np
 from calib_core import FrameStatus, InputError, Profile, parse_dataset
 from calib_core.io import read_session, readings_beyond_limits, session_robot
 
+from .errors import TooLarge
 from .store import NewFrame, Observations, Store
 from .store.db import StoreWriteError, now, writing
 from .store.files import fsync_dir, write_bytes
@@ -104,6 +105,21 @@ def import_session_folder(
 class Imported(NamedTuple):
     id: str
     notes: list[str]  # what the data say that the operator should know (readings beyond a joint's limits)
+
+
+def csv_text(raw: bytes, filename: str, max_rows: int) -> str:
+    """An uploaded CSV as text: UTF-8 (a byte order mark allowed), refused (TooLarge) beyond `max_rows` rows
+    before any is parsed."""
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{filename}: not UTF-8 text (byte {exc.start})") from None
+    rows = text.count("\n") - 1 + (not text.endswith("\n"))  # less the header: at least the rows a parse would read
+    if rows > max_rows:
+        raise TooLarge(
+            f"{filename}: {rows:,} rows; an import takes at most {max_rows:,} (the desk's row limit, --max-rows)"
+        )
+    return text
 
 
 def import_csv(store: Store, robot: str, name: str, text: str, filename: str) -> Imported:

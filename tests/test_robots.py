@@ -376,7 +376,7 @@ def test_a_profile_file_on_the_server_is_named_only_on_a_loopback_desk(
 ) -> None:
     path = PROFILE_DIR / "robonaut-a.yaml"
     with TestClient(create_app(desk_dir, sample_dir=None, time_scale=50.0)) as client:
-        monkeypatch.setattr(client.app.state.desk, "loopback", False)
+        monkeypatch.setattr(client.app.state.desk.robot_service, "loopback", False)
         r = _add(client, name="far", profile=str(path))
         assert r.status_code == 403 and "upload it" in r.json()["detail"]
         r = _add(client, name="near", profile="nao")  # a built-in profile by name is fine anywhere

@@ -11,7 +11,7 @@ from pydantic import BaseModel, Field
 from calib_core.estimation import Correlation, Diagnostic, HeldParameter, Outlier, ParameterEstimate
 from calib_core.io import calibrated_urdf, offsets_yaml
 
-from .deps import DeskDep, RobotsDep, StoreDep
+from .deps import ApplyDep, CalibrationsDep, RobotsDep
 from .models import Figures
 
 router = APIRouter()
@@ -96,9 +96,9 @@ class CalibrationOut(BaseModel):
 
 
 @router.get("/calibrations/{cal_id}")
-def calibration(store: StoreDep, cal_id: str) -> CalibrationOut:
-    info = store.calibrations.info(cal_id)
-    body = store.calibrations.load(cal_id).to_dict()
+def calibration(calibrations: CalibrationsDep, cal_id: str) -> CalibrationOut:
+    info = calibrations.info(cal_id)
+    body = calibrations.load(cal_id).to_dict()
     return CalibrationOut.model_validate(
         {**body, "id": cal_id, "session": info.session_id, "base": info.base_id, "holdout": info.holdout}
     )
@@ -128,11 +128,11 @@ class Applied(BaseModel):
 @router.post(
     "/calibrations/{cal_id}/apply", responses={409: {"model": ApplyConcerns}}, response_model_exclude_unset=True
 )
-def apply(desk: DeskDep, cal_id: str, body: ApplyRequest | None = None) -> Applied:
+def apply(service: ApplyDep, cal_id: str, body: ApplyRequest | None = None) -> Applied:
     """Make the calibration its robot's active one (recorded, then pushed to the robot's driver). Only the robot
     whose session it was made from takes it."""
     body = body or ApplyRequest()
-    return Applied.model_validate(desk.apply.apply(cal_id, body.note, confirm=body.confirm))
+    return Applied.model_validate(service.apply(cal_id, body.note, confirm=body.confirm))
 
 
 EXPORTS = {
@@ -147,11 +147,11 @@ EXPORTS = {
     responses={200: {"content": {"application/json": {}, "application/yaml": {}, "application/xml": {}}}},
 )
 def export(
-    store: StoreDep, robots: RobotsDep, cal_id: str, format: Literal["json", "yaml", "urdf"] = "json"
+    calibrations: CalibrationsDep, robots: RobotsDep, cal_id: str, format: Literal["json", "yaml", "urdf"] = "json"
 ) -> Response:
     """What the robot's driver takes: the calibration JSON, an offsets YAML or a URDF with corrected origins."""
-    info = store.calibrations.info(cal_id)
-    cal = store.calibrations.load(cal_id)
+    info = calibrations.info(cal_id)
+    cal = calibrations.load(cal_id)
     profile = robots.get(info.robot).profile
     if format == "json":
         text = json.dumps(cal.to_dict(), indent=2) + "\n"

@@ -1,5 +1,5 @@
 """The answers more than one router gives (Pydantic models, so that /openapi.json tells the truth), and the
-functions that make them from the desk's objects."""
+functions that make them from the services' objects."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pydantic import BaseModel, Field, JsonValue
 
 from calib_core import FrameStatus, Profile
 
-from ..desk import Desk
+from ..services.connection import Connection
 from ..store import FrameInfo
 
 
@@ -128,10 +128,10 @@ def frame_out(profile: Profile, f: FrameInfo, counts: dict[int | None, int] | No
     )
 
 
-def robot_state(desk: Desk, robot: str | None) -> RobotState:
+def robot_state(connection: Connection, robot: str | None) -> RobotState:
     """The state of `robot` (None: the connected one)."""
-    name = desk.robot_name(robot)
-    driver = desk.robots.driver(name)
+    name = connection.robot_name(robot)
+    driver = connection.driver(name)
     st = driver.status()
     profile = driver.profile
     return RobotState(
@@ -142,5 +142,5 @@ def robot_state(desk: Desk, robot: str | None) -> RobotState:
         target=profile.targets[st.target].name,
         calibration=st.calibration_id,
         message=st.message,
-        observing=desk.observing(),
+        observing=connection.observing(),
     )

@@ -11,7 +11,7 @@ from pydantic import BaseModel, Field
 from calib_core import FrameStatus
 
 from ..validation import FRAME_MAX, FRAME_MIN
-from .deps import DeskDep, FrameIndex, ViewerDep
+from .deps import FrameIndex, ReviewDep, ViewerDep, ViewersDep
 
 router = APIRouter()
 
@@ -78,8 +78,8 @@ class ReviewOut(BaseModel):
 
 
 @router.post("/review")
-def review(desk: DeskDep, viewer: ViewerDep, body: ReviewRequest) -> ReviewOut:
-    return ReviewOut.model_validate(desk.review(body.session, body.old, body.new, viewer, body.sensor))
+def review(reviews: ReviewDep, viewer: ViewerDep, body: ReviewRequest) -> ReviewOut:
+    return ReviewOut.model_validate(reviews.load(viewer, body.session, body.old, body.new, body.sensor))
 
 
 class SelectRequest(BaseModel):
@@ -96,8 +96,8 @@ class Selected(BaseModel):
 
 
 @router.post("/review/frame")
-def select(desk: DeskDep, viewer: ViewerDep, body: SelectRequest) -> Selected:
-    return Selected.model_validate(desk.reviews.select(viewer, body.index, show_all=body.all, overlay=body.overlay))
+def select(reviews: ReviewDep, viewer: ViewerDep, body: SelectRequest) -> Selected:
+    return Selected.model_validate(reviews.select(viewer, body.index, show_all=body.all, overlay=body.overlay))
 
 
 class Marks(BaseModel):
@@ -114,8 +114,8 @@ class Marks(BaseModel):
 
 
 @router.get("/review/marks/{index}")
-def marks(desk: DeskDep, viewer: ViewerDep, index: FrameIndex) -> Marks:
-    return Marks.model_validate(desk.reviews.marks(viewer, index))
+def marks(reviews: ReviewDep, viewer: ViewerDep, index: FrameIndex) -> Marks:
+    return Marks.model_validate(reviews.marks(viewer, index))
 
 
 class ViewerOut(BaseModel):
@@ -135,6 +135,6 @@ class ViewerOut(BaseModel):
 
 
 @router.get("/viewers")
-def viewers(desk: DeskDep) -> list[ViewerOut]:
+def viewers(viewers: ViewersDep) -> list[ViewerOut]:
     """Every viewer on the desk: the default one, and one per open tab (a closed tab's goes a few seconds later)."""
-    return [ViewerOut.model_validate(v.state()) for v in desk.viewers.all()]
+    return [ViewerOut.model_validate(v.state()) for v in viewers.all()]

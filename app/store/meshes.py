@@ -26,6 +26,7 @@ from pathlib import Path, PurePosixPath
 
 from calib_core import InputError
 
+from ..errors import TooLarge
 from .files import fsync_dir
 
 MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".glb", ".gltf")  # what app/robot_look.py reads
@@ -36,8 +37,8 @@ _LEFT_OUT = ("__MACOSX", ".DS_Store")  # what macOS's Finder adds to a zip
 _CHUNK_BYTES = 1 << 20
 
 
-class MeshesTooLarge(InputError):
-    """More unpacked bytes or files than the desk takes (the API answers 413)."""
+class MeshesTooLarge(TooLarge):
+    """More unpacked bytes or files than the desk takes."""
 
 
 @dataclass(frozen=True)
