@@ -97,6 +97,7 @@ class _Waiter:
     cond: threading.Condition | None  # None: an event waiter, woken by the clock's own condition
     deadline: float | None
     thread: str
+    event: threading.Event | None = None  # an event waiter's: once set, the thread is about to go on
 
 
 class ManualClock:
@@ -141,7 +142,7 @@ class ManualClock:
 
     def wait(self, event: threading.Event, timeout_s: float) -> bool:
         with self._state:
-            waiter = _Waiter(None, self._now + timeout_s, threading.current_thread().name)
+            waiter = _Waiter(None, self._now + timeout_s, threading.current_thread().name, event)
             self._waiters.add(waiter)
             self._state.notify_all()
             try:
@@ -182,13 +183,16 @@ class ManualClock:
 
     # --- a test's hold on the threads that wait on the clock ----------------------------------------------
     def waiting(self) -> int:
-        """How many threads wait on this clock for a time still ahead (one whose time has come is not waiting:
-        it is about to go on)."""
+        """How many threads wait on this clock for a time still ahead (one whose time has come, or whose event is
+        set, is not waiting: it is about to go on, and counting it would let a test move time on under it)."""
         with self._state:
             return self._waiting()
 
     def _waiting(self) -> int:
-        return sum(w.deadline is None or w.deadline > self._now for w in self._waiters)
+        return sum(
+            (w.deadline is None or w.deadline > self._now) and not (w.event is not None and w.event.is_set())
+            for w in self._waiters
+        )
 
     def until_waiting(self, threads: int, unless: Callable[[], bool] = lambda: False, timeout_s: float = 60.0) -> None:
         """Block until `threads` threads wait on this clock for a time ahead (they have done what they had to do
