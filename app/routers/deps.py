@@ -1,8 +1,8 @@
 """What the routers are given (FastAPI `Depends`): the services, the store's repositories a router reads, the
 robots on the desk, the viewer a request is for, the desk's limits, and reading an upload whole.
 
-The only module of the API that knows the desk: a router names what it needs here and never reaches through
-the desk to get it.
+The only module of the API that imports the desk: a router names what it needs here and never reaches through
+the desk to get it (the health check alone asks the desk about itself: its instance, its viser port).
 """
 
 from __future__ import annotations
