@@ -14,22 +14,24 @@ one with the target predicted out of view is skipped with its reason.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from calib_core import FrameStatus
 from calib_core.errors import Cancelled, InputError
-from calib_core.model.profile import Profile
+from calib_core.model import Profile
 from calib_core.units import length_factor
-from calib_core.vision.visibility import VIEW_MARGIN_PX, Visibility
+from calib_core.vision import VIEW_MARGIN_PX, Visibility
 
 from .drivers import LimitError, Look, RobotDriver, RobotFault
 from .store import Observations, StoreWriteError
 
 if TYPE_CHECKING:
-    from calib_core.estimation.planning import SequentialPlan
+    from calib_core.estimation import SequentialPlan
 
     from .jobs.runner import JobContext
     from .store import FrameInfo, Store
@@ -48,10 +50,10 @@ class Until:
     max: int
 
 
-def look_outcome(profile: Profile, look: Look) -> tuple[str, str]:
-    """A look's frame status ("measured" when any sensor measured) and its reason: the one sighting's, or with
+def look_outcome(profile: Profile, look: Look) -> tuple[FrameStatus, str]:
+    """A look's frame status (measured when any sensor measured) and its reason: the one sighting's, or with
     several each sensor's that found nothing, by name ("ok" when every one measured)."""
-    status = "measured" if look.measured else "not found"
+    status = FrameStatus.MEASURED if look.measured else FrameStatus.NOT_FOUND
     if len(look.sightings) == 1:
         return status, look.sightings[0].reason
     missed = [
@@ -226,14 +228,14 @@ def replay(
             f"replay refused before moving: configuration {refused[0]['index']}: {refused[0]['problem']}{more}"
         )
     existing = {f.index for f in store.sessions.frames(session_id)} if indices is not None else set()
-    counts = {"measured": 0, "not found": 0, "skipped": 0}
+    counts: Counter[FrameStatus] = Counter()
     k = 0
     try:
         for k, row in enumerate(plan):
             ctx.checkpoint()
             index = indices[k] if indices is not None else None
             if row["action"] == "skip":
-                status, reason = "skipped", row["problem"]
+                status, reason = FrameStatus.SKIPPED, row["problem"]
                 if index is None or index not in existing:
                     index = store.sessions.add_frame(
                         session_id, index=index, joints_rad=q[k], target=int(t[k]), status=status, reason=reason
@@ -253,9 +255,7 @@ def replay(
                 reason=reason,
                 done=k + 1,
                 total=len(plan),
-                measured=counts["measured"],
-                not_found=counts["not found"],
-                skipped=counts["skipped"],
+                **_tally(counts),
             )
     except (RobotFault, StoreWriteError) as exc:
         driver.stop()
@@ -308,8 +308,8 @@ def capture_until(
         )
         return error
 
-    counts = {"measured": 0, "not found": 0, "skipped": 0}
-    error = report(0, measured=0, not_found=0, skipped=0)
+    counts: Counter[FrameStatus] = Counter()
+    error = report(0, **_tally(counts))
     k = 0
     try:
         while k < until.max and not error <= until.error:
@@ -328,7 +328,7 @@ def capture_until(
                 raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
             _settle(driver, ctx, settle_s, settle_timeout_s)
             frame = capture_frame(store, driver, session_id)
-            sequence.measured(frame.status == "measured")
+            sequence.measured(frame.status == FrameStatus.MEASURED)
             counts[frame.status] += 1
             k += 1
             error = report(
@@ -336,9 +336,7 @@ def capture_until(
                 frame=frame.index,
                 status=frame.status,
                 reason=frame.reason,
-                measured=counts["measured"],
-                not_found=counts["not found"],
-                skipped=counts["skipped"],
+                **_tally(counts),
             )
     except (RobotFault, StoreWriteError) as exc:
         driver.stop()
@@ -398,6 +396,11 @@ def _check_robot(store: Store, driver: RobotDriver, session_id: str) -> None:
     robot = store.sessions.get(session_id).robot
     if robot != driver.profile.name:
         raise InputError(f"session '{session_id}' is of robot {robot}, not {driver.profile.name}")
+
+
+def _tally(counts: Counter[FrameStatus]) -> dict[str, int]:
+    """A replay's frames so far by status, as its job's progress names them (measured, not_found, skipped)."""
+    return {s.name.lower(): counts[s] for s in (FrameStatus.MEASURED, FrameStatus.NOT_FOUND, FrameStatus.SKIPPED)}
 
 
 def _settle(driver: RobotDriver, ctx: JobContext, settle_s: float, timeout_s: float) -> None:

@@ -37,15 +37,11 @@ from calib_core import (
     write_atomic,
 )
 from calib_core.dataset import Dataset
-from calib_core.estimation.registration import register, registration_params
-from calib_core.estimation.validation import check_share
-from calib_core.io.csv_format import plan_csv, readings_beyond_limits, select_rows
-from calib_core.io.session import FrameRecord, write_session
-from calib_core.model.loader import BUILTIN_PROFILES
-from calib_core.model.profile import Profile
+from calib_core.estimation import check_share, register, registration_params
+from calib_core.io import FrameRecord, plan_csv, readings_beyond_limits, select_rows, write_session
+from calib_core.model import BUILTIN_PROFILES, Profile
 from calib_core.units import length_factor
-from calib_core.vision.ballfinder import find_sphere
-from calib_core.vision.sandal_board import detect_board
+from calib_core.vision import detect_board, find_sphere
 
 from .limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
 
@@ -393,7 +389,7 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _plan(args: argparse.Namespace) -> int:
-    from calib_core.estimation.planning import plan
+    from calib_core.estimation import plan
 
     profile = _load_robot(args)
     profile.mode(args.mode)
@@ -436,7 +432,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _self_observe(args: argparse.Namespace) -> int:
-    from calib_core.io.ctu_motoman import camera_dataset
+    from calib_core.io import camera_dataset
 
     check_share(args.holdout, "--holdout")
     profile = _load_robot(args)
@@ -451,7 +447,7 @@ def _self_observe(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from calib_core.io.export import calibrated_urdf, offsets_yaml
+    from calib_core.io import calibrated_urdf, offsets_yaml
 
     profile = _load_robot(args)
     cal = _load_calibration(args.calibration, profile)
@@ -605,7 +601,7 @@ def _detect_board(args: argparse.Namespace) -> int:
 
 
 def _import_bag(args: argparse.Namespace) -> int:
-    from calib_core.io.bag_import import import_bag  # rosbags loads only for this subcommand
+    from calib_core.io import import_bag  # rosbags loads only for this subcommand
 
     profile = _load_robot(args)
     believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None

@@ -97,7 +97,7 @@ class _Waiter:
     cond: threading.Condition | None  # None: an event waiter, woken by the clock's own condition
     deadline: float | None
     thread: str
-    event: threading.Event | None = None  # an event waiter's event: once set, the thread is about to go on
+    event: threading.Event | None = None  # an event waiter's: once set, the thread is about to go on
 
 
 class ManualClock:
@@ -184,7 +184,7 @@ class ManualClock:
     # --- a test's hold on the threads that wait on the clock ----------------------------------------------
     def waiting(self) -> int:
         """How many threads wait on this clock for a time still ahead (one whose time has come, or whose event is
-        set, is not waiting: it is about to go on)."""
+        set, is not waiting: it is about to go on, and counting it would let a test move time on under it)."""
         with self._state:
             return self._waiting()
 

@@ -21,13 +21,13 @@ from pathlib import Path
 from typing import Any
 
 from calib_core import InputError
-from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
 from .drivers import registry
 from .drivers.registry import DriverSpec
 from .drivers.simulated import can_simulate
-from .profiles import instance_profile
+from .store.profiles import instance_profile
 from .validation import check_id
 
 # The simulated robots' "today": Robonaut is the later-day robot of its day-2 sample session (its

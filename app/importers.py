@@ -17,14 +17,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from calib_core import InputError, Profile, parse_dataset
-from calib_core.io.csv_format import readings_beyond_limits
-from calib_core.io.session import read_session, session_robot
+from calib_core import FrameStatus, InputError, Profile, parse_dataset
+from calib_core.io import read_session, readings_beyond_limits, session_robot
 
+from .errors import TooLarge
 from .store import NewFrame, Observations, Store
 from .store.db import StoreWriteError, now, writing
 from .store.files import fsync_dir, write_bytes
-from .store.sessions import FRAME_STATUSES
 from .validation import check_role
 
 log = logging.getLogger(__name__)
@@ -61,8 +60,6 @@ def import_session_folder(
     frames = []
     for fr in s.frames:
         where = f"{folder / 'session.json'}"
-        if fr.status not in FRAME_STATUSES:
-            raise InputError(f"frame {fr.frame}: unknown status '{fr.status}'", file=where)
         q = np.zeros(len(profile.joints))
         for jname, deg in fr.joints_deg.items():
             if jname not in profile.joint_names:
@@ -74,9 +71,9 @@ def import_session_folder(
             c = int(np.flatnonzero(data.frame_ids == fr.frame)[0])
             known = ~np.isnan(data.joints[c])
             q[known] = data.joints[c, known]  # the CSV's readings are the ones the observations used
-            status = "measured"
-        elif status == "measured":
-            raise InputError(f"frame {fr.frame} is 'measured' but data.csv has no row of it", file=where)
+            status = FrameStatus.MEASURED
+        elif status == FrameStatus.MEASURED:
+            raise InputError(f"frame {fr.frame} is '{status}' but data.csv has no row of it", file=where)
         frames.append(NewFrame(fr.frame, q, 0, status, fr.reason, {}, fr.detail, obs))
     for frame, target in zip(frames, _frame_targets(profile, frames), strict=True):
         frame.target = target
@@ -110,6 +107,21 @@ class Imported(NamedTuple):
     notes: list[str]  # what the data say that the operator should know (readings beyond a joint's limits)
 
 
+def csv_text(raw: bytes, filename: str, max_rows: int) -> str:
+    """An uploaded CSV as text: UTF-8 (a byte order mark allowed), refused (TooLarge) beyond `max_rows` rows
+    before any is parsed."""
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{filename}: not UTF-8 text (byte {exc.start})") from None
+    rows = text.count("\n") - 1 + (not text.endswith("\n"))  # less the header: at least the rows a parse would read
+    if rows > max_rows:
+        raise TooLarge(
+            f"{filename}: {rows:,} rows; an import takes at most {max_rows:,} (the desk's row limit, --max-rows)"
+        )
+    return text
+
+
 def import_csv(store: Store, robot: str, name: str, text: str, filename: str) -> Imported:
     """A session from a CSV in the robot's pinned format; InputError (naming line and column) leaves
     nothing behind, since the rows are inserted only once the whole file has been read."""
@@ -119,7 +131,7 @@ def import_csv(store: Store, robot: str, name: str, text: str, filename: str) ->
     frames = []
     joints = np.nan_to_num(data.joints)  # joints a row did not need: 0
     for fid, q, obs in zip(data.frame_ids, joints, Observations.each(data), strict=True):
-        frames.append(NewFrame(int(fid), q, int(obs.target[0]), "measured", "", {}, {}, obs))
+        frames.append(NewFrame(int(fid), q, int(obs.target[0]), FrameStatus.MEASURED, "", {}, {}, obs))
     store.sessions.add_whole(
         sid, robot, name, description=f"imported from {filename}", source="import", truth=None, frames=frames
     )

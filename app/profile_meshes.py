@@ -2,7 +2,7 @@
 
 A profile kept by the desk reads no file outside its folder (app/store/robots.py), so the meshes its URDF's
 <visual>s name are copied with it, as an uploaded meshes zip is unpacked: into the robot's folder, where the
-review then looks for them alone (robot_look.PACKAGE_ROOT). Each mesh is found as the review finds it on disk
+review then looks for them alone (store.robots.PACKAGE_ROOT). Each mesh is found as the review finds it on disk
 (robot_look.mesh_file, from the URDF's own folder) and kept where the kept URDF's name for it finds it: a
 relative name relative to where the URDF is kept; `package://PKG/REST` where the file lay in the profile's
 folder when the name finds it there (REST, PKG/REST, ...), else at PKG/REST. An OBJ's materials (`mtllib`)
@@ -20,8 +20,8 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 
-from .robot_look import MAX_MESH_BYTES, MESH_SUFFIXES, mesh_file
-from .store.meshes import TEXTURE_SUFFIXES, MeshArchive, archive_files
+from .robot_look import MAX_MESH_BYTES, mesh_file
+from .store.meshes import MESH_SUFFIXES, TEXTURE_SUFFIXES, MeshArchive, archive_files
 
 
 def gather_meshes(urdf_file: Path, package_root: Path, kept_urdf: str, max_unpacked_bytes: int) -> MeshArchive | None:

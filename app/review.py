@@ -27,10 +27,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from calib_core import Dataset, Profile
-from calib_core.estimation.validation import figures
-from calib_core.io.urdf_export import to_urdf
-from calib_core.model.kinematics import forward, to_sensor
+from calib_core import Dataset, FrameStatus, Profile
+from calib_core.estimation import figures
+from calib_core.io import to_urdf
+from calib_core.model import forward, to_sensor
 from calib_core.sensors import Sensor
 from calib_core.units import length_factor
 
@@ -54,7 +54,7 @@ class FrameLike(Protocol):
     index: int
     joints_rad: np.ndarray
     target: int
-    status: str
+    status: FrameStatus
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,6 @@ class FrameGeometry:
     (NaN rows: nothing measured, e.g. a frame whose detector found nothing)."""
 
     index: int
-    status: str
     joints_rad: np.ndarray  # (n_joints,) the readings, profile joint order: both URDF copies show these
     predicted_m: dict[str, np.ndarray]  # side ("old", "new") -> (K, 3)
     measured_m: dict[str, np.ndarray]  # side -> (K, 3)
@@ -88,7 +87,7 @@ class Review:
         self,
         profile: Profile,
         indices: np.ndarray,
-        statuses: list[str],
+        statuses: list[FrameStatus],
         targets: np.ndarray,
         joints_rad: np.ndarray,
         start: np.ndarray,
@@ -215,7 +214,6 @@ class Review:
         s = slice(self.start[r], self.start[r + 1])
         return FrameGeometry(
             int(index),
-            self.statuses[r],
             self.joints_rad[r],
             {side: v.predicted_m[s] for side, v in self.sides.items()},
             {side: v.measured_m[s] for side, v in self.sides.items()},
@@ -275,7 +273,7 @@ def live_geometry(
         )
         predicted.append(side.predicted_m)
         measured.append(side.measured_m)
-    return FrameGeometry(0, "live", q[0], {"old": np.concatenate(predicted)}, {"old": np.concatenate(measured)})
+    return FrameGeometry(0, q[0], {"old": np.concatenate(predicted)}, {"old": np.concatenate(measured)})
 
 
 # --- computation --------------------------------------------------------------------------------

@@ -30,15 +30,16 @@ import trimesh
 import yourdfpy
 
 from calib_core import Profile
-from calib_core.io.urdf_export import BODY
-from calib_core.model.urdf_import import profile_urdf_path
+from calib_core.io import BODY
+from calib_core.model import profile_urdf_path
+
+from .store.meshes import MESH_SUFFIXES
+from .store.robots import PACKAGE_ROOT
 
 log = logging.getLogger(__name__)
 
 MAX_FACES = 100_000  # triangles per robot, over all its visuals (each copy in each browser holds them)
 MAX_MESH_BYTES = 64 * 1024 * 1024  # a mesh file above this is not read (named in the warning)
-MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".glb", ".gltf")
-PACKAGE_ROOT = ".uploaded-description"  # marks the folder of a robot the desk keeps: its meshes are there (mesh_file)
 CYLINDER_SECTIONS = 24
 DEFAULT_RGBA = (0.72, 0.74, 0.78, 1.0)  # a visual without a colour of its own (the built-in bodies' grey)
 SHOWN_PROBLEMS = 3  # visuals the warning names (the log names every one)

@@ -1,6 +1,6 @@
 """The robots on the desk: each an instance of a profile, with its own driver (or none) and calibrations.
 
-A robot is its name, its profile (the model, named after the robot: app/profiles.py), the driver that can
+A robot is its name, its profile (the model, named after the robot: app/store/profiles.py), the driver that can
 move it (or none: real data only, sessions imported from CSV) and, in the store, its own active
 calibration and apply history. Five NAOs are five robots of one profile, each calibrated on its own.
 
@@ -28,8 +28,8 @@ from .drivers import registry as drivers
 from .drivers.registry import DriverContext, DriverSpec
 from .errors import NotFound
 from .profile_meshes import gather_meshes
-from .profiles import as_instance, builtin_urdf, file_name, is_builtin, load_model
 from .store import ProfileFiles, RobotRecord, Store
+from .store.profiles import as_instance, builtin_urdf, file_name, is_builtin, load_model
 from .store.robots import kept_urdf_path
 
 log = logging.getLogger(__name__)

@@ -28,8 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core import Dataset, Profile
-from calib_core.estimation.problem import Problem
-from calib_core.estimation.registration import registration_params
+from calib_core.estimation import Problem, registration_params
 from calib_core.units import length_factor
 
 WORSE_BY = 0.05

@@ -50,10 +50,10 @@ import viser
 import yourdfpy
 
 from calib_core import Profile, load_profile
-from calib_core.io.urdf_export import to_urdf
-from calib_core.model.kinematics import forward
+from calib_core.io import to_urdf
+from calib_core.model import forward
 from calib_core.units import length_factor
-from calib_core.vision.sighting import Sighting
+from calib_core.vision import Sighting
 
 from .framing import ClientFraming, Target, framing
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry

@@ -29,7 +29,7 @@ from .clock import SYSTEM_CLOCK, Clock
 from .desk import SAMPLE_DIR, Desk
 from .desk_config import DeskConfig
 from .drivers import RobotFault
-from .errors import NotFound
+from .errors import NotAllowed, NotFound, TooLarge
 from .limits import Limits
 from .routers import api
 from .routers.robots import VERSION
@@ -78,21 +78,18 @@ def create_app(
     if not security.is_loopback(host):
         tokens = security.TokenFile(data_dir)
         token = tokens.renew() if new_token else tokens.ensure()
-    desk = Desk(
-        data_dir,
-        config=config,
-        sample_dir=sample_dir,
-        viser_port=viser_port,
-        time_scale=time_scale,
-        clock=clock,
-        workers=workers,
-        loopback=security.is_loopback(host),
-        limits=limits,
-    )
+    desk = Desk(data_dir, loopback=security.is_loopback(host), limits=limits)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        desk.start()
+        desk.start(
+            config=config,
+            sample_dir=sample_dir,
+            viser_port=viser_port,
+            time_scale=time_scale,
+            clock=clock,
+            workers=workers,
+        )
         app.state.desk = desk
         try:
             yield
@@ -128,6 +125,14 @@ def _error_handlers(app: FastAPI, scrub: Callable[[str], str]) -> None:
     @app.exception_handler(RobotFault)  # the robot is disconnected or not responding
     async def robot_fault(request: Request, exc: RobotFault) -> JSONResponse:
         return detail(503, str(exc))
+
+    @app.exception_handler(TooLarge)  # an InputError beyond the desk's limits
+    async def too_large(request: Request, exc: TooLarge) -> JSONResponse:
+        return detail(413, str(exc))
+
+    @app.exception_handler(NotAllowed)
+    async def not_allowed(request: Request, exc: NotAllowed) -> JSONResponse:
+        return detail(403, str(exc))
 
     @app.exception_handler(InputError)  # also a joint limit refused (drivers.LimitError)
     async def input_error(request: Request, exc: InputError) -> JSONResponse:

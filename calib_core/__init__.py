@@ -17,43 +17,38 @@ stays light (no SciPy or OpenCV until something needs them).
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-_EXPORTS = {
-    "Calibration": "estimation.calibration",
-    "Dataset": "dataset",
-    "InputError": "errors",
-    "Problem": "estimation.problem",
-    "SENSOR_MODELS": "sensors",
-    "Sensor": "sensors",
-    "Profile": "model.profile",
-    "SimulatedRobot": "sim.simulator",
-    "Simulation": "sim.simulator",
-    "Visibility": "vision.visibility",
-    "Evaluation": "estimation.evaluation",
-    "AccuracyPrediction": "estimation.planning",
-    "Plan": "estimation.planning",
-    "calibrate": "estimation.calibrate",
-    "evaluate": "estimation.evaluation",
-    "fit_parameters": "estimation.calibrate",
-    "load_profile": "model.loader",
-    "merge": "dataset",
-    "parse_dataset": "io.csv_format",
-    "plan": "estimation.planning",
-    "predict_accuracy": "estimation.planning",
-    "read_dataset": "io.csv_format",
-    "register": "estimation.registration",
-    "select_rows": "io.csv_format",
-    "to_csv": "io.csv_format",
-    "write_atomic": "files",
-}
+from ._lazy import lazy_exports
+
+__getattr__ = lazy_exports(
+    __name__,
+    {
+        "dataset": ("Dataset", "merge"),
+        "errors": ("InputError",),
+        "estimation.calibrate": ("calibrate", "fit_parameters"),
+        "estimation.calibration": ("Calibration",),
+        "estimation.evaluation": ("Evaluation", "evaluate"),
+        "estimation.planning": ("AccuracyPrediction", "Plan", "plan", "predict_accuracy"),
+        "estimation.problem": ("Problem",),
+        "estimation.registration": ("register",),
+        "files": ("write_atomic",),
+        "frame_status": ("FrameStatus",),
+        "io.csv_format": ("parse_dataset", "read_dataset", "select_rows", "to_csv"),
+        "model.loader": ("load_profile",),
+        "model.profile": ("Profile",),
+        "sensors": ("SENSOR_MODELS", "Sensor"),
+        "sim.simulator": ("SimulatedRobot", "Simulation"),
+        "vision.visibility": ("Visibility",),
+    },
+)
 __all__ = [
     "SENSOR_MODELS",
     "AccuracyPrediction",
     "Calibration",
     "Dataset",
     "Evaluation",
+    "FrameStatus",
     "InputError",
     "Plan",
     "Problem",
@@ -78,14 +73,6 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'calib_core' has no attribute {name!r}")
-    value = getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
-    globals()[name] = value
-    return value
-
-
 if TYPE_CHECKING:
     from .dataset import Dataset, merge
     from .errors import InputError
@@ -96,6 +83,7 @@ if TYPE_CHECKING:
     from .estimation.problem import Problem
     from .estimation.registration import register
     from .files import write_atomic
+    from .frame_status import FrameStatus
     from .io.csv_format import parse_dataset, read_dataset, select_rows, to_csv
     from .model.loader import load_profile
     from .model.profile import Profile

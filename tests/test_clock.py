@@ -141,3 +141,16 @@ def test_the_system_clock_waits_on_an_event() -> None:
     assert SYSTEM_CLOCK.wait(event, 10.0) is True
     assert SYSTEM_CLOCK.wait(threading.Event(), -1.0) is False
     assert SYSTEM_CLOCK.now() <= SYSTEM_CLOCK.now()
+
+
+def test_a_thread_whose_event_is_set_is_no_longer_counted_as_waiting() -> None:
+    """Set its event and a waiter is about to go on: counting it would let a test's run() move time on before the
+    thread has seen its event (a driver test read a move's arrival one step late that way, under load)."""
+    clock = ManualClock()
+    event = threading.Event()
+    waiter = threading.Thread(target=lambda: clock.wait(event, 1.0))
+    waiter.start()
+    clock.until_waiting(1)
+    event.set()
+    assert clock.waiting() == 0  # at once, whether or not the thread has woken yet
+    waiter.join()

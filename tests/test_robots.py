@@ -24,8 +24,8 @@ from app.desk_config import DeskConfig, default_config, load_desk_config
 from app.drivers import registry
 from app.drivers.registry import DriverContext, DriverSpec
 from app.drivers.simulated import SimulatedDriver
-from app.profiles import PROFILE_DIR
 from app.server import create_app
+from app.store.profiles import PROFILE_DIR
 from calib_core import InputError, SimulatedRobot, load_profile
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
@@ -372,7 +372,7 @@ def test_a_profile_file_on_the_server_is_named_only_on_a_loopback_desk(
 ) -> None:
     path = PROFILE_DIR / "robonaut-a.yaml"
     with TestClient(create_app(desk_dir, sample_dir=None, time_scale=50.0)) as client:
-        monkeypatch.setattr(client.app.state.desk, "loopback", False)
+        monkeypatch.setattr(client.app.state.desk.robot_service, "loopback", False)
         r = _add(client, name="far", profile=str(path))
         assert r.status_code == 403 and "upload it" in r.json()["detail"]
         r = _add(client, name="near", profile="nao")  # a built-in profile by name is fine anywhere

@@ -24,9 +24,9 @@ import numpy as np
 
 from calib_core import Calibration
 from calib_core.errors import InputError
-from calib_core.model.profile import Profile
+from calib_core.model import Profile
 from calib_core.units import length_factor
-from calib_core.vision.sighting import Sighting
+from calib_core.vision import Sighting
 
 DEFAULT_MARGIN_DEG = 1.0  # a revolute joint's safety margin
 DEFAULT_MARGIN_M = 0.001  # a prismatic joint's

@@ -23,12 +23,10 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from calib_core import Calibration
+from calib_core import Calibration, FrameStatus, Profile, Sensor
 from calib_core.errors import InputError
-from calib_core.model.profile import Profile, Sensor
 from calib_core.units import length_factor
-from calib_core.vision.sighting import Sighting, sight_board, sight_fixture
-from calib_core.vision.stereo import StereoHead, depth_from_pair
+from calib_core.vision import Sighting, StereoHead, depth_from_pair, sight_board, sight_fixture
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, Look, RobotFault, RobotStatus, check_limits
@@ -155,7 +153,9 @@ def first_target(profile: Profile) -> int:
 def not_found(profile: Profile, target: int, reason: str) -> Sighting:
     """The data sensor's sighting that found nothing, and why."""
     sensor = profile.data.sensor
-    return Sighting(sensor, target, "not found", reason, None, np.zeros((0, 3)), np.zeros(0, int), {"reason": reason})
+    return Sighting(
+        sensor, target, FrameStatus.NOT_FOUND, reason, None, np.zeros((0, 3)), np.zeros(0, int), {"reason": reason}
+    )
 
 
 class Poller:
@@ -355,7 +355,7 @@ class Driver:
             fixed = profile.targets[target].points  # a reflector: its frame's origin, as a CSV row's point
             points = np.full((1, 3), np.nan) if fixed is None else fixed[[0]]
             return Sighting(
-                profile.data.sensor, target, "measured", "ok", m.point[None], points, np.array([-1]), m.detail
+                profile.data.sensor, target, FrameStatus.MEASURED, "ok", m.point[None], points, np.array([-1]), m.detail
             )
         if m.head is not None:
             depth_m = depth_from_pair(m.images["left"], m.images["right"], m.head)

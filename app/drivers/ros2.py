@@ -34,10 +34,9 @@ import numpy as np
 
 from calib_core import Calibration, InputError, Profile
 from calib_core.files import write_atomic
-from calib_core.io.camera_images import grey_image
-from calib_core.io.export import calibrated_urdf, offsets_yaml
+from calib_core.io import calibrated_urdf, grey_image, offsets_yaml
 from calib_core.units import length_factor
-from calib_core.vision.stereo import StereoHead
+from calib_core.vision import StereoHead
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import RobotFault

@@ -17,10 +17,9 @@ from typing import Any
 import numpy as np
 
 from calib_core.errors import InputError
-from calib_core.model.profile import Profile
-from calib_core.sim.simulator import SimulatedRobot
-from calib_core.vision.sampling import Sampler
-from calib_core.vision.visibility import Visibility
+from calib_core.model import Profile
+from calib_core.sim import SimulatedRobot
+from calib_core.vision import Sampler, Visibility
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, RobotFault, RobotStatus, check_limits

@@ -45,7 +45,7 @@ import yaml
 
 from calib_core import InputError, Profile, load_profile
 from calib_core.files import write_atomic
-from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
 from . import require

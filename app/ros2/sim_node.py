@@ -30,15 +30,12 @@ from typing import Any
 import numpy as np
 
 from calib_core import InputError, Profile, load_profile
-from calib_core.io.urdf_export import to_urdf
-from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.io import to_urdf
+from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
-from calib_core.sim.simulator import SimulatedRobot
+from calib_core.sim import SimulatedRobot
 from calib_core.units import length_factor
-from calib_core.vision.sampling import Sampler
-from calib_core.vision.sandal_board import render_board_image
-from calib_core.vision.stereo import StereoHead, render_pair
-from calib_core.vision.visibility import Visibility
+from calib_core.vision import Sampler, StereoHead, Visibility, render_board_image, render_pair
 
 from . import require
 
@@ -86,7 +83,7 @@ class Topics:
 def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
     """The profile (a built-in name or a file; `urdf` for a profile that says `urdf: ros2`) and the URDF
     text the node publishes (the profile's own URDF, a built-in's shipped one, or one drawn from the model)."""
-    from ..profiles import builtin_urdf
+    from ..store.profiles import builtin_urdf
 
     if robot in BUILTIN_PROFILES:
         profile = load_profile(robot)

@@ -3,23 +3,72 @@
 from __future__ import annotations
 
 import json
-from typing import Any, Literal
+from typing import Literal
 
 from fastapi import APIRouter, Response
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
 
-from calib_core.io.export import calibrated_urdf, offsets_yaml
+from calib_core.estimation import Correlation, Diagnostic, HeldParameter, Outlier, ParameterEstimate
+from calib_core.io import calibrated_urdf, offsets_yaml
 
-from .deps import DeskDep, RobotsDep, StoreDep
+from .deps import ApplyDep, CalibrationsDep, RobotsDep
+from .models import Figures
 
 router = APIRouter()
 
 
-class CalibrationOut(BaseModel):
-    """The calibration file (format calib-calibration/1: every parameter with its unit and standard deviation,
-    the figures before and after, the solver, identifiability, outliers, warnings) and where it came from."""
+class NoiseTest(BaseModel):
+    """One sensor's residuals against its declared noise (calib_core.estimation.NoiseTest)."""
 
-    model_config = ConfigDict(extra="allow")
+    sensor: str
+    factor: float  # residual RMS over the declared noise
+    rows: int
+    dof: float
+    p_value: float
+    level: float
+    rejected: bool  # p_value < level: the residuals are clearly above the declared noise
+
+
+class Solver(BaseModel):
+    """How the solver stopped (calib_core.estimation.SolverReport): `status` a code, `message` in words."""
+
+    method: str  # "lm" | "nelder-mead"
+    status: str
+    iterations: int
+    evaluations: int
+    solve_seconds: float
+    robust: bool
+    cost_history: list[float]
+    sigma: float | None  # scale of the whitened residuals at the solution
+    folds: int  # k of the k-fold cross-validation (0: none)
+    cv_seconds: float | None
+    minimal: bool  # a minimal identifiable parameter set, without the mode's priors
+    noise_tests: list[NoiseTest]
+    starts: int
+    start: str  # the start whose solution was kept
+    message: str
+    converged: bool
+    fits_noise: bool | None  # None: not tested
+
+
+class Identifiability(BaseModel):
+    """What the data determine (calib_core.estimation.IdentifiabilityReport)."""
+
+    free: list[str]
+    held_fixed: list[HeldParameter]
+    singular_values: list[float]
+    rank: int
+    condition: float | None  # None: infinite
+    o1: float | None
+    correlations: list[Correlation]
+    inflation: dict[str, float]  # per parameter: its standard deviation over what it would be alone
+    note: str
+
+
+class CalibrationOut(BaseModel):
+    """The calibration file (format calib-calibration/1, calib_core.estimation.Calibration: every parameter with
+    its unit and standard deviation, the figures before and after, the solver, identifiability, outliers,
+    diagnostics) and where it came from."""
 
     id: str
     robot: str  # the robot it was made for and may be applied to
@@ -27,15 +76,29 @@ class CalibrationOut(BaseModel):
     session: str | None
     base: str | None
     holdout: float
-    parameters: list[dict[str, Any]]
-    figures: dict[str, Any]
-    warnings: list[Any]
+    parameters: list[ParameterEstimate]  # display units
+    figures: dict[str, Figures]  # before, after; holdout_before, holdout_after; cv_after
+    warnings: list[str]  # the messages of the diagnostics of severity warning
+    method: str
+    created: str
+    source: str
+    solver: Solver
+    identifiability: Identifiability
+    outliers: list[Outlier]
+    diagnostics: list[Diagnostic]
+    frames: dict[str, list[int]]  # "holdout": the frames held out
+    sensor_figures: dict[str, dict[str, Figures]]  # with several sensors: each one's figures, by name
+    format: str
+    converged: bool
+    fits_noise: bool | None
+    solve_seconds: float
+    iterations: int
 
 
 @router.get("/calibrations/{cal_id}")
-def calibration(store: StoreDep, cal_id: str) -> CalibrationOut:
-    info = store.calibrations.info(cal_id)
-    body = store.calibrations.load(cal_id).to_dict()
+def calibration(calibrations: CalibrationsDep, cal_id: str) -> CalibrationOut:
+    info = calibrations.info(cal_id)
+    body = calibrations.load(cal_id).to_dict()
     return CalibrationOut.model_validate(
         {**body, "id": cal_id, "session": info.session_id, "base": info.base_id, "holdout": info.holdout}
     )
@@ -65,11 +128,11 @@ class Applied(BaseModel):
 @router.post(
     "/calibrations/{cal_id}/apply", responses={409: {"model": ApplyConcerns}}, response_model_exclude_unset=True
 )
-def apply(desk: DeskDep, cal_id: str, body: ApplyRequest | None = None) -> Applied:
+def apply(service: ApplyDep, cal_id: str, body: ApplyRequest | None = None) -> Applied:
     """Make the calibration its robot's active one (recorded, then pushed to the robot's driver). Only the robot
     whose session it was made from takes it."""
     body = body or ApplyRequest()
-    return Applied.model_validate(desk.apply.apply(cal_id, body.note, confirm=body.confirm))
+    return Applied.model_validate(service.apply(cal_id, body.note, confirm=body.confirm))
 
 
 EXPORTS = {
@@ -84,11 +147,11 @@ EXPORTS = {
     responses={200: {"content": {"application/json": {}, "application/yaml": {}, "application/xml": {}}}},
 )
 def export(
-    store: StoreDep, robots: RobotsDep, cal_id: str, format: Literal["json", "yaml", "urdf"] = "json"
+    calibrations: CalibrationsDep, robots: RobotsDep, cal_id: str, format: Literal["json", "yaml", "urdf"] = "json"
 ) -> Response:
     """What the robot's driver takes: the calibration JSON, an offsets YAML or a URDF with corrected origins."""
-    info = store.calibrations.info(cal_id)
-    cal = store.calibrations.load(cal_id)
+    info = calibrations.info(cal_id)
+    cal = calibrations.load(cal_id)
     profile = robots.get(info.robot).profile
     if format == "json":
         text = json.dumps(cal.to_dict(), indent=2) + "\n"

@@ -1,19 +1,35 @@
-"""What the routers are given (FastAPI `Depends`): the desk and its parts, the viewer a request is for, and
-reading an upload whole."""
+"""What the routers are given (FastAPI `Depends`): the services, the store's repositories a router reads, the
+robots on the desk, the viewer a request is for, the desk's limits, and reading an upload whole.
+
+The only module of the API that imports the desk: a router names what it needs here and never reaches through
+the desk to get it (the health check alone asks the desk about itself: its instance, its viser port).
+"""
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Callable
+from operator import attrgetter
+from typing import Annotated, Any
 
 from fastapi import Depends, Header, HTTPException, Request, UploadFile
 from fastapi import Path as PathParam
 
 from ..desk import Desk
 from ..jobs.runner import JobRunner
+from ..limits import Limits
 from ..robots import Robots
+from ..services.apply import ApplyService
+from ..services.calibration import CalibrationService
+from ..services.connection import Connection
+from ..services.drive import DriveService
+from ..services.replay import ReplayService
+from ..services.review import ReviewService
+from ..services.robots import RobotService
 from ..store import Store
+from ..store.calibrations import CalibrationRepository
+from ..store.sessions import SessionRepository
 from ..validation import FRAME_MAX, FRAME_MIN
-from ..viewers import VIEWER_PATTERN, Viewer
+from ..viewers import VIEWER_PATTERN, Viewer, Viewers
 
 
 def get_desk(request: Request) -> Desk:
@@ -23,16 +39,14 @@ def get_desk(request: Request) -> Desk:
 DeskDep = Annotated[Desk, Depends(get_desk)]
 
 
-def get_store(desk: DeskDep) -> Store:
-    return desk.store
+def _part(path: str) -> Callable[[Desk], Any]:
+    """A dependency: the desk's part at `path` (dotted attribute names), read at each request."""
+    get = attrgetter(path)
 
+    def part(desk: DeskDep) -> Any:
+        return get(desk)
 
-def get_jobs(desk: DeskDep) -> JobRunner:
-    return desk.jobs
-
-
-def get_robots(desk: DeskDep) -> Robots:
-    return desk.robots
+    return part
 
 
 def get_viewer(
@@ -49,19 +63,29 @@ def get_viewer(
     return desk.viewers.get(viewer)
 
 
-StoreDep = Annotated[Store, Depends(get_store)]
-JobsDep = Annotated[JobRunner, Depends(get_jobs)]
-RobotsDep = Annotated[Robots, Depends(get_robots)]
+StoreDep = Annotated[Store, Depends(_part("store"))]
+SessionsDep = Annotated[SessionRepository, Depends(_part("store.sessions"))]
+CalibrationsDep = Annotated[CalibrationRepository, Depends(_part("store.calibrations"))]
+RobotsDep = Annotated[Robots, Depends(_part("robots"))]
+JobsDep = Annotated[JobRunner, Depends(_part("jobs"))]
+ViewersDep = Annotated[Viewers, Depends(_part("viewers"))]
+LimitsDep = Annotated[Limits, Depends(_part("limits"))]
+ConnectionDep = Annotated[Connection, Depends(_part("connection"))]
+DriveDep = Annotated[DriveService, Depends(_part("drive"))]
+RobotServiceDep = Annotated[RobotService, Depends(_part("robot_service"))]
+CalibrationDep = Annotated[CalibrationService, Depends(_part("calibration"))]
+ApplyDep = Annotated[ApplyService, Depends(_part("apply"))]
+ReplayDep = Annotated[ReplayService, Depends(_part("replay"))]
+ReviewDep = Annotated[ReviewService, Depends(_part("reviews"))]
 ViewerDep = Annotated[Viewer, Depends(get_viewer)]
 FrameIndex = Annotated[int, PathParam(ge=FRAME_MIN, le=FRAME_MAX, description="a frame number")]
 
 
-async def read_upload(desk: Desk, upload: UploadFile) -> bytes:
+async def read_upload(limits: Limits, upload: UploadFile) -> bytes:
     """An uploaded file whole, refused (413) beyond the desk's upload limit before it is all read."""
-    limit = desk.limits.upload_bytes
-    raw = await upload.read(limit + 1)
-    if len(raw) > limit:
+    raw = await upload.read(limits.upload_bytes + 1)
+    if len(raw) > limits.upload_bytes:
         raise HTTPException(
-            413, f"{upload.filename}: larger than {desk.limits.upload_text} (the desk's upload limit, --max-upload-mb)"
+            413, f"{upload.filename}: larger than {limits.upload_text} (the desk's upload limit, --max-upload-mb)"
         )
     return raw

@@ -11,7 +11,7 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.sse import EventSourceResponse
 
 from ..jobs.snapshot import JobSnapshot
-from .deps import DeskDep, JobsDep
+from .deps import JobsDep, ReplayDep
 from .models import DryRun
 
 router = APIRouter()
@@ -45,11 +45,11 @@ async def job_events(
 
 
 @router.get("/jobs/{job_id}/dry-run")
-def dry_run_result(desk: DeskDep, job_id: str) -> DryRun:
+def dry_run_result(replay: ReplayDep, job_id: str) -> DryRun:
     """What a dry run job found once it is done: the dry run's answer (every configuration checked, the
     predicted accuracy). 404 for a job that is not a dry run, or whose result is no longer kept; 422 while it
     runs, or when it ended cancelled or failed."""
-    return DryRun.model_validate(desk.replay.dry_run_result(job_id))
+    return DryRun.model_validate(replay.dry_run_result(job_id))
 
 
 @router.post("/jobs/{job_id}/{action}")

@@ -1,28 +1,54 @@
 """The answers more than one router gives (Pydantic models, so that /openapi.json tells the truth), and the
-functions that make them from the desk's objects."""
+functions that make them from the services' objects."""
 
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
-from pydantic import BaseModel
+from pydantic import BaseModel, Field, JsonValue
 
-from calib_core import Profile
+from calib_core import FrameStatus, Profile
 
-from ..desk import Desk
+from ..services.connection import Connection
 from ..store import FrameInfo
+
+
+class ObserveState(BaseModel):
+    """The session observed and what its live view sees (app/services/observe.py); a field without a value yet
+    is left out."""
+
+    session: str
+    autocapture: bool
+    captured: int  # frames autocapture kept
+    last_frame: int | None = Field(None, exclude_if=lambda v: v is None)  # the latest of them
+    detection: str | None = Field(None, exclude_if=lambda v: v is None)  # the latest look's status, or "moving"
+    reason: str | None = Field(None, exclude_if=lambda v: v is None)  # why it found nothing ("ok": it measured)
+    message: str | None = Field(None, exclude_if=lambda v: v is None)  # the latest look's failure
+
+
+class Figures(BaseModel):
+    """A calibration's error figures over its observations (calib_core.estimation.Figures as the calibration
+    file holds them: mean, RMS, max and median None when there were none)."""
+
+    n: int
+    mean: float | None
+    rms: float | None
+    max: float | None
+    median: float | None
+    unit: str
+    rms_axes: list[float]  # per measurement coordinate (x, y, z or u, v)
+    excluded: int = 0  # observations left out as outliers
 
 
 class FrameOut(BaseModel):
     index: int
     joints: dict[str, float | None]  # deg, by joint name
     target: str
-    status: str  # "measured" | "not found" | "skipped" | "pending"
+    status: FrameStatus
     reason: str
     images: dict[str, str]  # role -> URL
-    detail: dict[str, Any]  # what the detector reported
+    detail: dict[str, JsonValue]  # the detector's own record (its figures; a session folder's, as it came)
     captured: str
     observations: dict[str, int] = {}  # sensor name -> how many observations it made in this frame
 
@@ -37,7 +63,7 @@ class RobotState(BaseModel):
     target: str
     calibration: str | None  # the calibration the robot runs with (None: the nominal model)
     message: str
-    observing: dict[str, Any] | None  # the session observed and what the live view sees
+    observing: ObserveState | None  # None: not observing
 
 
 class JobStarted(BaseModel):
@@ -102,10 +128,10 @@ def frame_out(profile: Profile, f: FrameInfo, counts: dict[int | None, int] | No
     )
 
 
-def robot_state(desk: Desk, robot: str | None) -> RobotState:
+def robot_state(connection: Connection, robot: str | None) -> RobotState:
     """The state of `robot` (None: the connected one)."""
-    name = desk.robot_name(robot)
-    driver = desk.robots.driver(name)
+    name = connection.robot_name(robot)
+    driver = connection.driver(name)
     st = driver.status()
     profile = driver.profile
     return RobotState(
@@ -116,5 +142,5 @@ def robot_state(desk: Desk, robot: str | None) -> RobotState:
         target=profile.targets[st.target].name,
         calibration=st.calibration_id,
         message=st.message,
-        observing=desk.observing(),
+        observing=connection.observing(),
     )

@@ -5,13 +5,13 @@ reviewing different sessions never move each other (app/viewers.py)."""
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
+from calib_core import FrameStatus
+
 from ..validation import FRAME_MAX, FRAME_MIN
-from .deps import DeskDep, FrameIndex, ViewerDep
+from .deps import FrameIndex, ReviewDep, ViewerDep, ViewersDep
 
 router = APIRouter()
 
@@ -25,11 +25,44 @@ class ReviewRequest(BaseModel):
 
 class ReviewRow(BaseModel):
     index: int
-    status: str
+    status: FrameStatus
     target: int
     err_old: float | None  # None: not measured
     err_new: float | None
     heldout: bool
+
+
+class ReviewFigures(BaseModel):
+    """The distances between prediction and measurement of the measured observations (app/review.py): their mean,
+    RMS and max (None: none measured) and their count."""
+
+    mean: float | None
+    rms: float | None
+    max: float | None
+    n: int
+
+
+class Histogram(BaseModel):
+    """The observations' errors in bins of the review's unit (no bins: nothing measured, or no error at all)."""
+
+    edges: list[float]
+    old: list[int]
+    new: list[int] | None  # None: no new calibration
+
+
+class ReviewSummary(BaseModel):
+    """Counted over observations, like a calibration's figures; heldout_* over the new calibration's held-out
+    frames (None: it held none out, or there is no new calibration)."""
+
+    unit: str
+    frames: int
+    measured: int  # frames with a measurement of the sensor reviewed
+    heldout_frames: int
+    old: ReviewFigures
+    heldout_old: ReviewFigures | None
+    new: ReviewFigures | None  # None: no new calibration
+    heldout_new: ReviewFigures | None
+    histogram: Histogram
 
 
 class ReviewOut(BaseModel):
@@ -40,13 +73,13 @@ class ReviewOut(BaseModel):
     sensor: str  # the sensor the table, the summary and the scene's red marks are of
     sensors: list[str]  # the sensors the session has observations of
     table: list[ReviewRow]
-    summary: dict[str, Any]  # old and new mean, RMS, max (held out too), unit, histogram
+    summary: ReviewSummary
     warnings: list[str] = []  # what the scene could not show as asked (a URDF robot's mesh that cannot be read)
 
 
 @router.post("/review")
-def review(desk: DeskDep, viewer: ViewerDep, body: ReviewRequest) -> ReviewOut:
-    return ReviewOut.model_validate(desk.review(body.session, body.old, body.new, viewer, body.sensor))
+def review(reviews: ReviewDep, viewer: ViewerDep, body: ReviewRequest) -> ReviewOut:
+    return ReviewOut.model_validate(reviews.load(viewer, body.session, body.old, body.new, body.sensor))
 
 
 class SelectRequest(BaseModel):
@@ -63,8 +96,8 @@ class Selected(BaseModel):
 
 
 @router.post("/review/frame")
-def select(desk: DeskDep, viewer: ViewerDep, body: SelectRequest) -> Selected:
-    return Selected.model_validate(desk.reviews.select(viewer, body.index, show_all=body.all, overlay=body.overlay))
+def select(reviews: ReviewDep, viewer: ViewerDep, body: SelectRequest) -> Selected:
+    return Selected.model_validate(reviews.select(viewer, body.index, show_all=body.all, overlay=body.overlay))
 
 
 class Marks(BaseModel):
@@ -81,8 +114,8 @@ class Marks(BaseModel):
 
 
 @router.get("/review/marks/{index}")
-def marks(desk: DeskDep, viewer: ViewerDep, index: FrameIndex) -> Marks:
-    return Marks.model_validate(desk.reviews.marks(viewer, index))
+def marks(reviews: ReviewDep, viewer: ViewerDep, index: FrameIndex) -> Marks:
+    return Marks.model_validate(reviews.marks(viewer, index))
 
 
 class ViewerOut(BaseModel):
@@ -102,6 +135,6 @@ class ViewerOut(BaseModel):
 
 
 @router.get("/viewers")
-def viewers(desk: DeskDep) -> list[ViewerOut]:
+def viewers(viewers: ViewersDep) -> list[ViewerOut]:
     """Every viewer on the desk: the default one, and one per open tab (a closed tab's goes a few seconds later)."""
-    return [ViewerOut.model_validate(v.state()) for v in desk.viewers.all()]
+    return [ViewerOut.model_validate(v.state()) for v in viewers.all()]

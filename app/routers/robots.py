@@ -3,22 +3,17 @@
 from __future__ import annotations
 
 import asyncio
-import json
 import math
-from typing import Annotated, Any
+from typing import Annotated
 
-from fastapi import APIRouter, File, Form, HTTPException, UploadFile
+from fastapi import APIRouter, File, Form, UploadFile
 from pydantic import BaseModel
 
-from calib_core import InputError
-from calib_core.model.profile import Profile
+from calib_core import Profile
 
-from ..drivers.registry import KINDS, DriverSpec
-from ..profiles import file_name, is_builtin
 from ..robots import Robot
-from ..store import ProfileFiles
-from ..store.meshes import MeshesTooLarge, check_archive
-from .deps import DeskDep, RobotsDep, read_upload
+from ..services.robots import NewRobot, Upload
+from .deps import DeskDep, LimitsDep, RobotsDep, RobotServiceDep, read_upload
 
 VERSION = "0.4.0"
 router = APIRouter()
@@ -128,7 +123,8 @@ def robots(robots: RobotsDep) -> list[RobotOut]:
 
 @router.post("/robots", status_code=201)
 async def add_robot(
-    desk: DeskDep,
+    service: RobotServiceDep,
+    limits: LimitsDep,
     name: Annotated[str, Form(min_length=1, max_length=64)],
     profile: Annotated[str | None, Form(max_length=4096)] = None,
     profile_file: Annotated[UploadFile | None, File()] = None,
@@ -146,59 +142,20 @@ async def add_robot(
     robot and used again after a restart. A broken profile or zip answers 422 naming its file and field
     or entry; a zip larger unpacked than the desk's limit 413. A profile file named brings its URDF's meshes
     (app/profile_meshes.py): 413 when they are more or larger together than a zip may hold."""
-    files = None
-    if profile_file is not None:
-        if profile:
-            raise InputError("give the profile either as a file (profile_file) or by name (profile), not both")
-        urdf = None
-        if urdf_file is not None:
-            urdf = (file_name(urdf_file.filename, "robot.urdf"), await read_upload(desk, urdf_file))
-        elif meshes_zip is not None:
-            raise InputError("meshes go with a URDF: upload the URDF (urdf_file) the profile names too")
-        meshes = None
-        if meshes_zip is not None:
-            zip_name = file_name(meshes_zip.filename, "meshes.zip")
-            data = await read_upload(desk, meshes_zip)
-            try:
-                meshes = check_archive(zip_name, data, desk.limits.unpacked_bytes)
-            except MeshesTooLarge as exc:
-                raise HTTPException(413, str(exc)) from None
-        files = ProfileFiles(
-            file_name(profile_file.filename, "profile.yaml"), await read_upload(desk, profile_file), urdf, meshes
-        )
-    elif urdf_file is not None:
-        raise InputError("a URDF goes with its profile: upload the profile (profile_file) too")
-    elif meshes_zip is not None:
-        raise InputError("meshes go with an uploaded profile and its URDF: upload them too (profile_file, urdf_file)")
-    elif profile and not is_builtin(profile) and not desk.loopback:
-        raise HTTPException(
-            403, "a profile file on the server can be named only on a desk bound to loopback: upload it"
-        )
-    spec = None
-    if driver:
-        if driver not in KINDS:
-            raise InputError(f"driver: unknown driver kind '{driver}' (known: {', '.join(KINDS)})")
-        spec = DriverSpec(driver, _driver_options(driver_options))
-    elif driver_options:
-        raise InputError("driver_options: options of which driver? give the driver's kind (driver) too")
-    try:
-        robot = await asyncio.to_thread(desk.add_robot, name, profile=profile or None, files=files, driver=spec)
-    except MeshesTooLarge as exc:  # the meshes of a profile file named: as a zip's
-        raise HTTPException(413, str(exc)) from None
-    return robot_out(robot)
 
+    async def read(upload: UploadFile | None) -> Upload | None:
+        return None if upload is None else Upload(upload.filename, await read_upload(limits, upload))
 
-def _driver_options(text: str | None) -> dict[str, Any]:
-    """The `driver_options` form field: a JSON object (empty or absent: none)."""
-    if not text:
-        return {}
-    try:
-        options = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"driver_options: not valid JSON ({exc.msg} at character {exc.pos})") from None
-    if not isinstance(options, dict):
-        raise InputError('driver_options: expected a JSON object of the driver\'s options, like {"seed": 2}')
-    return options
+    new = NewRobot(
+        name,
+        profile=profile,
+        profile_file=await read(profile_file),
+        urdf_file=await read(urdf_file),
+        meshes_zip=await read(meshes_zip),
+        driver=driver,
+        driver_options=driver_options,
+    )
+    return robot_out(await asyncio.to_thread(service.add, new))
 
 
 class Deleted(BaseModel):
@@ -206,7 +163,7 @@ class Deleted(BaseModel):
 
 
 @router.delete("/robots/{name}")
-def remove_robot(desk: DeskDep, name: str) -> Deleted:
+def remove_robot(service: RobotServiceDep, name: str) -> Deleted:
     """Take a robot added here off the desk (one with sessions or calibrations stays: they name it)."""
-    desk.remove_robot(name)
+    service.remove(name)
     return Deleted(deleted=name)

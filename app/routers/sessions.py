@@ -5,18 +5,31 @@ from __future__ import annotations
 
 import asyncio
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Form, HTTPException, Response, UploadFile
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
 from ..capture import Until
-from ..importers import import_csv
+from ..importers import csv_text, import_csv
 from ..services.replay import ReplayPlan
 from ..validation import ID, IMAGE_NAME
-from .deps import DeskDep, FrameIndex, RobotsDep, StoreDep, ViewerDep, read_upload
-from .models import DryRun, FrameOut, JobStarted, RobotState, frame_out, robot_state
+from .deps import (
+    CalibrationDep,
+    CalibrationsDep,
+    ConnectionDep,
+    DriveDep,
+    FrameIndex,
+    LimitsDep,
+    ReplayDep,
+    RobotsDep,
+    SessionsDep,
+    StoreDep,
+    ViewerDep,
+    read_upload,
+)
+from .models import DryRun, Figures, FrameOut, JobStarted, ObserveState, RobotState, frame_out, robot_state
 
 router = APIRouter()
 
@@ -62,11 +75,11 @@ class CalibrationSummary(BaseModel):
     created: str
     base: str | None
     holdout: float
-    figures: dict[str, Any]
+    figures: dict[str, Figures]  # before, after; holdout_before, holdout_after; cv_after
 
 
 @router.get("/sessions")
-def sessions(store: StoreDep) -> list[SessionSummary]:
+def sessions(sessions: SessionsDep) -> list[SessionSummary]:
     return [
         SessionSummary(
             id=s.id,
@@ -77,15 +90,15 @@ def sessions(store: StoreDep) -> list[SessionSummary]:
             created=s.created,
             source=s.source,
         )
-        for s in store.sessions.list()
+        for s in sessions.list()
     ]
 
 
 @router.get("/sessions/{session_id}")
-def session(store: StoreDep, robots: RobotsDep, session_id: str) -> SessionOut:
-    s = store.sessions.get(session_id)
+def session(sessions: SessionsDep, robots: RobotsDep, session_id: str) -> SessionOut:
+    s = sessions.get(session_id)
     profile = robots.get(s.robot).profile
-    counts = store.sessions.sensor_counts(session_id)
+    counts = sessions.sensor_counts(session_id)
     return SessionOut(
         id=s.id,
         robot=s.robot,
@@ -95,7 +108,7 @@ def session(store: StoreDep, robots: RobotsDep, session_id: str) -> SessionOut:
         source=s.source,
         measured=s.measured,
         truth=s.truth,
-        frames=[frame_out(profile, f, counts.get(f.index)) for f in store.sessions.frames(session_id)],
+        frames=[frame_out(profile, f, counts.get(f.index)) for f in sessions.frames(session_id)],
     )
 
 
@@ -105,54 +118,46 @@ class NewSession(BaseModel):
 
 
 @router.post("/sessions", status_code=201)
-def create_session(store: StoreDep, robots: RobotsDep, body: NewSession) -> Created:
+def create_session(sessions: SessionsDep, robots: RobotsDep, body: NewSession) -> Created:
     robots.get(body.robot)
-    return Created(id=store.sessions.create(body.robot, body.name, source="capture"))
+    return Created(id=sessions.create(body.robot, body.name, source="capture"))
 
 
 @router.delete("/sessions/{session_id}")
-def delete_session(store: StoreDep, session_id: str) -> Deleted:
-    store.sessions.delete(session_id)
+def delete_session(sessions: SessionsDep, session_id: str) -> Deleted:
+    sessions.delete(session_id)
     return Deleted(deleted=session_id)
 
 
 @router.post("/sessions/import", status_code=201)
 async def import_session(
-    desk: DeskDep,
     store: StoreDep,
     robots: RobotsDep,
+    limits: LimitsDep,
     robot: Annotated[str, Form()],
     name: Annotated[str, Form(min_length=1, max_length=200)],
     data: Annotated[UploadFile, File()],
 ) -> ImportedOut:
     """A session from a CSV in the robot's pinned format; a mistake answers 422 naming line and column, a file
     beyond the desk's limits (its size, its rows) 413 naming the limit."""
-    raw = await read_upload(desk, data)
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise HTTPException(422, f"{data.filename}: not UTF-8 text (byte {exc.start})") from None
+    raw = await read_upload(limits, data)
     robots.get(robot)
     filename = Path(data.filename or "data.csv").name
-    rows = text.count("\n") - 1 + (not text.endswith("\n"))  # less the header: at least the rows a parse would read
-    if rows > desk.limits.rows:
-        raise HTTPException(
-            413,
-            f"{filename}: {rows:,} rows; an import takes at most {desk.limits.rows:,} "
-            "(the desk's row limit, --max-rows)",
-        )
+    text = csv_text(raw, filename, limits.rows)
     imported = await asyncio.to_thread(import_csv, store, robot, name, text, filename)
     return ImportedOut(id=imported.id, notes=imported.notes)
 
 
 @router.get("/sessions/{session_id}/calibrations")
-def session_calibrations(store: StoreDep, session_id: str) -> list[CalibrationSummary]:
-    store.sessions.get(session_id)
+def session_calibrations(
+    sessions: SessionsDep, calibrations: CalibrationsDep, session_id: str
+) -> list[CalibrationSummary]:
+    sessions.get(session_id)
     return [
         CalibrationSummary(
             id=c.id, mode=c.mode, created=c.created, base=c.base_id, holdout=c.holdout, figures=c.figures
         )
-        for c in store.calibrations.list(session_id=session_id)
+        for c in calibrations.list(session_id=session_id)
     ]
 
 
@@ -164,15 +169,15 @@ class CalibrationRequest(BaseModel):
 
 
 @router.post("/sessions/{session_id}/calibrations", status_code=202)
-def start_calibration(desk: DeskDep, session_id: str, body: CalibrationRequest) -> JobStarted:
-    return JobStarted(job=desk.calibration.submit(session_id, body.mode, body.base, body.holdout, folds=body.folds))
+def start_calibration(calibration: CalibrationDep, session_id: str, body: CalibrationRequest) -> JobStarted:
+    return JobStarted(job=calibration.submit(session_id, body.mode, body.base, body.holdout, folds=body.folds))
 
 
 @router.get("/files/sessions/{session_id}/images/{name}", responses={200: {"content": {"image/jpeg": {}}}})
-def image_file(desk: DeskDep, session_id: str, name: str) -> FileResponse:
+def image_file(sessions: SessionsDep, session_id: str, name: str) -> FileResponse:
     if not ID.fullmatch(session_id) or not IMAGE_NAME.fullmatch(name):
         raise HTTPException(404, "no such image")
-    path = desk.data_dir / "sessions" / session_id / "images" / name
+    path = sessions.folder(session_id) / "images" / name
     if not path.is_file():
         raise HTTPException(404, "no such image")
     return FileResponse(path, media_type="image/jpeg")
@@ -184,9 +189,9 @@ class Captured(BaseModel):
 
 
 @router.post("/sessions/{session_id}/capture", status_code=201)
-def capture(desk: DeskDep, session_id: str) -> Captured:
-    frame = desk.capture(session_id)
-    return Captured(frame=frame_out(desk.robots.get(desk.store.sessions.get(session_id).robot).profile, frame))
+def capture(drive: DriveDep, sessions: SessionsDep, robots: RobotsDep, session_id: str) -> Captured:
+    frame = drive.capture(session_id)
+    return Captured(frame=frame_out(robots.get(sessions.get(session_id).robot).profile, frame))
 
 
 class ObserveRequest(BaseModel):
@@ -195,14 +200,16 @@ class ObserveRequest(BaseModel):
 
 
 class Observing(BaseModel):
-    observing: dict[str, Any] | None  # the session observed and what the live view sees; None: not observing
+    observing: ObserveState | None  # None: not observing
 
 
 @router.post("/sessions/{session_id}/observe")
-def observe(desk: DeskDep, viewer: ViewerDep, session_id: str, body: ObserveRequest) -> Observing:
-    desk.store.sessions.get(session_id)
-    desk.observe(session_id if body.on else None, autocapture=body.autocapture, viewer=viewer)
-    return Observing(observing=desk.observing())
+def observe(
+    connection: ConnectionDep, sessions: SessionsDep, viewer: ViewerDep, session_id: str, body: ObserveRequest
+) -> Observing:
+    sessions.get(session_id)
+    connection.observe(session_id if body.on else None, autocapture=body.autocapture, viewer=viewer)
+    return Observing(observing=connection.observing())
 
 
 class UntilRequest(BaseModel):
@@ -226,7 +233,7 @@ class ReplayRequest(BaseModel):
 
 
 @router.post("/sessions/{session_id}/replay", responses={202: {"model": JobStarted}})
-def start_replay(desk: DeskDep, session_id: str, body: ReplayRequest, response: Response) -> DryRun | JobStarted:
+def start_replay(replay: ReplayDep, session_id: str, body: ReplayRequest, response: Response) -> DryRun | JobStarted:
     """A replay answers 202 with its job. A dry run (`dry_run`: every configuration checked, nothing moves) of
     frames (`from_session`, `remeasure`) answers 200 with what it found; one of new configurations (`count`,
     `until`) 202 with its job, which plans them, checks them and predicts (its result: GET
@@ -236,20 +243,14 @@ def start_replay(desk: DeskDep, session_id: str, body: ReplayRequest, response: 
         body.from_session, body.count, body.remeasure, body.seed, body.resume, body.mode, body.planner, until
     )
     if body.dry_run and plan.from_frames:
-        return DryRun.model_validate(desk.replay.dry_run(session_id, plan))
+        return DryRun.model_validate(replay.dry_run(session_id, plan))
     response.status_code = 202
     if body.dry_run:
-        return JobStarted(job=desk.replay.start_dry_run(session_id, plan))
-    return JobStarted(job=desk.replay.start(session_id, plan))
+        return JobStarted(job=replay.start_dry_run(session_id, plan))
+    return JobStarted(job=replay.start(session_id, plan))
 
 
 @router.post("/sessions/{session_id}/frames/{index}/goto", status_code=202)
-def goto(desk: DeskDep, session_id: str, index: FrameIndex) -> RobotState:
+def goto(drive: DriveDep, connection: ConnectionDep, session_id: str, index: FrameIndex) -> RobotState:
     """Drive the session's robot to the configuration of one of its frames."""
-    s = desk.store.sessions.get(session_id)
-    frame = desk.store.sessions.frame(session_id, index)
-    driver = desk.robots.driver(s.robot)
-    driver.check(frame.joints_rad)
-    driver.set_target(frame.target)
-    driver.move_to(frame.joints_rad, wait=False)
-    return robot_state(desk, s.robot)
+    return robot_state(connection, drive.goto(session_id, index))

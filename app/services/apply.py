@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from calib_core.estimation.registration import register
+from calib_core.estimation import register
 
 from .. import safety
 from ..robots import Robots

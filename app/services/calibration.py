@@ -14,7 +14,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from calib_core import Calibration, InputError, Profile, calibrate
-from calib_core.estimation.calibrate import METHODS, check_can_fit
+from calib_core.estimation import METHODS, check_can_fit
 
 from ..errors import NotFound
 from ..jobs.worker import WorkerLink

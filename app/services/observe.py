@@ -15,8 +15,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from calib_core import Profile
-from calib_core.estimation.registration import register, registration_params
+from calib_core import FrameStatus, Profile
+from calib_core.estimation import register, registration_params
 
 from ..capture import AutoCapture, look_outcome
 from ..drivers import Look, RobotDriver
@@ -118,7 +118,7 @@ class Observer:
         seen = self._seen
         if seen is None or seen.target != st.target:
             seen = self._seen = self.driver.look()
-        sightings = [replace(s, status="moving", reason="moving", measured=None) for s in seen.sightings]
+        sightings = [replace(s, status=FrameStatus.NOT_FOUND, reason="moving", measured=None) for s in seen.sightings]
         p, _ = self._live_params()
         self.live.show_live(self.driver.profile, Look(st.joints_rad, st.target, sightings, {}), p)
 
@@ -130,7 +130,7 @@ class Observer:
         if not registration_params(profile):
             return p, True
         frames = self.store.sessions.frames(self.session_id)
-        key = (cal_id, tuple(f.index for f in frames if f.status == "measured"))
+        key = (cal_id, tuple(f.index for f in frames if f.status == FrameStatus.MEASURED))
         if self._registration is None or self._registration[0] != key:
             data = self.store.sessions.dataset(self.session_id, profile)
             fitted = register(profile, data, p) if data.n_configurations >= MIN_REGISTRATION_FRAMES else None

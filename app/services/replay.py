@@ -20,11 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from calib_core import InputError, Profile
-from calib_core.estimation.planning import Plan, PlanProgress, SequentialPlan, predict_accuracy
-from calib_core.estimation.planning import plan as plan_configurations
-from calib_core.vision.sampling import Sampler
-from calib_core.vision.visibility import Visibility
+from calib_core import FrameStatus, InputError, Profile
+from calib_core.estimation import Plan, PlanProgress, SequentialPlan, predict_accuracy
+from calib_core.estimation import plan as plan_configurations
+from calib_core.vision import Sampler, Visibility
 
 from ..capture import Until, capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
@@ -243,7 +242,7 @@ class ReplayService:
 
         def run(ctx: JobContext) -> str | None:
             ctx.progress(0.0, phase="planning")
-            done = [f for f in self.store.sessions.frames(session_id) if f.status == "measured"]
+            done = [f for f in self.store.sessions.frames(session_id) if f.status == FrameStatus.MEASURED]
             sequence = SequentialPlan(
                 profile,
                 mode,
@@ -310,7 +309,7 @@ class ReplayService:
                 raise InputError(f"session '{source.id}' has no frames to replay")
             q = np.array([f.joints_rad for f in frames])
             targets = np.array([f.target for f in frames])
-            seen = np.array([f.status == "measured" for f in frames], dtype=bool)
+            seen = np.array([f.status == FrameStatus.MEASURED for f in frames], dtype=bool)
             return q, targets, [f.index for f in frames] if plan.remeasure else None, seen, None
         # Configurations the robot believes it sees the target in: with its active model. Random: twice as
         # many as asked, since those inside a joint's safety margin are left out. Planned: for the least

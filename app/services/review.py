@@ -7,24 +7,40 @@ slider and 2-D marks address; loading a session of another robot replaces what t
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from calib_core import Dataset, InputError, Profile
-from calib_core.estimation.registration import register, registration_params
+from calib_core.estimation import register, registration_params
 
 from ..review import Review
 from ..robot_look import robot_look
 from ..robots import Robots
 from ..store import Store
 from ..viewers import Viewer
+from .connection import Connection
 
 
 class ReviewService:
-    def __init__(self, store: Store, robots: Robots) -> None:
+    def __init__(self, store: Store, robots: Robots, connection: Connection, scrub: Callable[[str], str]) -> None:
+        """`connection`: the robot in view (a viewer watching another robot live stops to review); `scrub`: what
+        the answer's warnings are shown through (no path of the server)."""
         self.store = store
         self.robots = robots
+        self.connection = connection
+        self.scrub = scrub
+
+    def load(
+        self, viewer: Viewer, session_id: str, old: str | None, new: str | None, sensor: str | None = None
+    ) -> dict[str, Any]:
+        """Load a review (as one sensor sees it; None: the data format's) into a viewer: `build`, then `show`. A
+        viewer watching another robot live stops watching (the live view ends when nobody watches it any more)."""
+        review, key = self.build(session_id, old, new, sensor)
+        self.connection.reviewing(viewer, key["robot"])
+        answer = self.show(viewer, review, key)
+        return answer | {"warnings": [self.scrub(w) for w in answer["warnings"]]}  # a mesh's absolute path
 
     def build(
         self, session_id: str, old: str | None, new: str | None, sensor: str | None = None

@@ -5,6 +5,8 @@
     DATA/calibrations/<id>.json        calib-calibration/1 files: calibrations.py
     DATA/robots/<name>/                profiles (and their URDF) of robots added while the desk ran: robots.py
 
+A robot's profile is a built-in one by name or a profile file, named after the robot (profiles.py).
+
 Crash safety comes from ordering: every file is written whole (temporary name, fsync, rename) before
 the transaction that references it commits, and every multi-row change is one transaction. A crash
 therefore leaves at most files no row references; opening the store sweeps them away.

@@ -21,18 +21,19 @@ from typing import Any, TypeVar
 import yaml
 
 from calib_core import InputError, Profile
-from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import load_yaml
 
 from ..errors import NotFound
-from ..profiles import file_name, instance_profile, load_model
-from ..robot_look import PACKAGE_ROOT
 from ..validation import check_id
 from .db import Database, now
 from .files import fsync_dir, write_bytes
 from .meshes import MeshArchive, unpack
+from .profiles import file_name, instance_profile, load_model
 
 T = TypeVar("T")
+# Marks the folder of a robot the desk keeps: its URDF's meshes are looked for there only (app/robot_look.py).
+PACKAGE_ROOT = ".uploaded-description"
 CONFINED = b"the URDF's meshes are looked for in this folder only\n"  # PACKAGE_ROOT's text
 
 

@@ -20,19 +20,19 @@ from pathlib import Path
 
 import numpy as np
 
-from calib_core import Dataset, InputError, Profile, to_csv
-from calib_core.io.session import csv_sensors
+from calib_core import Dataset, FrameStatus, InputError, Profile, to_csv
+from calib_core.io import csv_sensors
 
 from ..errors import NotFound
 from ..validation import check_id, check_joints_rad, check_role, check_target
 from .db import Database, jsonable, now
 from .files import encode_jpeg, fsync_dir, write_bytes
 
-FRAME_STATUSES = ("measured", "not found", "skipped", "pending")
 SESSION_SOURCES = ("sample", "import", "capture")
 
+_MEASURED = f"'{FrameStatus.MEASURED}'"  # the status as an SQL literal
 _SESSION_QUERY = (
-    "SELECT s.*, COUNT(f.idx) AS n_frames, COALESCE(SUM(f.status = 'measured'), 0) AS n_measured "
+    f"SELECT s.*, COUNT(f.idx) AS n_frames, COALESCE(SUM(f.status = {_MEASURED}), 0) AS n_measured "
     "FROM sessions s LEFT JOIN frames f ON f.session_id = s.id"
 )
 
@@ -56,7 +56,7 @@ class FrameInfo:
     index: int  # frame number, unique in its session
     joints_rad: np.ndarray  # profile.joint_names order
     target: int
-    status: str  # "measured" | "not found" | "skipped" | "pending"
+    status: FrameStatus
     reason: str
     images: dict[str, str]  # role -> path relative to the data directory
     detail: dict
@@ -132,7 +132,7 @@ class NewFrame:
     index: int
     joints_rad: np.ndarray
     target: int
-    status: str
+    status: FrameStatus
     reason: str
     images: dict[str, str]
     detail: dict
@@ -244,7 +244,7 @@ class SessionRepository:
         index: int | None,
         joints_rad: np.ndarray,
         target: int,
-        status: str,
+        status: FrameStatus,
         reason: str = "",
         observations: Observations | None = None,
         images: dict[str, np.ndarray] | None = None,
@@ -260,11 +260,10 @@ class SessionRepository:
         profile = self.profile(self.get(session_id).robot)
         q = check_joints_rad(profile, joints_rad)
         target = check_target(profile, target)
-        if status not in FRAME_STATUSES:
-            raise InputError(f"unknown frame status '{status}' ({', '.join(FRAME_STATUSES)})")
+        status = FrameStatus.parse(status)
         obs = observations
-        if (status == "measured") != (obs is not None and len(obs.measured) > 0):
-            raise InputError("a frame has measurements exactly when its status is 'measured'")
+        if (status == FrameStatus.MEASURED) != (obs is not None and len(obs.measured) > 0):
+            raise InputError(f"a frame has measurements exactly when its status is '{FrameStatus.MEASURED}'")
         encoded = {check_role(role): encode_jpeg(img) for role, img in (images or {}).items()}
         detail_json = json.dumps(jsonable(detail or {}))
         written: list[Path] = []
@@ -326,7 +325,7 @@ class SessionRepository:
             raise InputError(f"session '{session_id}' is of robot '{info.robot}', not '{profile.name}'")
         with self.db.snapshot() as db:
             frames = db.execute(
-                "SELECT idx, joints_rad FROM frames WHERE session_id = ? AND status = 'measured' "
+                f"SELECT idx, joints_rad FROM frames WHERE session_id = ? AND status = {_MEASURED} "
                 "AND EXISTS (SELECT 1 FROM observations o WHERE o.session_id = frames.session_id "
                 "AND o.idx = frames.idx) ORDER BY idx",
                 (session_id,),
@@ -334,7 +333,7 @@ class SessionRepository:
             obs = db.execute(
                 "SELECT o.idx, o.target, o.vertex, o.px, o.py, o.pz, o.m0, o.m1, o.m2, o.sensor FROM observations o "
                 "JOIN frames f ON f.session_id = o.session_id AND f.idx = o.idx "
-                "WHERE o.session_id = ? AND f.status = 'measured' ORDER BY o.idx, o.seq",
+                f"WHERE o.session_id = ? AND f.status = {_MEASURED} ORDER BY o.idx, o.seq",
                 (session_id,),
             ).fetchall()
         frame_ids = np.array([r["idx"] for r in frames], dtype=int)
@@ -388,7 +387,7 @@ class SessionRepository:
         self.get(session_id)
         rows = self.db.all(
             "SELECT o.sensor, COUNT(*) AS n FROM observations o JOIN frames f ON f.session_id = o.session_id "
-            "AND f.idx = o.idx WHERE o.session_id = ? AND f.status = 'measured' GROUP BY o.sensor",
+            f"AND f.idx = o.idx WHERE o.session_id = ? AND f.status = {_MEASURED} GROUP BY o.sensor",
             (session_id,),
         )
         return {r["sensor"]: int(r["n"]) for r in rows}
@@ -428,7 +427,7 @@ def _insert_frame(
     index: int,
     q: np.ndarray,
     target: int,
-    status: str,
+    status: FrameStatus,
     reason: str,
     images: dict[str, str],
     detail_json: str,
@@ -472,7 +471,7 @@ def _frame_info(r: sqlite3.Row) -> FrameInfo:
         index=int(r["idx"]),
         joints_rad=np.array(json.loads(r["joints_rad"]), dtype=float),
         target=int(r["target"]),
-        status=r["status"],
+        status=FrameStatus(r["status"]),
         reason=r["reason"],
         images=json.loads(r["images"]),
         detail=json.loads(r["detail"]),

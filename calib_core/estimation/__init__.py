@@ -1,1 +1,79 @@
-"""From observations to a calibration: the problem, the solver, identifiability, validation, the result."""
+"""From observations to a calibration: the problem, the solver, identifiability, validation, the result.
+
+The names below load their module on first use (calib_core/_lazy.py): SciPy only when one needs it. The
+pipeline itself, `calibrate`, is calib_core's (a name here would be shadowed by its module)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_exports
+
+__getattr__ = lazy_exports(
+    __name__,
+    {
+        "calibrate": ("METHODS", "check_can_fit", "fit_parameters"),
+        "calibration": ("Calibration", "Outlier", "ParameterEstimate"),
+        "evaluation": ("Evaluation", "evaluate"),
+        "planning": ("AccuracyPrediction", "Plan", "PlanProgress", "SequentialPlan", "plan", "predict_accuracy"),
+        "problem": ("Problem",),
+        "registration": ("register", "registration_params"),
+        "reports": (
+            "Correlation",
+            "Diagnostic",
+            "HeldParameter",
+            "IdentifiabilityReport",
+            "NoiseTest",
+            "Severity",
+            "SolverReport",
+        ),
+        "validation": ("Figures", "check_share", "figures"),
+    },
+)
+__all__ = [
+    "METHODS",
+    "AccuracyPrediction",
+    "Calibration",
+    "Correlation",
+    "Diagnostic",
+    "Evaluation",
+    "Figures",
+    "HeldParameter",
+    "IdentifiabilityReport",
+    "NoiseTest",
+    "Outlier",
+    "ParameterEstimate",
+    "Plan",
+    "PlanProgress",
+    "Problem",
+    "SequentialPlan",
+    "Severity",
+    "SolverReport",
+    "check_can_fit",
+    "check_share",
+    "evaluate",
+    "figures",
+    "fit_parameters",
+    "plan",
+    "predict_accuracy",
+    "register",
+    "registration_params",
+]
+
+if TYPE_CHECKING:
+    from .calibrate import METHODS, check_can_fit, fit_parameters
+    from .calibration import Calibration, Outlier, ParameterEstimate
+    from .evaluation import Evaluation, evaluate
+    from .planning import AccuracyPrediction, Plan, PlanProgress, SequentialPlan, plan, predict_accuracy
+    from .problem import Problem
+    from .registration import register, registration_params
+    from .reports import (
+        Correlation,
+        Diagnostic,
+        HeldParameter,
+        IdentifiabilityReport,
+        NoiseTest,
+        Severity,
+        SolverReport,
+    )
+    from .validation import Figures, check_share, figures

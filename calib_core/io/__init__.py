@@ -1,1 +1,51 @@
-"""Files in and out: the CSV data formats, session folders, ROS bags, the CTU data set, driver exports."""
+"""Files in and out: the CSV data formats, session folders, ROS bags, the CTU data set, driver exports.
+
+The names below load their module on first use (calib_core/_lazy.py): rosbags only for `import_bag`."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_exports
+
+__getattr__ = lazy_exports(
+    __name__,
+    {
+        "bag_import": ("import_bag",),
+        "camera_images": ("grey_image",),
+        "csv_format": ("parse_dataset", "plan_csv", "read_dataset", "readings_beyond_limits", "select_rows", "to_csv"),
+        "ctu_motoman": ("camera_dataset",),
+        "export": ("calibrated_urdf", "offsets_yaml"),
+        "session": ("FrameRecord", "csv_sensors", "read_session", "session_robot", "write_session"),
+        "urdf_export": ("BODY", "to_urdf"),
+    },
+)
+__all__ = [
+    "BODY",
+    "FrameRecord",
+    "calibrated_urdf",
+    "camera_dataset",
+    "csv_sensors",
+    "grey_image",
+    "import_bag",
+    "offsets_yaml",
+    "parse_dataset",
+    "plan_csv",
+    "read_dataset",
+    "read_session",
+    "readings_beyond_limits",
+    "select_rows",
+    "session_robot",
+    "to_csv",
+    "to_urdf",
+    "write_session",
+]
+
+if TYPE_CHECKING:
+    from .bag_import import import_bag
+    from .camera_images import grey_image
+    from .csv_format import parse_dataset, plan_csv, read_dataset, readings_beyond_limits, select_rows, to_csv
+    from .ctu_motoman import camera_dataset
+    from .export import calibrated_urdf, offsets_yaml
+    from .session import FrameRecord, csv_sensors, read_session, session_robot, write_session
+    from .urdf_export import BODY, to_urdf

@@ -46,6 +46,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from ..errors import InputError
+from ..frame_status import FrameStatus
 from ..model.profile import Profile
 from ..sensors import Sensor
 from ..vision.sighting import Capture, Sighting, dataset_from_captures, predicted_points, sight_board, sight_fixture
@@ -378,11 +379,13 @@ def _sight(
         grid = profile.targets[t].grid
         points = grid if grid is not None else np.full((1, 3), np.nan)
         vertices = np.arange(len(points)) if grid is not None else np.array([-1])
-        return Sighting(profile.data.sensor, t, "not found", "no board predicted in view", None, points, vertices, {})
+        return Sighting(
+            profile.data.sensor, t, FrameStatus.NOT_FOUND, "no board predicted in view", None, points, vertices, {}
+        )
     sighting = None
     for t in candidates:
         sighting = sight_board(profile, believed, q, t, images["image"])
-        if sighting.status == "measured":
+        if sighting.status == FrameStatus.MEASURED:
             break
     assert sighting is not None
     return sighting
@@ -549,7 +552,14 @@ def import_bag(
         if problem:
             t = profile.data.target if profile.data.target is not None else 0
             sighting = Sighting(
-                profile.data.sensor, t, "not found", problem, None, np.full((1, 3), np.nan), np.array([-1]), {}
+                profile.data.sensor,
+                t,
+                FrameStatus.NOT_FOUND,
+                problem,
+                None,
+                np.full((1, 3), np.nan),
+                np.array([-1]),
+                {},
             )
         else:
             sighting = _sight(profile, believed, q, frame_images, head)
@@ -562,7 +572,7 @@ def import_bag(
         )
     without_image = sum(c.sighting.reason.startswith("no image") for c in captures)
 
-    measured = sum(c.sighting.status == "measured" for c in captures)
+    measured = sum(c.sighting.status == FrameStatus.MEASURED for c in captures)
     if not measured:
         reasons = sorted({c.sighting.reason for c in captures})
         raise InputError(

@@ -26,6 +26,7 @@ import numpy as np
 from ..dataset import Dataset
 from ..errors import InputError
 from ..files import write_atomic
+from ..frame_status import FrameStatus
 from ..model.loader import BUILTIN_PROFILES, load_profile
 from ..model.profile import Profile
 from .csv_format import read_dataset, to_csv
@@ -38,7 +39,7 @@ FORMAT = "calib-session/1"
 class FrameRecord:
     frame: int
     joints_deg: dict[str, float]
-    status: str  # "measured" or "not found"
+    status: FrameStatus
     reason: str
     images: dict[str, str]  # role ("left", "right", "image") -> path relative to the session folder
     detail: dict[str, Any]
@@ -230,12 +231,12 @@ def _frame_record(fr: Any, i: int) -> FrameRecord:
         raise InputError(f"{where}.frame: expected a whole number, got {frame!r}")
     if not isinstance(joints, dict) or not all(isinstance(k, str) and _finite(v) for k, v in joints.items()):
         raise InputError(f"{where}.joints_deg: expected joint names with finite angles in deg")
-    for key in ("status", "reason"):
-        if not isinstance(fr[key], str):
-            raise InputError(f"{where}.{key}: expected text, got {fr[key]!r}")
+    status = FrameStatus.parse(fr["status"], f"{where}.status")
+    if not isinstance(fr["reason"], str):
+        raise InputError(f"{where}.reason: expected text, got {fr['reason']!r}")
     if not isinstance(images, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in images.items()):
         raise InputError(f"{where}.images: expected image roles with file names")
     if not isinstance(fr["detail"], dict):
         raise InputError(f"{where}.detail: expected an object")
     joints_deg = {k: float(v) for k, v in joints.items()}
-    return FrameRecord(frame, joints_deg, fr["status"], fr["reason"], images, fr["detail"])
+    return FrameRecord(frame, joints_deg, status, fr["reason"], images, fr["detail"])

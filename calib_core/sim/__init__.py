@@ -1,1 +1,20 @@
-"""The simulated robot: hidden true parameters, realistic noise, rendered images."""
+"""The simulated robot: hidden true parameters, realistic noise, rendered images.
+
+The names below load their module on first use (calib_core/_lazy.py)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_exports
+
+__getattr__ = lazy_exports(
+    __name__,
+    {
+        "simulator": ("SimulatedRobot", "Simulation"),
+    },
+)
+__all__ = ["SimulatedRobot", "Simulation"]
+
+if TYPE_CHECKING:
+    from .simulator import SimulatedRobot, Simulation

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dataset import Dataset
+from ..frame_status import FrameStatus
 from ..model.kinematics import sensor_points, target_points
 from ..model.profile import Profile
 from ..vision.sampling import Sampler
@@ -231,11 +232,11 @@ class SimulatedRobot:
         detail = {"sensor": "read directly"}
         if not seen.any():
             reason = f"{t.name} is not in view of {prof.sensors[sensor].name}"
-            return Sighting(sensor, target, "not found", reason, None, points, vertices, detail)
+            return Sighting(sensor, target, FrameStatus.NOT_FOUND, reason, None, points, vertices, detail)
         x = sensor_points(prof, p, q[None], np.array([target]), sensor=sensor)[0, :K]
         noise = {"pixel": self.pixel_noise, "disparity": self.disparity_noise, "point": self.point_noise}
         measured = prof.sensors[sensor].simulate(p, x[seen], self.rng, noise)
-        return Sighting(sensor, target, "measured", "ok", measured, points[seen], vertices[seen], detail)
+        return Sighting(sensor, target, FrameStatus.MEASURED, "ok", measured, points[seen], vertices[seen], detail)
 
     def capture(self, frame: int, q: np.ndarray, target: int, believed: np.ndarray) -> Capture:
         """Render what the sensor sees in configuration q (one row, rad) and run its detector,

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dataset import Dataset
+from ..frame_status import FrameStatus
 from ..model.kinematics import sensor_points, target_points
 from ..model.profile import Profile
 from ..units import length_factor
@@ -28,7 +29,7 @@ class Sighting:
 
     sensor: int  # the sensor that looked (its index in the profile)
     target: int
-    status: str  # "measured" or "not found"
+    status: FrameStatus  # measured or not found
     reason: str
     measured: np.ndarray | None  # (K, dim): a sensor-frame point (profile length unit) or pixels
     points: np.ndarray  # (K, 3) the observed points in the target frame (NaN: the calibrated point)
@@ -66,9 +67,13 @@ def sight_fixture(
     detail = found.to_json()
     points = np.full((1, 3), np.nan)
     if not found.found or found.center_m is None:
-        return Sighting(profile.data.sensor, target, "not found", found.reason, None, points, np.array([-1]), detail)
+        return Sighting(
+            profile.data.sensor, target, FrameStatus.NOT_FOUND, found.reason, None, points, np.array([-1]), detail
+        )
     measured = (head.R_frame_optical @ found.center_m) / to_m
-    return Sighting(profile.data.sensor, target, "measured", "ok", measured[None], points, np.array([-1]), detail)
+    return Sighting(
+        profile.data.sensor, target, FrameStatus.MEASURED, "ok", measured[None], points, np.array([-1]), detail
+    )
 
 
 def sight_board(profile: Profile, p_believed: np.ndarray, q: np.ndarray, target: int, image: np.ndarray) -> Sighting:
@@ -83,8 +88,10 @@ def sight_board(profile: Profile, p_believed: np.ndarray, q: np.ndarray, target:
     vertices = np.arange(rows * cols)
     detail = {"found": found.found, "reason": found.reason, "residual_px": found.residual_px}
     if not found.found or found.corners is None:
-        return Sighting(s, target, "not found", found.reason, None, board.grid, vertices, detail)
-    return Sighting(s, target, "measured", "ok", np.asarray(found.corners, float), board.grid, vertices, detail)
+        return Sighting(s, target, FrameStatus.NOT_FOUND, found.reason, None, board.grid, vertices, detail)
+    return Sighting(
+        s, target, FrameStatus.MEASURED, "ok", np.asarray(found.corners, float), board.grid, vertices, detail
+    )
 
 
 def dataset_from_captures(profile: Profile, captures: list[Capture], source: str) -> Dataset:

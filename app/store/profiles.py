@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 
 from calib_core import Profile, load_profile
-from calib_core.model.loader import BUILTIN_PROFILES
+from calib_core.model import BUILTIN_PROFILES
 
 PROFILE_DIR = Path(str(resources.files("calib_core.model") / "profiles"))
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")

@@ -1,0 +1,139 @@
+"""The code's layers: calib_core's public surface (what each package hands on, loaded lazily), and who in app
+may import whom (routers -> services -> store, and no import cycle)."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ["calib_core", *(f"calib_core.{p}" for p in ("model", "sensors", "estimation", "vision", "sim", "io"))]
+
+
+def _type_checking_names(package: str) -> set[str]:
+    """The names a package's `if TYPE_CHECKING:` block imports (empty when it imports its modules eagerly)."""
+    tree = ast.parse((ROOT / package.replace(".", "/") / "__init__.py").read_text(encoding="utf-8"))
+    blocks = [n for n in tree.body if isinstance(n, ast.If) and getattr(n.test, "id", None) == "TYPE_CHECKING"]
+    return {a.asname or a.name for b in blocks for n in b.body if isinstance(n, ast.ImportFrom) for a in n.names}
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_every_public_name_of_a_package_resolves_and_type_checkers_see_the_same_names(package: str) -> None:
+    module = importlib.import_module(package)
+    assert module.__all__ and len(set(module.__all__)) == len(module.__all__)
+    for name in module.__all__:
+        assert getattr(module, name) is not None
+    seen = _type_checking_names(package)
+    assert not seen or seen == set(module.__all__)
+    with pytest.raises(AttributeError, match="no attribute 'nothing_here'"):
+        _ = module.nothing_here
+
+
+def test_importing_calib_core_or_a_subpackage_loads_neither_scipy_nor_opencv() -> None:
+    """A script that only needs a profile or a CSV does not wait for SciPy and OpenCV (seconds on a cold disk)."""
+    code = (
+        f"import sys, {', '.join(PACKAGES)}; "
+        "print(' '.join(m for m in ('scipy', 'cv2', 'rosbags', 'yourdfpy') if m in sys.modules))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == []
+
+
+def _imports(path: Path) -> list[str]:
+    """The modules a file imports at run time (not in `if TYPE_CHECKING:`), relative ones made absolute."""
+    package = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+    if path.name != "__init__.py":
+        package = package.rpartition(".")[0]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skipped = {
+        id(n)
+        for b in ast.walk(tree)
+        if isinstance(b, ast.If) and getattr(b.test, "id", None) == "TYPE_CHECKING"
+        for n in ast.walk(b)
+    }
+    out = []
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
+            out += [f"{base}.{a.name}" if f"{base}.{a.name}" in _MODULES else base for a in node.names]
+    return out
+
+
+_FILES = {
+    ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p for p in ROOT.glob("app/**/*.py")
+}
+_MODULES = set(_FILES)
+
+
+def test_app_imports_calib_core_through_its_packages_only() -> None:
+    """calib_core's modules below a subpackage are its own business: app takes what a package hands on."""
+    deep = [
+        f"{name} imports {m}"
+        for name, path in sorted(_FILES.items())
+        for m in _imports(path)
+        if m.startswith("calib_core.") and m.count(".") >= 2
+    ]
+    assert deep == []
+
+
+def _app_imports(name: str) -> set[str]:
+    return {m for m in _imports(_FILES[name]) if m in _MODULES and m != name}
+
+
+def test_the_store_imports_nothing_above_it() -> None:
+    """The store is the bottom of the desk: below it only the checks every door shares, the errors and the job
+    snapshot it keeps."""
+    below = {"app", "app.errors", "app.validation", "app.jobs", "app.jobs.snapshot"}
+    upward = {
+        f"{name} imports {m}"
+        for name in _MODULES
+        if name.startswith("app.store")
+        for m in _app_imports(name)
+        if not m.startswith("app.store") and m not in below
+    }
+    assert upward == set()
+
+
+def test_routers_reach_the_desk_only_through_their_dependencies_and_services_never_import_routers() -> None:
+    desk = {name for name in _MODULES if "app.desk" in _app_imports(name)}
+    assert {n for n in desk if n.startswith("app.routers")} <= {"app.routers.deps"}
+    assert not {
+        f"{name} imports {m}"
+        for name in _MODULES
+        if name.startswith(("app.services", "app.store"))
+        for m in _app_imports(name)
+        if m.startswith(("app.routers", "app.desk", "app.server"))
+    }
+
+
+def test_app_has_no_import_cycle() -> None:
+    graph = {name: _app_imports(name) for name in _MODULES}
+    done: set[str] = set()
+    path: list[str] = []
+
+    def visit(name: str) -> None:
+        if name in path:
+            raise AssertionError("import cycle: " + " -> ".join([*path[path.index(name) :], name]))
+        if name in done:
+            return
+        path.append(name)
+        for m in sorted(graph[name]):
+            visit(m)
+        path.pop()
+        done.add(name)
+
+    for name in sorted(graph):
+        visit(name)
