@@ -35,6 +35,7 @@ from calib_core import load_profile, read_dataset
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "sample_sessions"
 FINISHED = ("done", "failed", "cancelled")
+pytestmark = pytest.mark.slow  # faults injected into running replays, jobs and stores
 
 
 def served_job(server: Server, job_id: str, timeout_s: float = 60.0) -> dict:
@@ -84,7 +85,6 @@ def _each_configuration_once(client: TestClient, frames: list[dict], q_plan: np.
     return bool((near.sum(axis=1) == 1).all() and (near.sum(axis=0) == 1).all())
 
 
-@pytest.mark.slow
 def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan(client: TestClient) -> None:
     driver = client.app.state.desk.robots.driver("nao")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "disconnect"}).json()["id"]
@@ -122,7 +122,6 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
         assert job["state"] == "failed" and job["error"].startswith("nothing to resume"), job
 
 
-@pytest.mark.slow
 def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestClient) -> None:
     driver = client.app.state.desk.robots.driver("nao")
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "stall"}).json()["id"]

@@ -34,6 +34,7 @@ def test_every_public_name_of_a_package_resolves_and_type_checkers_see_the_same_
         _ = module.nothing_here
 
 
+@pytest.mark.subprocess
 def test_importing_calib_core_or_a_subpackage_loads_neither_scipy_nor_opencv() -> None:
     """A script that only needs a profile or a CSV does not wait for SciPy and OpenCV (seconds on a cold disk)."""
     code = (

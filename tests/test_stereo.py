@@ -25,6 +25,7 @@ from calib_core.vision.stereo import (
 
 N_FRAMES = 16
 RADIUS_M = 0.04
+pytestmark = pytest.mark.slow  # stereo pairs rendered and detected
 
 
 @dataclass
@@ -76,7 +77,6 @@ def _interior(frame: StereoImages, margin_px: float = 3.0) -> np.ndarray:
     return cv2.distanceTransform(sphere, cv2.DIST_L2, 3) > margin_px
 
 
-@pytest.mark.slow
 def test_head_from_the_profile(scene):
     head = scene.head
     assert (head.fx_px, head.fy_px, head.cx_px, head.cy_px) == (525.0, 525.0, 319.5, 239.5)
@@ -86,7 +86,6 @@ def test_head_from_the_profile(scene):
     assert head.disparity_px(1.0) == pytest.approx(47.25)
 
 
-@pytest.mark.slow
 def test_images_are_an_8_bit_pair_with_true_depth(scene):
     f = scene.frames[0]
     for image in (f.left, f.right):
@@ -195,7 +194,6 @@ def test_no_data_is_nan_never_zero_or_negative(scene):
     assert np.isnan(depth_from_pair(flat, flat, scene.head)).all()
 
 
-@pytest.mark.slow
 def test_sphere_views_say_how_much_of_the_sphere_each_rendered_image_shows(scene):
     """The visible share `sphere_views` computes without rendering against the rendered images' sphere
     pixels, over configurations where the arm hides none, some or all of it (not the simulator's)."""
