@@ -99,12 +99,11 @@ def test_joint_offsets_and_poses_are_recovered(arm, session) -> None:
     p_true = truth(arm)
     cal = calibrate(arm, session, "bodies", holdout=0.25)
     assert cal.converged and cal.identifiability.held_fixed == []
-    for e in cal.parameters:
-        if e.estimated:
-            i = arm.param(e.name)
-            err = abs(e.value - arm.to_display(i, p_true[i]))
-            limit = 0.01 if arm.parameters[i].kind == "angle" else 0.05
-            assert err < limit and err < 4 * e.std, (e.name, err, e.std)
+    estimated = {e.name: (e, arm.param(e.name)) for e in cal.parameters if e.estimated}
+    errors = {n: (abs(e.value - arm.to_display(i, p_true[i])), e.std, i) for n, (e, i) in estimated.items()}
+    limit = {"angle": 0.01, "length": 0.05}  # deg, mm
+    bad = {n: (err, std) for n, (err, std, i) in errors.items() if err > min(limit[arm.parameters[i].kind], 4 * std)}
+    assert not bad, bad
     held = cal.figures["holdout_after"]
     # Noise on 3 axes: the RMS distance is sqrt(3) sigma, the RMS rotation angle too.
     assert held.rms == pytest.approx(math.sqrt(3) * POSITION_MM, rel=0.3)
