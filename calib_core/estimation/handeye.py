@@ -33,7 +33,7 @@ MIN_PNP_POINTS = 4  # a board's pose from fewer points is not determined
 def pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The 4x4 (or (n, 4, 4)) homogeneous transforms of rotations R and translations t."""
     R = np.asarray(R, float)
-    T = np.zeros(R.shape[:-2] + (4, 4))
+    T = np.zeros((*R.shape[:-2], 4, 4))
     T[..., :3, :3] = R
     T[..., :3, 3] = t
     T[..., 3, 3] = 1.0

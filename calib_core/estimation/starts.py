@@ -21,9 +21,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..model.profile import Profile
+from .handeye import zyx_angles
 from .noise_test import sensor_scatter
 from .problem import Problem
-from .handeye import zyx_angles
 from .solver import levenberg_marquardt
 
 # Residuals this many times a sensor's declared noise: beyond what a real robot's model error leaves
