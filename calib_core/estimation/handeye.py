@@ -75,13 +75,13 @@ def solve_ax_zb(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rotations; then [R_A, -I] [t_X; t_Z] = R_Z t_B - t_A in least squares."""
     I3 = np.eye(3)
     rows = [np.hstack([np.kron(I3, a[:3, :3]), -np.kron(b[:3, :3].T, I3)]) for a, b in zip(A, B, strict=True)]
-    v = np.linalg.svd(np.vstack(rows))[2][-1]
+    v = np.linalg.svd(np.vstack(rows), full_matrices=False)[2][-1]
     Rx, Rz = v[:9].reshape(3, 3, order="F"), v[9:].reshape(3, 3, order="F")
     det = np.linalg.det(Rx)
     scale = np.sign(det) / abs(det) ** (1 / 3)
     Rx, Rz = nearest_rotation(scale * Rx), nearest_rotation(scale * Rz)
     M = np.vstack([np.hstack([a[:3, :3], -I3]) for a in A])
-    rhs = np.concatenate([Rz @ b[:3, 3] - a[:3, 3] for a, b in zip(A, B, strict=True)])
+    rhs = (B[:, :3, 3] @ Rz.T - A[:, :3, 3]).ravel()
     t = np.linalg.lstsq(M, rhs, rcond=None)[0]
     return pose(Rx, t[:3]), pose(Rz, t[3:])
 
@@ -94,7 +94,7 @@ def solve_ax_xb(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     b = Rotation.from_matrix(B[:, :3, :3]).as_rotvec()
     R = nearest_rotation(a.T @ b)
     M = np.vstack(A[:, :3, :3] - np.eye(3))
-    rhs = np.concatenate([R @ bk[:3, 3] - ak[:3, 3] for ak, bk in zip(A, B, strict=True)])
+    rhs = (B[:, :3, 3] @ R.T - A[:, :3, 3]).ravel()
     return pose(R, np.linalg.lstsq(M, rhs, rcond=None)[0])
 
 
