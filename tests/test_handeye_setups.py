@@ -177,3 +177,20 @@ def test_every_seed_reaches_the_noise_floor_from_no_guess(setup, offsets: bool, 
             pose_only = calibrate(setup, sim.data, "handeye")
             assert rms_px(setup, new.data, pose_only.params(setup)) > 3 * floor
             assert not pose_only.solver.fits_noise
+
+
+def test_evaluating_rows_the_model_cannot_predict_is_refused_not_nan() -> None:
+    """A board's row with neither a vertex id nor a point: a sentence, not NaN figures and exit 0."""
+    from dataclasses import replace
+
+    from calib_core import evaluate
+
+    profile = load_profile(PROFILES / "handeye-in-hand.yaml")
+    sim = SimulatedRobot.from_profile(profile, seed=0).simulate(3)
+    vertex = sim.data.vertex.copy()
+    vertex[:2] = -1
+    point = sim.data.point.copy()
+    point[:2] = np.nan
+    blind = replace(sim.data, vertex=vertex, point=point, lines=np.arange(2, 2 + sim.data.n_observations))
+    with pytest.raises(InputError, match=r"2 of 126 observations \(lines 2, 3\) have no prediction"):
+        evaluate(profile, None, blind)
