@@ -17,6 +17,7 @@ from calib_core import InputError, SimulatedRobot, calibrate, load_profile
 from calib_core.estimation.problem import Problem
 from calib_core.estimation.registration import register, registration_params
 from calib_core.io.csv_format import to_csv
+from calib_core.model.kinematics import forward
 
 PROFILES = Path(__file__).resolve().parent / "profiles"
 SETUPS = ("handeye-in-hand", "handeye-to-hand")
@@ -42,8 +43,8 @@ def rms_px(profile, data, p: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((pred[:, :2] - data.measured[:, :2]) ** 2, axis=1))))
 
 
-def camera_error(profile, p: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """How far the camera's estimated pose is from the truth: mm, deg."""
+def mount_error(profile, p: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """How far the camera's estimated registration (x, y, z, yaw, pitch, roll) is from the truth: mm, deg."""
     idx = [profile.param(f"camera_mount.{k}") for k in POSE_NAMES]
 
     def rotation(v):
@@ -51,6 +52,22 @@ def camera_error(profile, p: np.ndarray, truth: np.ndarray) -> tuple[float, floa
 
     angle = (rotation(p) * rotation(truth).inv()).magnitude()
     return float(np.linalg.norm(p[idx[:3]] - truth[idx[:3]])), float(np.degrees(angle))
+
+
+def camera_error(profile, p: np.ndarray, truth: np.ndarray, q: np.ndarray) -> tuple[float, float]:
+    """How far the model puts the camera from where it is, seen from the board, at configurations q: RMS mm, largest
+    deg. A joint offset the data cannot see (the first and last axes) moves the registration it is absorbed in, not
+    this."""
+    sensor, target = profile.sensors[profile.data.sensor].frame, profile.targets[0].frame
+
+    def in_board(v):
+        poses = forward(profile, v, q, frames=[sensor, target])
+        R = poses.R[target].transpose(0, 2, 1) @ poses.R[sensor]
+        return R, (poses.R[target].transpose(0, 2, 1) @ (poses.t[sensor] - poses.t[target])[:, :, None])[:, :, 0]
+
+    (R, t), (R0, t0) = in_board(p), in_board(truth)
+    angle = Rotation.from_matrix(R @ R0.transpose(0, 2, 1)).magnitude()
+    return float(np.sqrt(np.mean(np.sum((t - t0) ** 2, axis=1)))), float(np.degrees(angle.max()))
 
 
 def test_a_registered_camera_or_board_gets_the_handeye_mode_first(setup) -> None:
@@ -75,7 +92,7 @@ def test_the_closed_form_start_is_near_the_truth_and_the_fit_reaches_the_floor(s
     reg = registration_params(setup)
     assert not setup.nominal()[reg].any()
     start = register(setup, sim.data, setup.nominal())
-    mm, deg = camera_error(setup, start, sim.true_params)
+    mm, deg = mount_error(setup, start, sim.true_params)
     assert mm < 1.0 and deg < 0.1
     cal = calibrate(setup, sim.data, "handeye")
     assert cal.converged and cal.solver.fits_noise
@@ -159,8 +176,10 @@ def _truth(profile, offsets: bool) -> np.ndarray:
 @pytest.mark.parametrize("poses", [15, 40])
 def test_every_seed_reaches_the_noise_floor_from_no_guess(setup, offsets: bool, poses: int) -> None:
     """5 seeds: held-out pixels within 5% of the true model's on 30 new configurations, converged and fitting the
-    noise, the camera within a millimetre and 0.1 deg. Exact joints: the handeye mode; joint offsets of 0.2-0.5
-    deg: the offsets mode (the handeye mode alone stays pixels off: shown on the first seed)."""
+    noise, the camera within a few millimetres and 0.2 deg of where it is, seen from the board (a wrong minimum is
+    tens of pixels and centimetres off); with exact joints its registration within 0.5 mm and 0.05 deg. Exact
+    joints: the handeye mode; joint offsets of 0.2-0.5 deg: the offsets mode (the handeye mode alone stays pixels
+    off: shown on the first seed)."""
     mode = "offsets" if offsets else "handeye"
     for seed in range(5):
         robot = SimulatedRobot.from_profile(setup, seed=seed, truth=_truth(setup, offsets))
@@ -171,8 +190,12 @@ def test_every_seed_reaches_the_noise_floor_from_no_guess(setup, offsets: bool, 
         p, floor = cal.params(setup), rms_px(setup, new.data, sim.true_params)
         assert rms_px(setup, new.data, p) < 1.05 * floor, seed
         assert cal.converged and cal.solver.fits_noise, seed
-        mm, deg = camera_error(setup, p, sim.true_params)
-        assert mm < 1.0 and deg < 0.1, (seed, mm, deg)
+        # Noise-limited: up to 1.4 mm and 0.08 deg with the camera 1.2 m from the board (eye-to-hand, 15 poses).
+        mm, deg = camera_error(setup, p, sim.true_params, new.true_joints)
+        assert mm < 3.0 and deg < 0.2, (seed, mm, deg)
+        if not offsets:  # up to 0.2 mm and 0.015 deg
+            mm, deg = mount_error(setup, p, sim.true_params)
+            assert mm < 0.5 and deg < 0.05, (seed, mm, deg)
         if offsets and seed == 0:
             pose_only = calibrate(setup, sim.data, "handeye")
             assert rms_px(setup, new.data, pose_only.params(setup)) > 3 * floor
