@@ -131,12 +131,12 @@ def start_values(profile: Profile, data: Dataset, mode: Mode, base: Calibration 
     is the old model with only the registration fitted). A tracker whose pose is neither estimated nor
     known from a base is refused."""
     p = base.params(profile) if base is not None else profile.nominal()
-    reg = set(registration_params(profile, data.sensors))
+    reg = set(registration_params(profile, data.sensors, np.unique(data.target).tolist()))
     if reg and not reg & set(mode.free) and base is None:
-        devices = ", ".join(profile.sensors[s].name for s in data.sensors if registration_params(profile, [s]))
+        frames = [f.name for f in profile.frames if f.registration and {op.param for op in f.ops} & reg]
         raise InputError(
-            f"mode '{mode.name}' does not estimate the registration of '{devices}' (where it stands), which these "
-            "data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
+            f"mode '{mode.name}' does not estimate the registration of '{', '.join(frames)}' (where it stands), "
+            "which these data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
         )
     return register(profile, data, p) if reg & set(mode.free) else p
 
