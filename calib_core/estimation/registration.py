@@ -7,8 +7,9 @@ roll) carrying a sensor or a target. Every calibration estimates it with the kin
 per set-up; this module gives the solver its starting point (and the "before" figures their meaning: the
 nominal model with only the registration fitted). For a point sensor, the closed-form rigid fit of the
 predicted points to the measured ones (Kabsch), which for isotropic noise is the least-squares
-registration itself; for a camera and its board, the hand-eye equations in closed form refined by least
-squares (`camera_registration`).
+registration itself; for a pose sensor, the mean of the registrations its poses give (`pose_registration`);
+for a camera and its board, the hand-eye equations in closed form refined by least squares
+(`camera_registration`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from ..errors import InputError
 from ..model.profile import Profile
 from .camera_registration import camera_starts, is_camera
 from .handeye import zyx_angles
+from .pose_registration import pose_registration
 from .problem import Problem
 
 
@@ -51,12 +53,15 @@ def register(profile: Profile, data: Dataset, p: np.ndarray) -> np.ndarray:
         if is_camera(profile, s):
             q = camera_starts(profile, own, q)[0].p
             continue
+        params = registration_params(profile, [s], [])
+        if sensor.rotation_axes and params and not registration_params(profile, [], targets):
+            q[params] = pose_registration(profile, own, q, params)  # a pose sensor: from its poses themselves
+            continue
         if sensor.dim != 3 or registration_params(profile, [], targets):
             raise InputError(
                 f"sensor '{sensor.name}' or what it sees is on a registration frame, but it measures neither 3-D "
-                "points (a tracker) nor a board's pixels (a camera)"
+                "points (a tracker), poses nor a board's pixels (a camera)"
             )
-        params = registration_params(profile, [s], [])
         q[params] = 0.0  # the device at the base: its "sensor points" are base-frame points
         base_points = Problem(profile, own, [], q).sensor_points(q)
         R, t = rigid_fit(own.measured[:, :3], base_points)
