@@ -20,10 +20,17 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from .base import Sensor, SpecReader
+
+
+def rotations() -> Any:
+    """SciPy's Rotation, imported when a pose is first handled: `import calib_core` stays free of SciPy."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
+
 
 # How a CSV gives a pose's orientation, and how many columns each takes after x, y, z.
 ROTATIONS = {"rotvec": 3, "quaternion": 4, "rpy": 3}
@@ -49,7 +56,7 @@ class Pose6D(Sensor):
         self, p: np.ndarray, x: np.ndarray, rotation: np.ndarray | None, *, derivatives: bool = False
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
         assert rotation is not None  # rotation_axes asks the problem for it
-        h = np.hstack([x, Rotation.from_matrix(rotation).as_rotvec()])
+        h = np.hstack([x, rotations().from_matrix(rotation).as_rotvec()])
         if not derivatives:
             return h, None, None, None
         n = len(x)
@@ -65,8 +72,8 @@ class Pose6D(Sensor):
         out = predicted[:, :6] - measured[:, :6]
         ok = np.isfinite(out).all(axis=1)
         if ok.any():
-            R_pred = Rotation.from_rotvec(predicted[ok, 3:6])
-            R_meas = Rotation.from_rotvec(measured[ok, 3:6])
+            R_pred = rotations().from_rotvec(predicted[ok, 3:6])
+            R_meas = rotations().from_rotvec(measured[ok, 3:6])
             out[ok, 3:] = (R_meas.inv() * R_pred).as_rotvec()
         return out
 
@@ -74,7 +81,7 @@ class Pose6D(Sensor):
         """d(error)/d(prediction): the identity on the position; on the rotation, with R_pred moved to
         exp(d) R_pred, d(log(R_meas^T R_pred)) = Jr^-1(e) R_pred^T d."""
         e = self.error(predicted, measured)[:, 3:]
-        R_pred = Rotation.from_rotvec(predicted[:, 3:6]).as_matrix()
+        R_pred = rotations().from_rotvec(predicted[:, 3:6]).as_matrix()
         out = np.zeros((len(e), 6, 6))
         out[:, :3, :3] = np.eye(3)
         out[:, 3:, 3:] = right_jacobian_inverse(e) @ R_pred.transpose(0, 2, 1)
@@ -127,15 +134,15 @@ def pose_from_columns(values: np.ndarray, rotation: str, angle_factor: float) ->
     elif rotation == "quaternion":
         if np.any(np.linalg.norm(r, axis=1) < 1e-12):
             raise ValueError("a quaternion of norm zero is no rotation")
-        rotvec = Rotation.from_quat(r).as_rotvec()  # scalar last: qx, qy, qz, qw
+        rotvec = rotations().from_quat(r).as_rotvec()  # scalar last: qx, qy, qz, qw
     else:
-        rotvec = Rotation.from_euler("xyz", r * angle_factor).as_rotvec()  # extrinsic x, y, z: Rz Ry Rx
+        rotvec = rotations().from_euler("xyz", r * angle_factor).as_rotvec()  # extrinsic x, y, z: Rz Ry Rx
     return np.hstack([values[:, :3], rotvec])
 
 
 def pose_to_columns(pose: np.ndarray, rotation: str, angle_factor: float) -> np.ndarray:
     """The CSV's columns of poses (M, 6) with a rotation vector in rad: pose_from_columns undone."""
-    R = Rotation.from_rotvec(pose[:, 3:6])
+    R = rotations().from_rotvec(pose[:, 3:6])
     if rotation == "rotvec":
         r = pose[:, 3:6] / angle_factor
     elif rotation == "quaternion":
