@@ -28,6 +28,7 @@ BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
 
 AXES = {"x": 0, "y": 1, "z": 2}
 JOINT_KINDS = ("revolute", "prismatic")  # a joint entry's `type`: its op rotates or translates
+GRID_PATTERNS = ("checkerboard", "sandal")  # what a grid target may be: a plain board, the NAO's sandal
 
 # An elementary transform before it is an Op: (t|r, vector, field or parameter name, value, jointed).
 Step = tuple[str, np.ndarray, str, float, bool]
@@ -379,7 +380,23 @@ class _Compiler:
             shape,
             None if radius is None else self.number(radius, f"{where}.radius"),
             points,
+            self.pattern(spec, where),
         )
+
+    def pattern(self, spec: dict, where: str) -> str:
+        """What a sensor looks for on a target (`Target.pattern`): a grid's `pattern` (checkerboard, or the
+        NAO's sandal), else what the target is."""
+        if "pattern" in spec:
+            if "grid" not in spec:
+                raise self.fail(f"{where}.pattern", "only a grid target has a pattern (checkerboard or sandal)")
+            if spec["pattern"] not in GRID_PATTERNS:
+                raise self.fail(
+                    f"{where}.pattern", f"expected one of {', '.join(GRID_PATTERNS)}, got {spec['pattern']!r}"
+                )
+            return str(spec["pattern"])
+        if "grid" in spec:
+            return "checkerboard"
+        return "sphere" if "radius" in spec else "point"
 
     def compile_sensor(self, spec: dict, where: str) -> Sensor:
         sname = str(self.get(spec, "name", where))

@@ -86,6 +86,10 @@ class Target:
     grid_shape: tuple[int, int] | None  # (rows, cols)
     radius: float | None  # a sphere's radius, profile length unit
     points: np.ndarray | None = None  # (K, 3) fixed points (markers; the origin), picked by vertex id
+    # What a sensor looks for (the finders' registry, calib_core.vision.finders): "sphere" (a radius),
+    # "checkerboard" (a grid), "sandal" (a grid under the NAO's foot), or "point" (the device reports it: a
+    # reflector, marker points).
+    pattern: str = "point"
 
 
 @dataclass(frozen=True)
