@@ -1,8 +1,8 @@
 """How a sensor sees a target: the Finder protocol, and what the finders share.
 
-A finder serves one sensor model and one target pattern (`Target.pattern`) for a sensor whose readings take
-the images it looks at (`images`, the sensor's `image_roles`). Bound to a profile, a sensor and a target
-(`calib_core.vision.finders.finder_for`), it:
+A finder serves the sensor model and target pattern (`Target.pattern`) it is registered for (FINDERS), for a
+sensor whose readings take the images it looks at (`images`, the sensor's `image_roles`). Bound to a profile,
+a sensor and a target (`calib_core.vision.finders.finder_for`), it:
 
 - `render(p, q, rng)`: draws what the sensor sees of the target for parameters p and joint readings q (the
   simulator's images, and the stereo head that took them);
@@ -46,8 +46,6 @@ class Rendered:
 class Finder(Protocol):
     """The protocol of a finder bound to a profile, a sensor and a target (see the module doc)."""
 
-    sensor_model: ClassVar[str]
-    pattern: ClassVar[str]
     images: ClassVar[tuple[str, ...]]
     plan_margins: ClassVar[tuple[float, float] | None]
     profile: Profile

@@ -26,8 +26,6 @@ _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
 
 
 class CheckerboardFinder(BoundFinder):
-    sensor_model: ClassVar[str] = "pinhole"
-    pattern: ClassVar[str] = "checkerboard"
     images: ClassVar[tuple[str, ...]] = ("image",)
 
     def render(self, p: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Rendered:

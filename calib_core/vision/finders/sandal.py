@@ -16,8 +16,6 @@ from .base import BoundFinder, Rendered, board_shows
 
 
 class SandalFinder(BoundFinder):
-    sensor_model: ClassVar[str] = "pinhole"
-    pattern: ClassVar[str] = "sandal"
     images: ClassVar[tuple[str, ...]] = ("image",)
 
     def render(self, p: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Rendered:

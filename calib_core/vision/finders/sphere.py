@@ -32,8 +32,6 @@ STEREO_PLAN_SPHERE_SHARE = 0.97
 
 
 class SphereFinder(BoundFinder):
-    sensor_model: ClassVar[str] = "point3d"
-    pattern: ClassVar[str] = "sphere"
     images: ClassVar[tuple[str, ...]] = ("left", "right")
     plan_margins: ClassVar[tuple[float, float] | None] = (STEREO_PLAN_MARGIN_PX, STEREO_PLAN_SPHERE_SHARE)
 
