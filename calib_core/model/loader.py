@@ -21,6 +21,7 @@ from ..files import read_text_file
 from ..safe_yaml import MAX_YAML_BYTES, load_yaml
 from ..sensors import SENSOR_MODELS, Sensor
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
+from .boards import read_charuco
 from .profile import DataFormat, Frame, Joint, Mode, Op, Parameter, Profile, Target, Tie
 from .urdf_import import compile_urdf_profile
 
@@ -344,14 +345,15 @@ class _Compiler:
         grid = None
         shape = None
         points = None
-        if sum(k in spec for k in ("point", "grid", "points")) > 1:
-            raise self.fail(where, "needs at most one of point, grid, points")
+        charuco = None
+        if sum(k in spec for k in ("point", "grid", "points", "charuco")) > 1:
+            raise self.fail(where, "needs at most one of point, grid, points, charuco")
         if "points" in spec:
             pts = spec["points"]
             if not isinstance(pts, list) or not pts:
                 raise self.fail(f"{where}.points", "expected a list of [x, y, z]")
             points = np.array([self.vector(v, f"{where}.points[{k}]") for k, v in enumerate(pts)])
-        elif "point" not in spec and "grid" not in spec:
+        elif not any(k in spec for k in ("point", "grid", "charuco")):
             points = np.zeros((1, 3))  # the frame's origin (a reflector at the end of a DH row)
         if "point" in spec:
             point_params = self.add_params(tname, "length", spec["point"], ("x", "y", "z"), f"{where}.point")
@@ -371,6 +373,9 @@ class _Compiler:
                 axis=1,
             )
             shape = (rows, cols)
+        if "charuco" in spec:
+            charuco = read_charuco(spec["charuco"], self, f"{where}.charuco")
+            grid, shape = charuco.corners(), charuco.shape
         radius = spec.get("radius")
         return Target(
             tname,
@@ -381,6 +386,7 @@ class _Compiler:
             None if radius is None else self.number(radius, f"{where}.radius"),
             points,
             self.pattern(spec, where),
+            charuco,
         )
 
     def pattern(self, spec: dict, where: str) -> str:
@@ -394,6 +400,8 @@ class _Compiler:
                     f"{where}.pattern", f"expected one of {', '.join(GRID_PATTERNS)}, got {spec['pattern']!r}"
                 )
             return str(spec["pattern"])
+        if "charuco" in spec:
+            return "charuco"
         if "grid" in spec:
             return "checkerboard"
         return "sphere" if "radius" in spec else "point"

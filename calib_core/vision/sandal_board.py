@@ -178,7 +178,7 @@ def render_board_image(
     sv = np.broadcast_to(iy[:, None, None] + offsets[None, :, None], (len(iy), supersample, supersample))
     scene[iy, ix] = _shade(*cells(su, sv), cols, rows, face).mean(axis=(1, 2))
 
-    image = scene * _illumination(width, height, light, rng)
+    image = scene * illumination(width, height, light, rng)
     if blur_px > 0:
         image = cv2.GaussianBlur(image, (0, 0), blur_px)
     if noise > 0:
@@ -201,7 +201,7 @@ def _shade(col: np.ndarray, row: np.ndarray, cols: int, rows: int, face: bool) -
     return np.where(ring <= 0, np.where(black, BLACK, WHITE), np.where(ring <= QUIET_TILES, WHITE, out))
 
 
-def _illumination(width: int, height: int, light: float, rng: np.random.Generator) -> np.ndarray:
+def illumination(width: int, height: int, light: float, rng: np.random.Generator) -> np.ndarray:
     """A smooth light field: a linear fall-off in a random direction and vignetting towards the corners."""
     aspect = height / width
     x = np.linspace(-1.0, 1.0, width)[None]
@@ -352,24 +352,33 @@ def _view(
 
 
 def _refine(grey: np.ndarray, grid: np.ndarray, cols: int, rows: int) -> tuple[np.ndarray, float]:
-    """Sub-pixel corners, refined in the image rectified by the grid's homography, and the RMS
-    distance (px) of the refined corners from the best homography through them.
+    """The whole grid's corners refined on the board (`refine_on_board`)."""
+    lattice = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), axis=-1).reshape(-1, 2).astype(float)
+    return refine_on_board(grey, grid, lattice)
+
+
+def refine_on_board(
+    grey: np.ndarray, corners: np.ndarray, lattice: np.ndarray, half_window_px: int | None = None
+) -> tuple[np.ndarray, float]:
+    """Sub-pixel corners (K, 2) px, refined in the image rectified by the homography of their places on a flat
+    board (`lattice` (K, 2): column and row, in tiles), and the RMS distance (px) of the refined corners from
+    the best homography through them.
 
     In the raw image a foreshortened tile is a few px tall, so a corner window would hold the
-    neighbouring corners' edges; rectified, the tiles are REFINE_TILE_PX squares."""
-    lattice = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), axis=-1).reshape(-1, 2).astype(float)
-    H, _ = cv2.findHomography(lattice, grid, 0)
+    neighbouring corners' edges; rectified, the tiles are REFINE_TILE_PX squares, and the window
+    (`half_window_px`, default nearly half a tile) holds just the corner's own two edges."""
+    H, _ = cv2.findHomography(lattice, corners, 0)
     t = REFINE_TILE_PX
+    half = t // 2 - 1 if half_window_px is None else half_window_px
     to_image = H @ np.array([[1 / t, 0, -1], [0, 1 / t, -1], [0, 0, 1]])  # rectified px -> image px
-    rectified = cv2.warpPerspective(
-        grey, to_image, ((cols + 1) * t, (rows + 1) * t), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    )
+    size = tuple(int(n) for n in (lattice.max(axis=0) + 2) * t)
+    rectified = cv2.warpPerspective(grey, to_image, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
     start = ((lattice + 1) * t).astype(np.float32).reshape(-1, 1, 2)
-    refined = cv2.cornerSubPix(rectified, start, (t // 2 - 1, t // 2 - 1), (-1, -1), _SUBPIX)
-    corners = cv2.perspectiveTransform(refined.astype(float), to_image).reshape(-1, 2)
-    H2, _ = cv2.findHomography(lattice, corners, 0)
+    refined = cv2.cornerSubPix(rectified, start, (half, half), (-1, -1), _SUBPIX)
+    out = cv2.perspectiveTransform(refined.astype(float), to_image).reshape(-1, 2)
+    H2, _ = cv2.findHomography(lattice, out, 0)
     fitted = cv2.perspectiveTransform(lattice.reshape(-1, 1, 2), H2).reshape(-1, 2)
-    return corners, float(np.sqrt(((fitted - corners) ** 2).sum(axis=1).mean()))
+    return out, float(np.sqrt(((fitted - out) ** 2).sum(axis=1).mean()))
 
 
 def identify(corners: np.ndarray, cols: int, rows: int, predicted: np.ndarray | None) -> BoardDetection:

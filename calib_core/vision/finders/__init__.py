@@ -20,6 +20,7 @@ FINDERS: dict[tuple[str, str], str] = {
     ("point3d", "sphere"): "sphere:SphereFinder",
     ("pinhole", "sandal"): "sandal:SandalFinder",
     ("pinhole", "checkerboard"): "checkerboard:CheckerboardFinder",
+    ("pinhole", "charuco"): "charuco:CharucoFinder",
 }
 
 
