@@ -149,7 +149,7 @@ class CharucoFinder(BoundFinder):
         n = 0 if ids is None else len(ids)
         detail: dict = {"markers": n_markers, "corners": n}
         if n < MIN_CHARUCO_CORNERS:
-            reason = f"{n} corners found ({n_markers} markers), fewer than {MIN_CHARUCO_CORNERS}"
+            reason = f"corners found: {n} ({n_markers} markers), fewer than {MIN_CHARUCO_CORNERS}"
             return self.sighting(None, "not found" if n == 0 else "partial", {**detail, "detail": reason})
         vertices = ids.ravel().astype(int)
         order = np.argsort(vertices)
