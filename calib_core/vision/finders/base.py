@@ -81,6 +81,24 @@ class BoundFinder:
         """Whether nothing hides the target from the detector in configurations q (N, n_joints) rad (N,)."""
         return np.ones(len(q), bool)
 
+
+class BoardFinder(BoundFinder):
+    """A printed board in a camera's image: found where it shows its face (face_sign times (vertex 1 - vertex 0)
+    x (vertex `cols` - vertex 0) points back to the camera), at most `max_obliquity_deg` from its normal, its
+    neighbouring vertices at least `min_spacing_px` apart in the image."""
+
+    images: ClassVar[tuple[str, ...]] = ("image",)
+    face_sign: ClassVar[float] = 1.0
+    max_obliquity_deg: ClassVar[float]
+    min_spacing_px: ClassVar[float]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Rows and columns of the board's vertices."""
+        shape = self.profile.targets[self.target].grid_shape
+        assert shape is not None  # a board has its shape
+        return shape
+
     def predicted_px(self, p_believed: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Where the believed kinematics put the target's points in the sensor's image (K, 2) px."""
         sensor = self.profile.sensors[self.sensor]
@@ -101,37 +119,20 @@ class BoundFinder:
         status = FrameStatus.NOT_FOUND if measured is None else FrameStatus.MEASURED
         return Sighting(self.sensor, self.target, status, reason, measured, grid[vertices], vertices, detail)
 
-
-def board_shows(
-    profile: Profile,
-    p: np.ndarray,
-    sensor: int,
-    target: int,
-    x: np.ndarray,
-    *,
-    face_sign: float,
-    max_obliquity_deg: float,
-    min_spacing_px: float,
-) -> np.ndarray:
-    """Whether a board (vertices x (N, K, 3) in the sensor frame, `grid_shape` rows of columns) shows its
-    face, seen at most `max_obliquity_deg` from its normal, its neighbouring vertices at least
-    `min_spacing_px` apart in the image (N,) bool. `face_sign`: the face's normal is face_sign times
-    (vertex 1 - vertex 0) x (vertex `cols` - vertex 0); it must point back to the camera, at the origin."""
-    shape = profile.targets[target].grid_shape
-    assert shape is not None  # a board has its shape
-    sens = profile.sensors[sensor]
-    n_rows, n_cols = shape
-    c = x.mean(axis=1)
-    face = face_sign * np.cross(x[:, 1] - x[:, 0], x[:, n_cols] - x[:, 0])
-    towards = -np.einsum("ni,ni->n", face, c)
-    cos = towards / np.maximum(np.linalg.norm(face, axis=1) * np.linalg.norm(c, axis=1), 1e-300)
-    ok = (towards > 0) & (cos >= math.cos(math.radians(max_obliquity_deg)))
-    uv = sens.project(p, x.reshape(-1, 3))
-    if uv is not None:
-        g = uv.reshape(len(x), n_rows, n_cols, 2)
-        spacing = np.minimum(
-            np.linalg.norm(np.diff(g, axis=1), axis=3).min(axis=(1, 2)),
-            np.linalg.norm(np.diff(g, axis=2), axis=3).min(axis=(1, 2)),
-        )
-        ok &= spacing >= min_spacing_px
-    return ok
+    def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Whether the board (vertices x (N, K, 3) in the sensor frame) shows its face well enough (N,) bool."""
+        n_rows, n_cols = self.shape
+        c = x.mean(axis=1)
+        face = self.face_sign * np.cross(x[:, 1] - x[:, 0], x[:, n_cols] - x[:, 0])
+        towards = -np.einsum("ni,ni->n", face, c)  # the camera sits at the origin of these coordinates
+        cos = towards / np.maximum(np.linalg.norm(face, axis=1) * np.linalg.norm(c, axis=1), 1e-300)
+        ok = (towards > 0) & (cos >= math.cos(math.radians(self.max_obliquity_deg)))
+        uv = self.profile.sensors[self.sensor].project(p, x.reshape(-1, 3))
+        if uv is not None:
+            g = uv.reshape(len(x), n_rows, n_cols, 2)
+            spacing = np.minimum(
+                np.linalg.norm(np.diff(g, axis=1), axis=3).min(axis=(1, 2)),
+                np.linalg.norm(np.diff(g, axis=2), axis=3).min(axis=(1, 2)),
+            )
+            ok &= spacing >= self.min_spacing_px
+        return ok

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -27,7 +26,7 @@ from ...sensors import Pinhole
 from ..sandal_board import BLACK, REFINE_BLUR_PX, REFINE_TILE_PX, ROOM, WHITE, illumination, refine_on_board
 from ..sighting import Sighting
 from ..stereo import StereoHead
-from .base import BoundFinder, Rendered, board_shows
+from .base import BoardFinder, Rendered
 
 # What the detector measures reliably (tests/test_finders.py): the board at most MAX_OBLIQUITY_DEG from its
 # normal, its squares at least MIN_SQUARE_PX apart in the image (a marker's bit is then about 2 px).
@@ -45,8 +44,12 @@ def opencv_board(board: Charuco) -> cv2.aruco.CharucoBoard:
     return cv2.aruco.CharucoBoard(board.squares, board.square, board.marker, dictionary)
 
 
-class CharucoFinder(BoundFinder):
-    images: ClassVar[tuple[str, ...]] = ("image",)
+class CharucoFinder(BoardFinder):
+    """The printed face is the board frame's -z side; its corners run along +x, rows along +y."""
+
+    face_sign = -1.0
+    max_obliquity_deg = MAX_OBLIQUITY_DEG
+    min_spacing_px = MIN_SQUARE_PX
 
     @property
     def board(self) -> Charuco:
@@ -164,17 +167,3 @@ class CharucoFinder(BoundFinder):
         predicted = self.predicted_px(p_believed, q)[vertices]
         detail["prediction_px"] = round(float(np.linalg.norm(measured - predicted, axis=1).mean()), 2)
         return self.sighting(measured, "ok", detail, vertices)
-
-    def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """The printed face (-z) towards the camera at most MAX_OBLIQUITY_DEG from its normal, its squares at least
-        MIN_SQUARE_PX apart."""
-        return board_shows(
-            self.profile,
-            p,
-            self.sensor,
-            self.target,
-            x,
-            face_sign=-1.0,
-            max_obliquity_deg=MAX_OBLIQUITY_DEG,
-            min_spacing_px=MIN_SQUARE_PX,
-        )

@@ -9,15 +9,13 @@ corners at least MIN_CORNER_SPACING_PX apart; beyond, the classic detector loses
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 import cv2
 import numpy as np
 
 from ..sandal_board import identify, render_board_image
 from ..sighting import Sighting
 from ..stereo import StereoHead
-from .base import BoundFinder, Rendered, board_shows
+from .base import BoardFinder, Rendered
 
 MAX_OBLIQUITY_DEG = 60.0
 MIN_CORNER_SPACING_PX = 8.0
@@ -25,8 +23,11 @@ SUBPIX_HALF_WINDOW_PX = (2, 7)  # cornerSubPix's half window: 40% of the corners
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
 
 
-class CheckerboardFinder(BoundFinder):
-    images: ClassVar[tuple[str, ...]] = ("image",)
+class CheckerboardFinder(BoardFinder):
+    """The board's face is its frame's -z side (the grid's vertices run along +x, rows along -y)."""
+
+    max_obliquity_deg = MAX_OBLIQUITY_DEG
+    min_spacing_px = MIN_CORNER_SPACING_PX
 
     def render(self, p: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Rendered:
         return Rendered({"image": render_board_image(self.profile, p, q, self.target, rng, sensor=self.sensor).image})
@@ -36,9 +37,7 @@ class CheckerboardFinder(BoundFinder):
     ) -> Sighting:
         """The whole board's corners, sub-pixel, in vertex order; "not found" or, from the prediction, "far from
         prediction" or "ambiguous" (sandal_board.identify)."""
-        shape = self.profile.targets[self.target].grid_shape
-        assert shape is not None  # a grid target has its shape
-        rows, cols = shape
+        rows, cols = self.shape
         image = images["image"]
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
@@ -56,17 +55,3 @@ class CheckerboardFinder(BoundFinder):
         if not ordered.found or ordered.corners is None:
             return self.sighting(None, ordered.reason, detail)
         return self.sighting(ordered.corners, "ok", detail)
-
-    def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """The board's face (-z) towards the camera at most MAX_OBLIQUITY_DEG from its normal, its corners at least
-        MIN_CORNER_SPACING_PX apart."""
-        return board_shows(
-            self.profile,
-            p,
-            self.sensor,
-            self.target,
-            x,
-            face_sign=1.0,
-            max_obliquity_deg=MAX_OBLIQUITY_DEG,
-            min_spacing_px=MIN_CORNER_SPACING_PX,
-        )

@@ -5,45 +5,28 @@ square-ish tiles, each vertex's identity taken from the believed kinematics.
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 import numpy as np
 
-from ..sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, detect_board, render_board_image
+from ..sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, detect_board
 from ..sighting import Sighting
 from ..stereo import StereoHead
-from .base import BoundFinder, Rendered, board_shows
+from .checkerboard import CheckerboardFinder
 
 
-class SandalFinder(BoundFinder):
-    images: ClassVar[tuple[str, ...]] = ("image",)
+class SandalFinder(CheckerboardFinder):
+    """A checkerboard (rendered as one) under the NAO's foot, its face towards -z, under the sole; its detector
+    measures it reliably up to MAX_OBLIQUITY_DEG from its normal, its vertices MIN_VERTEX_SPACING_PX apart."""
 
-    def render(self, p: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Rendered:
-        return Rendered({"image": render_board_image(self.profile, p, q, self.target, rng, sensor=self.sensor).image})
+    max_obliquity_deg = MAX_OBLIQUITY_DEG
+    min_spacing_px = MIN_VERTEX_SPACING_PX
 
     def find(
         self, p_believed: np.ndarray, q: np.ndarray, images: dict[str, np.ndarray], head: StereoHead | None = None
     ) -> Sighting:
         """The sandal board detector, its vertex identities taken from the believed kinematics."""
-        shape = self.profile.targets[self.target].grid_shape
-        assert shape is not None  # a grid target has its shape
-        rows, cols = shape
+        rows, cols = self.shape
         found = detect_board(images["image"], cols, rows, predicted=self.predicted_px(p_believed, q))
         detail = {"found": found.found, "reason": found.reason, "residual_px": found.residual_px}
         if not found.found or found.corners is None:
             return self.sighting(None, found.reason, detail)
         return self.sighting(np.asarray(found.corners, float), "ok", detail)
-
-    def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """The board's face (-z, under the sole) towards the camera at most MAX_OBLIQUITY_DEG from its normal, its
-        vertices MIN_VERTEX_SPACING_PX apart: what the detector measures reliably."""
-        return board_shows(
-            self.profile,
-            p,
-            self.sensor,
-            self.target,
-            x,
-            face_sign=1.0,
-            max_obliquity_deg=MAX_OBLIQUITY_DEG,
-            min_spacing_px=MIN_VERTEX_SPACING_PX,
-        )
