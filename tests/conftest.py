@@ -5,6 +5,8 @@ them changed (a desk's sessions, say), another module starts from a fresh one. `
 (create_app in a TestClient); a module that needs it otherwise (no samples, another clock) overrides
 `desk_options`. `sample_copy` copies sample sessions where a test may change or break them.
 
+`chromium` is a headless chromium a module's browser tests share.
+
 Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where Debian's chromium is missing),
 `subprocess` (starts `calib`, `calib serve` or another program, beyond a desk's own job workers) and `slow`;
 `scripts/test.sh --fast` runs the tests that have none of them.
@@ -15,15 +17,19 @@ from __future__ import annotations
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 import viser
+from browser import launch
 from fastapi.testclient import TestClient
 
 from app.server import create_app
 from app.store import Store
 from calib_core import Profile, load_profile
+
+if TYPE_CHECKING:
+    from playwright.sync_api import Browser
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 
@@ -95,3 +101,21 @@ def viser_server() -> Iterator[viser.ViserServer]:
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     yield server
     server.stop()
+
+
+@pytest.fixture(scope="module")
+def _chromium_process() -> Iterator[Browser]:
+    sync_api = pytest.importorskip("playwright.sync_api")  # imported by the browser tests only
+    with sync_api.sync_playwright() as pw:
+        browser = launch(pw)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture
+def chromium(_chromium_process: Browser) -> Iterator[Browser]:
+    """Headless chromium, one per module (a start costs a second or two); the contexts and pages a test opened
+    are closed after it."""
+    yield _chromium_process
+    for context in _chromium_process.contexts:
+        context.close()

@@ -13,14 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
-from browser import PAPER_COLOURS, colour_pixels, launch, new_nao_session, served, wait_for_scene
+from browser import PAPER_COLOURS, colour_pixels, new_nao_session, served, wait_for_scene
 from test_scene import URDF_DIR, build
 
 from app.review import frame_bounds_m
 from app.scene import ReviewScene, display_rotation
 from calib_core import load_profile
 
-playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 SHOTS = os.environ.get("CALIB_SCREENSHOTS")
 
@@ -49,15 +48,14 @@ PIXEL = (
 )
 
 
-def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
+def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> None:
     """The operator's path: calibrate, review, apply. The review reads at a glance: rings for measurements with
     the new calibration's green dot visible inside them (3-D and 2-D), new-minus-old per frame with better/worse,
     stepping in the list's order, a scene that keeps its size while the rest loads, a zoomable 2-D view, distinct
     words for the solver's start and the old calibration; after the apply the panel and the header agree and the
     history says what the apply was."""
-    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+    with served(tmp_path / "data") as server:
+        page = chromium.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
         wait_for_scene(page)
@@ -192,16 +190,14 @@ def test_calibrate_review_and_apply_in_the_browser(tmp_path: Path) -> None:
         page.click(reapply)
         page.wait_for_function(f"document.querySelector('#active-cal').dataset.id === {other!r}")
         assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == other
-        browser.close()
 
 
-def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(tmp_path: Path) -> None:
+def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(chromium, tmp_path: Path) -> None:
     """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in m, a camera in px); a
     one-sensor session shows no sensor choice. A daily calibration from the nominal model stops at the solver's
     iteration limit: the page says so (job line, toast, warning) and applying it asks the operator first."""
-    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+    with served(tmp_path / "data") as server:
+        page = chromium.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
 
@@ -251,15 +247,13 @@ def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(tm
             page.wait_for_timeout(100)
         assert asked and "did not converge" in asked[0], asked
         assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == before
-        browser.close()
 
 
-def test_a_frame_whose_detection_failed_shows_as_not_found(tmp_path: Path) -> None:
+def test_a_frame_whose_detection_failed_shows_as_not_found(chromium, tmp_path: Path) -> None:
     """Robonaut day 1's frames 3, 18 and 29 found no sphere (`measured: [null]`): selecting one raises no
     error in the page, both halves of the 2-D split view show that frame and say it was not found."""
-    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+    with served(tmp_path / "data") as server:
+        page = chromium.new_page(viewport={"width": 1500, "height": 1000})
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))
         page.goto(server.url)
@@ -282,14 +276,12 @@ def test_a_frame_whose_detection_failed_shows_as_not_found(tmp_path: Path) -> No
         assert toast.is_hidden() or "Cannot read" not in toast.text_content()
         assert errors == []
         shot(page, "4d-not-found")
-        browser.close()
 
 
-def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
-    with served(tmp_path / "data", sim_speed=10.0) as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
+def test_observe_and_replay_in_the_browser(chromium, tmp_path: Path) -> None:
+    with served(tmp_path / "data", sim_speed=10.0) as server:
         # A new capture session; Observe: watch live, capture one frame on a click.
-        page, sid = new_nao_session(browser, server.url, "browser session")
+        page, sid = new_nao_session(chromium, server.url, "browser session")
         page.locator("#observe-on").check()
         page.click("#capture")
         page.wait_for_function(
@@ -363,7 +355,6 @@ def test_observe_and_replay_in_the_browser(tmp_path: Path) -> None:
         added = {r["name"]: r for r in server.get("/api/robots").json()}["nao-2"]
         assert (added["model"], added["drivable"], added["simulated"]) == ("nao", True, True)
         assert server.get("/api/robot").json()["robot"] == "nao-2"
-        browser.close()
 
 
 HOLDS = "p => !!window.__viserSceneTree && Object.keys(window.__viserSceneTree.getState()).some(k => k.startsWith(p))"
@@ -455,7 +446,7 @@ def _distance(report: tuple) -> float:
     return float(np.linalg.norm(np.asarray(report[3]) - report[2]))
 
 
-def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
+def test_the_scene_follows_a_robot_change_in_the_browser(chromium) -> None:
     """A Robonaut review in an open browser, then NAO, then the Motoman: nothing of the previous robot stays in
     the browser's scene, and every browser's camera is framed on the robot now shown (a browser opened later
     too)."""
@@ -482,56 +473,53 @@ def test_the_scene_follows_a_robot_change_in_the_browser() -> None:
         scene = ReviewScene(server)
         scene.load(build("robonaut-a", 4))
         robonaut = {slot: c["node"] for slot, c in scene.state()["urdf"].items()}
-        with playwright_api.sync_playwright() as pw:
-            browser = launch(pw)
-            page = browser.new_page(viewport={"width": 480, "height": 360})
-            page.goto(f"http://127.0.0.1:{server.get_port()}/")
-            page.wait_for_function(HOLDS, arg=f"{robonaut['old']}/visual/", timeout=60_000)
-            assert _in_client(page, f"{robonaut['old']}/visual/shoulder_roll/")  # the arm with its sphere
-            robonaut_distance = _distance(_framed(reports, 0.0, _shown_box(scene)))
+        page = chromium.new_page(viewport={"width": 480, "height": 360})
+        page.goto(f"http://127.0.0.1:{server.get_port()}/")
+        page.wait_for_function(HOLDS, arg=f"{robonaut['old']}/visual/", timeout=60_000)
+        assert _in_client(page, f"{robonaut['old']}/visual/shoulder_roll/")  # the arm with its sphere
+        robonaut_distance = _distance(_framed(reports, 0.0, _shown_box(scene)))
 
-            # Selecting a frame turns the camera onto its marks and labels, closer than the whole robots.
-            since = time.time()
-            scene.select(3)
-            _aimed(reports, since, _marks_and_labels(scene), within=0.8 * robonaut_distance)
+        # Selecting a frame turns the camera onto its marks and labels, closer than the whole robots.
+        since = time.time()
+        scene.select(3)
+        _aimed(reports, since, _marks_and_labels(scene), within=0.8 * robonaut_distance)
 
-            since = time.time()
-            scene.load(build("nao", 3, new=False))
-            nao = scene.state()["urdf"]["old"]["node"]
-            page.wait_for_function(HOLDS, arg=f"{nao}/visual/")
-            box = _shown_box(scene)
-            nao_distance = _distance(_framed(reports, since, box))
-            gone = [node for node in robonaut.values() if _in_client(page, node)]
-            assert gone == [], f"Robonaut copies still in the browser: {gone}"
+        since = time.time()
+        scene.load(build("nao", 3, new=False))
+        nao = scene.state()["urdf"]["old"]["node"]
+        page.wait_for_function(HOLDS, arg=f"{nao}/visual/")
+        box = _shown_box(scene)
+        nao_distance = _distance(_framed(reports, since, box))
+        gone = [node for node in robonaut.values() if _in_client(page, node)]
+        assert gone == [], f"Robonaut copies still in the browser: {gone}"
 
-            since = time.time()
-            scene.set_robot(URDF_DIR / "motoman.urdf", "motoman")
-            box = _shown_box(scene)
-            assert box[1, 2] - box[0, 2] > 2.0  # metres tall, not NAO's half metre
-            motoman_distance = _distance(_framed(reports, since, box))
-            assert not _in_client(page, nao)
-            assert motoman_distance > 3 * nao_distance and robonaut_distance > nao_distance
+        since = time.time()
+        scene.set_robot(URDF_DIR / "motoman.urdf", "motoman")
+        box = _shown_box(scene)
+        assert box[1, 2] - box[0, 2] > 2.0  # metres tall, not NAO's half metre
+        motoman_distance = _distance(_framed(reports, since, box))
+        assert not _in_client(page, nao)
+        assert motoman_distance > 3 * nao_distance and robonaut_distance > nao_distance
 
-            # A browser that opens now starts framed on the Motoman, in its own (tall) window.
-            since, first = time.time(), {r[1] for r in reports}
-            second = browser.new_page(viewport={"width": 300, "height": 480})
-            second.goto(f"http://127.0.0.1:{server.get_port()}/")
-            assert _framed(reports, since, box, others=frozenset(first))[1] not in first
-            assert len(server.get_clients()) == 2
-            browser.close()
+        # A browser that opens now starts framed on the Motoman, in its own (tall) window.
+        since, first = time.time(), {r[1] for r in reports}
+        second = chromium.new_page(viewport={"width": 300, "height": 480})
+        second.goto(f"http://127.0.0.1:{server.get_port()}/")
+        assert _framed(reports, since, box, others=frozenset(first))[1] not in first
+        assert len(server.get_clients()) == 2
     finally:
         server.stop()
 
 
 def test_joint_sliders_send_the_whole_configuration_within_the_margin_and_revert_on_a_refusal(
+    chromium,
     tmp_path: Path,
 ) -> None:
     """A second slider moved while the first joint still moves: both joints arrive (each slider sends the whole
     configuration the sliders show, not the others' mid-motion readings); the sliders end at the limits less
     the driver's margin; a refused move puts the sliders back to the robot's readings with the server's reason."""
-    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+    with served(tmp_path / "data") as server:
+        page = chromium.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
         robot = server.get("/api/robot").json()
@@ -561,7 +549,11 @@ def test_joint_sliders_send_the_whole_configuration_within_the_margin_and_revert
                 break
             assert time.monotonic() < deadline, (goal, state["joints"], state["moving"])
             time.sleep(0.1)
-        page.wait_for_timeout(500)  # the sliders show the configuration reached
+        page.wait_for_function(  # the sliders show the configuration reached, from the page's next reading
+            "goal => Object.entries(goal).every(([n, g]) =>"
+            " Math.abs(+document.querySelector(`input[data-joint='${n}']`).value - g) <= 0.3)",
+            arg=goal,
+        )
         for n, g in goal.items():
             assert float(page.input_value(f"input[data-joint='{n}']")) == pytest.approx(g, abs=0.3), n
 
@@ -577,4 +569,3 @@ def test_joint_sliders_send_the_whole_configuration_within_the_margin_and_revert
             "([s, v]) => Math.abs(+document.querySelector(`input[data-joint='${s}']`).value - v) < 0.11",
             arg=[a["name"], state["joints"][a["name"]]],
         )
-        browser.close()

@@ -14,10 +14,9 @@ import httpx
 import pytest
 import websockets.exceptions
 import websockets.sync.client
-from browser import free_port, launch, listening, served, wait_for_scene
+from browser import free_port, listening, served, wait_for_scene
 from test_viewers import PROTOCOL, camera_message
 
-playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
 # What the page's own iframe shows, read from viser's client store: the names under the old copy's URDF (its
@@ -95,17 +94,20 @@ def step(page) -> None:
     page.click("#step-fwd")
     page.wait_for_function(f"document.querySelector('#frame-label').textContent !== {label!r}", polling=100)
     wait_for_frame(page, before, equal=False)
-    page.wait_for_timeout(500)  # the 2-D marks are drawn after the select answers
+    page.wait_for_function(  # the 2-D marks are drawn after the select answers: then each canvas names its frame
+        "() => { const f = document.querySelector('#frames tr.selected').dataset.frame;"
+        " return ['#split-old', '#split-new'].every(s => document.querySelector(s).dataset.frame === f); }",
+        polling=100,  # not on animation frames: a tab in the background gets none
+    )
 
 
-def test_tabs_and_contexts_review_their_own_sessions(tmp_path: Path) -> None:
+def test_tabs_and_contexts_review_their_own_sessions(chromium, tmp_path: Path) -> None:
     """Robonaut's first day and NAO in two tabs of one browser context, Robonaut's later day in another context:
     stepping through frames in one page moves its table, label, marks and scene, and nothing in the others. The
     scene is the page's own origin (viser listens on loopback only); a closed tab's viewer goes."""
     links = {"robonaut-a-day1": "shoulder_roll", "nao": "HeadYaw", "robonaut-a-day2": "shoulder_roll"}
-    with served(tmp_path / "data") as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        one, two = (browser.new_context(viewport={"width": 1300, "height": 900}) for _ in range(2))
+    with served(tmp_path / "data") as server:
+        one, two = (chromium.new_context(viewport={"width": 1300, "height": 900}) for _ in range(2))
         sockets: list[str] = []
         pages = {}
         for context, session in ((one, "robonaut-a-day1"), (one, "nao"), (two, "robonaut-a-day2")):
@@ -156,7 +158,6 @@ def test_tabs_and_contexts_review_their_own_sessions(tmp_path: Path) -> None:
         assert {viewer_of(p) for s, p in pages.items() if s != "nao"} <= {
             v["id"] for v in server.get("/api/viewers").json()
         }
-        browser.close()
 
 
 def _address_off_loopback() -> str | None:
@@ -170,14 +171,14 @@ def _address_off_loopback() -> str | None:
     return None if address.startswith("127.") else address
 
 
-def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(tmp_path: Path) -> None:
+def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(chromium, tmp_path: Path) -> None:
     """Served on every address and opened by this machine's network address: the page with the token shows its
     scene, which can only have come through the API's port (viser's is not reachable there); the scene's page
     and websocket without the token are refused."""
     address = _address_off_loopback()
     if address is None:
         pytest.skip("this machine has no address off loopback")
-    with served(tmp_path / "data", host="0.0.0.0") as server, playwright_api.sync_playwright() as pw:
+    with served(tmp_path / "data", host="0.0.0.0") as server:
         assert server.token
         port = urlsplit(server.url).port
         url = f"http://{address}:{port}"
@@ -202,10 +203,9 @@ def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(tmp_pa
             ws.send(camera_message())
             assert len(ws.recv(timeout=30)) > 0
 
-        browser = launch(pw)
         sockets: list[str] = []
         page = open_page(
-            browser.new_context(viewport={"width": 1300, "height": 900}), f"{url}/?token={server.token}", sockets
+            chromium.new_context(viewport={"width": 1300, "height": 900}), f"{url}/?token={server.token}", sockets
         )
         open_session(page, "nao")
         assert "HeadYaw" in scene_frame(page).evaluate(SCENE)["links"]
@@ -215,37 +215,33 @@ def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(tmp_pa
         # Opened without it (the bare address): the page asks once, however many of its first requests the server
         # refused at once, and goes on with the operator's answer; its scene comes through too.
         asked: list[str] = []
-        bare = browser.new_context(viewport={"width": 1300, "height": 900}).new_page()
+        bare = chromium.new_context(viewport={"width": 1300, "height": 900}).new_page()
         bare.on("dialog", lambda d: (asked.append(d.type), d.accept(server.token)))
         bare.goto(url)
         bare.wait_for_selector("body[data-ready='1']", timeout=60_000)
         wait_for_scene(bare)
         assert asked == ["prompt"]
-        browser.close()
 
 
-def test_after_a_server_restart_the_page_shows_its_review_again(tmp_path: Path) -> None:
+def test_after_a_server_restart_the_page_shows_its_review_again(chromium, tmp_path: Path) -> None:
     """The iframe's viser client does not reconnect by itself: the page sees the new server instance, reloads its
     scene and loads its review (at its frame) into its new viewer."""
     number = free_port()
-    with playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        with served(tmp_path / "data", port=number) as server:
-            page = open_page(browser.new_context(viewport={"width": 1300, "height": 900}), server.url)
-            open_session(page, "nao")
-            step(page)
-            frame = page.get_attribute("#frames tr.selected", "data-frame")
-            shown = scene_frame(page).evaluate(SCENE)
-        with served(tmp_path / "data", port=number) as server:
-            deadline = time.monotonic() + 60
-            while True:
-                viewers = {v["id"]: v for v in server.get("/api/viewers").json()}
-                mine = viewers.get(viewer_of(page))
-                if mine and mine["connected"] and mine["session"] == "nao" and str(mine["index"]) == frame:
-                    break
-                assert time.monotonic() < deadline, f"the page did not come back: {viewers}"
-                time.sleep(0.5)
-            wait_for_scene(page)
-            wait_for_frame(page, shown["frame"], equal=True)
-            assert page.get_attribute("#frames tr.selected", "data-frame") == frame
-        browser.close()
+    with served(tmp_path / "data", port=number) as server:
+        page = open_page(chromium.new_context(viewport={"width": 1300, "height": 900}), server.url)
+        open_session(page, "nao")
+        step(page)
+        frame = page.get_attribute("#frames tr.selected", "data-frame")
+        shown = scene_frame(page).evaluate(SCENE)
+    with served(tmp_path / "data", port=number) as server:
+        deadline = time.monotonic() + 60
+        while True:
+            viewers = {v["id"]: v for v in server.get("/api/viewers").json()}
+            mine = viewers.get(viewer_of(page))
+            if mine and mine["connected"] and mine["session"] == "nao" and str(mine["index"]) == frame:
+                break
+            assert time.monotonic() < deadline, f"the page did not come back: {viewers}"
+            time.sleep(0.5)
+        wait_for_scene(page)
+        wait_for_frame(page, shown["frame"], equal=True)
+        assert page.get_attribute("#frames tr.selected", "data-frame") == frame

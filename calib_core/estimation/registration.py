@@ -16,6 +16,7 @@ import numpy as np
 from ..dataset import Dataset
 from ..errors import InputError
 from ..model.profile import Profile
+from .pose_registration import pose_registration
 from .problem import Problem
 
 
@@ -39,6 +40,9 @@ def register(profile: Profile, data: Dataset, p: np.ndarray) -> np.ndarray:
         if not params:
             continue
         sensor = profile.sensors[s]
+        if sensor.rotation_axes:  # a pose sensor: the registration from its poses themselves
+            q[params] = pose_registration(profile, data.of_sensor(s), q, params)
+            continue
         if sensor.dim != 3:
             raise InputError(f"sensor '{sensor.name}' is on a registration frame but does not measure 3-D points")
         own = data.of_sensor(s)
