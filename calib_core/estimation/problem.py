@@ -261,13 +261,8 @@ class Problem:
 
     def _points(self, p: np.ndarray, poses: Poses, g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Base-frame points P, sensor-frame points x, the sensor rotation and the target rotation."""
-        target = self.profile.targets[g.target]
-        local = self.data.point[g.obs]
-        if target.point_params is not None:
-            local = np.broadcast_to(p[list(target.point_params)], local.shape)
-        elif target.points is not None:  # fixed points (markers, the frame's origin) by vertex id
-            local = target.points[np.maximum(self.data.vertex[g.obs], 0)]
-        return to_sensor(poses, target.frame, g.block.sensor.frame, self.data.cfg[g.obs], local)
+        local = local_points(self.profile, self.data, g.obs, g.target, p)
+        return to_sensor(poses, self.profile.targets[g.target].frame, g.block.sensor.frame, self.data.cfg[g.obs], local)
 
     def _twists(self, poses: Poses, g: _Group) -> np.ndarray:
         """(N, 6, K): per configuration, the (w, v) twist of each of the group's ops, signed."""
@@ -319,6 +314,22 @@ class Problem:
                 Jg = E @ Jg
             J[g.block.rows].reshape(-1, dim, len(self.free))[g.pos] = Jg
         return pred, J
+
+
+def local_points(profile: Profile, data: Dataset, obs: np.ndarray | slice, target: int, p: np.ndarray) -> np.ndarray:
+    """The points (n, 3) observations `obs` of `target` saw, in the target's frame: the calibrated point, a
+    fixed point (a marker, the frame's origin) by vertex id, or the row's own point; a board's vertex where the
+    row gives none (the CSV names only the vertex: row k // cols, column k % cols)."""
+    t = profile.targets[target]
+    local = data.point[obs]
+    if t.point_params is not None:
+        return np.broadcast_to(p[list(t.point_params)], local.shape)
+    if t.points is not None:
+        return t.points[np.maximum(data.vertex[obs], 0)]
+    if t.grid is not None:
+        vertex = data.vertex[obs]
+        return np.where(np.isnan(local) & (vertex >= 0)[:, None], t.grid[np.maximum(vertex, 0)], local)
+    return local
 
 
 def _run(index: np.ndarray) -> np.ndarray | slice:
