@@ -45,10 +45,21 @@ def test_the_registry_gives_each_shipped_profile_its_finder() -> None:
     # The Motoman's tracker reads its reflectors and its cameras their ArUco face centres directly: no finder.
     motoman = finders_of(load_profile("motoman"))
     assert {s for s, _ in motoman} == {"tracker", "camera1", "camera2"} and set(motoman.values()) == {None}
-    assert finders_of(load_profile(PROFILES / "wrist-camera.yaml")) == {("cam", "board"): CheckerboardFinder}
-    assert finders_of(load_profile(CHARUCO)) == {("cam", "board"): CharucoFinder}
-    for name in ("iiwa-tracker.yaml", "probe-arm.yaml"):
-        assert set(finders_of(load_profile(PROFILES / name)).values()) == {None}
+    # Every profile of tests/profiles: a camera over a grid or a ChArUco board, or sensors that read directly.
+    camera = {("cam", "board"): CheckerboardFinder}
+    expected = {
+        "charuco-arm.yaml": {("cam", "board"): CharucoFinder},
+        "handeye-in-hand.yaml": camera,
+        "handeye-to-hand.yaml": camera,
+        "wrist-camera.yaml": camera,
+        "iiwa-tracker.yaml": None,
+        "probe-arm.yaml": None,
+        "tracked-arm.yaml": None,
+    }
+    assert sorted(expected) == sorted(f.name for f in PROFILES.glob("*.yaml"))
+    for name, finders in expected.items():
+        found = finders_of(load_profile(PROFILES / name))
+        assert found == finders if finders else set(found.values()) == {None}, name
 
 
 def test_dictionaries_and_corner_layout_are_opencvs() -> None:
