@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core import SimulatedRobot, load_profile
-from calib_core.sim.recorded_drive import BagSpec, make_drive, nao_images, write_bag
+from calib_core.sim.recorded_drive import BagSpec, camera_images, make_drive, write_bag
 from calib_core.units import length_factor
 from calib_core.vision.ballfinder import find_sphere
 from calib_core.vision.sighting import predicted_points
@@ -38,7 +38,7 @@ def make_bag() -> Path:
     path.unlink(missing_ok=True)
     path.parent.mkdir(parents=True, exist_ok=True)
     spec = BagSpec(ros=1, image_topics={"image": "/camera/image_raw"}, compressed=True, jpeg_quality=80)
-    return write_bag(path, drive, nao_images(drive, 1.5), spec)
+    return write_bag(path, drive, camera_images(drive, 1.5), spec)
 
 
 def make_depth() -> tuple[Path, dict]:

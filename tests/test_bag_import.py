@@ -31,10 +31,8 @@ from calib_core.io.bag_import import (
     speeds_deg_s,
 )
 from calib_core.io.session import read_session
-from calib_core.sim.recorded_drive import BagSpec, Drive, Images
+from calib_core.sim.recorded_drive import BagSpec, Drive, Images, camera_images
 from calib_core.sim.recorded_drive import make_drive as _drive
-from calib_core.sim.recorded_drive import nao_images as _nao_images
-from calib_core.sim.recorded_drive import stereo_images as _stereo_images
 from calib_core.sim.recorded_drive import write_bag as _write_bag
 from calib_core.vision.stereo import StereoHead, render_pair
 
@@ -45,7 +43,7 @@ from calib_core.vision.stereo import StereoHead, render_pair
 def nao_drive() -> tuple[Drive, Images]:
     """4 poses (two per leg), each held 1 s; 1 s moves, one of them with a 0.45 s pause halfway; 4 images/s."""
     drive = _drive("nao", 4, seed=7, hold_s=1.0, move_s=1.0, pause_at=1)
-    return drive, _nao_images(drive, 4.0)
+    return drive, camera_images(drive, 4.0)
 
 
 @pytest.fixture(scope="module")
@@ -288,7 +286,7 @@ def test_joint_names_may_be_the_data_columns_and_a_fixed_joint_may_be_absent(tmp
 def test_robonaut_stereo_bag(tmp_path: Path) -> None:
     """3 poses held 0.8 s, pairs at 3 Hz on ROS 2: the BallFinder's centres are the true ones to millimetres."""
     drive = _drive("robonaut-a", 3, seed=11, hold_s=0.8, move_s=0.6)
-    images = _stereo_images(drive, 3.0)
+    images = camera_images(drive, 3.0, start_s=0.07, seed=2)
     topics = {"left": "/stereo/left/image", "right": "/stereo/right/image"}
     bag = _write_bag(tmp_path / "rn", drive, images, BagSpec(ros=2, image_topics=topics))
     out = tmp_path / "session"

@@ -198,7 +198,9 @@ def test_every_seed_reaches_the_noise_floor_from_no_guess(setup, offsets: bool, 
             assert mm < 0.5 and deg < 0.05, (seed, mm, deg)
         if offsets and seed == 0:
             pose_only = calibrate(setup, sim.data, "handeye")
-            assert rms_px(setup, new.data, pose_only.params(setup)) > 3 * floor
+            # 2.1-14 times the floor on the views a plain checkerboard detector finds (at most 60 deg oblique,
+            # corners 8 px apart: calib_core/vision/finders/checkerboard.py), eye-to-hand with 40 poses the least.
+            assert rms_px(setup, new.data, pose_only.params(setup)) > 1.5 * floor
             assert not pose_only.solver.fits_noise
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from calib_core import Calibration, FrameStatus, Profile, Sensor
 from calib_core.errors import InputError
 from calib_core.units import length_factor
-from calib_core.vision import Sighting, StereoHead, depth_from_pair, sight_board, sight_fixture
+from calib_core.vision import Sighting, StereoHead, finder_for
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, Look, RobotFault, RobotStatus, check_limits
@@ -357,10 +357,10 @@ class Driver:
             return Sighting(
                 profile.data.sensor, target, FrameStatus.MEASURED, "ok", m.point[None], points, np.array([-1]), m.detail
             )
-        if m.head is not None:
-            depth_m = depth_from_pair(m.images["left"], m.images["right"], m.head)
-            return sight_fixture(profile, p, q, depth_m, m.head)
-        return sight_board(profile, p, q, target, m.images["image"])
+        finder = finder_for(profile, profile.data.sensor, target)
+        if finder is None:
+            return not_found(profile, target, f"no finder for {profile.targets[target].name} in {sensor.name}'s images")
+        return finder.find(p, q, m.images, m.head)
 
     def set_target(self, target: int) -> None:
         profile = self.profile

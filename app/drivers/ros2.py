@@ -272,7 +272,7 @@ class Ros2Transport:
             if math.isnan(stamp):
                 reason = f"no measurement on {topic} (none received within {wait_s:g} s)"
                 carried = self.link.topic_types().get(topic)
-                want = "sensor_msgs/msg/Image" if sensor.reading == "image" else "geometry_msgs/msg/PointStamped"
+                want = "sensor_msgs/msg/Image" if sensor.image_roles == ("image",) else "geometry_msgs/msg/PointStamped"
                 if carried and want not in carried:
                     reason += f": it carries {', '.join(carried)}, not {want}"
                 return Measurement(missing=reason)
@@ -282,7 +282,7 @@ class Ros2Transport:
             )
         if m.kind == "stereo":
             return self._stereo(value, info, right_info, m)
-        if sensor.reading == "image":
+        if sensor.image_roles == ("image",):  # a camera: one Image and its CameraInfo
             return self._image(value, info, topic)
         detail = {"sensor": topic, "stamp_after_settled_s": round(stamp - since_s, 4)}
         return Measurement(point=value * length_factor("m", self.profile.length_unit), detail=detail)

@@ -19,7 +19,7 @@ import numpy as np
 from calib_core.errors import InputError
 from calib_core.model import Profile
 from calib_core.sim import SimulatedRobot
-from calib_core.vision import Sampler, Visibility
+from calib_core.vision import Sampler, Visibility, found_targets
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, RobotFault, RobotStatus, check_limits
@@ -35,10 +35,10 @@ LOST = "the link to the robot was lost"
 
 def can_simulate(profile: Profile) -> bool:
     """Whether the simulator can stand in for the robot: the profile has a simulation section and its data
-    sensor is one the simulator renders (a stereo head or a camera; calib_core.simulator's capture) or reads
-    directly (a point sensor without images, like the Motoman's laser tracker; reads_points)."""
+    sensor is one the simulator renders (it has a finder for one of its targets: calib_core.vision.finders) or
+    reads directly (a point sensor without images, like the Motoman's laser tracker; reads_points)."""
     sensor = profile.sensors[profile.data.sensor]
-    return bool(profile.simulation) and (sensor.reading in ("stereo", "image") or reads_points(sensor))
+    return bool(profile.simulation) and (bool(found_targets(profile, profile.data.sensor)) or reads_points(sensor))
 
 
 def also_read(profile: Profile) -> list[int]:

@@ -200,6 +200,8 @@ def check_against(conn: Connection, profile: Profile) -> None:
 def _check_sensors(conn: Connection, profile: Profile | None) -> None:
     if profile is None:
         return
+    from calib_core.vision import finders_served, found_targets  # OpenCV: only once a profile is checked
+
     file = str(conn.path)
     names = [s.name for s in profile.sensors]
     for m in conn.measurements:
@@ -208,17 +210,19 @@ def _check_sensors(conn: Connection, profile: Profile | None) -> None:
                 f"measurements.{m.sensor}: no such sensor in the profile (sensors: {', '.join(names)})", file=file
             )
         sensor = profile.sensors[names.index(m.sensor)]
-        if m.kind == "stereo" and sensor.reading != "stereo":
+        # What travels on the topics: the images one reading takes (Sensor.image_roles), or a point.
+        pair, camera = sensor.image_roles == ("left", "right"), sensor.image_roles == ("image",)
+        if m.kind == "stereo" and not pair:
             raise InputError(f"measurements.{m.sensor}: a stereo pair for a sensor that is no stereo head", file=file)
-        if sensor.reading == "image" and m.info is None:
+        if camera and m.info is None:
             raise InputError(f"measurements.{m.sensor}: a camera needs `info` (its CameraInfo topic)", file=file)
-        if sensor.reading == "stereo" and m.kind != "stereo":
+        if pair and m.kind != "stereo":
             raise InputError(
                 f"measurements.{m.sensor}: a stereo head needs its pair {{left: ..., left_info: ..., right: ..., "
                 "right_info: ...}",
                 file=file,
             )
-        if sensor.reading not in ("image", "stereo", "direct") or (sensor.reading == "direct" and sensor.dim != 3):
+        if not (pair or camera or (not sensor.image_roles and sensor.dim == 3)):
             raise InputError(
                 f"measurements.{m.sensor}: the ROS 2 driver reads point sensors (PointStamped), cameras "
                 f"(Image + CameraInfo) and stereo heads (two of each), not a {sensor.reading} sensor",
@@ -227,6 +231,12 @@ def _check_sensors(conn: Connection, profile: Profile | None) -> None:
     data_sensor = profile.sensors[profile.data.sensor].name
     if data_sensor not in {m.sensor for m in conn.measurements}:
         raise InputError(f"measurements: the profile's data sensor '{data_sensor}' needs a topic", file=file)
+    if profile.sensors[profile.data.sensor].image_roles and not found_targets(profile, profile.data.sensor):
+        raise InputError(
+            f"measurements.{data_sensor}: no finder sees the profile's targets in its images "
+            f"(finders: {finders_served()})",
+            file=file,
+        )
 
 
 # --- before the desk starts ---------------------------------------------------------------------------------

@@ -35,7 +35,7 @@ from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 from calib_core.sim import SimulatedRobot
 from calib_core.units import length_factor
-from calib_core.vision import Sampler, StereoHead, Visibility, render_board_image, render_pair
+from calib_core.vision import Sampler, StereoHead, Visibility, found_targets
 
 from . import require
 
@@ -116,12 +116,13 @@ def connection_doc(profile_ref: str, robot: str, profile: Profile, topics: Topic
 
 
 def sensor_kind(profile: Profile) -> str:
-    """How the node publishes the profile's data sensor: "stereo", "image" or "point" (InputError: it cannot)."""
+    """How the node publishes the profile's data sensor: "stereo" (a pair of images), "image" or "point"; a
+    sensor publishes images when its finder renders them (calib_core.vision.finders). InputError: it cannot."""
     from ..drivers.core import reads_points
 
     sensor = profile.sensors[profile.data.sensor]
-    if sensor.reading in ("stereo", "image"):
-        return sensor.reading
+    if found_targets(profile, profile.data.sensor):
+        return "stereo" if sensor.image_roles == ("left", "right") else "image"
     if reads_points(sensor):
         return "point"
     raise InputError(f"{profile.name}: its {sensor.name} ({sensor.reading}) cannot be simulated on ROS 2 yet")
@@ -340,16 +341,16 @@ class SimNode:
             infos.publish(info)
 
     def _render(self, q: np.ndarray) -> list[np.ndarray]:
-        """The image(s) of true configuration q: the board in view (NAO: the left or right foot's), or the
-        stereo head's pair (Robonaut: the sphere in its hand)."""
-        if self.kind == "stereo":
-            head = StereoHead.from_profile(self.profile, self.sim.true_params, self._frame)
-            pair = render_pair(self.profile, self.sim.true_params, q, head, self.sim.rng)
-            return [np.ascontiguousarray(pair.left), np.ascontiguousarray(pair.right)]
-        seen = Visibility(self.profile, self.sim.true_params).targets_in_view(q)
-        target = int(seen[0]) if len(seen) else self.target
-        board = render_board_image(self.profile, self.sim.true_params, q, target, self.sim.rng)
-        return [np.ascontiguousarray(board.image, dtype=np.uint8)]
+        """The image(s) of true configuration q, drawn by the finder of the target in view (NAO: the left or
+        right foot's board; Robonaut: the sphere in its hand, the stereo head's pair)."""
+        found = found_targets(self.profile, self.profile.data.sensor)
+        if len(found) > 1:
+            found = [
+                t for t in Visibility(self.profile, self.sim.true_params).targets_in_view(q) if t in found
+            ] or found
+        images, _ = self.sim.render(q, found[0])
+        sensor = self.profile.sensors[self.profile.data.sensor]
+        return [np.ascontiguousarray(images[role], dtype=np.uint8) for role in sensor.image_roles]
 
     def _baseline_m(self) -> float:
         return StereoHead.from_profile(self.profile, self.sim.true_params, self._frame).baseline_m

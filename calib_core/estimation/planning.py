@@ -47,6 +47,7 @@ from ..dataset import Dataset
 from ..errors import Cancelled, InputError
 from ..model.kinematics import sensor_points
 from ..model.profile import Profile
+from ..vision.finders import finder_for, found_targets
 from ..vision.sampling import Sampler
 from ..vision.visibility import MIN_SPHERE_SHARE, Visibility
 from .calibrate import observed_mode
@@ -60,15 +61,9 @@ CRITERIA: tuple[str, ...] = ("task", "d", "random")
 JOINT_MARGIN_DEG = 1.0  # kept clear of every revolute joint's limits (the drivers' default safety margin)
 JOINT_MARGIN_M = 0.001  # kept clear of every prismatic joint's limits (the drivers' default)
 # Kept clear of the image border by candidates and the workspace: more than the dry run's 10 px, since a
-# model error of a few cm (a robot never calibrated) moves what the sensor sees.
+# model error of a few cm (a robot never calibrated) moves what the sensor sees. A finder may ask for more
+# (`plan_margins`: a stereo head's sphere).
 VIEW_MARGIN_PX = 40.0
-# What a plan for a stereo head's sphere picks keeps more clear: its configurations lie at the edges of what
-# the head sees (near, the arm close to the view ray), and on a Robonaut 13 cm off the nominal model the
-# sphere moves up to 100 px and the arm hides more of it. With 40 px and the detector's own 85% share, 14% of
-# a 32-configuration plan was lost on the true robot; with these, 6% (benchmarks/planning.py). A board
-# camera's plans (NAO) keep VIEW_MARGIN_PX: a wider margin there lost more of NAO's frames, not fewer.
-STEREO_PLAN_MARGIN_PX = 80.0
-STEREO_PLAN_SPHERE_SHARE = 0.97
 CHECK_BATCH = 16  # candidates checked for visibility at once (the check is vectorised)
 # Candidate configurations drawn (uniform sampling; the costly visibility check is lazy and batched): the
 # predicted error of a 32-configuration Robonaut plan falls 5% from 6000 to 16000.
@@ -601,10 +596,15 @@ class Selection:
 
 def plan_margins(profile: Profile) -> tuple[float, float]:
     """What a plan's configurations keep clear with the base model: px from the image border, and the share
-    of a stereo head's sphere outline the arm must leave free."""
-    if profile.sensors[profile.data.sensor].reading == "stereo":
-        return STEREO_PLAN_MARGIN_PX, STEREO_PLAN_SPHERE_SHARE
-    return VIEW_MARGIN_PX, MIN_SPHERE_SHARE
+    of a stereo head's sphere outline the arm must leave free; more than these defaults where the data
+    sensor's finder asks for more (`Finder.plan_margins`: a stereo head's sphere)."""
+    s = profile.data.sensor
+    margin_px, share = VIEW_MARGIN_PX, MIN_SPHERE_SHARE
+    for t in found_targets(profile, s):
+        finder = finder_for(profile, s, t)
+        if finder is not None and finder.plan_margins is not None:
+            margin_px, share = max(margin_px, finder.plan_margins[0]), max(share, finder.plan_margins[1])
+    return margin_px, share
 
 
 class CandidateView:

@@ -17,11 +17,12 @@ NAO's lower camera. A calibration frame needs a robot that stood still while its
 3. Each still period gives one frame: the median of each joint's readings over the period, and of each
    image topic the image closest to the period's middle and inside the period (none: the frame is kept
    as "not found", no image).
-4. The frame's images go through the detectors exactly as the simulated capture's do (`calib_core.vision`):
-   the Robonaut pair -> stereo depth -> BallFinder (`sight_fixture`), the NAO image -> sandal board
-   detector (`sight_board`, for the board the believed kinematics predict in view), seeded by the
-   believed calibration (default: the profile's nominal model), with the camera intrinsics and baseline
-   from it. Frames where the detector finds nothing stay as "not found" records with the reason.
+4. The frame's images go through the data sensor's finder exactly as the simulated capture's do
+   (`calib_core.vision.finders`): the Robonaut pair -> stereo depth -> BallFinder, the NAO image -> sandal
+   board detector, a camera's image -> its board's detector (of several boards, those the believed
+   kinematics predict in view first), seeded by the believed calibration (default: the profile's
+   nominal model), with the camera intrinsics and baseline from it. Frames where the finder finds nothing
+   stay as "not found" records with the reason.
 5. `write_session` writes the session folder whole (session.json, data.csv, images/) or not at all.
 
 Times: the messages' header stamps when every message read has one (non-zero), else the times the bag
@@ -49,8 +50,8 @@ from ..errors import InputError
 from ..frame_status import FrameStatus
 from ..model.profile import Profile
 from ..sensors import Sensor
-from ..vision.sighting import Capture, Sighting, dataset_from_captures, predicted_points, sight_board, sight_fixture
-from ..vision.stereo import StereoHead, depth_from_pair
+from ..vision.finders import finder_for, finders_served, found_targets
+from ..vision.sighting import Capture, Sighting, dataset_from_captures, predicted_points
 from ..vision.visibility import Visibility
 from .camera_images import grey_compressed, grey_image
 from .session import FrameRecord, write_session
@@ -332,26 +333,30 @@ def decode_image(msg: Any, msgtype: str, topic: str, bag: str) -> np.ndarray | N
 
 
 def _image_roles(profile: Profile) -> tuple[Sensor, list[str]]:
-    """The data sensor and the images one of its readings takes (`Sensor.image_roles`), with their size."""
+    """The data sensor and the images one of its readings takes (`Sensor.image_roles`): a sensor with a finder
+    for one of its targets (calib_core.vision.finders)."""
     sensor = profile.sensors[profile.data.sensor]
-    if sensor.image_roles and sensor.image_size_px() is not None:
+    if found_targets(profile, profile.data.sensor):
         return sensor, list(sensor.image_roles)
     raise InputError(
-        f"robot '{profile.name}': its sensor '{sensor.name}' is neither a stereo head nor a camera with an "
-        "image size, so there is no detector for its images"
+        f"robot '{profile.name}': its sensor '{sensor.name}' has no finder for its targets, so nothing detects "
+        f"them in its images (finders: {finders_served()})"
     )
 
 
-def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> list[int]:
-    """The boards to look for in configuration q, best first: those the believed kinematics predict fully
-    in view (`Visibility`, nearest the image centre first), then those partly in view (most points first)."""
-    sensor = profile.sensors[profile.data.sensor]
+def _ranked_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> list[int]:
+    """The targets to look for in configuration q, best first: of the targets the data sensor has a finder for,
+    those the believed kinematics predict fully in view (`Visibility`, nearest the image centre first), then
+    those partly in view (most points first). A sensor with one such target always looks for it."""
+    s = profile.data.sensor
+    found = found_targets(profile, s)
+    if len(found) == 1:
+        return found
+    sensor = profile.sensors[s]
     size = sensor.image_size_px()
-    assert size is not None  # _image_roles checked it
+    assert size is not None  # a finder's sensor has its image size
     width, height = size
-    boards = np.array([t for t, target in enumerate(profile.targets) if target.grid is not None], int)
-    if not len(boards):
-        raise InputError(f"robot '{profile.name}' has no board target for its camera")
+    boards = np.array(found, int)
     qs = np.repeat(q[None], len(boards), axis=0)
     whole = Visibility(profile, believed).sees(qs, boards)
     inside = Visibility(profile, believed, margin_px=0.0).points(qs, boards).sum(axis=1)
@@ -366,14 +371,9 @@ def _board_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> lis
     return [t for *_, t in sorted(scored)]
 
 
-def _sight(
-    profile: Profile, believed: np.ndarray, q: np.ndarray, images: dict[str, np.ndarray], head: StereoHead | None
-) -> Sighting:
-    """What the detector makes of one frame's images, as in the simulated capture."""
-    if head is not None:
-        depth_m = depth_from_pair(images["left"], images["right"], head)
-        return sight_fixture(profile, believed, q, depth_m, head)
-    candidates = _board_targets(profile, believed, q)
+def _sight(profile: Profile, believed: np.ndarray, q: np.ndarray, images: dict[str, np.ndarray]) -> Sighting:
+    """What the finders make of one frame's images, as in the simulated capture."""
+    candidates = _ranked_targets(profile, believed, q)
     if not candidates:
         t = profile.data.target if profile.data.target is not None else 0
         grid = profile.targets[t].grid
@@ -384,7 +384,9 @@ def _sight(
         )
     sighting = None
     for t in candidates:
-        sighting = sight_board(profile, believed, q, t, images["image"])
+        finder = finder_for(profile, profile.data.sensor, t)
+        assert finder is not None  # a candidate has its finder
+        sighting = finder.find(believed, q, images)
         if sighting.status == FrameStatus.MEASURED:
             break
     assert sighting is not None
@@ -531,7 +533,6 @@ def import_bag(
         raise InputError(f"--still-s {still_s} must be a positive duration in s")
     sensor, roles = _image_roles(profile)
     believed = profile.nominal() if believed is None else np.asarray(believed, dtype=float)
-    head = StereoHead.from_profile(profile, believed, sensor.name) if roles == ["left", "right"] else None
     size_px = sensor.image_size_px()
 
     reader = _open_reader(bag)
@@ -562,7 +563,7 @@ def import_bag(
                 {},
             )
         else:
-            sighting = _sight(profile, believed, q, frame_images, head)
+            sighting = _sight(profile, believed, q, frame_images)
         captures.append(Capture(frame, q, sighting, frame_images))
         if frame_images:
             images[frame] = frame_images

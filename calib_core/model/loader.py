@@ -22,6 +22,7 @@ from ..safe_yaml import MAX_YAML_BYTES, load_yaml
 from ..sensors import SENSOR_MODELS, Sensor
 from ..sensors.pose6d import ROTATIONS
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
+from .boards import read_charuco
 from .profile import DataFormat, Frame, Joint, Marker, Mode, Op, Parameter, Profile, Target, Tie
 from .urdf_import import compile_urdf_profile
 
@@ -29,6 +30,7 @@ BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
 
 AXES = {"x": 0, "y": 1, "z": 2}
 JOINT_KINDS = ("revolute", "prismatic")  # a joint entry's `type`: its op rotates or translates
+GRID_PATTERNS = ("checkerboard", "sandal")  # what a grid target may be: a plain board, the NAO's sandal
 
 # An elementary transform before it is an Op: (t|r, vector, field or parameter name, value, jointed).
 Step = tuple[str, np.ndarray, str, float, bool]
@@ -344,14 +346,15 @@ class _Compiler:
         grid = None
         shape = None
         points = None
-        if sum(k in spec for k in ("point", "grid", "points")) > 1:
-            raise self.fail(where, "needs at most one of point, grid, points")
+        charuco = None
+        if sum(k in spec for k in ("point", "grid", "points", "charuco")) > 1:
+            raise self.fail(where, "needs at most one of point, grid, points, charuco")
         if "points" in spec:
             pts = spec["points"]
             if not isinstance(pts, list) or not pts:
                 raise self.fail(f"{where}.points", "expected a list of [x, y, z]")
             points = np.array([self.vector(v, f"{where}.points[{k}]") for k, v in enumerate(pts)])
-        elif "point" not in spec and "grid" not in spec:
+        elif not any(k in spec for k in ("point", "grid", "charuco")):
             points = np.zeros((1, 3))  # the frame's origin (a reflector at the end of a DH row)
         if "point" in spec:
             point_params = self.add_params(tname, "length", spec["point"], ("x", "y", "z"), f"{where}.point")
@@ -371,6 +374,9 @@ class _Compiler:
                 axis=1,
             )
             shape = (rows, cols)
+        if "charuco" in spec:
+            charuco = read_charuco(spec["charuco"], self, f"{where}.charuco")
+            grid, shape = charuco.corners(), charuco.shape
         radius = spec.get("radius")
         return Target(
             tname,
@@ -380,7 +386,26 @@ class _Compiler:
             shape,
             None if radius is None else self.number(radius, f"{where}.radius"),
             points,
+            self.pattern(spec, where),
+            charuco,
         )
+
+    def pattern(self, spec: dict, where: str) -> str:
+        """What a sensor looks for on a target (`Target.pattern`): a grid's `pattern` (checkerboard, or the
+        NAO's sandal), else what the target is."""
+        if "pattern" in spec:
+            if "grid" not in spec:
+                raise self.fail(f"{where}.pattern", "only a grid target has a pattern (checkerboard or sandal)")
+            if spec["pattern"] not in GRID_PATTERNS:
+                raise self.fail(
+                    f"{where}.pattern", f"expected one of {', '.join(GRID_PATTERNS)}, got {spec['pattern']!r}"
+                )
+            return str(spec["pattern"])
+        if "charuco" in spec:
+            return "charuco"
+        if "grid" in spec:
+            return "checkerboard"
+        return "sphere" if "radius" in spec else "point"
 
     def compile_sensor(self, spec: dict, where: str) -> Sensor:
         sname = str(self.get(spec, "name", where))

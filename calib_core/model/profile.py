@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import InputError
 from ..sensors import Sensor
 from ..units import length_factor
+from .boards import Charuco
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,11 @@ class Target:
     grid_shape: tuple[int, int] | None  # (rows, cols)
     radius: float | None  # a sphere's radius, profile length unit
     points: np.ndarray | None = None  # (K, 3) fixed points (markers; the origin), picked by vertex id
+    # What a sensor looks for (the finders' registry, calib_core.vision.finders): "sphere" (a radius),
+    # "checkerboard" (a grid), "sandal" (a grid under the NAO's foot), "charuco", or "point" (the device
+    # reports it: a reflector, marker points).
+    pattern: str = "point"
+    charuco: Charuco | None = None  # a ChArUco board (its grid: the corners, its grid_shape: theirs)
 
 
 @dataclass(frozen=True)

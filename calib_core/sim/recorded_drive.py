@@ -19,8 +19,6 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 from ..model.loader import load_profile
-from ..vision.sandal_board import render_board_image
-from ..vision.stereo import StereoHead, render_pair
 from .simulator import SimulatedRobot
 
 EPOCH_NS = 1_700_000_000 * 10**9
@@ -96,24 +94,20 @@ class Images:
     pictures: dict[str, list[np.ndarray]]
 
 
-def nao_images(drive: Drive, rate_hz: float) -> Images:
-    times = np.arange(0.11, drive.duration_s, 1 / rate_hz)
-    rng = np.random.default_rng(1)
-    prof, p = drive.robot.profile, drive.robot.true_params
-    pictures = []
+def camera_images(drive: Drive, rate_hz: float, *, start_s: float = 0.11, seed: int = 1) -> Images:
+    """The data sensor's images every 1 / rate_hz s from start_s, each drawn by the finder of the target the
+    drive shows then (calib_core.vision.finders), its noise from a stream seeded by `seed`."""
+    times = np.arange(start_s, drive.duration_s, 1 / rate_hz)
+    rng = np.random.default_rng(seed)
+    robot = drive.robot
+    roles = robot.profile.sensors[robot.profile.data.sensor].image_roles
+    pictures: dict[str, list[np.ndarray]] = {role: [] for role in roles}
     for t in times:
         q, target = drive.at(t)
-        pictures.append(render_board_image(prof, p, q, target, rng).image)
-    return Images(times, {"image": pictures})
-
-
-def stereo_images(drive: Drive, rate_hz: float) -> Images:
-    times = np.arange(0.07, drive.duration_s, 1 / rate_hz)
-    rng = np.random.default_rng(2)
-    prof, p = drive.robot.profile, drive.robot.true_params
-    head = StereoHead.from_profile(prof, p, prof.sensors[prof.data.sensor].name)
-    pairs = [render_pair(prof, p, drive.at(t)[0], head, rng) for t in times]
-    return Images(times, {"left": [x.left for x in pairs], "right": [x.right for x in pairs]})
+        rendered = robot.finder(target).render(robot.true_params, q, rng)
+        for role in roles:
+            pictures[role].append(rendered.images[role])
+    return Images(times, pictures)
 
 
 # --- writing bags ----------------------------------------------------------------------------------------------

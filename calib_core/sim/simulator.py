@@ -23,10 +23,10 @@ from ..dataset import Dataset
 from ..frame_status import FrameStatus
 from ..model.kinematics import sensor_points, target_points
 from ..model.profile import Profile
+from ..vision.finders import Finder, finder_for
 from ..vision.sampling import Sampler
-from ..vision.sandal_board import render_board_image
-from ..vision.sighting import Capture, Sighting, dataset_from_captures, sight_board, sight_fixture
-from ..vision.stereo import StereoHead, depth_from_pair, render_pair
+from ..vision.sighting import Capture, Sighting, dataset_from_captures
+from ..vision.stereo import StereoHead
 from ..vision.visibility import MIN_SPHERE_SHARE, VIEW_MARGIN_PX, Visibility
 from .contact import contacts
 
@@ -203,18 +203,23 @@ class SimulatedRobot:
             return q.copy()
         return np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
 
-    def render(self, q: np.ndarray, target: int) -> tuple[dict[str, np.ndarray], StereoHead | None]:
-        """What the data sensor sees in configuration q (one row, true joint angles, rad): a stereo head's
-        "left" and "right" images with the head that took them, or a camera's "image" of the board `target`."""
+    def finder(self, target: int) -> Finder:
+        """The data sensor's finder for `target` (ValueError: the sensor reads it directly, nothing to render)."""
         prof = self.profile
-        sensor = prof.sensors[prof.data.sensor]
-        if sensor.reading == "stereo":
-            head = StereoHead.from_profile(prof, self.true_params, sensor.name)
-            pair = render_pair(prof, self.true_params, q, head, self.rng)
-            return {"left": pair.left, "right": pair.right}, head
-        if sensor.reading == "image":
-            return {"image": render_board_image(prof, self.true_params, q, target, self.rng).image}, None
-        raise ValueError(f"sensor '{sensor.name}' reads its measurements directly: there is no image to render")
+        finder = finder_for(prof, prof.data.sensor, target)
+        if finder is None:
+            sensor = prof.sensors[prof.data.sensor]
+            raise ValueError(
+                f"sensor '{sensor.name}' has no finder for target '{prof.targets[target].name}': "
+                "there is no image to render"
+            )
+        return finder
+
+    def render(self, q: np.ndarray, target: int) -> tuple[dict[str, np.ndarray], StereoHead | None]:
+        """What the data sensor sees of `target` in configuration q (one row, true joint angles, rad), drawn by
+        its finder: a stereo head's "left" and "right" images with the head that took them, or a camera's "image"."""
+        rendered = self.finder(target).render(self.true_params, q, self.rng)
+        return rendered.images, rendered.head
 
     def read(self, q: np.ndarray, target: int, sensor: int) -> Sighting:
         """What a sensor reads of a target directly, without images, at true joint angles q (one row, rad): the
@@ -239,14 +244,11 @@ class SimulatedRobot:
         return Sighting(sensor, target, FrameStatus.MEASURED, "ok", measured, points[seen], vertices[seen], detail)
 
     def capture(self, frame: int, q: np.ndarray, target: int, believed: np.ndarray) -> Capture:
-        """Render what the sensor sees in configuration q (one row, rad) and run its detector,
+        """Render what the sensor sees in configuration q (one row, rad) and run its finder,
         seeded by the calibration the robot believes in (`believed`, internal units)."""
         readings = self.readings(q)
         images, head = self.render(q, target)
-        if head is not None:
-            depth = depth_from_pair(images["left"], images["right"], head)
-            return Capture(frame, readings, sight_fixture(self.profile, believed, readings, depth, head), images)
-        return Capture(frame, readings, sight_board(self.profile, believed, readings, target, images["image"]), images)
+        return Capture(frame, readings, self.finder(target).find(believed, readings, images, head), images)
 
     def simulate_images(self, n: int | None = None, believed: np.ndarray | None = None) -> ImageSimulation:
         """Random visible configurations, seen through rendered images and the detectors.

@@ -1,5 +1,5 @@
-"""Detectors on real-looking images (BallFinder on stereo depth, the sandal board), their renderers, and what a
-sensor sees (Visibility).
+"""Finders: how a sensor sees a target (finders/: one per sensor model and target pattern, each renders it and
+finds it), the detectors and renderers behind them, and what a sensor sees (Visibility).
 
 The names below load their module on first use (calib_core/_lazy.py): OpenCV only when one needs it."""
 
@@ -13,15 +13,18 @@ __getattr__ = lazy_exports(
     __name__,
     {
         "ballfinder": ("find_sphere",),
+        "finders": ("FINDERS", "Finder", "finder_for", "finders_served", "found_targets"),
         "sampling": ("Sampler",),
         "sandal_board": ("detect_board", "render_board_image"),
-        "sighting": ("Sighting", "sight_board", "sight_fixture"),
+        "sighting": ("Sighting",),
         "stereo": ("StereoHead", "depth_from_pair", "render_pair"),
         "visibility": ("VIEW_MARGIN_PX", "Visibility"),
     },
 )
 __all__ = [
+    "FINDERS",
     "VIEW_MARGIN_PX",
+    "Finder",
     "Sampler",
     "Sighting",
     "StereoHead",
@@ -29,16 +32,18 @@ __all__ = [
     "depth_from_pair",
     "detect_board",
     "find_sphere",
+    "finder_for",
+    "finders_served",
+    "found_targets",
     "render_board_image",
     "render_pair",
-    "sight_board",
-    "sight_fixture",
 ]
 
 if TYPE_CHECKING:
     from .ballfinder import find_sphere
+    from .finders import FINDERS, Finder, finder_for, finders_served, found_targets
     from .sampling import Sampler
     from .sandal_board import detect_board, render_board_image
-    from .sighting import Sighting, sight_board, sight_fixture
+    from .sighting import Sighting
     from .stereo import StereoHead, depth_from_pair, render_pair
     from .visibility import VIEW_MARGIN_PX, Visibility

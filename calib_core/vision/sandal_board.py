@@ -93,16 +93,17 @@ class BoardDetection:
 # --- rendering ----------------------------------------------------------------------------------
 
 
-def board_corners(profile: Profile, p: np.ndarray, q: np.ndarray, target: int) -> np.ndarray:
-    """Image positions (K, 2) px of a board's vertices for parameters p and joint readings q (rad)."""
-    sensor = profile.sensors[profile.data.sensor]
-    x = sensor_points(profile, p, q[None], np.array([target]))[0, : len(profile.targets[target].grid)]
-    return sensor.predict(p, x)[0]
+def board_corners(profile: Profile, p: np.ndarray, q: np.ndarray, target: int, sensor: int | None = None) -> np.ndarray:
+    """Image positions (K, 2) px of a board's vertices for parameters p and joint readings q (rad), in a
+    camera's image (default: the data sensor's)."""
+    s = profile.data.sensor if sensor is None else sensor
+    x = sensor_points(profile, p, q[None], np.array([target]), sensor=s)[0, : len(profile.targets[target].grid)]
+    return profile.sensors[s].predict(p, x)[0]
 
 
-def _poses(profile: Profile, p: np.ndarray, q: np.ndarray, target: int) -> tuple[np.ndarray, ...]:
+def _poses(profile: Profile, p: np.ndarray, q: np.ndarray, target: int, sensor: int) -> tuple[np.ndarray, ...]:
     """Base-frame rotation and position of the board's frame and of the camera's frame."""
-    board, camera = profile.targets[target].frame, profile.sensors[profile.data.sensor].frame
+    board, camera = profile.targets[target].frame, profile.sensors[sensor].frame
     poses = forward(profile, p, np.asarray(q, float)[None], frames=[board, camera])
     return poses.R[board][0], poses.t[board][0], poses.R[camera][0], poses.t[camera][0]
 
@@ -118,6 +119,7 @@ def render_board_image(
     noise: float = 2.0,
     light: float = 0.35,
     supersample: int = 8,
+    sensor: int | None = None,
 ) -> BoardImage:
     """What the profile's camera sees of board `target` for parameters p and joint readings q (rad).
 
@@ -125,28 +127,29 @@ def render_board_image(
     colour; the others (edges) average supersample^2 rays, an exact anti-aliasing at little cost.
     `blur_px` is the optics' Gaussian sigma, `noise` the sensor noise's sigma in grey levels, `light`
     how far the illumination falls towards one side and the image corners (0: even). The rest of the
-    robot is not drawn: the room behind the board is dark.
+    robot is not drawn: the room behind the board is dark. `sensor`: the camera (default: the data sensor).
     """
-    sensor = profile.sensors[profile.data.sensor]
+    s = profile.data.sensor if sensor is None else sensor
+    camera = profile.sensors[s]
     tgt = profile.targets[target]
-    if not isinstance(sensor, Pinhole) or sensor.image is None or tgt.grid is None or tgt.grid_shape is None:
+    if not isinstance(camera, Pinhole) or camera.image is None or tgt.grid is None or tgt.grid_shape is None:
         raise ValueError("rendering needs a pinhole sensor with an image size and a board target")
-    if sensor.distortion is not None and np.any(p[list(sensor.distortion)] != 0):
+    if camera.distortion is not None and np.any(p[list(camera.distortion)] != 0):
         raise ValueError("rendering supports no lens distortion")
-    Rb, tb, Rs, ts = _poses(profile, p, q, target)
-    corners = board_corners(profile, p, q, target)
+    Rb, tb, Rs, ts = _poses(profile, p, q, target, s)
+    corners = board_corners(profile, p, q, target, s)
 
     # A pixel's ray meets the board plane where a homography G says (the ray-plane intersection in
     # closed form): (col w, row w, w) = G (u, v, 1), in tiles from vertex 0; w > 0 where the ray hits.
     o = Rb.T @ (ts - tb)
-    fx, fy, cx, cy = (float(p[i]) for i in sensor.intrinsics)
-    D = Rb.T @ Rs @ sensor.R_frame_optical @ np.array([[1 / fx, 0, -cx / fx], [0, 1 / fy, -cy / fy], [0, 0, 1]])
+    fx, fy, cx, cy = (float(p[i]) for i in camera.intrinsics)
+    D = Rb.T @ Rs @ camera.R_frame_optical @ np.array([[1 / fx, 0, -cx / fx], [0, 1 / fy, -cy / fy], [0, 0, 1]])
     x0, y0, z0 = tgt.grid[0]
     h = z0 - o[2]  # the plane's height above the camera
     G = np.sign(h) * np.stack([(o[0] - x0) * D[2] + h * D[0], (y0 - o[1]) * D[2] - h * D[1], D[2]])
     G[2] *= float(np.linalg.norm(tgt.grid[1] - tgt.grid[0]))
 
-    width, height = sensor.image
+    width, height = camera.image
     rows, cols = tgt.grid_shape
     face = h > 0  # the pattern is on the plate's underside (-z), seen from below
     m = QUIET_TILES + RIM_TILES
@@ -175,7 +178,7 @@ def render_board_image(
     sv = np.broadcast_to(iy[:, None, None] + offsets[None, :, None], (len(iy), supersample, supersample))
     scene[iy, ix] = _shade(*cells(su, sv), cols, rows, face).mean(axis=(1, 2))
 
-    image = scene * _illumination(width, height, light, rng)
+    image = scene * illumination(width, height, light, rng)
     if blur_px > 0:
         image = cv2.GaussianBlur(image, (0, 0), blur_px)
     if noise > 0:
@@ -198,7 +201,7 @@ def _shade(col: np.ndarray, row: np.ndarray, cols: int, rows: int, face: bool) -
     return np.where(ring <= 0, np.where(black, BLACK, WHITE), np.where(ring <= QUIET_TILES, WHITE, out))
 
 
-def _illumination(width: int, height: int, light: float, rng: np.random.Generator) -> np.ndarray:
+def illumination(width: int, height: int, light: float, rng: np.random.Generator) -> np.ndarray:
     """A smooth light field: a linear fall-off in a random direction and vignetting towards the corners."""
     aspect = height / width
     x = np.linspace(-1.0, 1.0, width)[None]
@@ -244,7 +247,7 @@ def detect_board(
     if residual > GRID_RESIDUAL_PX:
         detail = f"{residual:.2f} px RMS off a flat board's homography"
         return BoardDetection(False, None, "inconsistent", detail, residual)
-    detection = _identify(corners, cols, rows, predicted)
+    detection = identify(corners, cols, rows, predicted)
     detection.residual_px = residual
     return detection
 
@@ -349,28 +352,38 @@ def _view(
 
 
 def _refine(grey: np.ndarray, grid: np.ndarray, cols: int, rows: int) -> tuple[np.ndarray, float]:
-    """Sub-pixel corners, refined in the image rectified by the grid's homography, and the RMS
-    distance (px) of the refined corners from the best homography through them.
+    """The whole grid's corners refined on the board (`refine_on_board`)."""
+    lattice = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), axis=-1).reshape(-1, 2).astype(float)
+    return refine_on_board(grey, grid, lattice)
+
+
+def refine_on_board(
+    grey: np.ndarray, corners: np.ndarray, lattice: np.ndarray, half_window_px: int | None = None
+) -> tuple[np.ndarray, float]:
+    """Sub-pixel corners (K, 2) px, refined in the image rectified by the homography of their places on a flat
+    board (`lattice` (K, 2): column and row, in tiles), and the RMS distance (px) of the refined corners from
+    the best homography through them.
 
     In the raw image a foreshortened tile is a few px tall, so a corner window would hold the
-    neighbouring corners' edges; rectified, the tiles are REFINE_TILE_PX squares."""
-    lattice = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), axis=-1).reshape(-1, 2).astype(float)
-    H, _ = cv2.findHomography(lattice, grid, 0)
+    neighbouring corners' edges; rectified, the tiles are REFINE_TILE_PX squares, and the window
+    (`half_window_px`, default nearly half a tile) holds just the corner's own two edges."""
+    H, _ = cv2.findHomography(lattice, corners, 0)
     t = REFINE_TILE_PX
+    half = t // 2 - 1 if half_window_px is None else half_window_px
     to_image = H @ np.array([[1 / t, 0, -1], [0, 1 / t, -1], [0, 0, 1]])  # rectified px -> image px
-    rectified = cv2.warpPerspective(
-        grey, to_image, ((cols + 1) * t, (rows + 1) * t), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    )
+    size = tuple(int(n) for n in (lattice.max(axis=0) + 2) * t)
+    rectified = cv2.warpPerspective(grey, to_image, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
     start = ((lattice + 1) * t).astype(np.float32).reshape(-1, 1, 2)
-    refined = cv2.cornerSubPix(rectified, start, (t // 2 - 1, t // 2 - 1), (-1, -1), _SUBPIX)
-    corners = cv2.perspectiveTransform(refined.astype(float), to_image).reshape(-1, 2)
-    H2, _ = cv2.findHomography(lattice, corners, 0)
+    refined = cv2.cornerSubPix(rectified, start, (half, half), (-1, -1), _SUBPIX)
+    out = cv2.perspectiveTransform(refined.astype(float), to_image).reshape(-1, 2)
+    H2, _ = cv2.findHomography(lattice, out, 0)
     fitted = cv2.perspectiveTransform(lattice.reshape(-1, 1, 2), H2).reshape(-1, 2)
-    return corners, float(np.sqrt(((fitted - corners) ** 2).sum(axis=1).mean()))
+    return out, float(np.sqrt(((fitted - out) ** 2).sum(axis=1).mean()))
 
 
-def _identify(corners: np.ndarray, cols: int, rows: int, predicted: np.ndarray | None) -> BoardDetection:
-    """Put the corners in vertex order (see detect_board)."""
+def identify(corners: np.ndarray, cols: int, rows: int, predicted: np.ndarray | None) -> BoardDetection:
+    """Put the corners (rows * cols, 2) px of a grid in some row-major order into vertex order (see
+    detect_board); a square grid may also be turned by 90 degrees."""
 
     def handedness(c: np.ndarray) -> float:
         a, b = c[cols - 1] - c[0], c[-cols] - c[0]
@@ -387,10 +400,13 @@ def _identify(corners: np.ndarray, cols: int, rows: int, predicted: np.ndarray |
         return BoardDetection(True, corners, "ok")
     if handedness(corners) * handedness(predicted) < 0:
         corners = mirrored(corners)
-    orders = [corners, corners[::-1]]
+    if rows == cols:
+        orders = [np.rot90(corners.reshape(rows, cols, 2), k).reshape(-1, 2) for k in range(4)]
+    else:
+        orders = [corners, corners[::-1]]
     distances = [float(np.linalg.norm(c - predicted, axis=1).mean()) for c in orders]
-    best = int(np.argmin(distances))
-    near, other = distances[best], distances[1 - best]
+    best, second = np.argsort(distances)[:2]
+    near, other = distances[best], distances[second]
     detail = f"mean distance to the prediction {near:.1f} px (the other order {other:.1f} px)"
     if near > FAR_PX:
         return BoardDetection(False, None, "far from prediction", detail)

@@ -1,0 +1,32 @@
+"""The NAO's checkerboard sandals in its lower camera's image (calib_core/vision/sandal_board.py): boards seen
+very obliquely under the feet, found by OpenCV's chessboard detectors in the predicted region stretched to
+square-ish tiles, each vertex's identity taken from the believed kinematics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sandal_board import MAX_OBLIQUITY_DEG, MIN_VERTEX_SPACING_PX, detect_board
+from ..sighting import Sighting
+from ..stereo import StereoHead
+from .checkerboard import CheckerboardFinder
+
+
+class SandalFinder(CheckerboardFinder):
+    """A checkerboard (rendered as one) under the NAO's foot, its face towards -z, under the sole; its detector
+    measures it reliably up to MAX_OBLIQUITY_DEG from its normal, its vertices MIN_VERTEX_SPACING_PX apart."""
+
+    max_obliquity_deg = MAX_OBLIQUITY_DEG
+    min_spacing_px = MIN_VERTEX_SPACING_PX
+
+    def find(
+        self, p_believed: np.ndarray, q: np.ndarray, images: dict[str, np.ndarray], head: StereoHead | None = None
+    ) -> Sighting:
+        """The sandal board detector, its vertex identities taken from the believed kinematics."""
+        rows, cols = self.shape
+        found = detect_board(images["image"], cols, rows, predicted=self.predicted_px(p_believed, q))
+        detail = {"found": found.found, "reason": found.reason, "residual_px": found.residual_px}
+        if not found.found or found.corners is None:
+            return self.sighting(None, found.reason, detail)
+        return self.sighting(np.asarray(found.corners, float), "ok", detail)
