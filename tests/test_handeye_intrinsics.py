@@ -53,6 +53,16 @@ def test_a_mode_naming_the_intrinsics_of_no_camera_is_refused(tmp_path) -> None:
         load_profile(path)
 
 
+def test_a_point_beyond_the_lens_field_is_not_seen_where_the_distortion_folds_it_into_the_image(profile) -> None:
+    """k1 = -0.1 turns back at 61 deg off the axis: a point 72 deg off lands near the image's centre in OpenCV's
+    model, but no lens shows it (the simulator drew such boards before)."""
+    sensor, p = profile.sensors[0], profile.true_params()
+    off_axis = np.array([[3.0, 0.0, 1.0], [0.3, 0.0, 1.0]])  # tan 71.6 deg, tan 16.7 deg
+    uv = sensor.project(p, off_axis)
+    assert 0 < uv[0, 0] < 640 and 0 < uv[1, 0] < 640  # both inside the image
+    assert list(sensor.visible(p, off_axis)) == [False, True]
+
+
 def test_the_lens_derivatives_are_exact(profile) -> None:
     """The mode's Jacobian, the lens columns with it, against central differences, distortion far from zero."""
     sim, _ = seeded_data(profile, 0, False, 4)
