@@ -11,63 +11,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from handeye_data import POSE_NAMES, PROFILES, SETUPS, camera_error, mount_error, rms_px, seeded_data
 
 from calib_core import InputError, SimulatedRobot, calibrate, load_profile
-from calib_core.estimation.problem import Problem
 from calib_core.estimation.registration import register, registration_params
 from calib_core.io.csv_format import to_csv
-from calib_core.model.kinematics import forward
-
-PROFILES = Path(__file__).resolve().parent / "profiles"
-SETUPS = ("handeye-in-hand", "handeye-to-hand")
-# Joint offsets of the simulated arm (deg) for the runs "with offsets": 0.2-0.5 deg on every joint.
-OFFSETS_DEG = {
-    "shoulder_pan": 0.2,
-    "shoulder_lift": 0.3,
-    "elbow": -0.25,
-    "wrist_1": 0.4,
-    "wrist_2": -0.3,
-    "wrist_3": 0.5,
-}
-POSE_NAMES = ("x", "y", "z", "yaw", "pitch", "roll")
 
 
 @pytest.fixture(scope="module", params=SETUPS)
 def setup(request):
     return load_profile(PROFILES / f"{request.param}.yaml")
-
-
-def rms_px(profile, data, p: np.ndarray) -> float:
-    pred = Problem(profile, data, [], p, noise_model=False).predict(p)
-    return float(np.sqrt(np.mean(np.sum((pred[:, :2] - data.measured[:, :2]) ** 2, axis=1))))
-
-
-def mount_error(profile, p: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """How far the camera's estimated registration (x, y, z, yaw, pitch, roll) is from the truth: mm, deg."""
-    idx = [profile.param(f"camera_mount.{k}") for k in POSE_NAMES]
-
-    def rotation(v):
-        return Rotation.from_euler("ZYX", v[idx[3:]])
-
-    angle = (rotation(p) * rotation(truth).inv()).magnitude()
-    return float(np.linalg.norm(p[idx[:3]] - truth[idx[:3]])), float(np.degrees(angle))
-
-
-def camera_error(profile, p: np.ndarray, truth: np.ndarray, q: np.ndarray) -> tuple[float, float]:
-    """How far the model puts the camera from where it is, seen from the board, at configurations q: RMS mm, largest
-    deg. A joint offset the data cannot see (the first and last axes) moves the registration it is absorbed in, not
-    this."""
-    sensor, target = profile.sensors[profile.data.sensor].frame, profile.targets[0].frame
-
-    def in_board(v):
-        poses = forward(profile, v, q, frames=[sensor, target])
-        R = poses.R[target].transpose(0, 2, 1) @ poses.R[sensor]
-        return R, (poses.R[target].transpose(0, 2, 1) @ (poses.t[sensor] - poses.t[target])[:, :, None])[:, :, 0]
-
-    (R, t), (R0, t0) = in_board(p), in_board(truth)
-    angle = Rotation.from_matrix(R @ R0.transpose(0, 2, 1)).magnitude()
-    return float(np.sqrt(np.mean(np.sum((t - t0) ** 2, axis=1)))), float(np.degrees(angle.max()))
 
 
 def test_a_registered_camera_or_board_gets_the_handeye_mode_first(setup) -> None:
@@ -164,13 +117,6 @@ def test_turns_about_one_axis_only_are_refused() -> None:
         calibrate(profile, robot.measure(turned, np.repeat(targets, 6)).data, "handeye")
 
 
-def _truth(profile, offsets: bool) -> np.ndarray:
-    truth = profile.true_params()
-    if offsets:
-        truth = profile.params_from_display(OFFSETS_DEG, truth)
-    return truth
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("offsets", [False, True], ids=["exact-joints", "joint-offsets"])
 @pytest.mark.parametrize("poses", [15, 40])
@@ -182,8 +128,7 @@ def test_every_seed_reaches_the_noise_floor_from_no_guess(setup, offsets: bool, 
     off: shown on the first seed)."""
     mode = "offsets" if offsets else "handeye"
     for seed in range(5):
-        robot = SimulatedRobot.from_profile(setup, seed=seed, truth=_truth(setup, offsets))
-        sim, new = robot.simulate(poses), robot.simulate(30)
+        sim, new = seeded_data(setup, seed, offsets, poses)
         started = time.perf_counter()
         cal = calibrate(setup, sim.data, mode)
         assert time.perf_counter() - started < 30

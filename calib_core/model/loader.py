@@ -31,6 +31,8 @@ BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
 AXES = {"x": 0, "y": 1, "z": 2}
 JOINT_KINDS = ("revolute", "prismatic")  # a joint entry's `type`: its op rotates or translates
 GRID_PATTERNS = ("checkerboard", "sandal")  # what a grid target may be: a plain board, the NAO's sandal
+# A mode's `free: ["cam.intrinsics"]`: the camera's fx, fy, cx, cy and its distortion coefficients.
+INTRINSICS_SUFFIX = ".intrinsics"
 
 # An elementary transform before it is an Op: (t|r, vector, field or parameter name, value, jointed).
 Step = tuple[str, np.ndarray, str, float, bool]
@@ -112,6 +114,7 @@ class _Compiler:
         self.doc = doc
         self.source = source
         self.params: list[Parameter] = []
+        self.sensors: list[Sensor] = []
         self.index: dict[str, int] = {}
 
     def fail(self, where: str, message: str) -> InputError:
@@ -172,7 +175,12 @@ class _Compiler:
         frames = self.compile_frames()
         self.frame_index = {f.name: i for i, f in enumerate(frames)}
         targets = [self.compile_target(t, f"targets[{i}]") for i, t in enumerate(doc.get("targets", []))]
-        sensors = [self.compile_sensor(s, f"sensors[{i}]") for i, s in enumerate(doc.get("sensors", []))]
+        freed = self.intrinsics_freed()
+        sensors = [
+            self.compile_sensor(with_distortion(s) if _sensor_name(s) in freed else s, f"sensors[{i}]")
+            for i, s in enumerate(doc.get("sensors", []))
+        ]
+        self.sensors = sensors
         if not sensors or not targets:
             raise self.fail("profile", "needs at least one sensor and one target")
         self.target_index = {t.name: i for i, t in enumerate(targets)}
@@ -407,6 +415,15 @@ class _Compiler:
             return "checkerboard"
         return "sphere" if "radius" in spec else "point"
 
+    def intrinsics_freed(self) -> set[str]:
+        """The sensors whose `<name>.intrinsics` some mode frees (their lens is calibrated with the arm)."""
+        out = set()
+        for mode in (self.doc.get("modes") or {}).values():
+            for item in (mode.get("free") or []) if isinstance(mode, dict) else []:
+                if isinstance(item, str) and item.endswith(INTRINSICS_SUFFIX):
+                    out.add(item.removesuffix(INTRINSICS_SUFFIX))
+        return out
+
     def compile_sensor(self, spec: dict, where: str) -> Sensor:
         sname = str(self.get(spec, "name", where))
         fname = str(self.get(spec, "frame", where))
@@ -604,7 +621,7 @@ class _Compiler:
                 pat, nonzero = (
                     (item.get("pattern"), bool(item.get("nonzero"))) if isinstance(item, dict) else (item, False)
                 )
-                hits = [n for n in names if fnmatch.fnmatchcase(n, str(pat))]
+                hits = [n for n in names if fnmatch.fnmatchcase(n, str(pat))] or self.lens_params(str(pat))
                 if not hits:
                     raise self.fail(f"{w}[{k}]", f"'{pat}' matches no parameter")
                 out += [self.index[h] for h in hits if not nonzero or self.params[self.index[h]].nominal != 0.0]
@@ -633,6 +650,11 @@ class _Compiler:
             )
         return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds, sensors)
 
+    def lens_params(self, pattern: str) -> list[str]:
+        """`<sensor>.intrinsics`: the names of that sensor's intrinsics and distortion coefficients."""
+        sensor = next((s for s in self.sensors if f"{s.name}{INTRINSICS_SUFFIX}" == pattern), None)
+        return [] if sensor is None else [self.params[i].name for i in sensor.direct_params()]
+
     def per_parameter(self, spec: dict, key: str, names: list[str], where: str) -> dict[int, float]:
         """{name or glob pattern: positive number in the profile's units} -> {index: internal units}."""
         out = {}
@@ -646,6 +668,18 @@ class _Compiler:
             for i in (self.index[h] for h in hits):
                 out[i] = v * (self.to_rad if self.params[i].kind == "angle" else 1.0)
         return out
+
+
+def _sensor_name(spec: Any) -> str | None:
+    return str(spec.get("name")) if isinstance(spec, dict) else None
+
+
+def with_distortion(spec: Any) -> Any:
+    """A pinhole camera whose intrinsics a mode frees, with OpenCV's five distortion coefficients (zero) where the
+    profile gives none: a camera nobody calibrated has none to write, and the calibration estimates them."""
+    if isinstance(spec, dict) and spec.get("model") == "pinhole" and "distortion" not in spec:
+        return {**spec, "distortion": {}}
+    return spec
 
 
 def _pose_steps(xyz: np.ndarray, rpy: np.ndarray) -> list[Step]:

@@ -48,7 +48,7 @@ class Pinhole(Optical):
         Z = X[:, 2]
         a, b = X[:, 0] / Z, X[:, 1] / Z
         k = self.distortion_coefficients(p)
-        k1, k2, p1, p2, k3, k4, k5, k6 = k
+        p1, p2 = k[2], k[3]
         r2 = a * a + b * b
         num, den = radial_terms(k, r2)
         radial = num / den
@@ -58,9 +58,7 @@ class Pinhole(Optical):
         if not derivatives:
             return uv, None, None
         # d(radial)/d(r2), then d(ad, bd)/d(a, b).
-        dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)
-        dden = k4 + r2 * (2 * k5 + 3 * k6 * r2)
-        drad = (dnum * den - num * dden) / den**2
+        drad = radial_slope(k, r2)
         dad_da = radial + 2 * a * a * drad + 2 * p1 * b + 6 * p2 * a
         dad_db = 2 * a * b * drad + 2 * p1 * a + 2 * p2 * b
         dbd_da = 2 * a * b * drad + 2 * p1 * a + 2 * p2 * b
@@ -97,6 +95,19 @@ class Pinhole(Optical):
                 g = -radial / den  # d(radial)/d(den), times d(den)/d(k4..k6) = r2, r2^2, r2^3
                 cols += [np.stack([fx * a * g * r2**n, fy * b * g * r2**n], 1) for n in (1, 2, 3)]
         return uv, duv_dx, np.stack(cols, axis=2)
+
+    def visible(self, p: np.ndarray, x: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        """As any lens (`Optical.visible`), and within the field where the distortion still grows outward: beyond
+        it OpenCV's polynomial folds back, and a point 70 deg off the axis would land inside the image."""
+        ok = super().visible(p, x, margin_px)
+        if self.distortion is None or not ok.any():
+            return ok
+        X = self.optical(x[ok])
+        r2 = (X[:, 0] ** 2 + X[:, 1] ** 2) / X[:, 2] ** 2
+        k = self.distortion_coefficients(p)
+        num, den = radial_terms(k, r2)
+        ok[ok] = num / den + 2 * r2 * radial_slope(k, r2) > 0  # d(r radial)/dr
+        return ok
 
     def simulate(self, p: np.ndarray, x: np.ndarray, rng: np.random.Generator, noise: dict[str, float]) -> np.ndarray:
         """Gaussian pixel noise (`noise.pixel` px per axis)."""
@@ -153,3 +164,12 @@ def radial_terms(k: tuple[float, ...], r2: np.ndarray) -> tuple[np.ndarray, np.n
     """The radial factor's numerator 1 + k1 r2 + k2 r2^2 + k3 r2^3 and denominator 1 + k4 r2 + ..."""
     k1, k2, _, _, k3, k4, k5, k6 = k
     return 1 + r2 * (k1 + r2 * (k2 + r2 * k3)), 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+
+
+def radial_slope(k: tuple[float, ...], r2: np.ndarray) -> np.ndarray:
+    """d(radial factor)/d(r2) of `radial_terms`."""
+    k1, k2, _, _, k3, k4, k5, k6 = k
+    num, den = radial_terms(k, r2)
+    dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+    dden = k4 + r2 * (2 * k5 + 3 * k6 * r2)
+    return (dnum * den - num * dden) / den**2
