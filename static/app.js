@@ -37,7 +37,7 @@ async function init() {
   fillRobots();
   wire();
   await loadSessions(undefined, sessions);
-  if (Object.values(state.robots).some((r) => r.drivable)) robotEvents();
+  robotEvents();
   buildJoints();
   showDrivable();
   await refreshActive(active);

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 import pytest
-from browser import calibrated, ready_page, served
+from browser import calibrated, new_nao_session, ready_page, served
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 SHOTS = os.environ.get("CALIB_SCREENSHOTS")
@@ -43,3 +43,58 @@ def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_
         page.click("#apply")
         page.wait_for_function("id => document.querySelector('#active-cal').dataset.id === id", arg=shown)
         assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == shown
+
+
+def _far_move(server, robot: str, share: float = 0.6) -> dict[str, float]:
+    """Every joint `share` of the way to its farther limit less the margin: seconds of motion."""
+    info = {r["name"]: r for r in server.get("/api/robots").json()}[robot]
+    now = server.get("/api/robot", params={"robot": robot}).json()["joints"]
+    goal = {}
+    for j in info["joints"]:
+        lo, hi = j["lower_deg"] + info["margin_deg"], j["upper_deg"] - info["margin_deg"]
+        far = hi if hi - now[j["name"]] > now[j["name"]] - lo else lo
+        goal[j["name"]] = round(now[j["name"]] + share * (far - now[j["name"]]), 1)
+    return goal
+
+
+def test_each_tab_follows_its_own_robot(chromium, tmp_path) -> None:
+    """Tab A drives NAO, tab B then connects Robonaut (the desk's last connected robot): NAO moved meanwhile shows
+    moving in tab A, with its capture disabled until it stands still again; tab B says Robonaut is still."""
+    with served(tmp_path / "data") as server:
+        a, _ = new_nao_session(chromium, server.url, "tab A")
+        b = ready_page(chromium, server.url)
+        b.select_option("#robot-select", "robonaut-a")
+        b.wait_for_function("document.querySelector('#robot-state').textContent === 'robonaut-a: still'")
+        assert server.get("/api/robot").json()["robot"] == "robonaut-a"
+        a.wait_for_selector("#capture:enabled")
+
+        moved = server.post("/api/robot/move", json={"robot": "nao", "joints": _far_move(server, "nao")})
+        assert moved.status_code == 202, moved.text
+        a.wait_for_function(
+            "document.querySelector('#robot-state').textContent === 'nao: moving'", polling=50, timeout=10_000
+        )
+        assert a.is_disabled("#capture")
+        shot(a, "review-2-tab-a-moving")
+        assert b.text_content("#robot-state") == "robonaut-a: still"
+        a.wait_for_function(
+            "document.querySelector('#robot-state').textContent === 'nao: still'", polling=50, timeout=30_000
+        )
+        a.wait_for_selector("#capture:enabled")
+
+        # Tab A's slider moves its own robot, not the desk's last connected one.
+        before = server.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"]
+        goal = _far_move(server, "nao", 0.5)
+        a.evaluate(
+            "goal => { for (const [s, v] of Object.entries(goal)) document.querySelector(`input[data-joint='${s}']`)"
+            ".value = v; document.querySelector('input[data-joint]').dispatchEvent(new Event('change')); }",
+            goal,
+        )
+        # Tab A is in the background (no animation frames): polled on a timer. Its readings arrive at the goal.
+        a.wait_for_function(
+            "goal => Object.entries(goal).every(([n, g]) => Math.abs("
+            "parseFloat(document.querySelector(`[data-reading='${n}']`).textContent) - g) <= 0.3)",
+            arg=goal,
+            polling=100,
+            timeout=30_000,
+        )
+        assert server.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"] == before

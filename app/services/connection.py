@@ -99,10 +99,12 @@ class Connection:
         self._observer = Observer(self.store, self.robots, self.viewers, session_id, autocapture, self.scrub)
         self._observer.start()
 
-    def observing(self) -> dict[str, Any] | None:
-        """What Observe sees now (None: not observing)."""
+    def observing(self, robot: str | None = None) -> dict[str, Any] | None:
+        """What Observe sees now (None: not observing, or observing another robot than `robot` when given)."""
         observer = self._observer
-        return None if observer is None else observer.snapshot()
+        if observer is None or (robot is not None and observer.robot != robot):
+            return None
+        return observer.snapshot()
 
     def reviewing(self, viewer: Viewer, robot: str) -> None:
         """The viewer loads a review of `robot`: watching another robot live, it stops; the live view ends when

@@ -27,6 +27,7 @@ export async function connect(robot) {
   if (state.session && state.session.robot !== robot) closeSession();
   fillReplaySources();
   buildJoints();
+  robotEvents();
   showDrivable();
   await refreshActive();
 }
@@ -44,7 +45,6 @@ async function addRobot(e) {
   e.target.reset();
   $("#robot-select").value = robot.name;
   await connect(robot.name);
-  if (robot.drivable && !state.events) robotEvents();
   toast(`Robot ${robot.name} (${robot.model}) is on the desk.`, "info");
 }
 
