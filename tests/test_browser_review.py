@@ -98,3 +98,35 @@ def test_each_tab_follows_its_own_robot(chromium, tmp_path) -> None:
             timeout=30_000,
         )
         assert server.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"] == before
+
+
+def test_a_reload_mid_replay_gives_back_its_controls(chromium, tmp_path) -> None:
+    """A replay started on the page, then the page reloaded: it comes back on the replay's session and step, with
+    Pause, Resume and Abort acting on the running job and Start disabled; aborted, Start is offered again."""
+    with served(tmp_path / "data") as server:
+        page, sid = new_nao_session(chromium, server.url, "reloaded")
+        page.click("#tabs button[data-tab='replay']")
+        page.check("input[name=replay-source][value=count]")
+        page.fill("#replay-count", "40")  # minutes of motion: still running after the reload
+        page.click("#replay-start")
+        page.wait_for_selector("#replay-pause:enabled", timeout=30_000)
+        (job,) = [j for j in server.get("/api/jobs").json() if j["kind"] == "replay" and j["state"] == "running"]
+
+        page.reload()
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        page.wait_for_selector("#replay-pause:enabled", timeout=10_000)
+        assert page.get_attribute("#sessions li.selected", "data-session") == sid
+        assert page.is_visible("#tab-replay")
+        assert page.is_disabled("#replay-start") and page.is_disabled("#replay-resume")
+        assert page.is_enabled("#replay-abort")
+        shot(page, "review-3-reloaded-mid-replay")
+        page.click("#replay-pause")
+        page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('paused')")
+        assert server.get(f"/api/jobs/{job['id']}").json()["paused"] is True
+        page.click("#replay-resume")
+        page.wait_for_selector("#replay-pause:enabled")
+        assert server.get(f"/api/jobs/{job['id']}").json()["paused"] is False
+        page.click("#replay-abort")
+        page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('cancelled')")
+        assert server.get(f"/api/jobs/{job['id']}").json()["state"] == "cancelled"
+        page.wait_for_selector("#replay-start:enabled")
