@@ -120,12 +120,26 @@ def test_a_reload_mid_replay_gives_back_its_controls(chromium, tmp_path) -> None
         assert page.is_disabled("#replay-start") and page.is_disabled("#replay-resume")
         assert page.is_enabled("#replay-abort")
         shot(page, "review-3-reloaded-mid-replay")
+
+        # Pause holds at once: once the page says paused the robot stands still and no frame comes after it.
+        page.wait_for_function("document.querySelector('#replay-state').textContent.includes('frame ')", timeout=60_000)
         page.click("#replay-pause")
         page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('paused')")
+        held = len(server.get(f"/api/sessions/{sid}").json()["frames"])
         assert server.get(f"/api/jobs/{job['id']}").json()["paused"] is True
+        page.wait_for_function(
+            "document.querySelector('#robot-state').textContent === 'nao: still'", polling=50, timeout=5_000
+        )
+        assert len(server.get(f"/api/sessions/{sid}").json()["frames"]) == held
+        assert server.get(f"/api/jobs/{job['id']}").json()["detail"]["done"] == held
         page.click("#replay-resume")
         page.wait_for_selector("#replay-pause:enabled")
         assert server.get(f"/api/jobs/{job['id']}").json()["paused"] is False
+        page.wait_for_function(  # resumed: the next frame joins the session
+            "n => document.querySelector('#sessions li.selected small').textContent.includes(`/${n} frames`)",
+            arg=held + 1,
+            timeout=60_000,
+        )
         page.click("#replay-abort")
         page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('cancelled')")
         assert server.get(f"/api/jobs/{job['id']}").json()["state"] == "cancelled"
