@@ -144,3 +144,72 @@ def test_a_reload_mid_replay_gives_back_its_controls(chromium, tmp_path) -> None
         page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('cancelled')")
         assert server.get(f"/api/jobs/{job['id']}").json()["state"] == "cancelled"
         page.wait_for_selector("#replay-start:enabled")
+
+
+# What random clicks pick from: every control an operator can click, in both tabs.
+CLICKABLE = (
+    "#tabs button",
+    "#sessions li",
+    "#calibrations li",
+    "#frames tr[data-frame]",
+    "#frames th",
+    "summary",
+    "#tab-observe input[type=checkbox]",
+    "input[name=replay-source]",
+    "section.tab:not([hidden]) button",
+    "#scrub button",
+    "#scrub input[type=checkbox]",
+    "#split-tools button",
+    "details[open] form button[type=submit]",
+    "#history button",
+)
+SELECTS = ("#robot-select", "#review-old", "#review-new", "#mode", "#base", "#magnify")
+
+
+def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_path) -> None:
+    """Seeded random clicks and choices in two tabs for about 25 s (robot changes while Observe runs, forms sent
+    empty, replays started and stopped): no uncaught error in either page, no console error but the 4xx answers
+    the page says in its toast, and no answer of the server 5xx."""
+    import random
+    import time
+
+    rng = random.Random(25)
+    problems: list[str] = []
+    with served(tmp_path / "data", sim_speed=10.0) as server:
+        tabs = [ready_page(chromium, server.url) for _ in range(2)]
+        for k, page in enumerate(tabs):
+            page.on("pageerror", lambda e, k=k: problems.append(f"tab {k}: page error {e}"))
+            page.on(
+                "console",
+                lambda m, k=k: (
+                    m.type == "error"
+                    and "the server responded with a status of 4" not in m.text
+                    and problems.append(f"tab {k}: console {m.text}")
+                ),
+            )
+            page.on("response", lambda r, k=k: r.status >= 500 and problems.append(f"tab {k}: {r.status} {r.url}"))
+            page.on("dialog", lambda d: d.dismiss())
+        end = time.monotonic() + 25.0
+        actions = 0
+        while time.monotonic() < end:
+            page = rng.choice(tabs)
+            if rng.random() < 0.2:
+                sel = rng.choice(SELECTS)
+                options = page.eval_on_selector_all(f"{sel}:enabled option", "os => os.map(o => o.value)")
+                if options and page.is_visible(sel):
+                    page.select_option(sel, rng.choice(options), timeout=2_000)
+                    actions += 1
+                continue
+            found = page.locator(", ".join(CLICKABLE))
+            visible = found.evaluate_all("es => es.flatMap((e, i) => e.checkVisibility() && !e.disabled ? [i] : [])")
+            try:
+                found.nth(rng.choice(visible)).click(timeout=1_000)
+                actions += 1
+            except Exception as exc:  # disabled or gone meanwhile: the next click
+                if "Timeout" not in type(exc).__name__:
+                    raise
+        shot(tabs[0], "review-15-random-clicks")
+        for page in tabs:  # the requests still under way answer too
+            page.wait_for_timeout(500)
+    assert problems == [], problems
+    assert actions > 30, actions  # each a click that landed (a software-rendered 3-D view in both tabs)
