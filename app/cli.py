@@ -38,7 +38,7 @@ from calib_core import (
 )
 from calib_core.dataset import Dataset
 from calib_core.estimation import check_share, register, registration_params
-from calib_core.io import FrameRecord, plan_csv, readings_beyond_limits, select_rows, write_session
+from calib_core.io import FrameRecord, measurement_values, plan_csv, readings_beyond_limits, select_rows, write_session
 from calib_core.model import BUILTIN_PROFILES, Profile
 from calib_core.units import length_factor
 from calib_core.vision import detect_board, find_sphere
@@ -372,8 +372,7 @@ def _predict(args: argparse.Namespace) -> int:
         p = register(profile, data, p)  # the nominal model, seen from where the tracker stands
     pred = Problem(profile, data, [], p, noise_model=False).predict(p)
     fmt = profile.data
-    if fmt.measurement_unit != "px":
-        pred = pred * length_factor(profile.length_unit, fmt.measurement_unit)
+    pred = measurement_values(profile, pred[:, : profile.sensors[fmt.sensor].dim])
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow([*data.header, *fmt.prediction_columns])

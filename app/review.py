@@ -333,21 +333,24 @@ def _side(
     P = np.zeros((len(rows), 3))  # the points in the base frame, profile length unit
     x = np.zeros((len(rows), 3))  # ... and in the sensor frame
     normal = np.zeros((len(rows), 3))  # the target frame's z axis (a board's normal)
+    R_base_target = np.zeros((len(rows), 3, 3))  # the target frame's orientation (what a pose sensor measures)
     for t in used:
         sel = np.flatnonzero(target == t)
         tg = profile.targets[t]
         local = point[sel]
         if tg.point_params is not None:
             local = np.where(np.isnan(local), p[list(tg.point_params)], local)
-        P[sel], x[sel], _, R_base_target = to_sensor(poses, tg.frame, sensor.frame, rows[sel], local)
-        normal[sel] = R_base_target[:, :, 2]
+        P[sel], x[sel], _, R_base_target[sel] = to_sensor(poses, tg.frame, sensor.frame, rows[sel], local)
+        normal[sel] = R_base_target[sel, :, 2]
     R_base_sensor = poses.R[sensor.frame][rows]
     t_base_sensor = poses.t[sensor.frame][rows]
-    predicted = sensor.predict(p, x)[0] if len(x) else np.zeros((0, measured.shape[1]))
+    rotation = R_base_sensor.transpose(0, 2, 1) @ R_base_target if sensor.rotation_axes else None
+    predicted = sensor.predict_pose(p, x, rotation)[0] if len(x) else np.zeros((0, measured.shape[1]))
     normal_sensor = np.einsum("nji,nj->ni", R_base_sensor, normal)
     x_measured = sensor.place(p, measured, x, normal_sensor)
     measured_base = (R_base_sensor @ x_measured[:, :, None])[:, :, 0] + t_base_sensor
-    error = np.linalg.norm(predicted - measured, axis=1)
+    # A pose's error is its position's (the figure's unit); its rotation is in the calibration's figures.
+    error = np.linalg.norm(sensor.error(predicted, measured)[:, : sensor.dim - sensor.rotation_axes], axis=1)
     got = np.isfinite(error)
     counts = np.bincount(rows[got], minlength=n_frames)
     sums = np.bincount(rows[got], weights=error[got], minlength=n_frames)

@@ -4,6 +4,8 @@
 # missing), and runs ruff and the whole test suite: what CI runs.
 #   --fast  ruff, then the tests marked neither slow, browser nor subprocess (pyproject.toml): calib_core and
 #           the API in-process, in under a minute. Options after it go to pytest.
+# The tests run in two pytest-xdist workers (a test module stays in one worker, where its module fixtures live);
+# TEST_WORKERS=N chooses another number, TEST_WORKERS=0 runs them in this process.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 FAST=false
@@ -20,8 +22,9 @@ source scripts/venv.sh
 ensure_venv '.[test,ros2]'
 .venv/bin/ruff format --check calib_core app tests benchmarks
 .venv/bin/ruff check calib_core app tests benchmarks
+WORKERS=(-n "${TEST_WORKERS:-2}" --dist loadfile)
 if $FAST; then
-    .venv/bin/python -m pytest -q -m "not slow and not browser and not subprocess" "$@"
+    .venv/bin/python -m pytest -q "${WORKERS[@]}" -m "not slow and not browser and not subprocess" "$@"
 else
-    .venv/bin/python -m pytest -q --durations=25 "$@"
+    .venv/bin/python -m pytest -q "${WORKERS[@]}" --durations=25 "$@"
 fi

@@ -71,6 +71,7 @@ def test_every_profile_loads_plain_and_every_file_imports(profiles) -> None:
         "qualisys_2021-11-30_static_postures.csv": (37, 37),
         "qualisys_2021-11-26_static_postures.csv": (62, 62),
         "ur10_calibration_points.csv": (23, 23 * 7),
+        "ur10_calibration.csv": (23, 23),  # ur10e-pose: the same poses, read as poses
     }
     torso = profiles["tiago"].joint("torso_lift_joint")
     train = read_dataset(profiles["tiago"], FOLDER / ROBOTS["tiago"].data)

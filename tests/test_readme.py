@@ -30,6 +30,7 @@ DOCS = [
     "docs/command-line.md",
     "docs/calibration.md",
     "docs/planning.md",
+    "docs/profiles.md",
 ]
 
 

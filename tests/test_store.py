@@ -545,7 +545,7 @@ def test_a_store_made_with_the_first_schema_opens_and_keeps_its_data(tmp_path: P
     db.close()
 
     store = Store(tmp_path)
-    assert store.db.version == 3 and store.db.meta("schema") == "3"
+    assert store.db.version == 4 and store.db.meta("schema") == "4"
     assert [(s.id, s.robot, s.frames, s.measured) for s in store.sessions.list()] == [("s-0ld", "nao", 1, 1)]
     data = store.sessions.dataset("s-0ld", load_profile("nao"))
     assert data.measured.tolist() == [[320.5, 240.25]] and data.vertex.tolist() == [3]
@@ -561,5 +561,5 @@ def test_a_store_made_with_the_first_schema_opens_and_keeps_its_data(tmp_path: P
     assert store.robots.names_with_data() == ["nao"]
     store.close()
     again = Store(tmp_path)  # migrated once: opening again changes nothing
-    assert again.db.version == 3 and len(again.sessions.list()) == 1
+    assert again.db.version == 4 and len(again.sessions.list()) == 1
     again.close()

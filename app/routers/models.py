@@ -37,8 +37,9 @@ class Figures(BaseModel):
     max: float | None
     median: float | None
     unit: str
-    rms_axes: list[float]  # per measurement coordinate (x, y, z or u, v)
+    rms_axes: list[float]  # per measurement coordinate (x, y, z or u, v; a pose's position)
     excluded: int = 0  # observations left out as outliers
+    rms_rotation_deg: float | None = None  # a pose's orientation error, RMS of its angle (None: no pose)
 
 
 class FrameOut(BaseModel):

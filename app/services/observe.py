@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from contextlib import suppress
 from dataclasses import replace
 from typing import Any, Protocol
 
 import numpy as np
 
-from calib_core import FrameStatus, Profile
+from calib_core import FrameStatus, InputError, Profile
 from calib_core.estimation import register, registration_params
 
 from ..capture import AutoCapture, look_outcome
@@ -133,7 +134,10 @@ class Observer:
         key = (cal_id, tuple(f.index for f in frames if f.status == FrameStatus.MEASURED))
         if self._registration is None or self._registration[0] != key:
             data = self.store.sessions.dataset(self.session_id, profile)
-            fitted = register(profile, data, p) if data.n_configurations >= MIN_REGISTRATION_FRAMES else None
+            fitted = None
+            if data.n_configurations >= MIN_REGISTRATION_FRAMES:
+                with suppress(InputError):  # a camera's frames may not fix its pose yet (no board pose, one axis)
+                    fitted = register(profile, data, p)
             self._registration = (key, fitted)
         fitted = self._registration[1]
         return (p, False) if fitted is None else (fitted, True)

@@ -93,7 +93,20 @@ DROP TABLE observations;
 ALTER TABLE observations_v3 RENAME TO observations;
 """
 
-MIGRATIONS = {1: _SCHEMA_V1, 2: _SCHEMA_V2, 3: _SCHEMA_V3}  # version -> what brings the version before it there
+# Version 4: a measurement of six numbers (a 6-D pose: position, rotation vector in rad) fills m3, m4, m5 too;
+# the rows of before measured at most three and keep them NULL.
+_SCHEMA_V4 = """
+ALTER TABLE observations ADD COLUMN m3 REAL;
+ALTER TABLE observations ADD COLUMN m4 REAL;
+ALTER TABLE observations ADD COLUMN m5 REAL;
+"""
+
+MIGRATIONS = {
+    1: _SCHEMA_V1,
+    2: _SCHEMA_V2,
+    3: _SCHEMA_V3,
+    4: _SCHEMA_V4,
+}  # version -> what brings the version before it there
 SCHEMA_VERSION = max(MIGRATIONS)
 
 

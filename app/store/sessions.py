@@ -31,6 +31,7 @@ from .files import encode_jpeg, fsync_dir, write_bytes
 SESSION_SOURCES = ("sample", "import", "capture")
 
 _MEASURED = f"'{FrameStatus.MEASURED}'"  # the status as an SQL literal
+MEASURED = ("m0", "m1", "m2", "m3", "m4", "m5")  # an observation's measurement columns (a pose fills six)
 _SESSION_QUERY = (
     f"SELECT s.*, COUNT(f.idx) AS n_frames, COALESCE(SUM(f.status = {_MEASURED}), 0) AS n_measured "
     "FROM sessions s LEFT JOIN frames f ON f.session_id = s.id"
@@ -331,7 +332,8 @@ class SessionRepository:
                 (session_id,),
             ).fetchall()
             obs = db.execute(
-                "SELECT o.idx, o.target, o.vertex, o.px, o.py, o.pz, o.m0, o.m1, o.m2, o.sensor FROM observations o "
+                "SELECT o.idx, o.target, o.vertex, o.px, o.py, o.pz, o.m0, o.m1, o.m2, o.m3, o.m4, o.m5, o.sensor "
+                "FROM observations o "
                 "JOIN frames f ON f.session_id = o.session_id AND f.idx = o.idx "
                 f"WHERE o.session_id = ? AND f.status = {_MEASURED} ORDER BY o.idx, o.seq",
                 (session_id,),
@@ -341,9 +343,8 @@ class SessionRepository:
         cfg = np.array([position[r["idx"]] for r in obs], dtype=int)
         target = np.array([r["target"] for r in obs], dtype=int)
         sensor = np.array([profile.data.sensor if r["sensor"] is None else r["sensor"] for r in obs], dtype=int)
-        values = np.array([[r["px"], r["py"], r["pz"], r["m0"], r["m1"], r["m2"]] for r in obs], dtype=float).reshape(
-            -1, 6
-        )
+        columns = ("px", "py", "pz", *MEASURED)
+        values = np.array([[r[c] for c in columns] for r in obs], dtype=float).reshape(-1, len(columns))
         width = max(
             (profile.sensors[s].dim for s in set(sensor.tolist())), default=profile.sensors[profile.data.sensor].dim
         )
@@ -445,10 +446,10 @@ def _insert_observations(db: sqlite3.Connection, sid: str, index: int, obs: Obse
 
     rows = []
     for k in range(len(obs.measured)):
-        m = [opt(v) for v in obs.measured[k]] + [None] * (3 - obs.measured.shape[1])
+        m = [opt(v) for v in obs.measured[k]] + [None] * (len(MEASURED) - obs.measured.shape[1])
         p = [opt(v) for v in obs.point[k]]
-        rows.append((sid, index, k, int(obs.target[k]), int(obs.vertex[k]), *p, *m, int(obs.sensor[k])))
-    db.executemany("INSERT INTO observations VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+        rows.append((sid, index, k, int(obs.target[k]), int(obs.vertex[k]), *p, *m[:3], int(obs.sensor[k]), *m[3:]))
+    db.executemany("INSERT INTO observations VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
 
 
 def _session_info(r: sqlite3.Row) -> SessionInfo:

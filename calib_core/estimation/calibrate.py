@@ -41,7 +41,7 @@ from .problem import Problem
 from .registration import register, registration_params
 from .reports import SolverReport
 from .solver import Robust, SolveResult, levenberg_marquardt, nelder_mead
-from .starts import SOLVED_STARTS, Start, far_above_noise, turned_starts, unknown_poses
+from .starts import SOLVED_STARTS, Start, closed_form_starts, far_above_noise, turned_starts, unknown_poses
 from .validation import Figures, check_share, holdout_split, kfold_splits, sensor_figures
 
 METHODS = ("lm", "nelder-mead")
@@ -131,12 +131,12 @@ def start_values(profile: Profile, data: Dataset, mode: Mode, base: Calibration 
     is the old model with only the registration fitted). A tracker whose pose is neither estimated nor
     known from a base is refused."""
     p = base.params(profile) if base is not None else profile.nominal()
-    reg = set(registration_params(profile, data.sensors))
+    reg = set(registration_params(profile, data.sensors, np.unique(data.target).tolist()))
     if reg and not reg & set(mode.free) and base is None:
-        devices = ", ".join(profile.sensors[s].name for s in data.sensors if registration_params(profile, [s]))
+        frames = [f.name for f in profile.frames if f.registration and {op.param for op in f.ops} & reg]
         raise InputError(
-            f"mode '{mode.name}' does not estimate the registration of '{devices}' (where it stands), which these "
-            "data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
+            f"mode '{mode.name}' does not estimate the registration of '{', '.join(frames)}' (where it stands), "
+            "which these data need: choose a mode that does, or start from a calibration of the same set-up (--base)"
         )
     return register(profile, data, p) if reg & set(mode.free) else p
 
@@ -321,11 +321,13 @@ class _Passes:
 
     def least_squares(self, initial: tuple | None, robust: bool, poses: list[tuple[str, list[int]]]) -> None:
         """`poses`: the free poses nobody measured (`unknown_poses`), turned when the first solution stays
-        far above the noise."""
+        far above the noise, when the other closed-form starts of a camera's registration are tried too."""
         problem = self.problem
         x = self.run(problem.x0, None, initial)
-        if poses and far_above_noise(problem, problem.residuals(x)):
-            x = self.best_start(turned_starts(problem, problem.x0, poses, self.should_stop))
+        if far_above_noise(problem, problem.residuals(x)):
+            starts = turned_starts(problem, problem.x0, poses, self.should_stop) + closed_form_starts(problem)
+            if starts:
+                x = self.best_start(starts)
         if len(problem.blocks) > 1 or problem.priors:
             if len(problem.blocks) > 1:
                 # Each sensor weighed by its actual scatter, not only its declared noise.
@@ -401,20 +403,25 @@ def error_clusters(profile: Profile, data: Dataset) -> np.ndarray | None:
 
     Observations of one configuration share its joint readings' errors (encoder quantisation,
     backlash), and so do configurations that repeat the target chain's readings (a NAO stance seen
-    in three head postures). None when every observation stands alone (one per configuration, no
-    repeated target-side readings): then the errors are independent.
+    in three head postures). A target no joint moves relative to the sensor's chain (a board on the
+    table seen by a camera on the flange) repeats no readings: each configuration is its own cluster.
+    None when every observation stands alone (one per configuration, no repeated target-side
+    readings): then the errors are independent.
     """
     sensor_joints = {profile.frames[f].joint for s in data.sensors for f in profile.chain(profile.sensors[s].frame)}
     target_joints = set()
     for t in np.unique(data.target):
         target_joints |= {profile.frames[f].joint for f in profile.chain(profile.targets[t].frame)}
     cols = sorted(j for j in target_joints - sensor_joints if j >= 0)
-    key = np.column_stack([np.round(np.nan_to_num(data.joints[:, cols]), 9), np.zeros(data.n_configurations)])
-    first_target = np.zeros(data.n_configurations, int)
-    first_target[data.cfg[::-1]] = data.target[::-1]
-    key[:, -1] = first_target
-    _, label = np.unique(key, axis=0, return_inverse=True)
-    label = label.ravel()
+    if cols:
+        key = np.column_stack([np.round(np.nan_to_num(data.joints[:, cols]), 9), np.zeros(data.n_configurations)])
+        first_target = np.zeros(data.n_configurations, int)
+        first_target[data.cfg[::-1]] = data.target[::-1]
+        key[:, -1] = first_target
+        _, label = np.unique(key, axis=0, return_inverse=True)
+        label = label.ravel()
+    else:
+        label = np.arange(data.n_configurations)
     if len(np.unique(label)) == data.n_observations:
         return None
     return label

@@ -156,13 +156,13 @@ def _noise_excess(fit: Fit) -> list[Diagnostic]:
 def _registration_misfit(
     profile: Profile, fit: Fit, figs: dict[str, Figures], each: dict[str, dict[str, Figures]]
 ) -> list[Diagnostic]:
-    """A tracker whose pose was fitted but whose readings the model still misses by centimetres."""
+    """A tracker (a point sensor) whose pose was fitted but whose readings the model still misses by centimetres."""
     out = []
     free = set(fit.problem.free)
     for b in fit.problem.blocks:
         frame = profile.frames[b.sensor.frame]
-        if not frame.registration or not {op.param for op in frame.ops} & free:
-            continue
+        if b.sensor.dim != 3 or not frame.registration or not {op.param for op in frame.ops} & free:
+            continue  # a camera's misfit is in pixels: the noise test speaks for it
         before = each[b.sensor.name]["before"] if each else figs["before"]
         misfit = REGISTRATION_MISFIT_M / LENGTH_IN_M[profile.length_unit]
         if np.isfinite(before.rms) and before.rms > misfit:

@@ -6,7 +6,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from ..dataset import Dataset
+from ..errors import InputError
 from ..model.profile import Profile
 from ..units import LENGTH_IN_M, length_factor
 from .calibration import Calibration
@@ -41,12 +44,28 @@ def evaluate(
     p = calibration.params(profile) if calibration is not None else profile.nominal()
     # The nominal model has no idea where a tracker stands: it is always seen from a fitted pose.
     registered = (reregister or calibration is None) and bool(registration_params(profile, data.sensors))
+    pred = Problem(profile, data, [], p, noise_model=False).predict(p)
+    _check_predicted(profile, data, pred)
     if registered:
         p = register(profile, data, p)
-    pred = Problem(profile, data, [], p, noise_model=False).predict(p)
+        pred = Problem(profile, data, [], p, noise_model=False).predict(p)
     pooled, each = sensor_figures(profile, [(data, pred, None)])
     unit = profile.data.measurement_unit
     return Evaluation(_in(pooled, unit), {n: _in(f, unit) for n, f in each.items()}, registered)
+
+
+def _check_predicted(profile: Profile, data: Dataset, pred: np.ndarray) -> None:
+    """Refuse observations the model cannot predict (NaN figures are no answer): a board's row without a
+    vertex id or a point, a point on the camera's plane."""
+    dims = np.array([profile.sensors[s].dim for s in data.sensor])
+    bad = np.flatnonzero([not np.isfinite(row[:d]).all() for row, d in zip(pred, dims, strict=True)])
+    if len(bad):
+        where = "" if data.lines is None else f" (lines {', '.join(str(int(n)) for n in data.lines[bad[:5]])})"
+        raise InputError(
+            f"{len(bad)} of {data.n_observations} observations{where} have no prediction: a board's row needs its "
+            "vertex id or its point's columns",
+            file=data.source,
+        )
 
 
 def _in(f: Figures, unit: str) -> Figures:

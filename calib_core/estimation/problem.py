@@ -4,8 +4,9 @@ exact Jacobian, for any number of sensors.
 The free vector x holds the estimated parameters (leaders of ties only). The full parameter vector
 is p = p_fixed + A x, where A has a 1 for each estimated parameter and the tie's sign for each
 follower. The residual vector stacks one block per sensor (`SensorBlock`: a tracker's 3-D points,
-a camera's pixels, a plane's distances), each observation `dim` rows of W (prediction - measurement)
-with W the sensor's noise-model whitening (so each row has about unit variance), followed by one row
+a camera's pixels, a plane's distances, a tracked body's poses), each observation `dim` rows of W e with
+e the sensor's error (prediction - measurement; for a pose's orientation the rotation between them) and W
+the sensor's noise-model whitening (so each row has about unit variance), followed by one row
 per prior (times `prior_scale`, the scale of the whitened residuals, so that a prior weighs as a MAP
 term).
 """
@@ -231,7 +232,7 @@ class Problem:
         return [r[b.rows] for b in self.blocks]
 
     def _errors(self, pred: np.ndarray, b: SensorBlock) -> np.ndarray:
-        e = pred[b.obs, : b.dim] - self.data.measured[b.obs, : b.dim]
+        e = b.sensor.error(pred[b.obs, : b.dim], self.data.measured[b.obs, : b.dim])
         return e * self.included[b.obs, None]
 
     def _whitened(self, pred: np.ndarray) -> np.ndarray:
@@ -260,13 +261,8 @@ class Problem:
 
     def _points(self, p: np.ndarray, poses: Poses, g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Base-frame points P, sensor-frame points x, the sensor rotation and the target rotation."""
-        target = self.profile.targets[g.target]
-        local = self.data.point[g.obs]
-        if target.point_params is not None:
-            local = np.broadcast_to(p[list(target.point_params)], local.shape)
-        elif target.points is not None:  # fixed points (markers, the frame's origin) by vertex id
-            local = target.points[np.maximum(self.data.vertex[g.obs], 0)]
-        return to_sensor(poses, target.frame, g.block.sensor.frame, self.data.cfg[g.obs], local)
+        local = local_points(self.profile, self.data, g.obs, g.target, p)
+        return to_sensor(poses, self.profile.targets[g.target].frame, g.block.sensor.frame, self.data.cfg[g.obs], local)
 
     def _twists(self, poses: Poses, g: _Group) -> np.ndarray:
         """(N, 6, K): per configuration, the (w, v) twist of each of the group's ops, signed."""
@@ -282,14 +278,16 @@ class Problem:
         pred = np.full(self.data.measured.shape, np.nan)
         J = np.zeros((self.n_data_rows, len(self.free))) if jacobian else None
         for g in self.groups:
-            dim = g.block.dim
+            dim, sensor = g.block.dim, g.block.sensor
             P, x, Rs, Rt = self._points(p, poses, g)
-            h, dh_dx, dh_direct = g.block.sensor.predict(p, x, derivatives=jacobian)
+            Rs_T = Rs.transpose(0, 2, 1)
+            rotation = Rs_T @ Rt if sensor.rotation_axes else None  # the target's orientation, sensor frame
+            h, dh_dx, dh_direct, dh_drot = sensor.predict_pose(p, x, rotation, derivatives=jacobian)
             pred[g.obs, :dim] = h
             if J is None:
                 continue
             assert dh_dx is not None and dh_direct is not None
-            G = dh_dx @ Rs.transpose(0, 2, 1)  # d(pred)/d(P in the base frame)
+            G = dh_dx @ Rs_T  # d(pred)/d(P in the base frame)
             Jg = np.zeros((len(g.obs), dim, len(self.free)))
             if g.ops:
                 # Each op moves the point by a twist: dP = w x P + v with v = o x w (rotation) or
@@ -299,6 +297,8 @@ class Problem:
                 skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = P[:, 2], -P[:, 1], P[:, 0]
                 skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -P[:, 2], P[:, 1], -P[:, 0]
                 H = np.concatenate([G @ skew, G], axis=2)  # d(pred)/d(w, v): w x P = -[P]x w
+                if dh_drot is not None:  # w turns the target frame by Rs^T w about the sensor's axes
+                    H[:, :, :3] += dh_drot @ Rs_T
                 if g.per_cfg:  # observations come in equal runs per configuration: one product each
                     c = g.per_cfg
                     dpred = (H.reshape(-1, c * dim, 6) @ xi[g.cfgs]).reshape(len(P), dim, -1)
@@ -309,8 +309,27 @@ class Problem:
                 Jg += (G @ Rt) @ g.B_point
             if len(g.block.B_direct):
                 Jg += dh_direct @ g.block.B_direct
+            E = sensor.error_jacobian(h, self.data.measured[g.obs, :dim])
+            if E is not None:
+                Jg = E @ Jg
             J[g.block.rows].reshape(-1, dim, len(self.free))[g.pos] = Jg
         return pred, J
+
+
+def local_points(profile: Profile, data: Dataset, obs: np.ndarray | slice, target: int, p: np.ndarray) -> np.ndarray:
+    """The points (n, 3) observations `obs` of `target` saw, in the target's frame: the calibrated point, a
+    fixed point (a marker, the frame's origin) by vertex id, or the row's own point; a board's vertex where the
+    row gives none (the CSV names only the vertex: row k // cols, column k % cols)."""
+    t = profile.targets[target]
+    local = data.point[obs]
+    if t.point_params is not None:
+        return np.broadcast_to(p[list(t.point_params)], local.shape)
+    if t.points is not None:
+        return t.points[np.maximum(data.vertex[obs], 0)]
+    if t.grid is not None:
+        vertex = data.vertex[obs]
+        return np.where(np.isnan(local) & (vertex >= 0)[:, None], t.grid[np.maximum(vertex, 0)], local)
+    return local
 
 
 def _run(index: np.ndarray) -> np.ndarray | slice:

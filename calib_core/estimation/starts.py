@@ -7,8 +7,10 @@ solver's own criteria call converged. When the first solution's residuals are mo
 FAR_ABOVE_NOISE times a sensor's declared noise, each such pose is turned through the 23 other
 rotations that map a cube onto itself (every orientation lies within 63 deg of one of them), its
 translation re-fitted with everything else at its start; the SOLVED_STARTS turns whose re-fit fits
-best are solved in full, and the lowest final cost of all wins. A start computed in closed form (the
-board's pose in each image, then the hand-eye equations) would be one more `Start` of the list.
+best are solved in full, and the lowest final cost of all wins. A camera or board on a registration
+frame starts from the hand-eye equations in closed form (`camera_registration`): the other closed forms,
+each also with the images whose board pose agrees better flipped flipped, are more starts of the list
+(`closed_form_starts`).
 """
 
 from __future__ import annotations
@@ -21,9 +23,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..model.profile import Profile
+from .camera_registration import camera_starts, is_camera
+from .handeye import zyx_angles
 from .noise_test import sensor_scatter
 from .problem import Problem
-from .registration import zyx_angles
+from .registration import registration_params
 from .solver import levenberg_marquardt
 
 # Residuals this many times a sensor's declared noise: beyond what a real robot's model error leaves
@@ -123,3 +127,19 @@ def refit(
     out = x.copy()
     out[positions] = res.x
     return out, res.cost
+
+
+def closed_form_starts(problem: Problem) -> list[Start]:
+    """For each camera of the problem whose (or whose board's) registration it estimates: the closed-form
+    starts other than the best, which the start values hold (`camera_starts`), the rest of the start as is."""
+    prof, data = problem.profile, problem.data
+    p = problem.params(problem.x0)
+    out = []
+    for s in data.sensors:
+        own = data.of_sensor(s)
+        params = set(registration_params(prof, [s], np.unique(own.target).tolist()))
+        if not is_camera(prof, s) or not params or not params <= set(problem.free):
+            continue
+        for start in camera_starts(prof, own, p)[1:]:
+            out.append(Start(f"{start.label} (closed form)", start.p[problem.free], start.cost))
+    return out

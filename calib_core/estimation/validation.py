@@ -1,7 +1,8 @@
 """Error figures and data splits: before/after, held-out and k-fold cross-validation.
 
 Errors are Euclidean distances between prediction and measurement per observation (cm for a 3-D
-point, px for a pixel, the distance from a plane), the figure the papers report; with several
+point, px for a pixel, the distance from a plane, a pose's position, its rotation apart in deg), the figure
+the papers report; with several
 sensors, per sensor, and pooled over those that measure in one unit. Splits keep whole configurations together, and
 repeated configurations (the same joint readings) on one side, so a held-out figure never tests a
 configuration that was also trained on.
@@ -29,28 +30,40 @@ class Figures:
     max: float
     median: float
     unit: str
-    rms_axes: list[float]  # per measurement coordinate (x, y, z or u, v)
+    rms_axes: list[float]  # per measurement coordinate (x, y, z or u, v; a pose's position)
     excluded: int = 0  # observations left out as outliers (failed detections)
+    rms_rotation_deg: float | None = None  # a pose's orientation error (its rotation angle); None: no pose
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def __str__(self) -> str:
         scale, unit = (1000.0, "mm") if self.unit == "m" else (1.0, self.unit)  # a metre profile reads in mm
-        out = f"mean {self.mean * scale:.3f} {unit}, RMS {self.rms * scale:.3f}, max {self.max * scale:.3f} (n={self.n}"
+        out = f"mean {self.mean * scale:.3f} {unit}, RMS {self.rms * scale:.3f}, max {self.max * scale:.3f}"
+        if self.rms_rotation_deg is not None:
+            out += f", rotation RMS {self.rms_rotation_deg:.4f} deg"
+        out += f" (n={self.n}"
         return out + (f", {self.excluded} outliers left out)" if self.excluded else ")")
 
 
-def figures(pred: np.ndarray, measured: np.ndarray, unit: str, keep: np.ndarray | None = None) -> Figures:
-    """Distances of the observations in `keep` (default all); the others count as excluded."""
+def figures(
+    pred: np.ndarray, measured: np.ndarray, unit: str, keep: np.ndarray | None = None, rotation_axes: int = 0
+) -> Figures:
+    """Distances of the observations in `keep` (default all); the others count as excluded. The last
+    `rotation_axes` columns of the difference are a rotation vector (rad, a pose's): its angle is reported
+    apart (`rms_rotation_deg`), the distance is the rest's."""
     excluded = 0
     if keep is not None:
         excluded = int(np.sum(~keep))
         pred, measured = pred[keep], measured[keep]
     e = pred - measured
+    rotation = None
+    if rotation_axes:
+        e, angle = e[:, :-rotation_axes], np.linalg.norm(e[:, -rotation_axes:], axis=1)
+        rotation = float(np.degrees(np.sqrt(np.mean(angle**2)))) if len(angle) else float("nan")
     d = np.linalg.norm(e, axis=1)
     if len(d) == 0:
-        return Figures(0, float("nan"), float("nan"), float("nan"), float("nan"), unit, [], excluded)
+        return Figures(0, float("nan"), float("nan"), float("nan"), float("nan"), unit, [], excluded, rotation)
     return Figures(
         len(d),
         float(d.mean()),
@@ -60,6 +73,7 @@ def figures(pred: np.ndarray, measured: np.ndarray, unit: str, keep: np.ndarray 
         unit,
         np.sqrt(np.mean(e**2, axis=0)).tolist(),
         excluded,
+        rotation,
     )
 
 
@@ -75,17 +89,17 @@ def sensor_figures(
         k = np.ones(data.n_observations, bool) if keep is None else keep
         for s in data.sensors:
             sel = data.sensor == s
-            dim = profile.sensors[s].dim
-            errors.setdefault(s, []).append(pred[sel, :dim] - data.measured[sel, :dim])
+            sensor = profile.sensors[s]
+            errors.setdefault(s, []).append(sensor.error(pred[sel, : sensor.dim], data.measured[sel, : sensor.dim]))
             kept.setdefault(s, []).append(k[sel])
     each, pooled_e, pooled_k = {}, [], []
     unit = profile.sensors[min(errors)].unit
     for s in sorted(errors):
         sensor = profile.sensors[s]
         e, k = np.concatenate(errors[s]), np.concatenate(kept[s])
-        each[sensor.name] = figures(e, np.zeros_like(e), sensor.unit, k)
+        each[sensor.name] = figures(e, np.zeros_like(e), sensor.unit, k, sensor.rotation_axes)
         if sensor.unit == unit:
-            pooled_e.append(e)
+            pooled_e.append(e[:, : sensor.dim - sensor.rotation_axes])
             pooled_k.append(k)
     if len(each) == 1:
         return next(iter(each.values())), each

@@ -13,7 +13,15 @@ __getattr__ = lazy_exports(
     {
         "bag_import": ("import_bag",),
         "camera_images": ("grey_image",),
-        "csv_format": ("parse_dataset", "plan_csv", "read_dataset", "readings_beyond_limits", "select_rows", "to_csv"),
+        "csv_format": (
+            "measurement_values",
+            "parse_dataset",
+            "plan_csv",
+            "read_dataset",
+            "readings_beyond_limits",
+            "select_rows",
+            "to_csv",
+        ),
         "ctu_motoman": ("camera_dataset",),
         "export": ("calibrated_urdf", "offsets_yaml"),
         "session": ("FrameRecord", "csv_sensors", "read_session", "session_robot", "write_session"),
@@ -28,6 +36,7 @@ __all__ = [
     "csv_sensors",
     "grey_image",
     "import_bag",
+    "measurement_values",
     "offsets_yaml",
     "parse_dataset",
     "plan_csv",
@@ -44,7 +53,15 @@ __all__ = [
 if TYPE_CHECKING:
     from .bag_import import import_bag
     from .camera_images import grey_image
-    from .csv_format import parse_dataset, plan_csv, read_dataset, readings_beyond_limits, select_rows, to_csv
+    from .csv_format import (
+        measurement_values,
+        parse_dataset,
+        plan_csv,
+        read_dataset,
+        readings_beyond_limits,
+        select_rows,
+        to_csv,
+    )
     from .ctu_motoman import camera_dataset
     from .export import calibrated_urdf, offsets_yaml
     from .session import FrameRecord, csv_sensors, read_session, session_robot, write_session

@@ -18,7 +18,8 @@ import numpy as np
 from ..dataset import Dataset
 from ..errors import InputError
 from ..files import read_text_file
-from ..model.profile import DataFormat, Profile
+from ..model.profile import DataFormat, Marker, Profile
+from ..sensors.pose6d import pose_from_columns, pose_to_columns
 from ..units import ANGLE_IN_RAD, length_factor
 from .rows import Row, require_columns, table
 
@@ -31,7 +32,7 @@ def read_dataset(profile: Profile, path: str | Path) -> Dataset:
 
 
 def _required(fmt: DataFormat, col: dict[str, int]) -> list[str]:
-    out = [*fmt.measurement_columns, *fmt.joint_columns.values()]
+    out = [*fmt.measurement_columns, *(c for m in fmt.markers for c in m.columns), *fmt.joint_columns.values()]
     optional = [
         fmt.frame_column,
         _target_column(fmt, col),
@@ -69,34 +70,49 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
     obs: dict[str, list] = {k: [] for k in ("cfg", "target", "sensor", "point", "vertex", "measured", "line")}
     joint_columns = [(profile.joint(jname), c) for jname, c in fmt.joint_columns.items()]
     needed_by: dict[tuple[int, int], list[tuple[int, str]]] = {}  # (target, sensor): the joint columns it reads
+    groups = [Marker(fmt.measurement_columns), *fmt.markers]
+    raw: list[list[str]] = []  # each observation's row
     for ln, fields in body:
         row = Row(name, ln, fields, col)
-        fid = _frame_id(row, fmt, len(obs["line"]) + 1)
-        ti = row.choice(target_column, fmt.target_values) if target_column else fmt.target
-        if ti is None:
-            ti = fmt.target_default
-        si = row.choice(fmt.sensor_column, fmt.sensor_values) if fmt.sensor_column else fmt.sensor
-        assert ti is not None  # the loader requires a target, a target column or a default
+        fid = _frame_id(row, fmt, len(frames.joints) + 1)
+        row_target = row.choice(target_column, fmt.target_values) if target_column else fmt.target
+        if row_target is None:
+            row_target = fmt.target_default
+        row_sensor = row.choice(fmt.sensor_column, fmt.sensor_values) if fmt.sensor_column else fmt.sensor
+        assert row_target is not None  # the loader requires a target, a target column or a default
+        seen = []  # (group, target, sensor, vertex, measured) of each measurement the row has
+        for g, group in enumerate(groups):
+            measured = _measurement(row, fmt, group.columns, meas_factor, optional=bool(fmt.markers))
+            if measured is None:
+                continue
+            ti = row_target if group.target is None else group.target
+            si = row_sensor if group.sensor is None else group.sensor
+            vertex = _vertex(row, fmt, profile, ti) if group.vertex is None else _fixed_vertex(row, group, profile, ti)
+            seen.append((g, ti, si, vertex, measured))
+        if not seen:
+            raise row.fail("measures nothing: the columns of every marker are empty", fmt.measurement_columns[0])
         q = np.full(len(profile.joints), np.nan)
-        if (ti, si) not in needed_by:
-            needed = profile.joints_between(ti, si)
-            needed_by[ti, si] = [(j, c) for j, c in joint_columns if j in needed]
-        for j, c in needed_by[ti, si]:
-            q[j] = row.number(c) * joint_factor[j]
+        for _, ti, si, _, _ in seen:
+            if (ti, si) not in needed_by:
+                needed = profile.joints_between(ti, si)
+                needed_by[ti, si] = [(j, c) for j, c in joint_columns if j in needed]
+            for j, c in needed_by[ti, si]:
+                q[j] = row.number(c) * joint_factor[j]
         cfg = frames.add(fid, q, row)
-        vertex = _vertex(row, fmt, profile, ti)
-        if fmt.point_columns:
-            point = [row.number(c) * point_factor for c in fmt.point_columns]
-        else:
-            fixed = profile.targets[ti].points
-            point = [np.nan] * 3 if fixed is None else fixed[max(vertex, 0)]
-        obs["cfg"].append(cfg)
-        obs["target"].append(ti)
-        obs["sensor"].append(si)
-        obs["point"].append(point)
-        obs["vertex"].append(vertex)
-        obs["measured"].append([row.number(c) * meas_factor for c in fmt.measurement_columns])
-        obs["line"].append(ln)
+        for g, ti, si, vertex, measured in seen:
+            if fmt.point_columns and g == 0:
+                point = [row.number(c) * point_factor for c in fmt.point_columns]
+            else:
+                fixed = profile.targets[ti].points
+                point = [np.nan] * 3 if fixed is None else fixed[max(vertex, 0)]
+            obs["cfg"].append(cfg)
+            obs["target"].append(ti)
+            obs["sensor"].append(si)
+            obs["point"].append(point)
+            obs["vertex"].append(vertex)
+            obs["measured"].append(measured)
+            obs["line"].append(ln)
+            raw.append(fields)
     joints = np.array(frames.joints).reshape(-1, len(profile.joints))
     check_joint_unit(profile, joints, name, list(frames.first_line.values()))
     return Dataset(
@@ -112,7 +128,7 @@ def parse_dataset(profile: Profile, text: str, name: str = "<data>") -> Dataset:
         source=name,
         lines=np.array(obs["line"], dtype=int),
         header=header,
-        rows=[fields for _, fields in body],
+        rows=raw,
     )
 
 
@@ -256,6 +272,36 @@ def _frame_id(row: Row, fmt: DataFormat, default: int) -> int:
     return int(f)
 
 
+def _measurement(
+    row: Row, fmt: DataFormat, columns: tuple[str, ...], factor: float, optional: bool
+) -> list[float] | None:
+    """One measurement of the row in internal units (a pose's rotation as a rotation vector in rad); None
+    when every one of its columns is empty and that is allowed (a marker the tracker did not see)."""
+    if optional and not any(row.text(c) for c in columns):
+        return None
+    empty = [c for c in columns if not row.text(c)]
+    if optional and empty:
+        raise row.fail(f"is empty, but {len(columns) - len(empty)} other columns of its measurement are not", empty[0])
+    if fmt.rotation is None:
+        return [row.number(c) * factor for c in columns]
+    values = np.array([row.number(c) for c in columns])
+    values[:3] *= factor
+    try:
+        return pose_from_columns(values[None], fmt.rotation, ANGLE_IN_RAD[fmt.rotation_unit])[0].tolist()
+    except ValueError as exc:
+        raise row.fail(str(exc), columns[3]) from None
+
+
+def _fixed_vertex(row: Row, marker: Marker, profile: Profile, target: int) -> int:
+    """A marker's own vertex, checked against its target's points."""
+    assert marker.vertex is not None
+    t = profile.targets[target]
+    points = t.grid if t.points is None else t.points
+    if points is None or marker.vertex >= len(points):
+        raise row.fail(f"the format's marker vertex {marker.vertex} is not a point of {t.name}", marker.columns[0])
+    return marker.vertex
+
+
 def _vertex(row: Row, fmt: DataFormat, profile: Profile, target: int) -> int:
     if not fmt.vertex_column:
         return -1
@@ -282,36 +328,40 @@ def select_rows(data: Dataset, where: dict[str, str]) -> Dataset:
 
 
 def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None = None) -> str:
-    """The dataset in the profile's CSV format (joints in the format's unit), plus extra columns."""
+    """The dataset in the profile's CSV format (joints in the format's unit), plus extra columns. One row
+    per observation: in a format with markers, in the columns of the first measurement (the row's own, or
+    a marker's) whose target, vertex and sensor it is, the others' left empty."""
     fmt = profile.data
     names = {v: k for k, v in fmt.sensor_values.items()} if fmt.sensor_column else {fmt.sensor: ""}
-    stray = sorted(set(data.sensors) - set(names))
+    stray = sorted(set(data.sensors) - set(names) - {m.sensor for m in fmt.markers})
     if stray:
         raise InputError(
             f"the {profile.name} CSV format holds observations of {', '.join(profile.sensors[s].name for s in names)}, "
             f"not of {profile.sensors[stray[0]].name}"
         )
     joint_factor = joint_factors(profile)
-    meas_factor = 1.0 if fmt.measurement_unit == "px" else length_factor(profile.length_unit, fmt.measurement_unit)
     point_factor = length_factor(profile.length_unit, fmt.point_unit or profile.length_unit)
-    dim = len(fmt.measurement_columns)
+    groups = [Marker(fmt.measurement_columns), *fmt.markers]
     extra = extra or {}
     header = [c for c in (fmt.frame_column, fmt.target_column, fmt.sensor_column, fmt.vertex_column) if c]
-    header += [*fmt.measurement_columns, *(fmt.point_columns or ()), *fmt.joint_columns.values(), *extra]
+    header += [*(c for g in groups for c in g.columns), *(fmt.point_columns or ()), *fmt.joint_columns.values(), *extra]
+    values = measurement_values(profile, data.measured[:, : profile.sensors[fmt.sensor].dim])
     tnames = {v: k for k, v in fmt.target_values.items()}
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(header)
     for m in range(data.n_observations):
         c = data.cfg[m]
+        g = _group_of(profile, groups, int(data.target[m]), int(data.sensor[m]), int(data.vertex[m]))
         row: list[object] = [int(data.frame_ids[c])] if fmt.frame_column else []
-        if fmt.target_column:
-            row.append(tnames[int(data.target[m])])
+        if fmt.target_column:  # read with every row: a marker with a target of its own takes any valid one
+            row.append(tnames.get(int(data.target[m]), next(iter(tnames), "")))
         if fmt.sensor_column:
-            row.append(names[int(data.sensor[m])])
+            row.append(names.get(int(data.sensor[m]), next(iter(names.values()))))
         if fmt.vertex_column:
             row.append(int(data.vertex[m]))
-        row += [_fmt(v * meas_factor) for v in data.measured[m, :dim]]
+        for k in range(len(groups)):
+            row += [_fmt(v) for v in values[m]] if k == g else [""] * len(groups[k].columns)
         if fmt.point_columns:
             row += [_fmt(v * point_factor) for v in data.point[m]]
         for jname in fmt.joint_columns:
@@ -321,6 +371,34 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
         row += [_fmt(v[m]) for v in extra.values()]
         w.writerow(row)
     return out.getvalue()
+
+
+def measurement_values(profile: Profile, measured: np.ndarray) -> np.ndarray:
+    """Measurements or predictions (M, dim) in internal units as the format's measurement columns give
+    them: its length unit, a pose's rotation as the format says (rotation vector, quaternion, roll, pitch,
+    yaw) in its angle unit."""
+    fmt = profile.data
+    factor = 1.0 if fmt.measurement_unit == "px" else length_factor(profile.length_unit, fmt.measurement_unit)
+    if fmt.rotation is None:
+        return measured * factor
+    out = pose_to_columns(measured, fmt.rotation, ANGLE_IN_RAD[fmt.rotation_unit])
+    out[:, :3] *= factor
+    return out
+
+
+def _group_of(profile: Profile, groups: list[Marker], target: int, sensor: int, vertex: int) -> int:
+    """The first measurement of a row (0: the row's own, k: marker k - 1) an observation can be written in."""
+    fmt = profile.data
+    for k, g in enumerate(groups):
+        targets = {g.target} if g.target is not None else None if fmt.target_column else {fmt.target}
+        sensors = {g.sensor} if g.sensor is not None else set(fmt.sensor_values.values()) or {fmt.sensor}
+        vertices = {g.vertex} if g.vertex is not None else None if fmt.vertex_column else {-1}
+        if (targets is None or target in targets) and sensor in sensors and (vertices is None or vertex in vertices):
+            return k
+    raise InputError(
+        f"the {profile.name} CSV format has no measurement columns for an observation of "
+        f"{profile.targets[target].name} (vertex {vertex}) by {profile.sensors[sensor].name}"
+    )
 
 
 def _fmt(v: float) -> str:

@@ -8,8 +8,9 @@ train/held-out splits the desk is compared with FIGAROH on (benchmarks/peers.py,
   One 5-fold split alone moves the held-out figure by up to 15% from another (TALOS), more than the
   tools differ by.
 
-A 6-D pose (the UR10e's camera: x, y, z and roll, pitch, yaw, FIGAROH's columns) is read as 7 points of
-the measured frame: its origin and the points POSE_AXIS_M along each axis both ways. For small errors
+A 6-D pose (the UR10e's camera: x, y, z and roll, pitch, yaw, FIGAROH's columns) is read by a pose6d
+sensor as it is (`ur10e-pose`), or, as before the desk had one, as 7 points of the measured frame
+(`ur10e`): its origin and the points POSE_AXIS_M along each axis both ways. For small errors
 dp (position) and dtheta (rotation) the 7 point errors sum to 7 |dp|^2 + 4 a^2 |dtheta|^2 =
 7 (|dp|^2 + 0.25 |dtheta|^2) with a = POSE_AXIS_M: least squares on the points weighs orientation
 against position exactly as FIGAROH's UR10 example does (1 per m, 0.5 per rad), so both tools fit the
@@ -57,6 +58,7 @@ ROBOTS: dict[str, PeerData] = {
         "tiago.yaml", "qualisys_2021-11-30_static_postures.csv", "qualisys_2021-11-26_static_postures.csv"
     ),
     "ur10e": PeerData("ur10e.yaml", "ur10_calibration_points.csv", pose="ur10_calibration.csv"),
+    "ur10e-pose": PeerData("ur10e-pose.yaml", "ur10_calibration.csv"),  # the same poses, read as poses
 }
 
 
@@ -131,10 +133,14 @@ class PoseErrors:
 
 
 def pose_errors(profile: Profile, data: Dataset, predicted: np.ndarray) -> PoseErrors:
-    """The errors of `predicted` (M, 3) points, the profile's length unit, against `data`: per
-    configuration, its point's (or, for a 7-point pose, its origin's) distance and the pose's rotation."""
+    """The errors of `predicted` (M, 3) points (or (M, 6) poses), the profile's length unit, against `data`:
+    per configuration, its point's (or, for a pose, its origin's) distance and the pose's rotation."""
     to_m = length_factor(profile.length_unit, "m")
     diff = (predicted[:, :3] - data.measured[:, :3]) * to_m
+    sensor = profile.sensors[profile.data.sensor]
+    if sensor.rotation_axes:  # a pose sensor: its own rotation error
+        rotation = sensor.error(predicted[:, : sensor.dim], data.measured[:, : sensor.dim])[:, 3:]
+        return PoseErrors(np.linalg.norm(diff, axis=1), np.linalg.norm(rotation, axis=1))
     if np.all(data.vertex < 0):  # one point per configuration
         return PoseErrors(np.linalg.norm(diff, axis=1), None)
     position, rotation = np.zeros(data.n_configurations), np.zeros(data.n_configurations)

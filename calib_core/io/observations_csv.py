@@ -8,7 +8,8 @@ written in this long format instead, one row per observation:
 
 - `sensor` and `target` by name; `vertex` the grid vertex or marker point (-1: none);
 - `m0 m1 m2` the measurement in its sensor's unit (the profile's length unit, or px), as many as the
-  sensor measures (the rest empty);
+  sensor measures (the rest empty); a profile with a 6-D pose sensor (pose6d) adds `m3 m4 m5` after
+  `m2`: a pose is its position and its rotation vector in rad;
 - `point_*` the observed point in the target frame, profile length unit (empty: the target's own);
 - one column per joint of the profile, the reading in deg (empty where the observation does not need it).
 """
@@ -26,6 +27,7 @@ from ..model.profile import Profile
 from .rows import Row, require_columns, table
 
 MEASURES = ("m0", "m1", "m2")
+POSE_MEASURES = ("m3", "m4", "m5")  # only in the file of a profile with a sensor of six numbers
 POINT = ("point_x", "point_y", "point_z")
 
 
@@ -33,11 +35,12 @@ def to_observations_csv(profile: Profile, data: Dataset) -> str:
     """The dataset in the observations format (joint readings in deg)."""
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
-    w.writerow(["frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names])
+    measures = _measures(profile)
+    w.writerow(["frame", "sensor", "target", "vertex", *measures, *POINT, *profile.joint_names])
     for m in range(data.n_observations):
         sensor = profile.sensors[int(data.sensor[m])]
         c = int(data.cfg[m])
-        measured = [_num(v) for v in data.measured[m, : sensor.dim]] + [""] * (3 - sensor.dim)
+        measured = [_num(v) for v in data.measured[m, : sensor.dim]] + [""] * (len(measures) - sensor.dim)
         joints = [_num(math.degrees(v)) for v in data.joints[c]]
         point = [_num(v) for v in data.point[m]]
         target = profile.targets[int(data.target[m])].name
@@ -49,7 +52,8 @@ def parse_observations(profile: Profile, text: str, name: str = "<observations>"
     """A dataset from the observations format; InputError naming file, line and column."""
     header_line, header, body = table(text, name)
     col = {h: i for i, h in enumerate(header)}
-    required = ("frame", "sensor", "target", "vertex", *MEASURES, *POINT, *profile.joint_names)
+    measures = _measures(profile)
+    required = ("frame", "sensor", "target", "vertex", *measures, *POINT, *profile.joint_names)
     require_columns(profile.name, required, col, name, header_line)
     sensors = {s.name: i for i, s in enumerate(profile.sensors)}
     targets = {t.name: i for i, t in enumerate(profile.targets)}
@@ -79,7 +83,7 @@ def parse_observations(profile: Profile, text: str, name: str = "<observations>"
         obs["sensor"].append(s)
         obs["target"].append(t)
         obs["vertex"].append(int(vertex))
-        obs["measured"].append([row.number(c) for c in MEASURES[:dim]] + [math.nan] * (3 - dim))
+        obs["measured"].append([row.number(c) for c in measures[:dim]] + [math.nan] * (len(measures) - dim))
         obs["point"].append([row.number(c, optional=True) for c in POINT])
         obs["line"].append(ln)
     width = max(profile.sensors[s].dim for s in set(obs["sensor"]))
@@ -96,6 +100,11 @@ def parse_observations(profile: Profile, text: str, name: str = "<observations>"
         source=name,
         lines=np.array(obs["line"], dtype=int),
     )
+
+
+def _measures(profile: Profile) -> tuple[str, ...]:
+    """The measurement columns of the profile's file: m0 m1 m2, and m3 m4 m5 when a sensor measures six."""
+    return MEASURES + (POSE_MEASURES if max(s.dim for s in profile.sensors) > len(MEASURES) else ())
 
 
 def _points_of(profile: Profile, target: int) -> int:

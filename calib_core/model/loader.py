@@ -20,8 +20,9 @@ from ..errors import InputError
 from ..files import read_text_file
 from ..safe_yaml import MAX_YAML_BYTES, load_yaml
 from ..sensors import SENSOR_MODELS, Sensor
+from ..sensors.pose6d import ROTATIONS
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
-from .profile import DataFormat, Frame, Joint, Mode, Op, Parameter, Profile, Target, Tie
+from .profile import DataFormat, Frame, Joint, Marker, Mode, Op, Parameter, Profile, Target, Tie
 from .urdf_import import compile_urdf_profile
 
 BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
@@ -427,8 +428,11 @@ class _Compiler:
         default = spec.get("target_default")
         if default is not None and str(default) not in tvalues:
             raise self.fail(f"{where}.target_default", f"'{default}' is not one of the targets' values")
-        columns, unit = self.compile_measurement(spec, [sensors[i] for i in sorted({sensor, *svalues.values()})])
+        named = [sensors[i] for i in sorted({sensor, *svalues.values()})]
+        rotation, rotation_unit = self.compile_rotation(spec, named, joint_unit)
+        columns, unit = self.compile_measurement(spec, named, rotation)
         point_columns, point_unit = self.compile_point(spec)
+        markers = self.compile_markers(spec, sensors, len(columns), named[0])
         frame_column = spec.get("frame_column", "frame")
         return DataFormat(
             frame_column=None if frame_column is None else str(frame_column),
@@ -450,18 +454,49 @@ class _Compiler:
             sensor_column=spec.get("sensor_column"),
             sensor_values=svalues,
             joint_length_unit=None if joint_length_unit is None else str(joint_length_unit),
+            rotation=rotation,
+            rotation_unit=rotation_unit,
+            markers=markers,
         )
 
-    def compile_measurement(self, spec: dict, named: list[Sensor]) -> tuple[tuple[str, ...], str]:
+    def compile_rotation(self, spec: dict, named: list[Sensor], joint_unit: str) -> tuple[str | None, str]:
+        """How the measurement columns give a pose's orientation (`measurement.rotation`: rotvec by default,
+        quaternion or rpy) and the unit of its angles (`measurement.angle_unit`, default the joints'), for a
+        format of pose sensors; (None, rad) for any other."""
+        where = "data.measurement"
+        meas = self.get(spec, "measurement", "data")
+        poses = {bool(s.rotation_axes) for s in named}
+        if len(poses) > 1:
+            raise self.fail("data.sensors", "the sensors of one CSV format must all measure poses, or none")
+        if not poses.pop():
+            for key in ("rotation", "angle_unit"):
+                if isinstance(meas, dict) and key in meas:
+                    raise self.fail(
+                        f"{where}.{key}",
+                        f"only a pose's measurement has one ({named[0].name} is a {named[0].kind} sensor)",
+                    )
+            return None, "rad"
+        rotation = str(meas.get("rotation", "rotvec"))
+        if rotation not in ROTATIONS:
+            raise self.fail(f"{where}.rotation", f"unknown rotation '{rotation}' ({', '.join(ROTATIONS)})")
+        unit = str(meas.get("angle_unit", joint_unit))
+        if unit not in ANGLE_IN_RAD:
+            raise self.fail(f"{where}.angle_unit", f"unknown unit '{unit}' ({', '.join(ANGLE_IN_RAD)})")
+        return rotation, unit
+
+    def compile_measurement(self, spec: dict, named: list[Sensor], rotation: str | None) -> tuple[tuple[str, ...], str]:
         """The measurement columns and their unit, checked against every sensor the format names."""
         where = "data.measurement"
         meas = self.get(spec, "measurement", "data")
         columns = self.columns(self.get(meas, "columns", where), f"{where}.columns")
         for s in named:
-            if len(columns) != s.dim:
-                numbers = "1 number" if s.dim == 1 else f"{s.dim} numbers"
+            count = s.dim if rotation is None else 3 + ROTATIONS[rotation]
+            if len(columns) != count:
+                numbers = "1 number" if count == 1 else f"{count} numbers"
+                how = "" if rotation is None else f" (x, y, z and a {rotation})"
                 raise self.fail(
-                    f"{where}.columns", f"a {s.kind} sensor ('{s.name}') measures {numbers}, not {len(columns)}"
+                    f"{where}.columns",
+                    f"a {s.kind} sensor ('{s.name}') measures {numbers}{how}, not {len(columns)}",
                 )
         units = {s.unit for s in named}
         if len(units) > 1:
@@ -470,6 +505,45 @@ class _Compiler:
         if (unit != "px" and unit not in LENGTH_IN_M) or (unit == "px") != (named[0].unit == "px"):
             raise self.fail(f"{where}.unit", f"'{unit}' is not a unit of {named[0].name}'s measurements")
         return columns, unit
+
+    def compile_markers(self, spec: dict, sensors: list[Sensor], count: int, row_sensor: Sensor) -> tuple[Marker, ...]:
+        """`data.markers`: more measurements on each row, each `{columns: [...]}` of as many columns as the
+        measurement, with an optional `target` (name), `vertex` (a point of it) and `sensor` (name, one
+        that measures as the row's sensor does)."""
+        value = spec.get("markers")
+        if value is None:
+            return ()
+        if not isinstance(value, list) or not value:
+            raise self.fail("data.markers", "expected a list of {columns: [...]}")
+        out = []
+        for k, m in enumerate(value):
+            where = f"data.markers[{k}]"
+            columns = self.columns(self.get(m, "columns", where), f"{where}.columns", count)
+            unknown = sorted(set(m) - {"columns", "target", "vertex", "sensor"})
+            if unknown:
+                raise self.fail(f"{where}.{unknown[0]}", "not a field of a marker (columns, target, vertex, sensor)")
+            target = (
+                None
+                if m.get("target") is None
+                else self.index_of(m["target"], self.target_index, f"{where}.target", "target")
+            )
+            sensor = (
+                None
+                if m.get("sensor") is None
+                else self.index_of(m["sensor"], self.sensor_index, f"{where}.sensor", "sensor")
+            )
+            if sensor is not None and (sensors[sensor].dim, sensors[sensor].unit) != (row_sensor.dim, row_sensor.unit):
+                raise self.fail(
+                    f"{where}.sensor",
+                    f"'{m['sensor']}' does not measure what {row_sensor.name} does (as many numbers, one unit)",
+                )
+            vertex = None
+            if m.get("vertex") is not None:
+                vertex = int(self.number(m["vertex"], f"{where}.vertex"))
+                if vertex != m["vertex"] or vertex < 0:
+                    raise self.fail(f"{where}.vertex", f"expected a point's index (0, 1, ...), got {m['vertex']!r}")
+            out.append(Marker(columns, target, vertex, sensor))
+        return tuple(out)
 
     def compile_point(self, spec: dict) -> tuple[tuple[str, ...] | None, str | None]:
         """The columns of the observed point in the target frame, and their length unit (or none)."""

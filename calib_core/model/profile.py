@@ -107,8 +107,21 @@ class Mode:
 
 
 @dataclass(frozen=True)
+class Marker:
+    """One more measurement on each CSV row (`data.markers`): its columns (as many as the format's
+    measurement, in its unit), and what it sees where it differs from the row's own: a target, a vertex
+    of it, a sensor (None: the row's)."""
+
+    columns: tuple[str, ...]
+    target: int | None = None
+    vertex: int | None = None
+    sensor: int | None = None
+
+
+@dataclass(frozen=True)
 class DataFormat:
-    """How a CSV row maps to an observation (specs/robonaut-a.md, specs/nao.md)."""
+    """How a CSV row maps to observations (specs/robonaut-a.md, specs/nao.md): its measurement, and the
+    markers' when the row has several (`markers`)."""
 
     frame_column: str | None  # None: every row is a configuration of its own
     joint_columns: dict[str, str]  # joint name -> column
@@ -127,6 +140,9 @@ class DataFormat:
     sensor_column: str | None = None  # a column naming each row's sensor (several sensors of one kind)
     sensor_values: dict[str, int] = field(default_factory=dict)  # its values -> sensor index
     joint_length_unit: str | None = None  # prismatic joints' readings (None: the profile's length unit)
+    rotation: str | None = None  # a pose's orientation in the CSV (sensors.pose6d.ROTATIONS); None: no pose
+    rotation_unit: str = "rad"  # the unit of its angles (a rotation vector's, roll, pitch, yaw)
+    markers: tuple[Marker, ...] = ()  # more measurements on one row, after `measurement_columns`
 
 
 @dataclass

@@ -20,12 +20,15 @@ it; a profile that puts a target, sensor or frame there is told which joint cuts
 
 Without a `modes` section the profile gets two, for the joints on the chains the data use:
 `offsets` (the set-up the profile adds - a tracker's pose, a camera mount, the points of the
-targets - and the joint offsets) and `origins` (the same, then every such joint's origin correction
-with a weak prior of ORIGIN_PRIOR_MM / ORIGIN_PRIOR_DEG towards the URDF, so that the combinations
-the data barely determine stay physical). The order matters: what the data cannot tell apart is held
-by the identifiability check at its base value, and it holds the later parameter, so a joint offset
-an external tracker cannot see (the first axis, about which the tracker's pose turns too) stays 0
-and the set-up absorbs it, and an origin correction that an offset already explains stays 0.
+targets, the registrations first - and the joint offsets) and `origins` (the same, then every such
+joint's origin correction with a weak prior of ORIGIN_PRIOR_MM / ORIGIN_PRIOR_DEG towards the URDF,
+so that the combinations the data barely determine stay physical). The order matters: what the data
+cannot tell apart is held by the identifiability check at its base value, and it holds the later
+parameter, so a joint offset an external tracker cannot see (the first axis, about which the
+tracker's pose turns too) stays 0 and the set-up absorbs it, and an origin correction that an offset
+already explains stays 0. A profile whose sensor or target hangs from a `registration: true` frame
+(a camera and a board whose poses nobody measured: specs/handeye.md) gets a third, first: `handeye`,
+the registrations alone.
 
 The file is read with lxml (line numbers for every complaint); the tests check the result against
 yourdfpy, an independent URDF reader.
@@ -513,7 +516,8 @@ def _chain_joints(doc: dict) -> list[str]:
 
 
 def default_modes(profile: Profile, robot: UrdfRobot) -> dict[str, Mode]:
-    """`offsets` and `origins` for the joints on the chains the data use (see the module doc)."""
+    """`offsets` and `origins` for the joints on the chains the data use, and `handeye` first when the data's
+    sensor or a target hangs from a registration frame (see the module doc)."""
     fmt = profile.data
     used = {fmt.target, getattr(fmt, "target_default", None), *fmt.target_values.values()} - {None}
     targets = [profile.targets[t] for t in sorted(used)] or list(profile.targets)
@@ -535,6 +539,8 @@ def default_modes(profile: Profile, robot: UrdfRobot) -> dict[str, Mode]:
                 origins.append(op.param)
     for t in targets:
         setup += list(t.point_params or ())
+    registered = [op.param for f in frames if profile.frames[f].registration for op in profile.frames[f].ops]
+    setup = registered + [i for i in setup if i not in registered]  # the registrations first
     names = [profile.joints[op.joint].name for f in frames for op in profile.frames[f].ops if op.joint >= 0]
     groups = dict.fromkeys(profile.parameter_names[i].rpartition(".")[0] or profile.parameter_names[i] for i in setup)
     what = f"the set-up ({', '.join(groups)}) and " if setup else ""
@@ -542,7 +548,11 @@ def default_modes(profile: Profile, robot: UrdfRobot) -> dict[str, Mode]:
     length_sigma = ORIGIN_PRIOR_MM * LENGTH_IN_M["mm"] / LENGTH_IN_M[profile.length_unit]
     angle_sigma = math.radians(ORIGIN_PRIOR_DEG)
     priors = {i: angle_sigma if profile.parameters[i].kind == "angle" else length_sigma for i in origins}
-    return {
+    handeye = {}
+    if registered:
+        where = ", ".join(profile.frames[f].name for f in frames if profile.frames[f].registration)
+        handeye["handeye"] = Mode("handeye", f"where {where} stand (the registrations) only", tuple(registered), (), {})
+    return handeye | {
         "offsets": Mode("offsets", what, tuple(setup + offsets), (), {}),
         "origins": Mode(
             "origins",

@@ -8,11 +8,13 @@ from .base import Reading, Sensor, SensorModel, SpecReader, check_noise
 from .pinhole import Pinhole
 from .plane import Plane
 from .point3d import Point3D
+from .pose6d import Pose6D
 
-SENSOR_MODELS: dict[str, type[Point3D | Pinhole | Plane]] = {
+SENSOR_MODELS: dict[str, type[Point3D | Pinhole | Plane | Pose6D]] = {
     Point3D.kind: Point3D,
     Pinhole.kind: Pinhole,
     Plane.kind: Plane,
+    Pose6D.kind: Pose6D,
 }
 
 __all__ = [
@@ -20,6 +22,7 @@ __all__ = [
     "Pinhole",
     "Plane",
     "Point3D",
+    "Pose6D",
     "Reading",
     "Sensor",
     "SensorModel",

@@ -9,7 +9,10 @@ this package asks which kind a sensor is. It says:
 - `dim`, `axes`, `unit`: how many numbers one observation has, their names and their unit;
 - `predict(p, x, derivatives=True)`: the measurement of points x (M, 3) in the sensor frame, with
   the exact derivatives by x and by the parameters the model reads directly (`direct_params`:
-  intrinsics, distortion);
+  intrinsics, distortion); `predict_pose` the same given also the target frame's orientation, which a
+  sensor that measures one (`rotation_axes`, a 6-D pose) needs, with the derivatives by it;
+- `error(predicted, measured)` and `error_jacobian`: the residual (prediction - measurement, or for a
+  rotation the rotation between them) and its derivative by the prediction;
 - `covariance` and `whitening`: the noise model the calibration weighs observations by;
 - `reading`: what it takes to get a measurement: `stereo` (a depth map from a stereo pair, where the
   BallFinder finds a sphere), `image` (a camera image, where a board detector finds the corners) or
@@ -63,6 +66,7 @@ class SensorModel(Protocol):
     kind: ClassVar[str]
     dim: ClassVar[int]
     axes: ClassVar[tuple[str, ...]]
+    rotation_axes: ClassVar[int]
 
     @property
     def reading(self) -> Reading: ...
@@ -72,6 +76,14 @@ class SensorModel(Protocol):
     def predict(
         self, p: np.ndarray, x: np.ndarray, *, derivatives: bool = False
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]: ...
+
+    def predict_pose(
+        self, p: np.ndarray, x: np.ndarray, rotation: np.ndarray | None, *, derivatives: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]: ...
+
+    def error(self, predicted: np.ndarray, measured: np.ndarray) -> np.ndarray: ...
+
+    def error_jacobian(self, predicted: np.ndarray, measured: np.ndarray) -> np.ndarray | None: ...
 
     def whitening(self, p: np.ndarray, measured: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray | float: ...
 
@@ -94,7 +106,7 @@ class SensorModel(Protocol):
 
 
 # The fields of each noise model (isotropic: `sigma` may be left out, meaning 1 in the measurement's unit).
-NOISE_FIELDS = {"isotropic": ("sigma",), "stereo": ("pixel", "disparity")}
+NOISE_FIELDS = {"isotropic": ("sigma",), "stereo": ("pixel", "disparity"), "pose": ("position", "rotation_deg")}
 
 
 @dataclass(frozen=True)
@@ -111,6 +123,7 @@ class Sensor:
     dim: ClassVar[int]
     axes: ClassVar[tuple[str, ...]]
     noise_models: ClassVar[tuple[str, ...]] = ("isotropic",)
+    rotation_axes: ClassVar[int] = 0  # the measurement's last columns that are a rotation vector (rad)
 
     @property
     def reading(self) -> Reading:
@@ -126,6 +139,24 @@ class Sensor:
         """Measurements (M, dim) of points x (M, 3) in the sensor frame, parameters p (internal
         units); with `derivatives` also d/dx (M, dim, 3) and d/d(direct_params) (M, dim, k)."""
         raise NotImplementedError
+
+    def predict_pose(
+        self, p: np.ndarray, x: np.ndarray, rotation: np.ndarray | None, *, derivatives: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """`predict`, given also the target frame's orientation in the sensor frame (M, 3, 3; None when
+        `rotation_axes` is 0); with `derivatives` also d/d(a small rotation of the target frame about the
+        sensor frame's axes) (M, dim, 3), None when the measurement does not depend on it."""
+        h, dh_dx, dh_direct = self.predict(p, x, derivatives=derivatives)
+        return h, dh_dx, dh_direct, None
+
+    def error(self, predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """The residual of measurements (M, dim): prediction - measurement."""
+        return predicted - measured
+
+    def error_jacobian(self, predicted: np.ndarray, measured: np.ndarray) -> np.ndarray | None:
+        """d(error)/d(prediction) (M, dim, dim), a rotation's by its small rotation (`predict_pose`); None:
+        the identity."""
+        return None
 
     def covariance(self, p: np.ndarray, measured: np.ndarray) -> np.ndarray:
         """The noise model's covariance of each measurement (M, dim, dim)."""
@@ -195,7 +226,8 @@ class Sensor:
 def check_noise(noise: Any, sensor_kind: str, allowed: tuple[str, ...], where: str) -> dict[str, Any]:
     """A checked copy of a noise model (the YAML's `sensors[].noise`); InputError naming `where` and
     the field if it is wrong. isotropic: `sigma` in the measurement's unit; stereo: `pixel`
-    (lateral) and `disparity` noise in px. Any model may set `outliers`, in robust sigmas."""
+    (lateral) and `disparity` noise in px; pose: `position` in the length unit and `rotation_deg` in
+    deg. Any model may set `outliers`, in robust sigmas."""
     if noise is None:
         noise = {}
     if not isinstance(noise, dict):
