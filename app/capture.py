@@ -17,6 +17,7 @@ import math
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -241,11 +242,7 @@ def replay(
                         session_id, index=index, joints_rad=q[k], target=int(t[k]), status=status, reason=reason
                     )
             else:
-                driver.set_target(int(t[k]))
-                if not driver.move_to(out_of_margin(driver, q[k])[0], should_stop=lambda: ctx.cancelled):
-                    raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
-                _settle(driver, ctx, settle_s, settle_timeout_s)
-                frame = capture_frame(store, driver, session_id, index)
+                frame = _capture_at(ctx, store, driver, session_id, q[k], int(t[k]), index, settle_s, settle_timeout_s)
                 index, status, reason = frame.index, frame.status, frame.reason
             counts[status] += 1
             ctx.progress(
@@ -323,11 +320,7 @@ def capture_until(
             if row["action"] != "capture":
                 sequence.measured(False)
                 continue
-            driver.set_target(target)
-            if not driver.move_to(out_of_margin(driver, q)[0], should_stop=lambda: ctx.cancelled):
-                raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
-            _settle(driver, ctx, settle_s, settle_timeout_s)
-            frame = capture_frame(store, driver, session_id)
+            frame = _capture_at(ctx, store, driver, session_id, q, target, None, settle_s, settle_timeout_s)
             sequence.measured(frame.status == FrameStatus.MEASURED)
             counts[frame.status] += 1
             k += 1
@@ -403,7 +396,39 @@ def _tally(counts: Counter[FrameStatus]) -> dict[str, int]:
     return {s.name.lower(): counts[s] for s in (FrameStatus.MEASURED, FrameStatus.NOT_FOUND, FrameStatus.SKIPPED)}
 
 
-def _settle(driver: RobotDriver, ctx: JobContext, settle_s: float, timeout_s: float) -> None:
-    """Until the robot has settled (RobotFault when it does not within timeout_s); Cancelled on cancel."""
-    if not driver.wait_settled(settle_s, timeout_s, should_stop=lambda: ctx.cancelled):
-        raise Cancelled("cancelled")
+def _capture_at(
+    ctx: JobContext,
+    store: Store,
+    driver: RobotDriver,
+    session_id: str,
+    q_rad: np.ndarray,
+    target: int,
+    index: int | None,
+    settle_s: float,
+    settle_timeout_s: float,
+) -> FrameInfo:
+    """Drive to q (out of the safety margin), let the robot settle and keep a frame there. A pause holds at once:
+    the move under way stops where the robot is, a look under way is not kept, and on resume the move is made
+    again; no frame is kept once a pause has been answered. Cancelled on cancel or when the robot is stopped."""
+    goal = out_of_margin(driver, q_rad)[0]
+    while True:
+        ctx.checkpoint()  # held here while paused
+        held = False
+
+        def stop_asked() -> bool:
+            nonlocal held
+            held = held or ctx.paused
+            return ctx.cancelled or held
+
+        driver.set_target(target)
+        if not driver.move_to(goal, should_stop=stop_asked):
+            if ctx.cancelled or not held:
+                raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
+            continue
+        if not driver.wait_settled(settle_s, settle_timeout_s, should_stop=stop_asked):
+            if ctx.cancelled:
+                raise Cancelled("cancelled")
+            continue
+        frame = ctx.unless_paused(partial(save_look, store, driver.profile, session_id, driver.look(), index))
+        if frame is not None:
+            return frame

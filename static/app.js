@@ -10,7 +10,7 @@ import { showDrivable } from "./js/controls.js";
 import { toast } from "./js/dom.js";
 import { wireFrames } from "./js/frames.js";
 import { buildJoints, robotEvents, wireObserve } from "./js/observe.js";
-import { wireReplay } from "./js/replay.js";
+import { followRunning, wireReplay } from "./js/replay.js";
 import { wireReview } from "./js/review.js";
 import { fillRobots, wireRobots } from "./js/robots.js";
 import { showScene, watchServer } from "./js/scene.js";
@@ -37,11 +37,12 @@ async function init() {
   fillRobots();
   wire();
   await loadSessions(undefined, sessions);
-  if (Object.values(state.robots).some((r) => r.drivable)) robotEvents();
+  robotEvents();
   buildJoints();
   showDrivable();
   await refreshActive(active);
-  showTab(state.robots[state.robot].drivable ? "observe" : "review");  // the papers' first step
+  const replaying = await followRunning();  // a reload mid-replay: its controls given back
+  showTab(replaying ? "replay" : state.robots[state.robot].drivable ? "observe" : "review");  // the papers' first step
   watchServer(health.instance);
   document.body.dataset.ready = "1";
   afterPaint(showScene);  // after requests with the token: off loopback, their answers set the cookie the scene needs

@@ -171,3 +171,24 @@ def wait_for_scene(page, timeout_ms: int = 60_000) -> None:
         " && window.__viserTestpoints.rendererInfo.render.triangles > 0",
         timeout=timeout_ms,
     )
+
+
+def job_ended(server: Server, job: str, timeout_s: float = 120.0) -> dict:
+    """The job's last snapshot, read from its server-sent events (woken by each change, no polling)."""
+    import json
+
+    with httpx.stream("GET", f"{server.url}/api/jobs/{job}/events", timeout=timeout_s) as events:
+        for line in events.iter_lines():
+            if line.startswith("data:"):
+                snap = json.loads(line[5:])
+                if snap["state"] not in ("queued", "running"):
+                    return snap
+    raise AssertionError(f"job {job}'s events ended before it did")
+
+
+def calibrated(server: Server, session: str, **request) -> str:
+    """A calibration of the session made through the API (`request`: mode, base, holdout); its id."""
+    job = server.post(f"/api/sessions/{session}/calibrations", json=request).json()["job"]
+    snap = job_ended(server, job)
+    assert snap["state"] == "done", snap
+    return snap["result"]

@@ -124,7 +124,7 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         # 2-D: the measured sphere is a hollow red ring with the prediction's dot showing, not a red disc on top.
         page.click(f"#frames tr[data-frame='{first}']")
         page.wait_for_function(f"document.querySelector('#split-new').dataset.frame === '{first}'")
-        new_id = page.text_content("#apply-what").strip()
+        new_id = page.get_attribute("#apply-what", "data-id")
         server.post("/api/review", json={"session": "robonaut-a-day1", "new": new_id})  # the default viewer's
         marks = server.get(f"/api/review/marks/{first}").json()
         width, height = page.eval_on_selector("#split-new", "c => [c.clientWidth, c.clientHeight]")

@@ -276,30 +276,36 @@ def test_cancel_mid_replay_keeps_the_frames_and_stops_the_robot(store, jobs, nao
     assert all(f.status in ("measured", "not found") for f in frames)
 
 
-def test_pause_holds_the_replay_and_resume_finishes_it(store, jobs, nao, nao_plan) -> None:
+def test_pause_holds_the_replay_at_once_and_resume_finishes_it(store, jobs, nao, nao_plan) -> None:
+    """A pause in the middle of a move stops the robot where it is and keeps no frame after it is answered; resumed,
+    the replay makes that move again and captures every configuration, each at its own pose."""
     q, targets = nao_plan[0][:4], nao_plan[1][:4]
     sid = store.sessions.create("nao", "paused", source="capture")
     clock = ManualClock()
-    with SimulatedDriver(nao, seed=3, time_scale=2.0, clock=clock) as d:
+    with SimulatedDriver(nao, seed=3, time_scale=1.0, clock=clock) as d:  # moves of a few tenths of a second
         job = jobs.submit_thread("replay", lambda ctx: replay(ctx, store, d, sid, q, targets), session_id=sid)
         # Paused once the move to the second configuration is under way (the poller and the job on the clock).
         clock.run(lambda: _done(jobs, job) >= 1 and d.status().moving, threads=2)
         jobs.pause(job)
-        # The frame under way finishes (its progress reported, the job then holds at its next checkpoint) ...
-        clock.run(lambda: _done(jobs, job) >= 2, threads=2)
         held = len(store.sessions.frames(sid))
+        # The robot stops at once, short of the second configuration ...
+        clock.run(lambda: not d.status().moving, threads=2, limit_s=0.2)
         pose = d.true_joints_rad()
+        assert np.abs(pose - out_of_margin(d, q[1])[0]).max() > math.radians(1.0)
         # ... then nothing moves and nothing is captured while paused, however long.
         until = clock.now() + 5.0
         clock.run(lambda: clock.now() >= until, threads=1, step_s=0.5)
-        assert len(store.sessions.frames(sid)) == held == 2 < len(q)
+        assert len(store.sessions.frames(sid)) == held == 1 == _done(jobs, job)
         assert np.array_equal(d.true_joints_rad(), pose)
         assert jobs.get(job).state == JobState.RUNNING and jobs.get(job).paused
         jobs.resume(job)
         clock.run(lambda: jobs.get(job).state.finished, threads=2)
         snap = wait(jobs, job)
     assert snap.state == JobState.DONE
-    assert [f.index for f in store.sessions.frames(sid)] == [1, 2, 3, 4]
+    frames = store.sessions.frames(sid)
+    assert [f.index for f in frames] == [1, 2, 3, 4]
+    for f, qk in zip(frames, q, strict=True):  # each frame at its own configuration (the readings' 0.1 deg)
+        assert np.abs(f.joints_rad - out_of_margin(d, qk)[0]).max() < math.radians(0.2)
 
 
 def test_remeasure_replaces_frames_in_place_and_keeps_skipped_ones(store, jobs, nao, nao_plan, nao_driver) -> None:

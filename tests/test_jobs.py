@@ -374,6 +374,28 @@ def test_a_thread_job_reports_pauses_resumes_and_cancels(jobs: JobRunner, clock:
     assert all(j.session == "nao" for j in jobs.list(session_id="nao"))
 
 
+def test_a_step_unless_paused_is_not_run_once_a_pause_is_answered(jobs: JobRunner, clock: ManualClock) -> None:
+    """What a job keeps through unless_paused (a replay's frame) never comes after a pause was answered; resumed,
+    the next step runs."""
+    go = threading.Event()
+    got: list[str | None] = []
+
+    def work(ctx: JobContext) -> None:
+        go.wait()
+        got.append(ctx.unless_paused(lambda: "kept while paused"))
+        ctx.checkpoint()
+        got.append(ctx.unless_paused(lambda: "kept after the resume"))
+
+    job_id = jobs.submit_thread("replay", work, session_id=None)
+    jobs.pause(job_id)
+    go.set()
+    clock.until_thread_waits(f"job-{job_id}")  # held at its checkpoint
+    assert got == [None]
+    jobs.resume(job_id)
+    assert wait(jobs, job_id).state == JobState.DONE
+    assert got == [None, "kept after the resume"]
+
+
 def test_thread_job_results_and_failures(jobs: JobRunner) -> None:
     def bad_input(ctx: JobContext) -> None:
         raise InputError("shoulder_pitch 101.0 deg is beyond its upper limit 95.0 deg")

@@ -18,13 +18,17 @@ import numpy as np
 import pytest
 
 from calib_core import SimulatedRobot, calibrate, load_profile, plan, predict_accuracy
+from calib_core.errors import Cancelled
+from calib_core.estimation import planning
 from calib_core.estimation.planning import (
     JOINT_MARGIN_DEG,
     Selection,
+    SequentialPlan,
     candidates,
     design,
     plan_margins,
     within_margin,
+    workspace,
 )
 from calib_core.vision.visibility import MIN_SPHERE_SHARE, Visibility
 
@@ -186,3 +190,17 @@ def test_cli_plan_writes_the_configurations(tmp_path) -> None:
     )
     assert bad.returncode == 2 and "unknown mode 'weekly'" in bad.stderr and "Traceback" not in bad.stderr
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_a_stop_is_heard_while_a_plan_draws_before_any_design(rn, monkeypatch) -> None:
+    """Esc while a capture-until plan starts (its candidates, its workspace) ends it there, before the linearised
+    calibration is built: SequentialPlan and workspace() ask should_stop as plan() does."""
+
+    def no_design(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the design was built after the stop")
+
+    monkeypatch.setattr(planning, "design", no_design)
+    with pytest.raises(Cancelled):
+        SequentialPlan(rn, "full", should_stop=lambda: True)
+    with pytest.raises(Cancelled):
+        workspace(rn, rn.nominal(), should_stop=lambda: True)

@@ -18,10 +18,10 @@ import queue
 import secrets
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from calib_core import InputError
 from calib_core.errors import Cancelled
@@ -43,6 +43,7 @@ PROGRESS_CAP = 0.95  # an iterative job's end is unknown until it comes: its est
 SHUTDOWN_GRACE_S = 3.0  # at most this long for cancelled jobs to end at shutdown before their workers are killed
 KILLED_ON_CANCEL = "cancelled"  # a kill's reason when the worker ignored a cancel: the job ends cancelled
 
+T = TypeVar("T")
 Prepare = Callable[["JobContext"], Any]  # builds a process job's payload, in the server
 Finish = Callable[[Any, "JobContext"], str | None]  # turns a process job's value into its result, in the server
 
@@ -72,9 +73,22 @@ class JobContext:
         """Blocks while the job is paused; raises Cancelled once it is cancelled."""
         self._runner._checkpoint(self._job)
 
+    def unless_paused(self, fn: Callable[[], T]) -> T | None:
+        """fn() unless the job is paused or cancelled (None then): a pause answered before it comes finds fn not
+        run, and one asked while fn runs is answered once it has (what a replay keeps, its frames, never
+        comes after the pause)."""
+        with self._job.hold:
+            if self._job.snap.paused or self._job.cancel_requested:
+                return None
+            return fn()
+
     @property
     def cancelled(self) -> bool:
         return self._job.cancel_requested
+
+    @property
+    def paused(self) -> bool:
+        return self._job.snap.paused
 
 
 @dataclass
@@ -91,6 +105,7 @@ class _Job:
     pid: int | None = None
     kill_reason: str | None = None  # set when the runner kills the worker on purpose
     timer: Timer | None = None  # the running process job's time limit (or cancel grace)
+    hold: threading.Lock = field(default_factory=threading.Lock)  # a pause waits for a step unless_paused runs
 
 
 class JobRunner:
@@ -379,7 +394,7 @@ class JobRunner:
             raise InputError(f"a {kind} job runs in a worker process and cannot be paused; cancel it")
         if not job.pausable:
             raise InputError(f"a {kind} job cannot be paused; cancel it")
-        with self._changed:
+        with job.hold, self._changed:
             if job.snap.state.finished or job.snap.paused == paused:
                 return
             job.snap.paused = paused

@@ -143,5 +143,5 @@ def robot_state(connection: Connection, robot: str | None) -> RobotState:
         target=profile.targets[st.target].name,
         calibration=st.calibration_id,
         message=st.message,
-        observing=connection.observing(),
+        observing=connection.observing(name),
     )

@@ -3,10 +3,13 @@ the live view of one of its sessions, shown to the viewers watching it.
 
 Connecting another robot ends Observe. A viewer that loads a review of another robot stops watching, and the
 live view ends when nobody watches it any more. A new viewer shows the connected robot, or the desk's first.
+Requests come on several threads at once (two tabs): what changes the connected robot or Observe is done under
+one lock, so an Observe started meanwhile is either running or not yet made, never half made.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -29,6 +32,7 @@ class Connection:
         self.scrub = scrub
         self.connected = connected
         self._observer: Observer | None = None
+        self._changing = threading.RLock()  # connect, Observe on and off: one at a time (observe connects)
 
     def stop(self) -> None:
         self.observe(None)
@@ -50,10 +54,11 @@ class Connection:
         """Connect the desk to a drivable robot; the viewer (None: the default one) shows it, closing its review
         of another robot."""
         self.robots.driver(robot)  # named exactly: robot_name would take "" for the connected one
-        if robot != self.connected:
-            self.observe(None)
-            self.connected = robot
-        (viewer or self.viewers.default).show_robot(self.shown(robot))
+        with self._changing:
+            if robot != self.connected:
+                self.observe(None)
+                self.connected = robot
+            (viewer or self.viewers.default).show_robot(self.shown(robot))
 
     def shown(self, robot: str) -> Shown:
         r = self.robots.get(robot)
@@ -67,48 +72,56 @@ class Connection:
     # --- robots coming and going -------------------------------------------------------------------
     def added(self, robot: Robot) -> None:
         """A robot added to the running desk: the first drivable one is connected."""
-        if self.connected is None and robot.drivable:
-            self.connected = robot.name
+        with self._changing:
+            if self.connected is None and robot.drivable:
+                self.connected = robot.name
 
     def release(self, robot: str) -> None:
         """Observe of `robot` ends (its driver is about to close)."""
-        observer = self._observer
-        if observer is not None and observer.robot == robot:
-            self.observe(None)
+        with self._changing:
+            observer = self._observer
+            if observer is not None and observer.robot == robot:
+                self.observe(None)
 
     def removed(self, name: str) -> None:
         """A robot taken off the desk: the desk connects to the next drivable one, and the viewers showing it show
         what a new viewer would."""
-        if self.connected == name:
-            self.connected = next((r.name for r in self.robots.all() if r.drivable), None)
-        self.viewers.replace_robot(name, self.shown_first())
+        with self._changing:
+            if self.connected == name:
+                self.connected = next((r.name for r in self.robots.all() if r.drivable), None)
+            self.viewers.replace_robot(name, self.shown_first())
 
     # --- Observe ------------------------------------------------------------------------------------
     def observe(self, session_id: str | None, *, autocapture: bool = False, viewer: Viewer | None = None) -> None:
         """Observe a session's robot, its live view shown to the viewer (None: the default one) and to those
         already watching that robot; None: stop observing (every viewer watching goes back to its review)."""
-        if self._observer is not None:
-            self._observer.stop()
-            self._observer = None
-        if session_id is None:
-            self.viewers.unwatch_all()
-            return
-        viewer = viewer or self.viewers.default
-        self.connect(self.store.sessions.get(session_id).robot, viewer)  # another robot: the watchers stop
-        self.viewers.watch(viewer, True)
-        self._observer = Observer(self.store, self.robots, self.viewers, session_id, autocapture, self.scrub)
-        self._observer.start()
+        with self._changing:
+            if self._observer is not None:
+                self._observer.stop()
+                self._observer = None
+            if session_id is None:
+                self.viewers.unwatch_all()
+                return
+            viewer = viewer or self.viewers.default
+            self.connect(self.store.sessions.get(session_id).robot, viewer)  # another robot: the watchers stop
+            self.viewers.watch(viewer, True)
+            observer = Observer(self.store, self.robots, self.viewers, session_id, autocapture, self.scrub)
+            observer.start()
+            self._observer = observer
 
-    def observing(self) -> dict[str, Any] | None:
-        """What Observe sees now (None: not observing)."""
+    def observing(self, robot: str | None = None) -> dict[str, Any] | None:
+        """What Observe sees now (None: not observing, or observing another robot than `robot` when given)."""
         observer = self._observer
-        return None if observer is None else observer.snapshot()
+        if observer is None or (robot is not None and observer.robot != robot):
+            return None
+        return observer.snapshot()
 
     def reviewing(self, viewer: Viewer, robot: str) -> None:
         """The viewer loads a review of `robot`: watching another robot live, it stops; the live view ends when
         nobody watches it any more."""
-        observer = self._observer
-        if observer is not None and observer.robot != robot:
-            self.viewers.watch(viewer, False)
-            if not self.viewers.watched():
-                self.observe(None)
+        with self._changing:
+            observer = self._observer
+            if observer is not None and observer.robot != robot:
+                self.viewers.watch(viewer, False)
+                if not self.viewers.watched():
+                    self.observe(None)

@@ -251,6 +251,7 @@ class ReplayService:
                 q_done=np.array([f.joints_rad for f in done]).reshape(-1, len(profile.joints)),
                 targets_done=np.array([f.target for f in done], int),
                 admissible=lambda q: _within_limits(driver, q),
+                should_stop=lambda: ctx.cancelled,
             )
             ctx.checkpoint()
             return capture_until(ctx, self.store, driver, session_id, sequence, plan.until, believed)

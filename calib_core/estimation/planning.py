@@ -341,11 +341,14 @@ def candidates(
     return q[keep], targets[keep]
 
 
-def workspace(profile: Profile, p_base: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def workspace(
+    profile: Profile, p_base: np.ndarray, seed: int = 0, should_stop: Callable[[], bool] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Where the predicted error is averaged: WORKSPACE configurations the sensor sees with the base model,
     VIEW_MARGIN_PX clear of the border and a stereo head's sphere not hidden by the arm (what a held-out
-    check draws), not the plan's candidates, which keep a stereo head's wider margins."""
-    return candidates(profile, p_base, seed=seed + 1, count=WORKSPACE)
+    check draws), not the plan's candidates, which keep a stereo head's wider margins. `should_stop`: as
+    candidates() asks it."""
+    return candidates(profile, p_base, seed=seed + 1, count=WORKSPACE, should_stop=should_stop)
 
 
 def _stances(profile: Profile) -> bool:
@@ -691,7 +694,7 @@ def plan(
     q, targets = pool
     if n > len(q):
         raise InputError(f"only {len(q)} candidate configurations are predicted visible: ask for at most {len(q)}")
-    ws = workspace(profile, p, seed)
+    ws = workspace(profile, p, seed, should_stop)
     pace("drawing")
     d = design(profile, mode, p, q, targets, workspace=ws, isotropic=isotropic, seed=seed)
     pace("drawing", 1)
@@ -798,13 +801,25 @@ class SequentialPlan:
         q_done: np.ndarray | None = None,
         targets_done: np.ndarray | None = None,
         admissible: Callable[[np.ndarray], bool] | None = None,
+        should_stop: Callable[[], bool] | None = None,
     ) -> None:
-        """`admissible`: a further check of a configuration (rad) before it is proposed (a driver's limits)."""
+        """`admissible`: a further check of a configuration (rad) before it is proposed (a driver's limits);
+        `should_stop`: asked while drawing and before the linearised calibration (Cancelled once it says yes),
+        so that a cancel while the plan starts is heard within a fraction of a second."""
         p = profile.nominal() if p_base is None else p_base
+        pace = _Pace(None, should_stop, [])
         q, targets = candidates(
-            profile, p, seed=seed, margin_deg=margin_deg, occlusion=False, view_margin_px=plan_margins(profile)[0]
+            profile,
+            p,
+            seed=seed,
+            margin_deg=margin_deg,
+            occlusion=False,
+            view_margin_px=plan_margins(profile)[0],
+            should_stop=should_stop,
         )
-        self.design = design(profile, mode, p, q, targets, workspace=workspace(profile, p, seed), seed=seed)
+        ws = workspace(profile, p, seed, should_stop)
+        pace("drawing")
+        self.design = design(profile, mode, p, q, targets, workspace=ws, seed=seed)
         visible = CandidateView(profile, p, q, targets)
         self.rejected: set[int] = set()
 

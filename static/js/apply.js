@@ -2,14 +2,18 @@
 // header's active calibration.
 
 import { api } from "./api.js";
+import { calibrationName } from "./calibrate.js";
 import { $, act, el, fmt, toast } from "./dom.js";
 import { state } from "./state.js";
 
 let applying = false;  // an apply of this page is in flight
 
+// What Apply applies is the calibration under review, named as the Review shows it (its id in data-id).
 export function renderApply() {
   const id = state.newCal;
-  $("#apply-what").textContent = id ? `${id}` : "— (run or pick a calibration)";
+  const c = state.calibrations.find((x) => x.id === id);
+  $("#apply-what").textContent = id ? `${id}${c ? ` (${calibrationName(c)})` : ""}` : "— (run or pick a calibration)";
+  $("#apply-what").dataset.id = id || "";
   $("#apply").disabled = !id;
   for (const f of ["json", "yaml", "urdf"]) {
     const a = $(`#export-${f}`);

@@ -8,9 +8,10 @@ import { loadReview, unit } from "./review.js";
 import { state } from "./state.js";
 import { showTab } from "./tabs.js";
 
-// The session's calibrations, newest first: in this step's list and start-from choice, and the Review's choices.
+// The session's calibrations, newest first as the API lists them: in this step's list and start-from choice, and
+// the Review's choices.
 export async function loadCalibrations() {
-  state.calibrations = (await api("GET", `/sessions/${state.session.id}/calibrations`)).reverse();
+  state.calibrations = await api("GET", `/sessions/${state.session.id}/calibrations`);
   const base = $("#base");
   base.replaceChildren(el("option", { value: "" }, "nominal model"), el("option", { value: "active" }, "robot's active calibration"));
   const oldSel = $("#review-old");
@@ -21,11 +22,14 @@ export async function loadCalibrations() {
   ul.replaceChildren();
   for (const c of state.calibrations) {
     const after = c.figures && c.figures.after ? `${fmt(c.figures.after.mean)} ${unit()}` : "";
-    const label = `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)} · ${after}`;
+    const label = `${calibrationName(c)} · ${after}`;
     for (const s of [base, oldSel, newSel]) s.append(el("option", { value: c.id }, label));
     ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => loadReview("active", c.id)) }, label));
   }
 }
+
+// A calibration as the page names it: its mode and when it was made.
+export const calibrationName = (c) => `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)}`;
 
 async function startCalibration() {
   if (!state.session) throw new Error("select a session first");

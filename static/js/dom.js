@@ -45,3 +45,16 @@ export async function act(fn) {
     return null;
   }
 }
+
+// A form's own check before it is sent. The forms are `novalidate`: the browser's check of a control inside a
+// closed <details> cannot show where it is and only logs "An invalid form control ... is not focusable". Here
+// its <details> opens, the first invalid control takes the focus, and the toast names it.
+export function checkForm(form) {
+  const bad = form.querySelector(":invalid");
+  if (!bad) return;
+  const details = form.closest("details");
+  if (details) details.open = true;
+  bad.focus();
+  const label = bad.closest("label");
+  throw new Error(`${label ? label.firstChild.textContent.trim() : bad.name}: ${bad.validationMessage}`);
+}

@@ -36,7 +36,7 @@ async function moveToSliders() {
   for (const s of document.querySelectorAll("input[data-joint]")) if (!s.disabled) joints[s.dataset.joint] = +s.value;
   driving = { since: Infinity };  // the sliders show the target, not the readings, until the robot stops
   try {
-    await api("POST", "/robot/move", { joints });
+    await api("POST", "/robot/move", { joints, robot: state.robot });
     driving = { since: performance.now() };
   } catch (err) {
     driving = null;
@@ -55,10 +55,17 @@ function slidersToReadings(all = false) {
   }
 }
 
-// The connected robot's state, streamed while the desk has a robot to drive.
+// This tab's robot's state, streamed while it has a driver (another tab's robot has its own stream there);
+// opened again for the robot the tab turns to. The page's pill, readings and motion controls follow it.
+let stream = null;
 export function robotEvents() {
-  state.events = true;
-  const es = new EventSource("/api/robot/events");
+  if (stream) stream.close();
+  stream = null;
+  state.moving = false;
+  if (!state.robots[state.robot].drivable) return;
+  const robot = state.robot;
+  const es = new EventSource(`/api/robot/events?robot=${encodeURIComponent(robot)}`);
+  stream = es;
   es.onmessage = (ev) => {
     const r = JSON.parse(ev.data);
     if (r.robot !== state.robot) return;
@@ -83,9 +90,10 @@ export function robotEvents() {
     setText($("#observe-state"), o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "");
   };
   es.onerror = () => {
-    $("#robot-state").textContent = "server unreachable";
     es.close();
-    setTimeout(robotEvents, 2000);
+    if (stream !== es) return;  // the tab turned to another robot meanwhile
+    $("#robot-state").textContent = "server unreachable";
+    setTimeout(() => stream === es && robotEvents(), 2000);
   };
 }
 
@@ -114,5 +122,5 @@ export function wireObserve() {
   $("#capture").addEventListener("click", () => act(captureNow));
   $("#observe-on").addEventListener("change", () => act(setObserve));
   $("#autocapture").addEventListener("change", () => act(setObserve));
-  $("#wander").addEventListener("change", () => act(() => api("POST", "/robot/wander", { on: $("#wander").checked })));
+  $("#wander").addEventListener("change", () => act(() => api("POST", "/robot/wander", { on: $("#wander").checked, robot: state.robot })));
 }

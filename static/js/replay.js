@@ -49,14 +49,19 @@ async function replay(dry) {
     showDryRun(r.job ? await followDryRun(r.job) : r);
     return;
   }
-  replayJob = r.job;
   replaySeed = null;
-  const sid = state.session.id;
+  await followReplay(r.job, state.session.id);
+}
+
+// A replay job followed to its end (one this page started, or found running when it loaded): its progress, its
+// controls, each frame joining the list as it is captured, and the 3-D robot live meanwhile.
+async function followReplay(jobId, sid) {
+  replayJob = jobId;
   const watching = () => $("#observe-on").checked || $("#autocapture").checked;
   // The 3-D robot follows the robot while the replay drives it (the live view), whether or not "Watch live" is on.
   if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: true, autocapture: false }));
   let done = 0;
-  await follow(r.job, (j) => {
+  await follow(jobId, (j) => {
     $("#replay-progress").value = j.progress;
     replayControls(j);
     const d = j.detail || {};
@@ -71,7 +76,22 @@ async function replay(dry) {
   });
   replayControls(null);
   if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: false }));
-  await loadSessions(state.session.id);
+  if (state.session && state.session.id === sid) await loadSessions(sid);
+}
+
+// A page that loads (a reload mid-replay) finds the replay or dry run of its robot still running: its session
+// opened, its controls given back and followed to its end. Whether it found one.
+export async function followRunning() {
+  const robotOf = (j) => (j.detail && j.detail.robot) || (state.sessions.find((s) => s.id === j.session) || {}).robot;
+  const jobs = await api("GET", "/jobs");
+  const job = jobs.find((j) => ["replay", "dry_run"].includes(j.kind) && ["queued", "running"].includes(j.state) &&
+    robotOf(j) === state.robot);
+  if (!job) return false;
+  if (job.session && (!state.session || state.session.id !== job.session)) await loadSessions(job.session);
+  replayControls(job);
+  if (job.kind === "dry_run") act(async () => showDryRun(await followDryRun(job.id)));
+  else act(() => followReplay(job.id, job.session));
+  return true;
 }
 
 // A dry run's job: its progress (planning, checking, predicting) in the Replay step; Abort or Esc cancels it.

@@ -2,7 +2,7 @@
 
 import { api } from "./api.js";
 import { showDrivable } from "./controls.js";
-import { $, act, el, toast } from "./dom.js";
+import { $, act, checkForm, el, toast } from "./dom.js";
 import { refreshActive } from "./apply.js";
 import { buildJoints, robotEvents } from "./observe.js";
 import { fillReplaySources } from "./replay.js";
@@ -27,6 +27,7 @@ export async function connect(robot) {
   if (state.session && state.session.robot !== robot) closeSession();
   fillReplaySources();
   buildJoints();
+  robotEvents();
   showDrivable();
   await refreshActive();
 }
@@ -35,6 +36,7 @@ export async function connect(robot) {
 // that URDF's meshes) or a built-in profile's name (another NAO), and a driver or none (real data only).
 async function addRobot(e) {
   e.preventDefault();
+  checkForm(e.target);
   const form = new FormData(e.target);
   for (const key of ["profile_file", "urdf_file", "meshes_zip"]) if (!form.get(key) || !form.get(key).size) form.delete(key);
   for (const key of ["profile", "driver"]) if (!form.get(key)) form.delete(key);
@@ -44,7 +46,6 @@ async function addRobot(e) {
   e.target.reset();
   $("#robot-select").value = robot.name;
   await connect(robot.name);
-  if (robot.drivable && !state.events) robotEvents();
   toast(`Robot ${robot.name} (${robot.model}) is on the desk.`, "info");
 }
 

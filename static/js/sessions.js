@@ -4,7 +4,7 @@ import { api } from "./api.js";
 import { renderApply } from "./apply.js";
 import { loadCalibrations } from "./calibrate.js";
 import { jobControls } from "./controls.js";
-import { $, act, el, toast } from "./dom.js";
+import { $, act, checkForm, el, toast } from "./dom.js";
 import { fillReplaySources, setUntilUnit } from "./replay.js";
 import { loadReview } from "./review.js";
 import { connect } from "./robots.js";
@@ -60,6 +60,7 @@ export function closeSession() {
 
 async function newSession(e) {
   e.preventDefault();
+  checkForm(e.target);
   const name = new FormData(e.target).get("name");
   const { id } = await api("POST", "/sessions", { robot: state.robot, name });
   e.target.reset();
@@ -69,6 +70,7 @@ async function newSession(e) {
 
 async function importSession(e) {
   e.preventDefault();
+  checkForm(e.target);
   const form = new FormData(e.target);
   form.append("robot", state.robot);
   const { id, notes } = await api("POST", "/sessions/import", form);

@@ -15,7 +15,6 @@ export const state = {
   job: null,           // {id, live} of the calibration whose progress is shown
   replaySnap: null,    // the last snapshot of the replay or dry run job shown (null: none running)
   sort: { key: "err_new", dir: -1 },
-  events: false,       // the robot's state is streamed (robotEvents)
   moving: false,       // the robot moves (its last streamed state)
   capturing: false,    // a capture of this page is in flight
 };

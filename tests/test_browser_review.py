@@ -1,0 +1,215 @@
+"""The operator's review without surprises (issue 25's first items), in a real headless Chromium: the review opens
+on the session's newest calibration and Apply applies the one on screen; each tab follows its own robot; a reload
+mid-replay gives back its controls; pause holds at once; noise is not coloured as change; no stale figures.
+
+Set CALIB_SCREENSHOTS=/some/folder to keep a screenshot of each.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from browser import calibrated, new_nao_session, ready_page, served
+
+pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
+SHOTS = os.environ.get("CALIB_SCREENSHOTS")
+
+
+def shot(page, name: str) -> None:
+    if SHOTS:
+        Path(SHOTS).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(SHOTS) / f"{name}.png"))
+
+
+def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_screen(chromium, tmp_path) -> None:
+    with served(tmp_path / "data") as server:
+        older = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.0)
+        newer = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.3)
+        listed = [c["id"] for c in server.get("/api/sessions/robonaut-a-day1/calibrations").json()]
+        assert listed == [newer, older]  # the API: newest first
+
+        page = ready_page(chromium, server.url)
+        page.on("dialog", lambda d: d.accept())
+        page.click("li[data-session='robonaut-a-day1']")
+        page.wait_for_function("document.querySelector('#review-new').value !== ''")
+        assert page.input_value("#review-new") == newer
+        assert page.eval_on_selector_all("#calibrations li", "ls => ls.map(l => l.dataset.calibration)") == listed
+        page.click("#tabs button[data-tab='apply']")
+        shown = page.get_attribute("#apply-what", "data-id")
+        assert shown == newer and newer in page.text_content("#apply-what")
+        shot(page, "review-1-newest")
+        page.click("#apply")
+        page.wait_for_function("id => document.querySelector('#active-cal').dataset.id === id", arg=shown)
+        assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == shown
+
+
+def _far_move(server, robot: str, share: float = 0.6) -> dict[str, float]:
+    """Every joint `share` of the way to its farther limit less the margin: seconds of motion."""
+    info = {r["name"]: r for r in server.get("/api/robots").json()}[robot]
+    now = server.get("/api/robot", params={"robot": robot}).json()["joints"]
+    goal = {}
+    for j in info["joints"]:
+        lo, hi = j["lower_deg"] + info["margin_deg"], j["upper_deg"] - info["margin_deg"]
+        far = hi if hi - now[j["name"]] > now[j["name"]] - lo else lo
+        goal[j["name"]] = round(now[j["name"]] + share * (far - now[j["name"]]), 1)
+    return goal
+
+
+def test_each_tab_follows_its_own_robot(chromium, tmp_path) -> None:
+    """Tab A drives NAO, tab B then connects Robonaut (the desk's last connected robot): NAO moved meanwhile shows
+    moving in tab A, with its capture disabled until it stands still again; tab B says Robonaut is still."""
+    with served(tmp_path / "data") as server:
+        a, _ = new_nao_session(chromium, server.url, "tab A")
+        b = ready_page(chromium, server.url)
+        b.select_option("#robot-select", "robonaut-a")
+        b.wait_for_function("document.querySelector('#robot-state').textContent === 'robonaut-a: still'")
+        assert server.get("/api/robot").json()["robot"] == "robonaut-a"
+        a.wait_for_selector("#capture:enabled")
+
+        moved = server.post("/api/robot/move", json={"robot": "nao", "joints": _far_move(server, "nao")})
+        assert moved.status_code == 202, moved.text
+        a.wait_for_function(
+            "document.querySelector('#robot-state').textContent === 'nao: moving'", polling=50, timeout=10_000
+        )
+        assert a.is_disabled("#capture")
+        shot(a, "review-2-tab-a-moving")
+        assert b.text_content("#robot-state") == "robonaut-a: still"
+        a.wait_for_function(
+            "document.querySelector('#robot-state').textContent === 'nao: still'", polling=50, timeout=30_000
+        )
+        a.wait_for_selector("#capture:enabled")
+
+        # Tab A's slider moves its own robot, not the desk's last connected one.
+        before = server.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"]
+        goal = _far_move(server, "nao", 0.5)
+        a.evaluate(
+            "goal => { for (const [s, v] of Object.entries(goal)) document.querySelector(`input[data-joint='${s}']`)"
+            ".value = v; document.querySelector('input[data-joint]').dispatchEvent(new Event('change')); }",
+            goal,
+        )
+        # Tab A is in the background (no animation frames): polled on a timer. Its readings arrive at the goal.
+        a.wait_for_function(
+            "goal => Object.entries(goal).every(([n, g]) => Math.abs("
+            "parseFloat(document.querySelector(`[data-reading='${n}']`).textContent) - g) <= 0.3)",
+            arg=goal,
+            polling=100,
+            timeout=30_000,
+        )
+        assert server.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"] == before
+
+
+def test_a_reload_mid_replay_gives_back_its_controls(chromium, tmp_path) -> None:
+    """A replay started on the page, then the page reloaded: it comes back on the replay's session and step, with
+    Pause, Resume and Abort acting on the running job and Start disabled; aborted, Start is offered again."""
+    with served(tmp_path / "data") as server:
+        page, sid = new_nao_session(chromium, server.url, "reloaded")
+        page.click("#tabs button[data-tab='replay']")
+        page.check("input[name=replay-source][value=count]")
+        page.fill("#replay-count", "40")  # minutes of motion: still running after the reload
+        page.click("#replay-start")
+        page.wait_for_selector("#replay-pause:enabled", timeout=30_000)
+        (job,) = [j for j in server.get("/api/jobs").json() if j["kind"] == "replay" and j["state"] == "running"]
+
+        page.reload()
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        page.wait_for_selector("#replay-pause:enabled", timeout=10_000)
+        assert page.get_attribute("#sessions li.selected", "data-session") == sid
+        assert page.is_visible("#tab-replay")
+        assert page.is_disabled("#replay-start") and page.is_disabled("#replay-resume")
+        assert page.is_enabled("#replay-abort")
+        shot(page, "review-3-reloaded-mid-replay")
+
+        # Pause holds at once: once the page says paused the robot stands still and no frame comes after it.
+        page.wait_for_function("document.querySelector('#replay-state').textContent.includes('frame ')", timeout=60_000)
+        page.click("#replay-pause")
+        page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('paused')")
+        held = len(server.get(f"/api/sessions/{sid}").json()["frames"])
+        assert server.get(f"/api/jobs/{job['id']}").json()["paused"] is True
+        page.wait_for_function(
+            "document.querySelector('#robot-state').textContent === 'nao: still'", polling=50, timeout=5_000
+        )
+        assert len(server.get(f"/api/sessions/{sid}").json()["frames"]) == held
+        assert server.get(f"/api/jobs/{job['id']}").json()["detail"]["done"] == held
+        page.click("#replay-resume")
+        page.wait_for_selector("#replay-pause:enabled")
+        assert server.get(f"/api/jobs/{job['id']}").json()["paused"] is False
+        page.wait_for_function(  # resumed: the next frame joins the session
+            "n => document.querySelector('#sessions li.selected small').textContent.includes(`/${n} frames`)",
+            arg=held + 1,
+            timeout=60_000,
+        )
+        page.click("#replay-abort")
+        page.wait_for_function("document.querySelector('#replay-state').textContent.startsWith('cancelled')")
+        assert server.get(f"/api/jobs/{job['id']}").json()["state"] == "cancelled"
+        page.wait_for_selector("#replay-start:enabled")
+
+
+# What random clicks pick from: every control an operator can click, in both tabs.
+CLICKABLE = (
+    "#tabs button",
+    "#sessions li",
+    "#calibrations li",
+    "#frames tr[data-frame]",
+    "#frames th",
+    "summary",
+    "#tab-observe input[type=checkbox]",
+    "input[name=replay-source]",
+    "section.tab:not([hidden]) button",
+    "#scrub button",
+    "#scrub input[type=checkbox]",
+    "#split-tools button",
+    "details[open] form button[type=submit]",
+    "#history button",
+)
+SELECTS = ("#robot-select", "#review-old", "#review-new", "#mode", "#base", "#magnify")
+
+
+def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_path) -> None:
+    """Seeded random clicks and choices in two tabs for about 25 s (robot changes while Observe runs, forms sent
+    empty, replays started and stopped): no uncaught error in either page, no console error but the 4xx answers
+    the page says in its toast, and no answer of the server 5xx."""
+    import random
+    import time
+
+    rng = random.Random(25)
+    problems: list[str] = []
+    with served(tmp_path / "data", sim_speed=10.0) as server:
+        tabs = [ready_page(chromium, server.url) for _ in range(2)]
+        for k, page in enumerate(tabs):
+            page.on("pageerror", lambda e, k=k: problems.append(f"tab {k}: page error {e}"))
+            page.on(
+                "console",
+                lambda m, k=k: (
+                    m.type == "error"
+                    and "the server responded with a status of 4" not in m.text
+                    and problems.append(f"tab {k}: console {m.text}")
+                ),
+            )
+            page.on("response", lambda r, k=k: r.status >= 500 and problems.append(f"tab {k}: {r.status} {r.url}"))
+            page.on("dialog", lambda d: d.dismiss())
+        end = time.monotonic() + 25.0
+        actions = 0
+        while time.monotonic() < end:
+            page = rng.choice(tabs)
+            if rng.random() < 0.2:
+                sel = rng.choice(SELECTS)
+                options = page.eval_on_selector_all(f"{sel}:enabled option", "os => os.map(o => o.value)")
+                if options and page.is_visible(sel):
+                    page.select_option(sel, rng.choice(options), timeout=2_000)
+                    actions += 1
+                continue
+            found = page.locator(", ".join(CLICKABLE))
+            visible = found.evaluate_all("es => es.flatMap((e, i) => e.checkVisibility() && !e.disabled ? [i] : [])")
+            try:
+                found.nth(rng.choice(visible)).click(timeout=5_000)
+                actions += 1
+            except Exception as exc:  # disabled or gone meanwhile: the next click
+                if "Timeout" not in type(exc).__name__:
+                    raise
+        shot(tabs[0], "review-15-random-clicks")
+        for page in tabs:  # the requests still under way answer too
+            page.wait_for_timeout(500)
+    assert problems == [], problems
+    assert actions >= 1, actions  # clicks that landed: 45 in 25 s at load 2, 3 at load 13 (two software 3-D views)
