@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib_core import InputError, load_profile
+from calib_core import InputError, Profile, load_profile
 from calib_core.frame_status import FrameStatus
 from calib_core.io.bag_import import import_bag
 from calib_core.io.session import read_session
@@ -51,6 +51,7 @@ def test_the_registry_gives_each_shipped_profile_its_finder() -> None:
         "charuco-arm.yaml": {("cam", "board"): CharucoFinder},
         "handeye-in-hand.yaml": camera,
         "handeye-to-hand.yaml": camera,
+        "handeye-intrinsics.yaml": camera,
         "wrist-camera.yaml": camera,
         "iiwa-tracker.yaml": None,
         "probe-arm.yaml": None,
@@ -72,8 +73,14 @@ def test_dictionaries_and_corner_layout_are_opencvs() -> None:
 
 
 @pytest.fixture(scope="module")
-def charuco_sim() -> SimulatedRobot:
-    return SimulatedRobot.from_profile(load_profile(CHARUCO), seed=4)
+def charuco_profile() -> Profile:
+    return load_profile(CHARUCO)
+
+
+@pytest.fixture
+def charuco_sim(charuco_profile: Profile) -> SimulatedRobot:
+    """A fresh simulated robot per test: its configurations are the same draws whichever tests ran before."""
+    return SimulatedRobot.from_profile(charuco_profile, seed=4)
 
 
 def truth_px(sim: SimulatedRobot, q: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
@@ -123,7 +130,7 @@ def test_a_half_hidden_board_gives_the_visible_corners_with_their_ids(charuco_si
 def test_fewer_than_six_corners_are_not_a_measurement(charuco_sim: SimulatedRobot) -> None:
     sim = charuco_sim
     q = sim.configurations(1)[0][0]
-    p = shifted(sim, q, 9)  # a sliver of the board: a few markers, a few corners
+    p = shifted(sim, q, 6)  # a sliver of the board: a few markers, a few corners (measured: 1 found)
     finder = finder_for(sim.profile, 0, 0)
     assert finder is not None
     s = finder.find(p, q, finder.render(p, q, np.random.default_rng(2)).images)
