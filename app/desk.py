@@ -99,8 +99,8 @@ class Desk:
     def stop(self) -> None:
         self.connection.stop()
         self.viewers.stop()
+        self.jobs.shutdown()  # first: a replay ends cancelled, not failed by its driver closing under it
         self.robots.close()
-        self.jobs.shutdown()
         self.viser.stop()
 
     @property
