@@ -160,6 +160,9 @@ class CharucoFinder(BoardFinder):
         # Refined on the board as the sandal board's corners are, the window within the white around a marker.
         cols = self.board.shape[1]
         lattice = np.stack([vertices % cols, vertices // cols], axis=1).astype(float)
+        if np.linalg.matrix_rank(lattice - lattice.mean(axis=0)) < 2:  # no homography, no pose: a line of corners
+            reason = f"the {n} corners found lie on one line of the board"
+            return self.sighting(None, "partial", {**detail, "detail": reason})
         half_px = max(3, round(REFINE_TILE_PX * (self.board.square - self.board.marker) / (2 * self.board.square)))
         blurred = cv2.GaussianBlur(grey, (0, 0), REFINE_BLUR_PX)
         measured, residual_px = refine_on_board(blurred, found, lattice, half_px)
