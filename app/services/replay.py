@@ -3,26 +3,32 @@
 The configurations are another session's, a session's own (re-measure), or N new ones planned with the
 robot's active calibration (for the least predicted error of a calibration in a mode, or at random);
 `until` plans each next configuration from the frames measured so far and stops when the predicted error
-reaches a target. A plan from frames is made when the request comes, so its mistakes answer at once; N new
-configurations are planned in the job (about 0.1 s each on Robonaut), so the request returns at once and the
-job shows "planning" meanwhile. The dry run (app/capture.py) checks every configuration before anything
-moves and predicts the accuracy of a calibration from those it would capture: of frames, in the request; of
-new configurations, in a job of its own (kind "dry_run": planning, checking, predicting; its result read
-with `dry_run_result`), and the plan it checked is the one the replay after it drives. `resume` goes on
-with a replay a fault or an abort stopped.
+reaches a target. A robot whose camera or board has no pose yet (a hand-eye set-up before its first
+calibration: calib_core.estimation.plan_seed) is planned for with the registrations fitted on the session's
+measured frames once they fix them, and before that around where it stands: the board's finder on its live
+image seeds the model, and the new configurations keep near it (`base_model`). A plan from frames is made
+when the request comes, so its mistakes answer at once; N new configurations are planned in the job (about
+0.1 s each on Robonaut), so the request returns at once and the job shows "planning" meanwhile. The dry run
+(app/capture.py) checks every configuration before anything moves and predicts the accuracy of a
+calibration from those it would capture: of frames, in the request; of new configurations, in a job of its
+own (kind "dry_run": planning, checking, predicting; its result read with `dry_run_result`), and the plan it
+checked is the one the replay after it drives. `resume` goes on with a replay a fault or an abort stopped.
 """
 
 from __future__ import annotations
 
 import threading
+from contextlib import suppress
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from calib_core import FrameStatus, InputError, Profile
-from calib_core.estimation import Plan, PlanProgress, SequentialPlan, predict_accuracy
+from calib_core.estimation import Plan, PlanProgress, SequentialPlan, predict_accuracy, register
 from calib_core.estimation import plan as plan_configurations
+from calib_core.estimation.plan_seed import around, needs_seed, seeded_model
+from calib_core.estimation.planning import Around, candidates
 from calib_core.vision import Sampler, Visibility
 
 from ..capture import Until, capture_until, dry_run, out_of_margin, replay
@@ -39,6 +45,8 @@ RESUME_TOLERANCE_DEG = 0.5
 MAX_PLANNED = 2000  # new configurations one replay may plan
 PLANS_KEPT = 8  # recent plans kept, so that a replay after its dry run drives the plan the dry run checked
 DRY_RUNS_KEPT = 8  # results of recent dry run jobs kept for dry_run_result
+SEEDS_KEPT = 8  # recent base models of robots without a pose for their camera or board (base_model)
+MIN_REGISTRATION_FRAMES = 3  # measured frames a camera's and its board's poses are fitted on (turns about 2 axes)
 # A dry run job's progress: planning up to this share, then checking every configuration, then predicting.
 PLANNING_SHARE, CHECKING_SHARE = 0.9, 0.07
 
@@ -76,6 +84,7 @@ class ReplayService:
         self.jobs = jobs
         self._plans: dict[tuple, Plan] = {}
         self._dry_runs: dict[str, dict[str, Any]] = {}  # dry run job: its result (the latest DRY_RUNS_KEPT)
+        self._seeds: dict[tuple, tuple[np.ndarray, Around | None]] = {}  # base_model's, the latest SEEDS_KEPT
         self._lock = threading.Lock()
         self._starting = threading.Lock()
         self._driving: dict[str, tuple[str, str, ReplayPlan]] = {}  # robot: its latest replay (job, session, plan)
@@ -92,6 +101,46 @@ class ReplayService:
         configurations: none), so that the dry run trusts their measurement over a prediction. `ctx`: the job
         that plans them (its progress while planning; a cancel stops the planning)."""
         return self._configurations(session_id, plan, ctx)[:4]
+
+    def base_model(self, session_id: str) -> tuple[np.ndarray, Around | None]:
+        """The model new configurations of a session are planned and checked with, and the neighbourhood they
+        keep to (None: anywhere). The robot's active calibration; without one, for a camera or board of
+        unknown pose (`needs_seed`), the registrations fitted on the session's measured frames once they fix
+        them, else the model seeded by the board in the camera's live image where the robot stands, and its
+        neighbourhood (calib_core.estimation.plan_seed). The same robot, readings and frames: the same model,
+        so that a replay after its dry run drives the plan the dry run checked."""
+        robot = self.store.sessions.get(session_id).robot
+        profile = self.robots.get(robot).profile
+        cal_id, believed = self.robots.active_params(robot)
+        if cal_id is not None or not needs_seed(profile):
+            return believed, None
+        driver = self.robots.driver(robot)
+        frames = [f.index for f in self.store.sessions.frames(session_id) if f.status == FrameStatus.MEASURED]
+        readings = np.round(np.degrees(driver.read_joints()), 1)
+        key = (robot, session_id, tuple(frames), readings.tobytes())
+        with self._lock:
+            if key in self._seeds:
+                return self._seeds[key]
+        base: tuple[np.ndarray, Around | None] | None = None
+        if len(frames) >= MIN_REGISTRATION_FRAMES:
+            with suppress(InputError):  # the frames may not fix the poses yet (no board pose, turns about one axis)
+                base = (register(profile, self.store.sessions.dataset(session_id, profile), believed), None)
+        if base is None:
+            look = driver.look(believed)
+            sighting = look.sightings[0]
+            if sighting.measured is None:
+                raise InputError(
+                    f"{robot} has no calibration yet and {profile.sensors[sighting.sensor].name} does not see "
+                    f"{profile.targets[sighting.target].name} where the robot stands ({sighting.reason}): move it "
+                    "where the camera sees the board (Observe shows the live image) and plan again; the first "
+                    "configurations are planned around that view"
+                )
+            base = (seeded_model(profile, believed, look.readings_rad, sighting), around(look.readings_rad))
+        with self._lock:
+            self._seeds[key] = base
+            while len(self._seeds) > SEEDS_KEPT:
+                self._seeds.pop(next(iter(self._seeds)))
+        return base
 
     def _configurations(
         self, session_id: str, plan: ReplayPlan, ctx: JobContext | None = None, share: float = 1.0
@@ -124,7 +173,7 @@ class ReplayService:
         mode = default_mode(profile, plan.mode)
         plan = _counted(plan)
         q, targets, _, seen, made = self._configurations(session_id, plan, ctx, PLANNING_SHARE)
-        _, believed = self.robots.active_params(robot)
+        believed = self._checked_with(session_id, plan)
 
         def checked(k: int, n: int) -> None:
             assert ctx is not None
@@ -225,7 +274,8 @@ class ReplayService:
                 ctx.progress(0.0, phase="driving")
             else:
                 q, targets, indices, seen = ready
-            return replay(ctx, self.store, driver, session_id, q, targets, indices, seen=seen)
+            believed = self._checked_with(session_id, plan)
+            return replay(ctx, self.store, driver, session_id, q, targets, indices, seen=seen, believed=believed)
 
         return self.jobs.submit_thread("replay", run, session_id=session_id)
 
@@ -238,7 +288,7 @@ class ReplayService:
             raise InputError("until plans its own configurations: give it without from_session, remeasure or resume")
         if not plan.until.error > 0 or not 1 <= plan.until.max <= MAX_PLANNED:
             raise InputError(f"until needs a positive error and a max between 1 and {MAX_PLANNED}")
-        _, believed = self.robots.active_params(session.robot)
+        believed, near = self.base_model(session_id)
 
         def run(ctx: JobContext) -> str | None:
             ctx.progress(0.0, phase="planning")
@@ -247,6 +297,7 @@ class ReplayService:
                 profile,
                 mode,
                 believed,
+                around=near,
                 seed=plan.seed,
                 q_done=np.array([f.joints_rad for f in done]).reshape(-1, len(profile.joints)),
                 targets_done=np.array([f.target for f in done], int),
@@ -267,21 +318,31 @@ class ReplayService:
         seed: int,
         ctx: JobContext | None = None,
         share: float = 1.0,
+        near: Around | None = None,
     ) -> Plan:
         """A plan (the same request, the same plan: a dry run's plan is the replay's, and is made once). `ctx`:
-        the job that makes it, told each step (up to `share` of its progress) and stopped by a cancel."""
-        key = (profile.name, mode, count, seed, believed.tobytes())
+        the job that makes it, told each step (up to `share` of its progress) and stopped by a cancel; `near`:
+        the neighbourhood it keeps to (base_model)."""
+        where = None if near is None else (near.q_rad.tobytes(), near.spread_rad)
+        key = (profile.name, mode, count, seed, believed.tobytes(), where)
         with self._lock:
             if key in self._plans:
                 return self._plans[key]
         planned = plan_configurations(
-            profile, mode, count, believed, seed=seed, criterion="task", **_pacing(ctx, share)
+            profile, mode, count, believed, seed=seed, criterion="task", around=near, **_pacing(ctx, share)
         )
         with self._lock:
             self._plans[key] = planned
             while len(self._plans) > PLANS_KEPT:
                 self._plans.pop(next(iter(self._plans)))
         return planned
+
+    def _checked_with(self, session_id: str, plan: ReplayPlan) -> np.ndarray:
+        """The model a replay's dry run checks its configurations with: the robot's active calibration for
+        configurations from frames, the base model new ones were planned with."""
+        if plan.from_frames:
+            return self.robots.active_params(self.store.sessions.get(session_id).robot)[1]
+        return self.base_model(session_id)[0]
 
     def _check(self, session_id: str, plan: ReplayPlan) -> int:
         """What can be wrong with a request before any planning: the session, its robot, the options. Returns
@@ -312,21 +373,27 @@ class ReplayService:
             targets = np.array([f.target for f in frames])
             seen = np.array([f.status == FrameStatus.MEASURED for f in frames], dtype=bool)
             return q, targets, [f.index for f in frames] if plan.remeasure else None, seen, None
-        # Configurations the robot believes it sees the target in: with its active model. Random: twice as
-        # many as asked, since those inside a joint's safety margin are left out. Planned: for the least
-        # predicted error of a calibration in the mode, inside the limits less the margin already.
-        _, believed = self.robots.active_params(session.robot)
+        # Configurations the robot believes it sees the target in: with its base model (base_model). Random:
+        # twice as many as asked, since those inside a joint's safety margin are left out. Planned: for the
+        # least predicted error of a calibration in the mode, inside the limits less the margin already.
+        believed, near = self.base_model(session_id)
         driver = self.robots.driver(session.robot)
         made = None
-        if plan.planner == "random":
+        stop = None if ctx is None else (lambda: ctx.cancelled)
+        if plan.planner == "random" and near is not None:
+            if ctx is not None:
+                ctx.progress(0.0, phase="planning", stage="drawing")
+            q, targets = candidates(
+                robot.profile, believed, seed=plan.seed, count=2 * count + 10, should_stop=stop, around=near
+            )
+        elif plan.planner == "random":
             planner = Sampler(Visibility(robot.profile, believed), np.random.default_rng(plan.seed))
             if ctx is not None:
                 ctx.progress(0.0, phase="planning", stage="drawing")
-            stop = None if ctx is None else (lambda: ctx.cancelled)
             q, targets = planner.configurations(2 * count + 10, should_stop=stop)
         else:
             mode = default_mode(robot.profile, plan.mode)
-            made = self._planned(robot.profile, mode, count, believed, plan.seed, ctx, share)
+            made = self._planned(robot.profile, mode, count, believed, plan.seed, ctx, share, near)
             q, targets = made.q, made.targets
         keep = [k for k in range(len(q)) if _within_limits(driver, q[k])][:count]
         return q[keep], targets[keep], None, np.zeros(len(keep), bool), made

@@ -88,6 +88,18 @@ def camera_starts(profile: Profile, data: Dataset, p: np.ndarray) -> list[Camera
     return _refined(profile, data, params, candidates)
 
 
+def view_registration(profile: Profile, data: Dataset, p: np.ndarray, frame: int) -> np.ndarray:
+    """p with the one registration `frame` (the camera's or its board's) set from the board's poses in the images
+    of `data` (one sensor, one target: a single image will do), every other parameter as in p: the mean of the
+    poses the images give it."""
+    (s,) = data.sensors
+    (t,) = np.unique(data.target).tolist()
+    camera = frame if frame == registration_frame(profile, profile.sensors[s].frame) else None
+    board = frame if frame == registration_frame(profile, profile.targets[t].frame) else None
+    (_, out), *_ = _Loop(profile, data, s, t, camera, board).solutions(p)
+    return out
+
+
 class _Loop:
     """The images of one board by one camera and the kinematic loop between them (module doc, step 2)."""
 
