@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from spec_tables import RN_JOINTS, RN_TABLE_I, RN_TABLE_II
 
 from calib_core import InputError, load_profile
@@ -253,10 +254,14 @@ def test_missing_profile_file(tmp_path: Path) -> None:
 
 
 def test_a_fixed_profile_loads_again(tmp_path: Path) -> None:
-    """The broken-profile cases fail for the change, not for being a copy: the copy itself loads."""
+    """The broken-profile cases fail for the change, not for being a copy: the copy itself loads (with the URDF
+    it names, copied beside it)."""
     for name in BUILTIN_PROFILES:
         path = tmp_path / f"{name}-copy.yaml"
         path.write_text(_builtin_text(name), encoding="utf-8")
+        urdf = yaml.safe_load(_builtin_text(name)).get("urdf")
+        if urdf:
+            (tmp_path / urdf).write_bytes((resources.files("calib_core.model") / "profiles" / urdf).read_bytes())
         copy, builtin = load_profile(path), load_profile(name)
         assert copy.parameter_names == builtin.parameter_names
         np.testing.assert_array_equal(copy.nominal(), builtin.nominal())

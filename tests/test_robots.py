@@ -79,9 +79,11 @@ def test_the_default_desk_is_the_built_in_robots_as_before() -> None:
         ("robonaut-a", "robonaut-a", "builtin"),
         ("nao", "nao", "builtin"),
         ("motoman", "motoman", "builtin"),
+        ("arm-handeye", "arm-handeye", "builtin"),
     ]
     assert [r.driver for r in config.robots] == [
         DriverSpec("simulated", {"seed": 1, "day": 2}),  # the later day of its day-2 sample session
+        DriverSpec("simulated", {"seed": 1, "day": 1}),
         DriverSpec("simulated", {"seed": 1, "day": 1}),
         DriverSpec("simulated", {"seed": 1, "day": 1}),
     ]
@@ -246,7 +248,7 @@ def test_robots_added_while_the_desk_runs_stay_after_a_restart(desk_dir: Path, t
         assert r.status_code == 201, r.text
         assert (desk_dir / "robots" / "arm-2" / "arm.urdf").read_text() == arm_urdf()
         names = [r["name"] for r in client.get("/api/robots").json()]
-        assert names == ["robonaut-a", "nao", "motoman", "robonaut-b", "arm", "nao-3", "arm-2"]
+        assert names == ["robonaut-a", "nao", "motoman", "arm-handeye", "robonaut-b", "arm", "nao-3", "arm-2"]
     with TestClient(create_app(desk_dir, sample_dir=None, time_scale=50.0)) as client:
         robots = {r["name"]: r for r in client.get("/api/robots").json()}
         assert list(robots) == names

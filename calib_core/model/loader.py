@@ -26,7 +26,7 @@ from .boards import read_charuco
 from .profile import DataFormat, Frame, Joint, Marker, Mode, Op, Parameter, Profile, Target, Tie
 from .urdf_import import compile_urdf_profile
 
-BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman")
+BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman", "arm-handeye")
 
 AXES = {"x": 0, "y": 1, "z": 2}
 JOINT_KINDS = ("revolute", "prismatic")  # a joint entry's `type`: its op rotates or translates
