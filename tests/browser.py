@@ -139,9 +139,17 @@ def ready_page(browser, url: str, width: int = 1500, height: int = 1000):
 def new_nao_session(browser, url: str, name: str) -> tuple:
     """A page at the desk with the simulated NAO connected and a new capture session of that name selected
     (the page on step 1, Observe); the page and the session's id."""
+    return new_session(browser, url, "nao", name)
+
+
+def new_session(browser, url: str, robot: str, name: str) -> tuple:
+    """A page at the desk with the simulated `robot` connected and a new capture session of that name selected
+    (the page on step 1, Observe); the page and the session's id."""
     page = ready_page(browser, url)
-    page.select_option("#robot-select", "nao")
-    page.wait_for_function("document.querySelector('#robot-state').textContent.startsWith('nao')", timeout=60_000)
+    page.select_option("#robot-select", robot)
+    page.wait_for_function(
+        "r => document.querySelector('#robot-state').textContent.startsWith(r)", arg=robot, timeout=60_000
+    )
     page.click("#new-session-toggle")
     page.fill("#new-session input[name=name]", name)
     page.click("#new-session button[type=submit]")
@@ -159,6 +167,23 @@ def colour_pixels(png: bytes, rgb: tuple[int, int, int], tol: int = 70) -> int:
 
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1].astype(int)
     return int((np.abs(img - np.array(rgb)).max(axis=2) <= tol).sum())
+
+
+# A pixel of a split-view canvas (CSS px from its top-left): [r, g, b].
+PIXEL = (
+    "([id, x, y]) => { const c = document.querySelector(id); const k = c.width / c.clientWidth;"
+    " const d = c.getContext('2d').getImageData(Math.round(x * k), Math.round(y * k), 1, 1).data;"
+    " return Array.from(d.slice(0, 3)); }"
+)
+
+
+def split_pixel(page, marks: dict, p: list[float], dx: float = 0.0) -> list[int]:
+    """The colour [r, g, b] of the new side's 2-D view (#split-new, unzoomed) at image point p of a frame's
+    marks (GET /api/review/marks/{frame}), `dx` CSS px to the right."""
+    width, height = page.eval_on_selector("#split-new", "c => [c.clientWidth, c.clientHeight]")
+    s = min(width / marks["width"], height / marks["height"])
+    x = width / 2 + (p[0] - marks["width"] / 2) * s + dx
+    return page.evaluate(PIXEL, ["#split-new", x, height / 2 + (p[1] - marks["height"] / 2) * s])
 
 
 def wait_for_scene(page, timeout_ms: int = 60_000) -> None:

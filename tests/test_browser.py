@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
-from browser import PAPER_COLOURS, colour_pixels, new_nao_session, served, wait_for_scene
+from browser import PAPER_COLOURS, colour_pixels, new_nao_session, served, split_pixel, wait_for_scene
 from test_scene import URDF_DIR, build
 
 from app.review import frame_bounds_m
@@ -38,14 +38,6 @@ def close_notices(page) -> None:
     for _ in range(notices.count()):
         notices.first.click()
         page.wait_for_timeout(400)  # the notice slides out
-
-
-# A pixel of a split-view canvas (CSS px from its top-left): [r, g, b].
-PIXEL = (
-    "([id, x, y]) => { const c = document.querySelector(id); const k = c.width / c.clientWidth;"
-    " const d = c.getContext('2d').getImageData(Math.round(x * k), Math.round(y * k), 1, 1).data;"
-    " return Array.from(d.slice(0, 3)); }"
-)
 
 
 def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> None:
@@ -127,18 +119,8 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         new_id = page.get_attribute("#apply-what", "data-id")
         server.post("/api/review", json={"session": "robonaut-a-day1", "new": new_id})  # the default viewer's
         marks = server.get(f"/api/review/marks/{first}").json()
-        width, height = page.eval_on_selector("#split-new", "c => [c.clientWidth, c.clientHeight]")
-        s = min(width / marks["width"], height / marks["height"])
-
-        def at(p: list[float], dx: float = 0.0) -> list:
-            return [
-                "#split-new",
-                width / 2 + (p[0] - marks["width"] / 2) * s + dx,
-                height / 2 + (p[1] - marks["height"] / 2) * s,
-            ]
-
-        ring = page.evaluate(PIXEL, at(marks["measured"][0], 6))
-        dot = page.evaluate(PIXEL, at(marks["new"][0]))
+        ring = split_pixel(page, marks, marks["measured"][0], 6)
+        dot = split_pixel(page, marks, marks["new"][0])
         assert ring[0] > 150 and ring[0] > ring[1] + 80, ring  # anti-aliased red
         assert dot[1] > 140 and dot[0] < 80, dot  # green, not covered by the red measurement
 
