@@ -31,6 +31,7 @@ DOCS = [
     "docs/calibration.md",
     "docs/planning.md",
     "docs/profiles.md",
+    "docs/handeye.md",
 ]
 
 
