@@ -9,7 +9,6 @@ has it and where the other one does."""
 from __future__ import annotations
 
 import importlib.util
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -23,7 +22,7 @@ from handeye_data import PROFILES, camera_error, rms_px
 
 from app.cli import main
 from app.server import create_app
-from calib_core import FrameStatus, SimulatedRobot, load_profile
+from calib_core import FrameStatus, SimulatedRobot
 from calib_core.estimation.calibration import Calibration
 from calib_core.io.session import read_session
 from calib_core.sim.recorded_drive import BagSpec, Images, camera_images, make_drive, write_bag
@@ -245,41 +244,11 @@ def test_a_board_too_small_to_be_seen_says_so_with_the_numbers(tmp_path, capsys)
 @needs_ros2
 def test_a_camera_topic_of_another_size_gives_a_frame_not_found_naming_both_sizes(tmp_path) -> None:
     """Through the ROS 2 driver (images handed to it as its subscriptions would): no measurement, the reason."""
-    from sensor_msgs.msg import CameraInfo, Image, JointState
+    from ros2_graph import driver_look
 
-    from app.clock import ManualClock
-    from app.drivers.ros2 import ros2_driver
-    from app.ros2.connection import load_connection
-    from app.ros2.link import Link
-    from app.ros2.sim_node import Topics, connection_doc
-
-    profile = load_profile(PROFILE)
-    doc = connection_doc(str(PROFILE), "charuco", profile, Topics("/charuco"))
-    (tmp_path / "charuco.yaml").write_text(yaml.safe_dump({**doc, "measurement_wait_s": 0.05}), encoding="utf-8")
-    link = Link("charuco_size_test")
-    clock = ManualClock()
-    driver = ros2_driver(profile, load_connection(tmp_path / "charuco.yaml"), link, clock=clock)
-    robot = driver.transport
-    try:
-        t = link.now_s()
-        for k in range(3):
-            state = JointState(name=[j.name for j in profile.joints], position=[0.1] * len(profile.joints))
-            state.header.stamp.sec, state.header.stamp.nanosec = int(t - 1), k
-            robot._on_joints(state)
-        robot._on_info("cam")(CameraInfo(k=[600.0, 0, 320, 0, 600.0, 240, 0, 0, 1]))
-        image = Image(height=240, width=320, encoding="mono8", step=320, data=bytes(320 * 240))
-        image.header.stamp.sec, image.header.stamp.nanosec = int(t), int(t % 1 * 1e9)
-        robot._on_image("cam")(image)
-        looks: list = []
-        looking = threading.Thread(target=lambda: looks.append(driver.look()))
-        looking.start()
-        clock.run(lambda: not looking.is_alive(), threads=1, step_s=0.01)
-        looking.join()
-        s = looks[0].sightings[0]
-        assert s.status == FrameStatus.NOT_FOUND
-        assert s.reason == (
-            "/charuco/cam/image_raw: images of 320 x 240 px, but the camera of robot 'handeye-charuco' (its "
-            "intrinsics) has 640 x 480 px"
-        )
-    finally:
-        driver.close()
+    s = driver_look(PROFILE, np.full(6, 0.1), np.zeros((240, 320), np.uint8), tmp_path)
+    assert s.status == FrameStatus.NOT_FOUND
+    assert s.reason == (
+        "/charuco/cam/image_raw: images of 320 x 240 px, but the camera of robot 'handeye-charuco' (its "
+        "intrinsics) has 640 x 480 px"
+    )
