@@ -139,7 +139,7 @@ def bhuman_joint_calibration(profile: Profile, cal: Calibration) -> str:
         offset = round(-offsets.get(joint.name, 0.0), 6) + 0.0  # no "-0"
         lines += [
             f"  {joint.name[0].lower()}{joint.name[1:]} = {{",
-            f"    offset = {offset:g}deg;",
+            f"    offset = {offset:.10g}deg;",
             f"    minAngle = {lo:g}deg;",
             f"    maxAngle = {hi:g}deg;",
             "  };",
