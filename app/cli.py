@@ -16,9 +16,9 @@ import shlex
 import sys
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -748,45 +748,44 @@ def _serve(args: argparse.Namespace) -> int:
 
 def _with_ros2(config: DeskConfig | None, files: list[str], data_dir: Path) -> DeskConfig:
     """The desk's robots and those on ROS 2 graphs, each met and checked on its graph before the desk starts."""
-    from dataclasses import replace
-
-    from .desk_config import RobotConfig, default_config
-    from .drivers.registry import DriverSpec
     from .ros2 import require
 
     require()
     from .ros2.connection import connect, load_connection
 
-    config = config or default_config()
     conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is met
+    return _with_robots(config, conns, lambda conn: connect(conn, data_dir), "ros2")
+
+
+def _with_robots(
+    config: DeskConfig | None, conns: list, connect: Callable[[Any], tuple[str, dict]], kind: str
+) -> DeskConfig:
+    """The desk's robots (its configuration's, else the defaults) and one more of driver `kind` per connection,
+    `connect(conn)` giving its profile reference and driver options; the first is the one the page shows."""
+    from dataclasses import replace
+
+    from .desk_config import RobotConfig, default_config
+    from .drivers.registry import DriverSpec
+
+    config = config or default_config()
     robots = list(config.robots)
     for conn in conns:
         if conn.robot in {r.name for r in robots}:
             raise InputError(f"robot: '{conn.robot}' is on the desk already", file=str(conn.path))
-        ref, options = connect(conn, data_dir)
-        robots.append(RobotConfig(conn.robot, ref, DriverSpec("ros2", options), "config"))
+        ref, options = connect(conn)
+        robots.append(RobotConfig(conn.robot, ref, DriverSpec(kind, options), "config"))
     return replace(config, robots=tuple(robots), connected=config.connected or conns[0].robot)
 
 
 def _with_naoqi(config: DeskConfig | None, files: list[str]) -> DeskConfig:
     """The desk's robots and the NAOs reached through NAOqi. A robot that does not answer yet is said so; the desk
     starts all the same and connects to it once it answers."""
-    from dataclasses import replace
-
-    from .desk_config import RobotConfig, default_config
-    from .drivers.registry import DriverSpec
     from .naoqi import open_session, require
 
     require()
     from .naoqi.connection import load_connection
 
-    config = config or default_config()
-    conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is asked
-    robots = list(config.robots)
-    for conn in conns:
-        if conn.robot in {r.name for r in robots}:
-            raise InputError(f"robot: '{conn.robot}' is on the desk already", file=str(conn.path))
-        robots.append(RobotConfig(conn.robot, conn.profile, DriverSpec("naoqi", conn.options), "config"))
+    def connect(conn: Any) -> tuple[str, dict]:
         url = conn.options["url"]
         try:
             open_session(url).close()
@@ -797,12 +796,13 @@ def _with_naoqi(config: DeskConfig | None, files: list[str]) -> DeskConfig:
                 file=sys.stderr,
                 flush=True,
             )
-    return replace(config, robots=tuple(robots), connected=config.connected or conns[0].robot)
+        return conn.profile, conn.options
+
+    conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is asked
+    return _with_robots(config, conns, connect, "naoqi")
 
 
 def _sim_naoqi(args: argparse.Namespace) -> int:
-    import signal
-    import threading
 
     from .naoqi import require
 
@@ -834,19 +834,10 @@ def _sim_naoqi(args: argparse.Namespace) -> int:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
         doc = {"robot": args.name or profile.name, "profile": ref, "url": args.url, "camera": 1}
         write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    print(f"calib sim-naoqi: {profile.name} at {args.url} (Ctrl-C ends it)", flush=True)
-    try:
-        done.wait()
-    finally:
-        session.close()
-    return 0
+    return _until_stopped(f"calib sim-naoqi: {profile.name} at {args.url} (Ctrl-C ends it)", session.close)
 
 
 def _sim_ros2(args: argparse.Namespace) -> int:
-    import signal
-    import threading
 
     from .ros2 import require
 
@@ -875,14 +866,22 @@ def _sim_ros2(args: argparse.Namespace) -> int:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
         doc = connection_doc(ref, args.name or profile.name, profile, topics)
         write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
+    domain = os.environ.get("ROS_DOMAIN_ID", "0")
+    return _until_stopped(f"calib sim-ros2: {profile.name} on ROS_DOMAIN_ID={domain} (Ctrl-C ends it)", node.close)
+
+
+def _until_stopped(ready: str, close: Callable[[], object]) -> int:
+    """A simulated robot's process: says it is `ready`, serves until SIGTERM or Ctrl-C, then close()."""
+    import signal
+    import threading
+
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    domain = os.environ.get("ROS_DOMAIN_ID", "0")
-    print(f"calib sim-ros2: {profile.name} on ROS_DOMAIN_ID={domain} (Ctrl-C ends it)", flush=True)
+    print(ready, flush=True)
     try:
         done.wait()
     finally:
-        node.close()
+        close()
     return 0
 
 

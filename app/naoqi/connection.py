@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from calib_core import InputError, Profile, load_profile
-from calib_core.model import BUILTIN_PROFILES
-from calib_core.safe_yaml import read_yaml
+
+from ..connection_file import profile_ref, read_connection
 
 FIELDS = ("robot", "profile")
 
@@ -37,26 +37,14 @@ class Connection:
 def load_connection(path: Path) -> Connection:
     """Read and check a connection file; InputError naming the file and the field."""
     from ..drivers import naoqi
-    from ..validation import check_id
 
     path = Path(path).resolve()
     file = str(path)
-    doc = read_yaml(path, "NAOqi connection file")
-    if not isinstance(doc, dict):
-        raise InputError("a NAOqi connection file is a YAML mapping (robot, profile, url, camera)", file=file)
-    unknown = sorted(set(doc) - set(FIELDS) - set(naoqi.OPTIONS))
-    if unknown:
-        raise InputError(f"{unknown[0]}: no such field (fields: {', '.join(FIELDS + tuple(naoqi.OPTIONS))})", file=file)
-    try:
-        check_id("robot name", doc.get("robot"))
-    except InputError as exc:
-        raise InputError(f"robot: {exc.message}", file=file) from None
+    doc = read_connection(path, "NAOqi connection file", "robot, profile, url, camera", FIELDS + tuple(naoqi.OPTIONS))
     ref = doc.get("profile", "nao")
     if not isinstance(ref, str) or not ref.strip():
         raise InputError(f"profile: expected the built-in nao or a profile file, got {ref!r}", file=file)
-    profile = ref if ref in BUILTIN_PROFILES else str((path.parent / ref).resolve())
-    if profile not in BUILTIN_PROFILES and not Path(profile).is_file():
-        raise InputError(f"profile: {ref} does not exist (relative to this file) and is no built-in profile", file=file)
+    profile = profile_ref(ref, path)
     conn = Connection(path, doc["robot"], profile, {})
     try:
         model = conn.load_profile()
