@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from calib_core import Calibration, InputError, Profile
-from calib_core.io import estimated_offsets_deg, naoqi_image
+from calib_core.io import NAOQI_COLOR_SPACES, estimated_offsets_deg, naoqi_image
 
 from ..clock import Clock
 from . import RobotFault
@@ -59,8 +59,6 @@ STIFF = 0.5  # a joint whose stiffness reads below this after setStiffnesses(1.0
 
 def check(profile: Profile, options: Mapping[str, Any], where: str, options_at: str) -> dict[str, Any]:
     """The options checked (InputError naming `options_at`.<option>), with their defaults."""
-    from calib_core.io.camera_images import NAOQI_COLOR_SPACES
-
     from ..naoqi import require
 
     require()

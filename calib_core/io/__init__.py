@@ -12,7 +12,7 @@ __getattr__ = lazy_exports(
     __name__,
     {
         "bag_import": ("import_bag",),
-        "camera_images": ("grey_image", "naoqi_image"),
+        "camera_images": ("NAOQI_COLOR_SPACES", "grey_image", "naoqi_image"),
         "csv_format": (
             "measurement_values",
             "parse_dataset",
@@ -30,6 +30,7 @@ __getattr__ = lazy_exports(
 )
 __all__ = [
     "BODY",
+    "NAOQI_COLOR_SPACES",
     "FrameRecord",
     "bhuman_joint_calibration",
     "calibrated_urdf",
@@ -55,7 +56,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from .bag_import import import_bag
-    from .camera_images import grey_image, naoqi_image
+    from .camera_images import NAOQI_COLOR_SPACES, grey_image, naoqi_image
     from .csv_format import (
         measurement_values,
         parse_dataset,
