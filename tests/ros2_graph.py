@@ -40,11 +40,12 @@ def calib(*args: str) -> list[str]:
 
 @dataclass
 class Sim:
-    """`calib sim-ros2` in its own process."""
+    """`calib sim-ros2` (or another simulated robot's command: `sim-naoqi`) in its own process."""
 
     args: list[str]
     env: dict[str, str]
     process: subprocess.Popen | None = None
+    command: str = "sim-ros2"
 
     def start(self, timeout_s: float = 60.0) -> Sim:
         return self.launch().ready(timeout_s)
@@ -52,7 +53,7 @@ class Sim:
     def launch(self) -> Sim:
         """Started, not waited for (ready())."""
         self.process = subprocess.Popen(
-            calib("sim-ros2", *self.args),
+            calib(self.command, *self.args),
             cwd=ROOT,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
@@ -63,10 +64,10 @@ class Sim:
     def ready(self, timeout_s: float = 60.0) -> Sim:
         """Once the node is on the graph."""
         assert self.process is not None
-        line = _read_line(self.process, "calib sim-ros2:", timeout_s)
+        line = _read_line(self.process, f"calib {self.command}:", timeout_s)
         if line is None:
             out = self.process.stdout.read().decode() if self.process.poll() is not None else ""  # type: ignore[union-attr]
-            raise RuntimeError(f"calib sim-ros2 did not start: {out[-2000:]}")
+            raise RuntimeError(f"calib {self.command} did not start: {out[-2000:]}")
         return self
 
     def kill(self) -> None:
