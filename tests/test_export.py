@@ -107,7 +107,13 @@ def _assert_same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
         np.testing.assert_allclose(a[name], b[name], rtol=0, atol=1e-9, err_msg=name)
 
 
-@pytest.mark.parametrize("name", BUILTIN_PROFILES)
+# The built-in profiles whose exports hold every parameter: not the hand-eye sample, whose camera and board hang
+# from registration frames (the offsets YAML's geometry leaves registrations out, and its calibrated URDF is the
+# user's URDF, which has no link for them).
+WHOLE_EXPORTS = [n for n in BUILTIN_PROFILES if n != "arm-handeye"]
+
+
+@pytest.mark.parametrize("name", WHOLE_EXPORTS)
 def test_calibrated_urdf_is_the_calibrated_model_at_the_raw_readings(name: str, tmp_path: Path) -> None:
     profile = load_profile(name)
     p = _perturbed(profile, 1)
@@ -135,7 +141,7 @@ def test_offsets_yaml_on_the_nominal_urdf_is_an_offsets_calibration(name: str, t
     _assert_same(_urdf_points(profile, p, urdf, q + offsets), _model_points(profile, p, q))
 
 
-@pytest.mark.parametrize("name", BUILTIN_PROFILES)
+@pytest.mark.parametrize("name", WHOLE_EXPORTS)
 def test_offsets_yaml_with_its_geometry_is_a_full_calibration(name: str) -> None:
     """Every parameter changed: the nominal model with the YAML's geometry, at reading + offset."""
     profile = load_profile(name)

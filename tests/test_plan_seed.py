@@ -8,7 +8,7 @@ import pytest
 
 from calib_core import InputError, load_profile
 from calib_core.estimation import plan
-from calib_core.estimation.plan_seed import SEED_SPREAD_DEG, around, needs_seed, seeded_model
+from calib_core.estimation.plan_seed import SEED_SPREAD_DEG, around_seed, needs_seed, seeded_model
 from calib_core.sim import SimulatedRobot
 from calib_core.vision import Sampler, Visibility
 from calib_core.vision.finders import finder_for
@@ -28,7 +28,7 @@ def test_a_plan_around_one_view_of_the_board_is_measured_by_the_true_robot() -> 
     # The seed's view as found, through the seeded model (the camera's mount left at the flange).
     predicted = profile.sensors[0].predict(p, predicted_points(profile, p, q0, 0))[0][seen.vertices]
     assert np.abs(predicted - seen.measured).max() < 2.0
-    made = plan(profile, "handeye", 8, p, around=around(q0))
+    made = plan(profile, "handeye", 8, p, around=around_seed(q0))
     assert np.degrees(np.abs(made.q - q0)).max() <= SEED_SPREAD_DEG + 1e-9
     rng = np.random.default_rng(1)
     found = [finder.find(p, q, finder.render(truth, q, rng).images).measured is not None for q in made.q]

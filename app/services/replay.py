@@ -25,10 +25,19 @@ from typing import Any
 import numpy as np
 
 from calib_core import FrameStatus, InputError, Profile
-from calib_core.estimation import Plan, PlanProgress, SequentialPlan, predict_accuracy, register
+from calib_core.estimation import (
+    Around,
+    Plan,
+    PlanProgress,
+    SequentialPlan,
+    around_seed,
+    candidates,
+    needs_seed,
+    predict_accuracy,
+    register,
+    seeded_model,
+)
 from calib_core.estimation import plan as plan_configurations
-from calib_core.estimation.plan_seed import around, needs_seed, seeded_model
-from calib_core.estimation.planning import Around, candidates
 from calib_core.vision import Sampler, Visibility
 
 from ..capture import Until, capture_until, dry_run, out_of_margin, replay
@@ -135,7 +144,7 @@ class ReplayService:
                     "where the camera sees the board (Observe shows the live image) and plan again; the first "
                     "configurations are planned around that view"
                 )
-            base = (seeded_model(profile, believed, look.readings_rad, sighting), around(look.readings_rad))
+            base = (seeded_model(profile, believed, look.readings_rad, sighting), around_seed(look.readings_rad))
         with self._lock:
             self._seeds[key] = base
             while len(self._seeds) > SEEDS_KEPT:

@@ -15,7 +15,18 @@ __getattr__ = lazy_exports(
         "calibrate": ("METHODS", "check_can_fit", "fit_parameters"),
         "calibration": ("Calibration", "Outlier", "ParameterEstimate"),
         "evaluation": ("Evaluation", "evaluate"),
-        "planning": ("AccuracyPrediction", "Plan", "PlanProgress", "SequentialPlan", "plan", "predict_accuracy"),
+        "planning": (
+            "AccuracyPrediction",
+            "Around",
+            "Around",
+            "Plan",
+            "PlanProgress",
+            "SequentialPlan",
+            "candidates",
+            "plan",
+            "predict_accuracy",
+        ),
+        "plan_seed": ("around_seed", "needs_seed", "seeded_model"),
         "problem": ("Problem",),
         "registration": ("register", "registration_params"),
         "reports": (
@@ -33,6 +44,7 @@ __getattr__ = lazy_exports(
 __all__ = [
     "METHODS",
     "AccuracyPrediction",
+    "Around",
     "Calibration",
     "Correlation",
     "Diagnostic",
@@ -49,22 +61,36 @@ __all__ = [
     "SequentialPlan",
     "Severity",
     "SolverReport",
+    "around_seed",
+    "candidates",
     "check_can_fit",
     "check_share",
     "evaluate",
     "figures",
     "fit_parameters",
+    "needs_seed",
     "plan",
     "predict_accuracy",
     "register",
     "registration_params",
+    "seeded_model",
 ]
 
 if TYPE_CHECKING:
     from .calibrate import METHODS, check_can_fit, fit_parameters
     from .calibration import Calibration, Outlier, ParameterEstimate
     from .evaluation import Evaluation, evaluate
-    from .planning import AccuracyPrediction, Plan, PlanProgress, SequentialPlan, plan, predict_accuracy
+    from .plan_seed import around_seed, needs_seed, seeded_model
+    from .planning import (
+        AccuracyPrediction,
+        Around,
+        Plan,
+        PlanProgress,
+        SequentialPlan,
+        candidates,
+        plan,
+        predict_accuracy,
+    )
     from .problem import Problem
     from .registration import register, registration_params
     from .reports import (

@@ -62,7 +62,7 @@ def seeded_model(profile: Profile, p: np.ndarray, q_rad: np.ndarray, sighting: S
     return view_registration(profile, data, p, still[0])
 
 
-def around(q_rad: np.ndarray, spread_deg: float = SEED_SPREAD_DEG) -> Around:
+def around_seed(q_rad: np.ndarray, spread_deg: float = SEED_SPREAD_DEG) -> Around:
     """The neighbourhood of a seed a first plan keeps to."""
     return Around(np.asarray(q_rad, float).copy(), math.radians(spread_deg))
 
