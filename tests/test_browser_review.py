@@ -213,3 +213,43 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_
             page.wait_for_timeout(500)
     assert problems == [], problems
     assert actions >= 1, actions  # clicks that landed: 45 in 25 s at load 2, 3 at load 13 (two software 3-D views)
+
+
+def test_noise_is_not_coloured_as_change(chromium, tmp_path) -> None:
+    """NAO's sample calibrated twice (everything, and 70 % of its frames): the two differ on every frame by what
+    their own uncertainty explains, so the frame list says "same" on (nearly) every frame and colours the rest as
+    the server judged them, and says what the band is; against the nominal model (no covariance: the new
+    calibration's band only, as the page says) every frame is better."""
+    with served(tmp_path / "data") as server:
+        whole = calibrated(server, "nao", mode="full", holdout=0.0)
+        part = calibrated(server, "nao", mode="full", holdout=0.3)
+        page = ready_page(chromium, server.url, 1600, 1000)
+        page.click("li[data-session='nao']")
+        page.wait_for_function("document.querySelector('#review-new').value !== ''")
+        page.click("#tabs button[data-tab='review']")
+        for old, new, of in ((whole, part, "old new"), ("", part, "new")):
+            page.select_option("#review-old", old)
+            page.select_option("#review-new", new)
+            page.click("#review-load")
+            page.wait_for_function(
+                "([n, of]) => document.querySelector('#apply-what').dataset.id === n"
+                " && document.querySelector('#change-band').dataset.of === of",
+                arg=[new, of],
+            )
+            rows = server.post("/api/review", json={"session": "nao", "old": old or None, "new": new}).json()["table"]
+            want = {r["index"]: r["verdict"] for r in rows}
+            shown = page.eval_on_selector_all(
+                "#frames tr[data-frame]", "trs => trs.map(t => [+t.dataset.frame, t.lastChild.dataset.verdict])"
+            )
+            assert dict(shown) == want
+            text = page.text_content("#change-band")
+            assert "beyond 2× the frame's band" in text
+            verdicts = list(want.values())
+            if old:
+                assert "the old and the new calibration's own uncertainty" in text
+                assert verdicts.count("same") >= 0.9 * len(verdicts), verdicts
+                shot(page, "review-5-same")
+            else:
+                assert "the old calibration has none" in text
+                assert verdicts.count("better") == len(verdicts)
+                shot(page, "review-5-better")

@@ -5,6 +5,8 @@ reviewing different sessions never move each other (app/viewers.py)."""
 
 from __future__ import annotations
 
+from typing import Literal
+
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
@@ -30,6 +32,10 @@ class ReviewRow(BaseModel):
     err_old: float | None  # None: not measured
     err_new: float | None
     heldout: bool
+    band: float | None = (
+        None  # how far the calibrations' uncertainty moves the frame's predictions (None: no covariance)
+    )
+    verdict: Literal["better", "worse", "same"] | None = None  # new - old beyond / within k bands (None: no band)
 
 
 class ReviewFigures(BaseModel):
@@ -50,6 +56,15 @@ class Histogram(BaseModel):
     new: list[int] | None  # None: no new calibration
 
 
+class ChangeBand(BaseModel):
+    """What a frame's change is read against (app/review.py): better or worse beyond k times its band, the RMS
+    over its points of how far the uncertainty of the calibrations named in `of` moves their predictions."""
+
+    k: float
+    of: list[str]  # the sides ("old", "new") with a covariance; [] : no band, no verdict
+    median: float | None  # over the measured frames
+
+
 class ReviewSummary(BaseModel):
     """Counted over observations, like a calibration's figures; heldout_* over the new calibration's held-out
     frames (None: it held none out, or there is no new calibration)."""
@@ -63,6 +78,7 @@ class ReviewSummary(BaseModel):
     new: ReviewFigures | None  # None: no new calibration
     heldout_new: ReviewFigures | None
     histogram: Histogram
+    band: ChangeBand
 
 
 class ReviewOut(BaseModel):

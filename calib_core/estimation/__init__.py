@@ -13,7 +13,8 @@ __getattr__ = lazy_exports(
     __name__,
     {
         "calibrate": ("METHODS", "check_can_fit", "fit_parameters"),
-        "calibration": ("Calibration", "Outlier", "ParameterEstimate"),
+        "calibration": ("Calibration", "Covariance", "Outlier", "ParameterEstimate"),
+        "change": ("frame_band",),
         "evaluation": ("Evaluation", "evaluate"),
         "planning": ("AccuracyPrediction", "Plan", "PlanProgress", "SequentialPlan", "plan", "predict_accuracy"),
         "problem": ("Problem",),
@@ -35,6 +36,7 @@ __all__ = [
     "AccuracyPrediction",
     "Calibration",
     "Correlation",
+    "Covariance",
     "Diagnostic",
     "Evaluation",
     "Figures",
@@ -54,6 +56,7 @@ __all__ = [
     "evaluate",
     "figures",
     "fit_parameters",
+    "frame_band",
     "plan",
     "predict_accuracy",
     "register",
@@ -62,7 +65,8 @@ __all__ = [
 
 if TYPE_CHECKING:
     from .calibrate import METHODS, check_can_fit, fit_parameters
-    from .calibration import Calibration, Outlier, ParameterEstimate
+    from .calibration import Calibration, Covariance, Outlier, ParameterEstimate
+    from .change import frame_band
     from .evaluation import Evaluation, evaluate
     from .planning import AccuracyPrediction, Plan, PlanProgress, SequentialPlan, plan, predict_accuracy
     from .problem import Problem

@@ -53,6 +53,28 @@ class Outlier:
 
 
 @dataclass
+class Covariance:
+    """The estimate's covariance over its estimated parameters (a tie's follower as its leader), display units:
+    what a review propagates to the predictions (`calib_core.estimation.change`)."""
+
+    parameters: list[str]
+    matrix: list[list[float]]
+
+    @classmethod
+    def of(cls, profile: Profile, indices: list[int], cov: np.ndarray) -> Covariance:
+        """From a covariance `cov` of parameters `indices`, internal units."""
+        scale = np.array([profile.to_display(i, 1.0) for i in indices])
+        display = np.nan_to_num(cov * np.outer(scale, scale))
+        return cls([profile.parameters[i].name for i in indices], display.tolist())
+
+    def internal(self, profile: Profile) -> tuple[list[int], np.ndarray]:
+        """(parameter indices, covariance in internal units)."""
+        indices = [profile.param(name) for name in self.parameters]
+        scale = np.array([profile.from_display(i, 1.0) for i in indices])
+        return indices, np.asarray(self.matrix, float).reshape(len(indices), len(indices)) * np.outer(scale, scale)
+
+
+@dataclass
 class Calibration:
     robot: str
     mode: str
@@ -67,6 +89,7 @@ class Calibration:
     diagnostics: list[Diagnostic] = field(default_factory=list)
     frames: dict[str, list[int]] = field(default_factory=dict)
     sensor_figures: dict[str, dict[str, Figures]] = field(default_factory=dict)  # several sensors: each one's
+    covariance: Covariance | None = None  # None: a file written before it was kept
     format: str = FORMAT
 
     @property
@@ -140,6 +163,7 @@ class Calibration:
                 sensor_figures={
                     n: {k: Figures(**v) for k, v in f.items()} for n, f in d.get("sensor_figures", {}).items()
                 },
+                covariance=None if d.get("covariance") is None else Covariance(**d["covariance"]),
             )
         except InputError:
             raise

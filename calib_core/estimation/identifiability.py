@@ -86,6 +86,7 @@ class Report:
     std: np.ndarray | None = None  # per free parameter, internal units
     inflation: np.ndarray | None = None  # sd / sd if the other parameters were known (sqrt of VIF)
     correlation: np.ndarray | None = None
+    covariance: np.ndarray | None = None  # of the free parameters, internal units (0 where the data say nothing)
 
 
 def _turns_a_joint(profile: Profile, index: int) -> bool:
@@ -245,7 +246,16 @@ def report(J: np.ndarray, r: np.ndarray, sigma: float, clusters: np.ndarray | No
         corr = cov / np.outer(std, std)
     # With unit columns, (J^T J)^-1_ii is the variance inflation factor of parameter i.
     inflation = np.sqrt(np.maximum(np.diag(bread), 1.0))
-    return Report(s.tolist(), rank, condition, o1, std=std, correlation=np.nan_to_num(corr), inflation=inflation)
+    return Report(
+        s.tolist(),
+        rank,
+        condition,
+        o1,
+        std=std,
+        correlation=np.nan_to_num(corr),
+        inflation=inflation,
+        covariance=cov,
+    )
 
 
 def strong_correlations(profile: Profile, corr: np.ndarray, free: list[int]) -> list[Correlation]:

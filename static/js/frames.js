@@ -24,14 +24,11 @@ function sortedRows(rows = state.review.table) {
   });
 }
 
-// A frame's new-minus-old error (null without both) and its word: better (the new calibration's error is
-// smaller), worse, or same (within 1% of the old error).
+// A frame's new-minus-old error (null without both) and the server's word for it: better or worse beyond k
+// bands (how far the calibrations' own uncertainty moves the frame's predictions), same within; none
+// without a band (no calibration with a covariance), so the change is not coloured.
 const change = (r) => (r.err_old === null || r.err_new === null || r.err_new === undefined ? null : r.err_new - r.err_old);
-const verdict = (r) => {
-  const d = change(r);
-  if (d === null) return "";
-  return Math.abs(d) <= 0.01 * Math.abs(r.err_old) ? "same" : d < 0 ? "better" : "worse";
-};
+const verdict = (r) => (change(r) === null ? "" : r.verdict || "");
 
 const signed = (v) => (v > 0 ? "+" : v < 0 ? "−" : "±") + fmt(Math.abs(v));
 
@@ -77,7 +74,10 @@ function renderFrameSummary(index) {
     el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
   if (state.review.new) {
     parts.push(" · new calibration ", el("span", { class: "green" }, `${fmt(r.err_new)} ${u}`));
-    if (v) parts.push(" · ", el("span", { class: v, "data-verdict": v }, `${signed(change(r))} ${u} (${v})`));
+    if (change(r) !== null) {
+      const band = r.band === null || r.band === undefined ? "" : `, band ${fmt(r.band)} ${u}`;
+      parts.push(" · ", el("span", { class: v, "data-verdict": v }, `${signed(change(r))} ${u} (${v || "no band"}${band})`));
+    }
   }
   box.replaceChildren(...parts);
   box.dataset.frame = index;

@@ -32,10 +32,30 @@ export async function loadReview(old, neu, sensor = null) {
   const slider = $("#frame-slider");
   slider.max = Math.max(0, rows.length - 1);
   renderFrames();
+  renderBand();
   renderSummary();
   await renderParameters();
   renderApply();
   if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
+}
+
+// What "same", "better" and "worse" in the frame list mean (app/review.py's band).
+function renderBand() {
+  const b = state.review.summary.band;
+  const p = $("#change-band");
+  p.dataset.of = b.of.join(" ");
+  if (!state.review.new) {
+    p.textContent = "";
+    return;
+  }
+  if (!b.of.length) {
+    p.textContent = "new−old is not coloured: neither calibration has a covariance (the nominal model, or a file written before covariances were kept).";
+    return;
+  }
+  const whose = b.of.length === 2 ? "the old and the new calibration's" : `the ${b.of[0]} calibration's`;
+  const other = b.of[0] === "new" ? "old" : "new";
+  const without = b.of.length === 2 ? "" : ` (the ${other} calibration has none: the nominal model, or a file written before covariances were kept)`;
+  p.textContent = `better / worse: new−old beyond ${b.k}× the frame's band, same within it. The band: how far ${whose} own uncertainty moves the frame's predicted points (RMS over its points; median ${fmt(b.median)} ${unit()})${without}.`;
 }
 
 function renderSummary() {
