@@ -253,3 +253,40 @@ def test_noise_is_not_coloured_as_change(chromium, tmp_path) -> None:
                 assert "the old calibration has none" in text
                 assert verdicts.count("better") == len(verdicts)
                 shot(page, "review-5-better")
+
+
+def test_a_wall_of_warnings_is_a_line_per_kind(chromium, tmp_path) -> None:
+    """TALOS (FIGAROH's data) added to the desk and calibrated in `origins` mode: its 61 findings are two lines, the
+    weak parameters before the held ones, each naming its parameters, every finding listed when opened."""
+    figaroh = Path(__file__).resolve().parents[1] / "sample_sessions" / "figaroh"
+    with served(tmp_path / "data") as server:
+        added = server.post("/api/robots", data={"name": "talos", "profile": str(figaroh / "talos.yaml")})
+        assert added.status_code == 201, added.text
+        csv = (figaroh / "talos_left_arm_02_10_contact.csv").read_bytes()
+        imported = server.post(
+            "/api/sessions/import", data={"robot": "talos", "name": "talos"}, files={"data": ("talos.csv", csv)}
+        )
+        assert imported.status_code == 201, imported.text
+        sid = imported.json()["id"]
+        cal = calibrated(server, sid, mode="origins", holdout=0.0)
+        saved = server.get(f"/api/calibrations/{cal}").json()["diagnostics"]
+        assert len(saved) == 61
+
+        page = ready_page(chromium, server.url, 1600, 1000)
+        page.click(f"li[data-session='{sid}']")
+        page.wait_for_function("document.querySelector('#review-new').value !== ''")
+        page.click("#tabs button[data-tab='review']")
+        page.wait_for_selector("#warnings details")
+        lines = page.eval_on_selector_all("#warnings > *", "es => es.map(e => [e.tagName, e.dataset.code])")
+        assert lines == [["DETAILS", "weak"], ["DETAILS", "held-fixed"]]
+        for code, n in (("weak", 30), ("held-fixed", 33)):
+            title = page.text_content(f"#warnings details[data-code='{code}'] summary")
+            named = {p for d in saved if d["code"] == code for p in d["parameters"]}
+            assert title.startswith(f"⚠ {n} parameters") and all(p in title for p in named)
+            assert not page.is_visible(f"#warnings details[data-code='{code}'] li")
+        page.click("#warnings details[data-code='held-fixed'] summary")
+        items = page.locator("#warnings details[data-code='held-fixed'] li")
+        assert items.count() == 33 and items.first.is_visible()
+        assert "cannot be told apart" in items.first.text_content()
+        page.locator("#warnings").scroll_into_view_if_needed()
+        shot(page, "review-12-warnings")

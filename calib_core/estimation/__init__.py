@@ -22,6 +22,7 @@ __getattr__ = lazy_exports(
         "reports": (
             "Correlation",
             "Diagnostic",
+            "DiagnosticGroup",
             "HeldParameter",
             "IdentifiabilityReport",
             "NoiseTest",
@@ -38,6 +39,7 @@ __all__ = [
     "Correlation",
     "Covariance",
     "Diagnostic",
+    "DiagnosticGroup",
     "Evaluation",
     "Figures",
     "HeldParameter",
@@ -74,6 +76,7 @@ if TYPE_CHECKING:
     from .reports import (
         Correlation,
         Diagnostic,
+        DiagnosticGroup,
         HeldParameter,
         IdentifiabilityReport,
         NoiseTest,

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InputError
 from ..files import write_atomic
 from ..model.profile import Profile
-from .reports import Diagnostic, IdentifiabilityReport, Severity, SolverReport
+from .reports import Diagnostic, DiagnosticGroup, IdentifiabilityReport, Severity, SolverReport, group_diagnostics
 from .validation import Figures
 
 FORMAT = "calib-calibration/1"
@@ -100,6 +100,10 @@ class Calibration:
     def warnings(self) -> list[str]:
         """The sentences of the diagnostics to read before applying."""
         return [d.message for d in self.diagnostics if d.severity is Severity.WARNING]
+
+    def diagnostic_groups(self) -> list[DiagnosticGroup]:
+        """The diagnostics one line per kind, those that change whether to apply it first."""
+        return group_diagnostics(self.diagnostics)
 
     # --- values -----------------------------------------------------------------------------------
     def values(self) -> dict[str, float]:
@@ -190,8 +194,9 @@ class Calibration:
         return cls.from_dict(d, name)
 
     # --- people -----------------------------------------------------------------------------------
-    def summary(self) -> str:
-        """A few lines for a terminal: figures, solver, warnings."""
+    def summary(self, verbose: bool = False) -> str:
+        """A few lines for a terminal: figures, solver, the diagnostics one line per kind (`verbose`: and each
+        diagnostic of a kind that has several under its line)."""
         f = self.figures
         lines = [f"{self.robot} {self.mode} calibration ({self.method}) on {f['after'].n} observations"]
         lines.append(f"  before: {f['before']}")
@@ -214,7 +219,10 @@ class Calibration:
         if s.starts > 1:
             work += f", {s.starts} starts (kept: {s.start})"
         lines.append(f"  solver: {work} ({outcome})")
-        lines += [f"  {d.severity.value}: {d.message}" for d in self.diagnostics]
+        for g in self.diagnostic_groups():
+            lines.append(f"  {g.severity.value}: {g.title}")
+            if verbose and len(g.messages) > 1:
+                lines += [f"    - {m}" for m in g.messages]
         return "\n".join(lines)
 
 

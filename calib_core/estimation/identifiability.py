@@ -286,8 +286,8 @@ def identifiability_report(
 
 def weak_parameters(
     profile: Profile, rep: Report, free: list[int], nuisance: frozenset[int] = frozenset()
-) -> list[str]:
-    """One warning per group of parameters the data determine only in combination.
+) -> list[tuple[list[str], str]]:
+    """One warning per group of parameters the data determine only in combination: (their labels, the message).
 
     A parameter is weak when the others mimic more than 99.75% of its effect (its standard
     deviation is at least INFLATION_WARNING times what it would be alone); weak parameters that
@@ -317,9 +317,12 @@ def weak_parameters(
         a = members[0]
         b = max((j for j in range(len(free)) if j != a), key=lambda j: abs(rep.correlation[a, j]))
         out.append(
-            f"{names}: weakly determined by these data (standard deviation {spread} what it would be if the "
-            f"other parameters were known); {profile.label(free[a])} trades off against {profile.label(free[b])} "
-            f"(correlation {rep.correlation[a, b]:+.2f}): the data fix a combination of them, not each one; "
-            "more varied configurations separate them"
+            (
+                [profile.label(free[k]) for k in members],
+                f"{names}: weakly determined by these data (standard deviation {spread} what it would be if the "
+                f"other parameters were known); {profile.label(free[a])} trades off against {profile.label(free[b])} "
+                f"(correlation {rep.correlation[a, b]:+.2f}): the data fix a combination of them, not each one; "
+                "more varied configurations separate them",
+            )
         )
     return out

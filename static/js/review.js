@@ -84,8 +84,14 @@ async function renderParameters() {
     w.append(el("p", { class: "warning", "data-code": "not-converged" },
       `⚠ Did not converge: ${cal.solver.message} after ${cal.solver.iterations} iterations.`));
   }
-  for (const d of cal.diagnostics.filter((d) => d.severity === "warning" && d.code !== "not-converged")) {
-    w.append(el("p", { class: "warning", "data-code": d.code }, `⚠ ${d.message}`));
+  // One line per kind, those that change whether to apply first; a kind of several lists each on demand.
+  for (const g of cal.diagnostic_groups.filter((g) => g.severity === "warning" && g.code !== "not-converged")) {
+    if (g.messages.length === 1) {
+      w.append(el("p", { class: "warning", "data-code": g.code }, `⚠ ${g.title}`));
+      continue;
+    }
+    w.append(el("details", { class: "warning", "data-code": g.code },
+      el("summary", {}, `⚠ ${g.title}`), el("ul", {}, ...g.messages.map((m) => el("li", {}, m)))));
   }
   if (cal.outliers.length) {
     w.append(el("p", {}, `Outliers left out: ${cal.outliers.map((o) => `frame ${o.frame} (${fmt(o.error, 2)} ${o.unit})`).join(", ")}`));
