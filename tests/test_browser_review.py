@@ -290,3 +290,80 @@ def test_a_wall_of_warnings_is_a_line_per_kind(chromium, tmp_path) -> None:
         assert "cannot be told apart" in items.first.text_content()
         page.locator("#warnings").scroll_into_view_if_needed()
         shot(page, "review-12-warnings")
+
+
+def _figure(page, column: str) -> str:
+    return page.text_content(f"#summary tr[data-figure='mean'] td[data-col='{column}']")
+
+
+def test_figures_follow_an_apply_and_the_session_shown(chromium, tmp_path) -> None:
+    """A calibration made on the page, reviewed against the robot's active one (the nominal model) and applied: the
+    review's old side is then the applied calibration (its figures the new side's); another session opened shows
+    no job line or cost curve of this one's calibration."""
+    with served(tmp_path / "data") as server:
+        page = ready_page(chromium, server.url, 1600, 1000)
+        page.on("dialog", lambda d: d.accept())
+        page.click("li[data-session='nao']")
+        page.wait_for_selector("#frames tr[data-frame]", state="attached")
+        page.click("#tabs button[data-tab='calibrate']")
+        page.click("#calibrate-start")
+        page.wait_for_selector("#tab-review:not([hidden])", timeout=120_000)  # done: the review of the new one
+        assert page.input_value("#review-old") == "active"
+        new = page.input_value("#review-new")
+        assert new and _figure(page, "old") != _figure(page, "new")
+        page.click("#tabs button[data-tab='apply']")
+        page.click("#apply")
+        page.wait_for_function("id => document.querySelector('#active-cal').dataset.id === id", arg=new)
+        page.wait_for_function(
+            "() => { const c = (k) => document.querySelector(`#summary tr[data-figure='mean'] td[data-col='${k}']`);"
+            " return c('old').textContent === c('new').textContent; }"
+        )
+        page.click("#tabs button[data-tab='review']")
+        shot(page, "review-6-after-apply")
+
+        page.click("#tabs button[data-tab='calibrate']")
+        assert page.text_content("#job-state").startswith("done")
+        page.click("li[data-session='robonaut-a-day1']")
+        page.wait_for_function("document.querySelector('#sessions li.selected').dataset.session === 'robonaut-a-day1'")
+        page.click("#tabs button[data-tab='calibrate']")
+        page.wait_for_function("document.querySelector('#job-state').textContent === ''")  # once it has opened
+        assert page.eval_on_selector("#job-progress", "p => p.value") == 0
+        drawn = page.eval_on_selector(
+            "#cost-curve",
+            "c => c.getContext('2d').getImageData(0, 0, c.width, c.height).data.filter((v) => v > 0).length",
+        )
+        shot(page, "review-6-other-session")
+        assert not drawn, drawn
+        shot(page, "review-6-other-session")
+
+
+def test_captured_frames_show_their_errors_and_place_at_once(chromium, tmp_path) -> None:
+    """A frame captured by hand and selected, then frames auto-captured while the robot wanders: each joins the
+    list with its error (no "—" until clicked), and the label counts them all."""
+    with served(tmp_path / "data", sim_speed=10.0) as server:
+        page, sid = new_nao_session(chromium, server.url, "auto")
+        page.wait_for_selector("#capture:enabled", timeout=30_000)
+        page.click("#capture")
+        page.wait_for_selector("#frames tr[data-frame='1']", state="attached", timeout=30_000)
+        page.click("#tabs button[data-tab='review']")
+        page.click("#frames tr[data-frame='1']")
+        page.wait_for_function("document.querySelector('#frame-label').textContent === 'frame 1 (1/1)'")
+        page.click("#tabs button[data-tab='observe']")
+        page.check("#autocapture")
+        page.check("#wander")
+        page.wait_for_function(
+            "document.querySelectorAll('#frames tr[data-frame]').length >= 4", timeout=120_000, polling=200
+        )
+        page.uncheck("#wander")
+        page.uncheck("#autocapture")
+        page.click("#tabs button[data-tab='review']")
+        page.wait_for_function(  # every measured frame's old error, and the label's count, without a click
+            "() => { const rows = [...document.querySelectorAll('#frames tr[data-frame]')];"
+            " const label = document.querySelector('#frame-label').textContent;"
+            " return rows.every((r) => r.children[1].textContent !== 'measured' || r.children[2].textContent !== '—')"
+            " && label.endsWith(`/${rows.length})`); }",
+            timeout=30_000,
+        )
+        measured = [f for f in server.get(f"/api/sessions/{sid}").json()["frames"] if f["status"] == "measured"]
+        assert len(measured) >= 2
+        shot(page, "review-6-auto-captured")

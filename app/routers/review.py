@@ -98,6 +98,19 @@ def review(reviews: ReviewDep, viewer: ViewerDep, body: ReviewRequest) -> Review
     return ReviewOut.model_validate(reviews.load(viewer, body.session, body.old, body.new, body.sensor))
 
 
+class ReviewTable(BaseModel):
+    table: list[ReviewRow]
+    summary: ReviewSummary
+
+
+@router.post("/review/table")
+def review_table(reviews: ReviewDep, body: ReviewRequest) -> ReviewTable:
+    """A review's frame table and summary as `POST /review` answers them, the scene untouched (what the page asks
+    when frames join the session it shows: a live view keeps running)."""
+    review, _ = reviews.build(body.session, body.old, body.new, body.sensor)
+    return ReviewTable.model_validate({"table": review.table(), "summary": review.summary()})
+
+
 class SelectRequest(BaseModel):
     index: int = Field(ge=FRAME_MIN, le=FRAME_MAX)
     all: bool = False

@@ -3,7 +3,7 @@
 
 import { api } from "./api.js";
 import { $, act, el, fmt, toast } from "./dom.js";
-import { loadReview, unit } from "./review.js";
+import { loadReview, refreshFigures, unit } from "./review.js";
 import { drawSplit } from "./split.js";
 import { DEBUG, state } from "./state.js";
 
@@ -44,7 +44,7 @@ export function renderFrames() {
     onclick: () => {
       state.sort = { key: k, dir: state.sort.key === k ? -state.sort.dir : -1 };
       renderFrames();
-      if (state.frame !== null) $("#frame-slider").value = state.frameOrder.indexOf(state.frame);
+      showPosition();
     },
   }, label + (state.sort.key === k ? (state.sort.dir < 0 ? " ▼" : " ▲") : "")))));
   const rows = sortedRows(withChange);
@@ -83,6 +83,15 @@ function renderFrameSummary(index) {
   box.dataset.frame = index;
 }
 
+// The slider and its label at the selected frame's place in the frame list's order.
+function showPosition() {
+  const slider = $("#frame-slider");
+  slider.max = Math.max(0, state.frameOrder.length - 1);
+  slider.value = state.frameOrder.indexOf(state.frame);
+  $("#frame-label").textContent = state.frame === null ? "frame —"
+    : `frame ${state.frame} (${state.frameOrder.indexOf(state.frame) + 1}/${state.frameOrder.length})`;
+}
+
 // Latest wins: while a scene update is in flight only the newest request waits behind it.
 let selecting = false;
 let pending = null;
@@ -93,8 +102,7 @@ export async function selectFrame(index) {
     await act(() => loadReview(...state.reviewAsked));
   }
   state.frame = index;
-  $("#frame-slider").value = state.frameOrder.indexOf(index);
-  $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
+  showPosition();
   // Only the rows that change (a session may have thousands).
   for (const tr of document.querySelectorAll("#frames tr.selected")) if (+tr.dataset.frame !== index) tr.classList.remove("selected");
   const row = document.querySelector(`#frames tr[data-frame="${index}"]`);
@@ -149,7 +157,8 @@ function togglePlay() {
 }
 
 // Frames captured while the page looks on (a replay, auto-capture) join the frame list at once: fetched with
-// the session, shown without errors (none computed yet) until the review is next loaded. Latest wins.
+// the session, then their errors (the review's figures asked again, its scene untouched: selecting a new
+// frame loads the review again). Latest wins.
 let refreshing = null;
 export async function showNewFrames(sid) {
   if (refreshing) {
@@ -179,7 +188,12 @@ export async function showNewFrames(sid) {
       if (!changed) continue;
       reviewStale = true;  // selecting one loads the review again
       renderFrames();  // the frame list's order is the stepping order
-      $("#frame-slider").max = Math.max(0, state.frameOrder.length - 1);
+      showPosition();
+      if (await refreshFigures()) {
+        renderFrames();
+        showPosition();
+        renderFrameSummary(state.frame);
+      }
     } while (refreshing.again);
   } catch (err) {
     toast(err.message);

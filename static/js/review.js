@@ -11,10 +11,13 @@ import { state } from "./state.js";
 
 export const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
 
-// `sensor`: whose observations (a session of several sensors); null: the data format's sensor.
-export async function loadReview(old, neu, sensor = null) {
-  const body = { session: state.session.id, old: old || null, new: neu || null, sensor };
-  state.review = await api("POST", "/review", body);
+const reviewBody = (old, neu, sensor) => ({ session: state.session.id, old: old || null, new: neu || null, sensor });
+
+// `sensor`: whose observations (a session of several sensors); null: the data format's sensor. `keep`: the
+// selected frame stays selected (a review asked again: the robot's active calibration changed).
+export async function loadReview(old, neu, sensor = null, keep = false) {
+  const kept = keep ? state.frame : null;
+  state.review = await api("POST", "/review", reviewBody(old, neu, sensor));
   forgetMarks();  // the server's marks are of this review from now on
   state.reviewAsked = [old, neu, sensor];
   state.newCal = state.review.new;
@@ -36,7 +39,19 @@ export async function loadReview(old, neu, sensor = null) {
   renderSummary();
   await renderParameters();
   renderApply();
-  if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
+  if (state.frameOrder.includes(kept)) await selectFrame(kept);
+  else if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
+}
+
+// The review's figures again, its scene untouched (frames captured meanwhile: a live view keeps running).
+export async function refreshFigures() {
+  const [old, neu, sensor] = state.reviewAsked;
+  const sid = state.session.id;
+  const fresh = await api("POST", "/review/table", reviewBody(old, neu, sensor));
+  if (!state.review || state.review.session !== sid || state.reviewAsked[1] !== neu) return false;
+  Object.assign(state.review, fresh);
+  renderSummary();
+  return true;
 }
 
 // What "same", "better" and "worse" in the frame list mean (app/review.py's band).
