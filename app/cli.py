@@ -16,9 +16,9 @@ import shlex
 import sys
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -153,7 +153,10 @@ def _parser() -> argparse.ArgumentParser:
     ex.add_argument("--robot", required=True, help="built-in profile or a profile YAML file")
     ex.add_argument("--calibration", required=True, help="calibration JSON (from solve)")
     ex.add_argument(
-        "--format", required=True, choices=["urdf", "yaml"], help="urdf: corrected joint origins; yaml: offsets"
+        "--format",
+        required=True,
+        choices=["urdf", "yaml", "bhuman"],
+        help="urdf: corrected joint origins; yaml: offsets; bhuman: a NAO's jointCalibration.cfg (B-Human's form)",
     )
     ex.add_argument("--out", required=True, help="the file to write")
 
@@ -233,6 +236,13 @@ def _parser() -> argparse.ArgumentParser:
         help="a robot on its ROS 2 graph (specs ros2.md; the ros2 extra); may be given more than once",
     )
     sv.add_argument(
+        "--naoqi",
+        action="append",
+        default=[],
+        metavar="CONNECTION.yaml",
+        help="a NAO through NAOqi (specs naoqi.md; the naoqi extra); may be given more than once",
+    )
+    sv.add_argument(
         "--max-upload-mb",
         type=float,
         default=DEFAULT_MAX_UPLOAD_BYTES / (1024 * 1024),
@@ -263,6 +273,22 @@ def _parser() -> argparse.ArgumentParser:
     r2.add_argument(
         "--stall-apply", action="store_true", help="never answer a new robot_description while running (tests)"
     )
+    nq = sub.add_parser("sim-naoqi", help="the simulated NAO served over libqi (the naoqi extra), until interrupted")
+    nq.add_argument("--robot", default="nao", help="the built-in nao (default) or a NAO profile file")
+    nq.add_argument("--url", default="tcp://127.0.0.1:9559", help="where it listens (default tcp://127.0.0.1:9559)")
+    nq.add_argument("--seed", type=int, default=1, help="the hidden truth's and the noise's seed (default 1)")
+    nq.add_argument("--day", type=int, default=1, help="a later day: the joint offsets drifted (default 1)")
+    nq.add_argument("--speed", type=float, default=1.0, help="times the moves' speed (default 1)")
+    nq.add_argument("--name", help="the robot's name in --connection-out (default: the profile's)")
+    nq.add_argument("--connection-out", metavar="FILE", help="write the desk's connection file for this robot")
+    nq.add_argument(
+        "--stiffness-off",
+        action="append",
+        default=[],
+        metavar="JOINT",
+        help="a joint whose stiffness stays off (tests)",
+    )
+    nq.add_argument("--image-size", metavar="WxH", help="serve images of this size whatever is asked (tests)")
     return p
 
 
@@ -302,6 +328,7 @@ def _run(argv: Sequence[str] | None) -> int:
             "import-bag": _import_bag,
             "serve": _serve,
             "sim-ros2": _sim_ros2,
+            "sim-naoqi": _sim_naoqi,
         }
         return commands[args.command](args)
     except InputError as exc:
@@ -457,14 +484,19 @@ def _self_observe(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from calib_core.io import calibrated_urdf, offsets_yaml
+    from calib_core.io import bhuman_joint_calibration, calibrated_urdf, offsets_yaml
 
     profile = _load_robot(args)
     cal = _load_calibration(args.calibration, profile)
     _check_writable(args.out)
-    text = calibrated_urdf(profile, cal) if args.format == "urdf" else offsets_yaml(profile, cal)
+    write, what = {
+        "urdf": (calibrated_urdf, "URDF with corrected joint origins"),
+        "yaml": (offsets_yaml, "joint offsets"),
+        "bhuman": (bhuman_joint_calibration, "joint offsets as B-Human's jointCalibration.cfg"),
+    }[args.format]
+    text = write(profile, cal)
     _save(args.out, lambda: write_atomic(Path(args.out), text))
-    print(f"{'URDF with corrected joint origins' if args.format == 'urdf' else 'joint offsets'}: {args.out}")
+    print(f"{what}: {args.out}")
     return 0
 
 
@@ -708,6 +740,8 @@ def _serve(args: argparse.Namespace) -> int:
     config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
     if args.ros2:
         config = _with_ros2(config, args.ros2, Path(args.data_dir))
+    if args.naoqi:
+        config = _with_naoqi(config, args.naoqi)
     from .server import serve  # the web stack loads only for this subcommand, once the robots are checked
 
     serve(
@@ -725,29 +759,96 @@ def _serve(args: argparse.Namespace) -> int:
 
 def _with_ros2(config: DeskConfig | None, files: list[str], data_dir: Path) -> DeskConfig:
     """The desk's robots and those on ROS 2 graphs, each met and checked on its graph before the desk starts."""
-    from dataclasses import replace
-
-    from .desk_config import RobotConfig, default_config
-    from .drivers.registry import DriverSpec
     from .ros2 import require
 
     require()
     from .ros2.connection import connect, load_connection
 
-    config = config or default_config()
     conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is met
+    return _with_robots(config, conns, lambda conn: connect(conn, data_dir), "ros2")
+
+
+def _with_robots(
+    config: DeskConfig | None, conns: list, connect: Callable[[Any], tuple[str, dict]], kind: str
+) -> DeskConfig:
+    """The desk's robots (its configuration's, else the defaults) and one more of driver `kind` per connection,
+    `connect(conn)` giving its profile reference and driver options; the first is the one the page shows."""
+    from dataclasses import replace
+
+    from .desk_config import RobotConfig, default_config
+    from .drivers.registry import DriverSpec
+
+    config = config or default_config()
     robots = list(config.robots)
     for conn in conns:
         if conn.robot in {r.name for r in robots}:
             raise InputError(f"robot: '{conn.robot}' is on the desk already", file=str(conn.path))
-        ref, options = connect(conn, data_dir)
-        robots.append(RobotConfig(conn.robot, ref, DriverSpec("ros2", options), "config"))
+        ref, options = connect(conn)
+        robots.append(RobotConfig(conn.robot, ref, DriverSpec(kind, options), "config"))
     return replace(config, robots=tuple(robots), connected=config.connected or conns[0].robot)
 
 
+def _with_naoqi(config: DeskConfig | None, files: list[str]) -> DeskConfig:
+    """The desk's robots and the NAOs reached through NAOqi. A robot that does not answer yet is said so; the desk
+    starts all the same and connects to it once it answers."""
+    from .naoqi import open_session, require
+
+    require()
+    from .naoqi.connection import load_connection
+
+    def connect(conn: Any) -> tuple[str, dict]:
+        url = conn.options["url"]
+        try:
+            open_session(url).close()
+        except RuntimeError as exc:
+            print(
+                f"calib serve: {conn.robot}: NAOqi does not answer at {url} ({exc}); the desk starts and connects "
+                "to it once it answers",
+                file=sys.stderr,
+                flush=True,
+            )
+        return conn.profile, conn.options
+
+    conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is asked
+    return _with_robots(config, conns, connect, "naoqi")
+
+
+def _sim_naoqi(args: argparse.Namespace) -> int:
+
+    from .naoqi import require
+
+    require()
+    from .naoqi.sim import SimNao, serve
+
+    if not 0.1 <= args.speed <= 100 or not 1 <= args.day <= 1000:
+        raise InputError("--speed must be in 0.1..100 and --day in 1..1000")
+    if not args.url.startswith("tcp://"):
+        raise InputError(f"--url {args.url!r}: expected tcp://host:port")
+    size = None
+    if args.image_size is not None:
+        width, sep, height = args.image_size.partition("x")
+        if not (sep and width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
+            raise InputError(f"--image-size {args.image_size!r}: expected WIDTHxHEIGHT in px, e.g. 320x240")
+        size = (int(width), int(height))
+    profile = _load_robot(args)
+    unknown = [j for j in args.stiffness_off if j not in [joint.name for joint in profile.joints]]
+    if unknown:
+        raise InputError(f"--stiffness-off {unknown[0]}: no such joint of {profile.name}")
+    nao = SimNao(
+        profile, seed=args.seed, day=args.day, speed=args.speed, stiffness_off=args.stiffness_off, image_size=size
+    )
+    try:
+        session = serve(nao, args.url)
+    except RuntimeError as exc:
+        raise InputError(f"--url {args.url}: cannot listen there ({exc})") from None
+    if args.connection_out:
+        ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
+        doc = {"robot": args.name or profile.name, "profile": ref, "url": args.url, "camera": 1}
+        write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
+    return _until_stopped(f"calib sim-naoqi: {profile.name} at {args.url} (Ctrl-C ends it)", session.close)
+
+
 def _sim_ros2(args: argparse.Namespace) -> int:
-    import signal
-    import threading
 
     from .ros2 import require
 
@@ -776,14 +877,22 @@ def _sim_ros2(args: argparse.Namespace) -> int:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
         doc = connection_doc(ref, args.name or profile.name, profile, topics)
         write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
+    domain = os.environ.get("ROS_DOMAIN_ID", "0")
+    return _until_stopped(f"calib sim-ros2: {profile.name} on ROS_DOMAIN_ID={domain} (Ctrl-C ends it)", node.close)
+
+
+def _until_stopped(ready: str, close: Callable[[], object]) -> int:
+    """A simulated robot's process: says it is `ready`, serves until SIGTERM or Ctrl-C, then close()."""
+    import signal
+    import threading
+
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    domain = os.environ.get("ROS_DOMAIN_ID", "0")
-    print(f"calib sim-ros2: {profile.name} on ROS_DOMAIN_ID={domain} (Ctrl-C ends it)", flush=True)
+    print(ready, flush=True)
     try:
         done.wait()
     finally:
-        node.close()
+        close()
     return 0
 
 

@@ -5,5 +5,5 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/venv.sh
-ensure_venv . '.[test,ros2]' '.[test]'
+ensure_venv . '.[test,ros2,naoqi]' '.[test,ros2]' '.[test]'
 exec .venv/bin/calib serve "$@"

@@ -19,7 +19,7 @@ if ! $FAST && ! command -v chromium >/dev/null 2>&1; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
 fi
 source scripts/venv.sh
-ensure_venv '.[test,ros2]'
+ensure_venv '.[test,ros2,naoqi]'
 .venv/bin/ruff format --check calib_core app tests benchmarks
 .venv/bin/ruff check calib_core app tests benchmarks
 WORKERS=(-n "${TEST_WORKERS:-2}" --dist loadfile)

@@ -153,6 +153,14 @@ def new_nao_session(browser, url: str, name: str) -> tuple:
     return page, page.get_attribute("#sessions li.selected", "data-session")
 
 
+def nao_replay_tab(browser, url: str, name: str) -> tuple:
+    """A new NAO capture session's page (`new_nao_session`) on its Replay tab, waiting up to 60 s for what it asks."""
+    page, sid = new_nao_session(browser, url, name)
+    page.set_default_timeout(60_000)
+    page.click("#tabs button[data-tab='replay']")
+    return page, sid
+
+
 def colour_pixels(png: bytes, rgb: tuple[int, int, int], tol: int = 70) -> int:
     """How many pixels of a screenshot are within `tol` of a colour (per channel)."""
     import cv2

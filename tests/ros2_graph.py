@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from browser import Server, served
 
 from calib_core.units import length_factor
@@ -39,11 +40,12 @@ def calib(*args: str) -> list[str]:
 
 @dataclass
 class Sim:
-    """`calib sim-ros2` in its own process."""
+    """`calib sim-ros2` (or another simulated robot's command: `sim-naoqi`) in its own process."""
 
     args: list[str]
     env: dict[str, str]
     process: subprocess.Popen | None = None
+    command: str = "sim-ros2"
 
     def start(self, timeout_s: float = 60.0) -> Sim:
         return self.launch().ready(timeout_s)
@@ -51,7 +53,7 @@ class Sim:
     def launch(self) -> Sim:
         """Started, not waited for (ready())."""
         self.process = subprocess.Popen(
-            calib("sim-ros2", *self.args),
+            calib(self.command, *self.args),
             cwd=ROOT,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
@@ -62,10 +64,10 @@ class Sim:
     def ready(self, timeout_s: float = 60.0) -> Sim:
         """Once the node is on the graph."""
         assert self.process is not None
-        line = _read_line(self.process, "calib sim-ros2:", timeout_s)
+        line = _read_line(self.process, f"calib {self.command}:", timeout_s)
         if line is None:
             out = self.process.stdout.read().decode() if self.process.poll() is not None else ""  # type: ignore[union-attr]
-            raise RuntimeError(f"calib sim-ros2 did not start: {out[-2000:]}")
+            raise RuntimeError(f"calib {self.command} did not start: {out[-2000:]}")
         return self
 
     def kill(self) -> None:
@@ -280,3 +282,44 @@ def limit_violations(
                         bad.append(f"command {n}: {name} needs {need:.3f} s, given {t - t_previous:.3f} s")
             previous, t_previous = dict(zip(c.joint_names, positions, strict=True)), t
     return bad
+
+
+def driver_look(profile_path: Path, q: np.ndarray, picture: np.ndarray, folder: Path) -> Any:
+    """The data sensor's sighting of one look of the ROS 2 driver at a camera image `picture` (grey, H x W), handed
+    to it as its subscriptions would (no graph traffic): the robot stood still at q (rad) a second before the
+    image, its CameraInfo fx = fy = 600, cx = 320, cy = 240."""
+    from sensor_msgs.msg import CameraInfo, Image, JointState
+
+    from app.clock import ManualClock
+    from app.drivers.ros2 import ros2_driver
+    from app.ros2.connection import load_connection
+    from app.ros2.link import Link
+    from app.ros2.sim_node import Topics, connection_doc
+    from calib_core import load_profile
+
+    profile = load_profile(profile_path)
+    doc = connection_doc(str(profile_path), "charuco", profile, Topics("/charuco"))
+    (folder / "charuco.yaml").write_text(yaml.safe_dump({**doc, "measurement_wait_s": 0.05}), encoding="utf-8")
+    link = Link(f"look_test_{os.getpid()}")
+    clock = ManualClock()
+    driver = ros2_driver(profile, load_connection(folder / "charuco.yaml"), link, clock=clock)
+    robot = driver.transport
+    try:
+        t = link.now_s()
+        for k in range(3):  # the robot stands still at q: its settled joint states stamped t - 1 s
+            state = JointState(name=[j.name for j in profile.joints], position=[float(v) for v in q])
+            state.header.stamp.sec, state.header.stamp.nanosec = int(t - 1), k
+            robot._on_joints(state)
+        robot._on_info("cam")(CameraInfo(k=[600.0, 0, 320, 0, 600.0, 240, 0, 0, 1]))
+        height, width = picture.shape
+        image = Image(height=height, width=width, encoding="mono8", step=width, data=picture.tobytes())
+        image.header.stamp.sec, image.header.stamp.nanosec = int(t), int(t % 1 * 1e9)
+        robot._on_image("cam")(image)
+        looks: list = []
+        looking = threading.Thread(target=lambda: looks.append(driver.look()))
+        looking.start()
+        clock.run(lambda: not looking.is_alive(), threads=1, step_s=0.01)
+        looking.join()
+        return looks[0].sightings[0]
+    finally:
+        driver.close()

@@ -18,8 +18,6 @@ from fastapi.testclient import TestClient
 from app.jobs.snapshot import JobSnapshot
 from app.services.replay import ReplayPlan, ReplayService
 
-playwright_api = pytest.importorskip("playwright.sync_api")
-
 
 def events(client: TestClient, job: str) -> list[dict]:
     """The job's server-sent events, until the stream ends with the job."""
@@ -121,14 +119,11 @@ def test_a_dry_run_jobs_result_is_the_dry_run_and_the_replay_after_it_drives_tha
 
 @pytest.mark.browser
 @pytest.mark.subprocess
-def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(tmp_path: Path) -> None:
-    from browser import launch, new_nao_session, served
+def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(chromium, tmp_path: Path) -> None:
+    from browser import nao_replay_tab, served
 
-    with served(tmp_path / "data", sim_speed=20.0) as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        page, _ = new_nao_session(browser, server.url, "dry run in the browser")
-        page.set_default_timeout(60_000)
-        page.click("#tabs button[data-tab='replay']")
+    with served(tmp_path / "data", sim_speed=20.0) as server:
+        page, _ = nao_replay_tab(chromium, server.url, "dry run in the browser")
         page.check("input[name=replay-source][value=count]")
         asked: list[dict] = []
         page.on("request", lambda r: r.method == "POST" and r.url.endswith("/replay") and asked.append(r.url))
@@ -171,4 +166,3 @@ def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(tmp_path: P
             )
             assert page.text_content("#dry-run-result") == ""
             assert page.is_enabled("#dry-run") and page.is_disabled("#replay-abort")
-        browser.close()

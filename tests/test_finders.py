@@ -49,6 +49,7 @@ def test_the_registry_gives_each_shipped_profile_its_finder() -> None:
     camera = {("cam", "board"): CheckerboardFinder}
     expected = {
         "charuco-arm.yaml": {("cam", "board"): CharucoFinder},
+        "handeye-charuco.yaml": {("cam", "board"): CharucoFinder},
         "handeye-in-hand.yaml": camera,
         "handeye-to-hand.yaml": camera,
         "handeye-intrinsics.yaml": camera,
@@ -196,3 +197,43 @@ def test_a_charuco_drive_recorded_as_a_ros2_bag_imports_through_its_finder(tmp_p
         truth = board_corners(drive.robot.profile, drive.robot.true_params, drive.poses_rad[k], 0)
         assert rows.sum() >= 6
         assert np.linalg.norm(data.measured[rows] - truth[data.vertex[rows]], axis=1).max() < MAX_ERROR_PX
+
+
+def test_a_checkerboard_with_no_guess_is_ordered_by_its_squares_colours() -> None:
+    """The hand-eye profile gives no pose (the nominal model's prediction is hundreds of px off): a 7 x 6 board
+    (13 odd: half a turn changes its squares' colours) is ordered from its face's handedness and its squares,
+    whichever of its four orders the detector gives. Measured: every corner within 0.12 px of the truth."""
+    sim = SimulatedRobot.from_profile(load_profile(PROFILES / "handeye-in-hand.yaml"), seed=3)
+    finder = sim.finder(0)
+    assert isinstance(finder, CheckerboardFinder)
+    nominal = sim.profile.nominal()
+    q, _ = sim.configurations(6)
+    for k in range(len(q)):
+        s = sim.capture(k + 1, q[k], 0, nominal).sighting
+        assert s.status == FrameStatus.MEASURED and s.measured is not None, s.detail
+        assert s.detail["prediction_px"] > 100  # the prediction could not have ordered them
+        truth = truth_px(sim, q[k])
+        assert np.linalg.norm(s.measured - truth, axis=1).max() < MAX_ERROR_PX
+        grey = finder.render(sim.true_params, q[k], np.random.default_rng(k)).images["image"]
+        rows, cols = finder.shape
+        turned = truth.reshape(rows, cols, 2)
+        for order in (turned, turned[::-1], turned[:, ::-1], turned[::-1, ::-1]):  # as the detector may give them
+            corners = finder._by_colour(grey, order.reshape(-1, 2), truth).measured
+            assert corners is not None and np.array_equal(corners, truth)
+
+
+def test_a_symmetric_checkerboard_with_no_guess_says_it_needs_one(tmp_path: Path) -> None:
+    """A 7 x 5 board (12 even) looks the same turned by half a turn: without a guess it is not measured, with a
+    sentence that says what would do; with the truth as the guess it is."""
+    text = (PROFILES / "handeye-in-hand.yaml").read_text(encoding="utf-8").replace("rows: 6", "rows: 5")
+    text = text.replace("../../docs/", str(PROFILES.parent.parent / "docs") + "/")
+    (tmp_path / "symmetric.yaml").write_text(text, encoding="utf-8")
+    sim = SimulatedRobot.from_profile(load_profile(tmp_path / "symmetric.yaml"), seed=3)
+    q = sim.configurations(1)[0][0]
+    s = sim.capture(1, q, 0, sim.profile.nominal()).sighting
+    assert s.status == FrameStatus.NOT_FOUND and s.reason == "far from prediction"
+    assert "7 x 5 inner corners looks the same turned by half a turn" in s.detail["detail"]
+    assert "a ChArUco board" in s.detail["detail"]
+    s = sim.capture(1, q, 0, sim.true_params).sighting
+    assert s.status == FrameStatus.MEASURED and s.measured is not None
+    assert np.linalg.norm(s.measured - truth_px(sim, q), axis=1).max() < MAX_ERROR_PX

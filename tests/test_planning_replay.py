@@ -14,7 +14,6 @@ from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 from test_api import dry_run
 
-playwright_api = pytest.importorskip("playwright.sync_api")
 SHOTS = os.environ.get("CALIB_SCREENSHOTS")  # a folder: keep a screenshot of the Replay step
 
 
@@ -56,14 +55,11 @@ def test_capture_until_the_predicted_error_reaches_the_target(client: TestClient
 
 @pytest.mark.browser
 @pytest.mark.subprocess
-def test_until_and_the_prediction_in_the_browser(tmp_path: Path) -> None:
-    from browser import launch, new_nao_session, served
+def test_until_and_the_prediction_in_the_browser(chromium, tmp_path: Path) -> None:
+    from browser import nao_replay_tab, served
 
-    with served(tmp_path / "data", sim_speed=20.0) as server, playwright_api.sync_playwright() as pw:
-        browser = launch(pw)
-        page, _ = new_nao_session(browser, server.url, "until in the browser")
-        page.set_default_timeout(60_000)
-        page.click("#tabs button[data-tab='replay']")
+    with served(tmp_path / "data", sim_speed=20.0) as server:
+        page, _ = nao_replay_tab(chromium, server.url, "until in the browser")
         page.wait_for_selector("#tab-replay:not([hidden])")
         assert page.text_content("#replay-until-unit") == "px"
 
@@ -92,4 +88,3 @@ def test_until_and_the_prediction_in_the_browser(tmp_path: Path) -> None:
         assert page.input_value("#replay-until-error") == "0.3"  # the operator's target stays after the replay
         if SHOTS:
             page.locator("#tab-replay").screenshot(path=str(Path(SHOTS) / "2b-replay-until.png"))
-        browser.close()

@@ -65,7 +65,7 @@ def test_the_simulated_kind_checks_its_options_and_makes_the_robot() -> None:
         registry.check(DriverSpec("simulated", {"seed": -1}), nao)
     with pytest.raises(InputError, match=r"driver\.speed: no such option"):
         registry.check(DriverSpec("simulated", {"speed": 2}), nao)
-    with pytest.raises(InputError, match=r"driver\.kind: unknown driver kind 'ros3' \(known: simulated, ros2\)"):
+    with pytest.raises(InputError, match=r"driver\.kind: unknown driver kind 'ros3' \(known: simulated, ros2, naoqi\)"):
         registry.check(DriverSpec("ros3"), nao)
     driver = registry.create(registry.check(DriverSpec("simulated"), nao), nao, DriverContext(time_scale=50.0))
     assert isinstance(driver, SimulatedDriver) and driver.status().connected
@@ -274,7 +274,7 @@ BROKEN = [
     ),
     ({"profile_file": ("p.yaml", b"name: [unclosed")}, ["p.yaml", "not valid YAML"]),
     ({"profile_file": ("arm.yaml", PROFILE.encode()), "urdf_file": ("arm.yaml", b"")}, ["both named arm.yaml"]),
-    ({"profile": "nao", "driver": "ros3"}, ["driver: unknown driver kind 'ros3' (known: simulated, ros2)"]),
+    ({"profile": "nao", "driver": "ros3"}, ["driver: unknown driver kind 'ros3' (known: simulated, ros2, naoqi)"]),
     (
         {"profile": "nao", "driver": "simulated", "driver_options": '{"seed": -1}'},
         ["driver_options.seed: expected a whole number from 0, got -1"],

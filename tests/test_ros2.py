@@ -637,13 +637,9 @@ def test_a_charuco_board_on_a_camera_topic_is_measured_by_its_finder(tmp_path):
     """A rendered ChArUco image and its CameraInfo handed to the driver as its subscriptions would (no graph
     traffic): the look runs the registry's ChArUco finder and measures the corners by their ids, where the
     simulator's truth puts them."""
-    from sensor_msgs.msg import CameraInfo, Image, JointState
+    from ros2_graph import driver_look
 
-    from app.clock import ManualClock
-    from app.drivers.ros2 import ros2_driver
-    from app.ros2.connection import load_connection
-    from app.ros2.link import Link
-    from app.ros2.sim_node import Topics, connection_doc, sensor_kind
+    from app.ros2.sim_node import sensor_kind
     from calib_core.vision.sandal_board import board_corners
 
     path = ROOT / "tests" / "profiles" / "charuco-arm.yaml"
@@ -651,31 +647,7 @@ def test_a_charuco_board_on_a_camera_topic_is_measured_by_its_finder(tmp_path):
     assert sensor_kind(profile) == "image"
     sim = SimulatedRobot.from_profile(profile, seed=4)
     q = sim.configurations(1)[0][0]
-    picture = sim.render(q, 0)[0]["image"]
-    doc = connection_doc(str(path), "charuco", profile, Topics("/charuco"))
-    (tmp_path / "charuco.yaml").write_text(yaml.safe_dump({**doc, "measurement_wait_s": 0.05}), encoding="utf-8")
-    link = Link("charuco_test")
-    clock = ManualClock()
-    driver = ros2_driver(profile, load_connection(tmp_path / "charuco.yaml"), link, clock=clock)
-    robot = driver.transport
-    try:
-        t = link.now_s()
-        for k in range(3):  # the robot stands still at q: its settled joint states stamped t - 1 s
-            state = JointState(name=[j.name for j in profile.joints], position=[float(v) for v in q])
-            state.header.stamp.sec, state.header.stamp.nanosec = int(t - 1), k
-            robot._on_joints(state)
-        robot._on_info("cam")(CameraInfo(k=[600.0, 0, 320, 0, 600.0, 240, 0, 0, 1]))
-        image = Image(height=480, width=640, encoding="mono8", step=640, data=picture.tobytes())
-        image.header.stamp.sec, image.header.stamp.nanosec = int(t), int(t % 1 * 1e9)
-        robot._on_image("cam")(image)
-        looks: list = []
-        looking = threading.Thread(target=lambda: looks.append(driver.look()))
-        looking.start()
-        clock.run(lambda: not looking.is_alive(), threads=1, step_s=0.01)
-        looking.join()
-        s = looks[0].sightings[0]
-        assert s.measured is not None and len(s.vertices) >= 6, s.reason
-        truth = board_corners(profile, sim.true_params, q, 0)[s.vertices]
-        assert np.linalg.norm(s.measured - truth, axis=1).max() < 0.5
-    finally:
-        driver.close()
+    s = driver_look(path, q, sim.render(q, 0)[0]["image"], tmp_path)
+    assert s.measured is not None and len(s.vertices) >= 6, s.reason
+    truth = board_corners(profile, sim.true_params, q, 0)[s.vertices]
+    assert np.linalg.norm(s.measured - truth, axis=1).max() < 0.5

@@ -295,6 +295,13 @@ class Ros2Transport:
             image = grey_image(msg)
         except ValueError as exc:
             return Measurement(missing=f"{topic}: {exc}")
+        sensor = self.profile.sensors[self.profile.data.sensor]
+        size = sensor.image_size_px()
+        if size is not None and image.shape != (size[1], size[0]):
+            return Measurement(
+                missing=f"{topic}: images of {image.shape[1]} x {image.shape[0]} px, but the camera of robot "
+                f"'{self.profile.name}' (its intrinsics) has {size[0]} x {size[1]} px"
+            )
         k = info.k
         return Measurement(images={"image": image}, intrinsics_px=(k[0], k[4], k[2], k[5]))
 

@@ -48,6 +48,7 @@ from calib_core.files import write_atomic
 from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
+from ..connection_file import profile_ref, read_connection
 from . import require
 
 FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")
@@ -136,22 +137,8 @@ def load_connection(path: Path) -> Connection:
     """Read and check a connection file; InputError naming the file and the field."""
     path = Path(path).resolve()
     file = str(path)
-    doc = read_yaml(path, "ROS 2 connection file")
-    if not isinstance(doc, dict):
-        raise InputError("a ROS 2 connection file is a YAML mapping (robot, profile, topics)", file=file)
-    unknown = sorted(set(doc) - set(FIELDS) - set(OPTIONS))
-    if unknown:
-        raise InputError(f"{unknown[0]}: no such field (fields: {', '.join(FIELDS + tuple(OPTIONS))})", file=file)
-    from ..validation import check_id
-
-    try:
-        check_id("robot name", doc.get("robot"))
-    except InputError as exc:
-        raise InputError(f"robot: {exc.message}", file=file) from None
-    ref = _text(doc, "profile", file)
-    profile = ref if ref in BUILTIN_PROFILES else str((path.parent / ref).resolve())
-    if profile not in BUILTIN_PROFILES and not Path(profile).is_file():
-        raise InputError(f"profile: {ref} does not exist (relative to this file) and is no built-in profile", file=file)
+    doc = read_connection(path, "ROS 2 connection file", "robot, profile, topics", FIELDS + tuple(OPTIONS))
+    profile = profile_ref(_text(doc, "profile", file), path)
     topics = {k: _topic(doc, k, file) for k in ("description_topic", "joint_states", "command")}
     items = doc.get("measurements")
     if not isinstance(items, dict) or not items:

@@ -20,7 +20,6 @@ find those parameters.
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -35,8 +34,9 @@ from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 from calib_core.sim import SimulatedRobot
 from calib_core.units import length_factor
-from calib_core.vision import Sampler, StereoHead, Visibility, found_targets
+from calib_core.vision import StereoHead, found_targets
 
+from ..sim_view import home, render_in_view
 from . import require
 
 COMMAND_TOPIC = "/joint_trajectory_controller/joint_trajectory"
@@ -173,7 +173,7 @@ class SimNode:
         self._scale = np.array(
             [length_factor(profile.length_unit, "m") if j.prismatic else 1.0 for j in profile.joints]
         )
-        self._q = self._home()
+        self._q = home(profile, self.sim)
         self._plan: list[tuple[float, np.ndarray]] | None = None  # (s after start, q) from where it stood
         self._t0 = 0.0
         self.link = Link(
@@ -238,12 +238,6 @@ class SimNode:
         self._frame = sensor.name
         node.create_timer(1.0 / rate_hz, self._tick, callback_group=motion)
         self._rendered: tuple[np.ndarray, list[np.ndarray]] | None = None  # (the pose, its images)
-
-    def _home(self) -> np.ndarray:
-        """A start with the target in view, inside the limits less a degree."""
-        qs, _ = Sampler(Visibility(self.profile, self.sim.true_params), np.random.default_rng(99)).configurations(4)
-        margin = math.radians(1.0)
-        return np.clip(qs[0], self._lo + margin, self._hi - margin) if len(qs) else (self._lo + self._hi) / 2
 
     # --- commands ---------------------------------------------------------------------------------------
     def _on_trajectory(self, msg: Any) -> None:
@@ -321,7 +315,7 @@ class SimNode:
                 return
             q = self._q.copy()
         if self._rendered is None or not np.array_equal(self._rendered[0], q):  # a still scene: rendered once
-            self._rendered = (q, self._render(q))
+            self._rendered = (q, render_in_view(self.profile, self.sim, q))
         sensor = self.profile.sensors[self.profile.data.sensor]
         fx, fy, cx, cy = (float(self.sim.true_params[i]) for i in sensor.intrinsics or ())
         # The right camera of a rectified pair: P[0,3] = -fx * baseline (m), as a ROS stereo driver says it.
@@ -339,18 +333,6 @@ class SimNode:
             info.p = [fx, 0.0, cx, shift, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
             images.publish(msg)
             infos.publish(info)
-
-    def _render(self, q: np.ndarray) -> list[np.ndarray]:
-        """The image(s) of true configuration q, drawn by the finder of the target in view (NAO: the left or
-        right foot's board; Robonaut: the sphere in its hand, the stereo head's pair)."""
-        found = found_targets(self.profile, self.profile.data.sensor)
-        if len(found) > 1:
-            found = [
-                t for t in Visibility(self.profile, self.sim.true_params).targets_in_view(q) if t in found
-            ] or found
-        images, _ = self.sim.render(q, found[0])
-        sensor = self.profile.sensors[self.profile.data.sensor]
-        return [np.ascontiguousarray(images[role], dtype=np.uint8) for role in sensor.image_roles]
 
     def _baseline_m(self) -> float:
         return StereoHead.from_profile(self.profile, self.sim.true_params, self._frame).baseline_m

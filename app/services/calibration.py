@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 
 KIND = "calibration"
 MAX_HOLDOUT = 0.9
+FEW_FRAMES = 3  # a session of no more measured frames is read and checked whole before its job starts
 
 
 def solve(payload: dict, link: WorkerLink) -> dict:
@@ -124,9 +125,11 @@ class CalibrationService:
                 f"{self.max_rows:,} (the desk's row limit, calib serve --max-rows): calibrate on a part of it"
             )
         sensor_dim = {s: profile.sensors[profile.data.sensor if s is None else s].dim for s in counts}
-        if sum(n * sensor_dim[s] for s, n in counts.items()) <= len(m.free):
+        few_rows = sum(n * sensor_dim[s] for s, n in counts.items()) <= len(m.free)
+        if few_rows or session.measured <= FEW_FRAMES:
             # No more rows than parameters: whether they are too few depends on what they determine (the
-            # calibration holds what they cannot tell apart). Such a session is small: check it here.
+            # calibration holds what they cannot tell apart); a camera and a board nobody placed need views
+            # from FEW_FRAMES configurations. Such a session is small: check it here.
             data = self.store.sessions.dataset(session_id, profile)
             try:
                 check_can_fit(profile, data, mode, None if base is None else Calibration.from_dict(base))

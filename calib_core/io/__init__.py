@@ -12,7 +12,7 @@ __getattr__ = lazy_exports(
     __name__,
     {
         "bag_import": ("import_bag",),
-        "camera_images": ("grey_image",),
+        "camera_images": ("NAOQI_COLOR_SPACES", "grey_image", "naoqi_image"),
         "csv_format": (
             "measurement_values",
             "parse_dataset",
@@ -23,20 +23,24 @@ __getattr__ = lazy_exports(
             "to_csv",
         ),
         "ctu_motoman": ("camera_dataset",),
-        "export": ("calibrated_urdf", "offsets_yaml"),
+        "export": ("bhuman_joint_calibration", "calibrated_urdf", "estimated_offsets_deg", "offsets_yaml"),
         "session": ("FrameRecord", "csv_sensors", "read_session", "session_robot", "write_session"),
         "urdf_export": ("BODY", "to_urdf"),
     },
 )
 __all__ = [
     "BODY",
+    "NAOQI_COLOR_SPACES",
     "FrameRecord",
+    "bhuman_joint_calibration",
     "calibrated_urdf",
     "camera_dataset",
     "csv_sensors",
+    "estimated_offsets_deg",
     "grey_image",
     "import_bag",
     "measurement_values",
+    "naoqi_image",
     "offsets_yaml",
     "parse_dataset",
     "plan_csv",
@@ -52,7 +56,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from .bag_import import import_bag
-    from .camera_images import grey_image
+    from .camera_images import NAOQI_COLOR_SPACES, grey_image, naoqi_image
     from .csv_format import (
         measurement_values,
         parse_dataset,
@@ -63,6 +67,6 @@ if TYPE_CHECKING:
         to_csv,
     )
     from .ctu_motoman import camera_dataset
-    from .export import calibrated_urdf, offsets_yaml
+    from .export import bhuman_joint_calibration, calibrated_urdf, estimated_offsets_deg, offsets_yaml
     from .session import FrameRecord, csv_sensors, read_session, session_robot, write_session
     from .urdf_export import BODY, to_urdf

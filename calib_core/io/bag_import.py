@@ -401,6 +401,20 @@ def _closest(times_s: np.ndarray, period: StillPeriod) -> int | None:
     return int(inside[np.argmin(np.abs(times_s[inside] - period.middle_s))])
 
 
+def _images_named(frames: list[FrameRecord], role_topics: dict[str, str], most: int = 8) -> str:
+    """The images the detector looked at, for a message: each topic's image times (s from the first joint
+    state), at most `most` of them."""
+    named = []
+    for role, topic in role_topics.items():
+        times = [f.detail["bag"]["images_s"][role] for f in frames if role in f.detail["bag"]["images_s"]]
+        if times:
+            shown = ", ".join(f"{t:g} s" for t in times[:most]) + (
+                f" and {len(times) - most} more" if len(times) > most else ""
+            )
+            named.append(f"the {len(times)} images on '{topic}' at {shown}")
+    return f": no board in {' or '.join(named)}" if named else ""
+
+
 # --- the import ------------------------------------------------------------------------------------------------
 
 
@@ -574,14 +588,15 @@ def import_bag(
     without_image = sum(c.sighting.reason.startswith("no image") for c in captures)
 
     measured = sum(c.sighting.status == FrameStatus.MEASURED for c in captures)
+    role_topics = dict(zip(roles, rec.topics, strict=True))
     if not measured:
         reasons = sorted({c.sighting.reason for c in captures})
         raise InputError(
-            f"{len(rec.periods)} still periods, but the detector measured none of them ({'; '.join(reasons)})",
+            f"{len(rec.periods)} still periods, but the detector measured none of them ({'; '.join(reasons)})"
+            + _images_named(frames, role_topics),
             file=str(bag),
         )
     data = dataset_from_captures(profile, captures, f"ROS bag {bag.name}")
-    role_topics = dict(zip(roles, rec.topics, strict=True))
     description = (
         f"Imported from the ROS bag {bag.name}: {len(rec.periods)} still periods (at most {still_deg_s:g} deg/s "
         f"for {still_s:g} s or longer on '{joint_topic}'), {measured} measured; images from "

@@ -1,14 +1,18 @@
 """Camera images as the detectors want them: grey uint8 (H, W), from a sensor_msgs/Image (a ROS 2 topic's message
-or one read from a bag) or a compressed image.
+or one read from a bag), a NAOqi camera image (ALVideoDevice.getImageRemote) or a compressed image.
 
 One decoder for every camera: colour turns grey with OpenCV's weights (0.299 R + 0.587 G + 0.114 B), a 16-bit
 image is scaled from its full range to 8 bits, rows may be padded (`step`), and YUV 4:2:2 gives its luma. A
 message is anything with sensor_msgs/Image's fields (height, width, encoding, is_bigendian, step, data): rclpy's
-messages and rosbags' alike.
+messages and rosbags' alike. A NAOqi image is the list getImageRemote answers, its colour space named as ROS
+names it (NAOQI_COLOR_SPACES) and decoded by the same code; its bytes arrive as `bytes` or, through libqi's
+Python bindings, as a `str` of one character per byte.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from types import SimpleNamespace
 from typing import Any
 
 import cv2
@@ -65,6 +69,26 @@ def grey_image(msg: Any) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(pixels), _TO_GREY[encoding])
 
 
+# ALVideoDevice's colour spaces read: kYuv (the luma alone), kYUV422 (Y U Y V), kRGB, kBGR.
+NAOQI_COLOR_SPACES = {0: "mono8", 9: "yuv422_yuy2", 11: "rgb8", 13: "bgr8"}
+
+
+def naoqi_image(image: Sequence[Any]) -> tuple[np.ndarray, float]:
+    """The grey uint8 image of ALVideoDevice.getImageRemote's answer `[width, height, layers, colorSpace,
+    seconds, microseconds, data, ...]` and its time stamp (s, the robot's clock); ValueError, a sentence, for a
+    colour space not read here or data that do not fit."""
+    if image is None or len(image) < 7:
+        raise ValueError("ALVideoDevice gave no image (is the camera subscribed and running?)")
+    width, height, layers, space, seconds, micro, data = image[:7]
+    if space not in NAOQI_COLOR_SPACES:
+        spaces = ", ".join(f"{k} ({v})" for k, v in NAOQI_COLOR_SPACES.items())
+        raise ValueError(f"NAOqi colour space {space} is not supported (use one of {spaces})")
+    msg = SimpleNamespace(
+        height=height, width=width, encoding=NAOQI_COLOR_SPACES[space], is_bigendian=0, step=width * layers, data=data
+    )
+    return grey_image(msg), float(seconds) + float(micro) * 1e-6
+
+
 def grey_compressed(data: Any) -> np.ndarray | None:
     """The grey uint8 image of a compressed image's bytes (JPEG, PNG: sensor_msgs/CompressedImage's data), turned
     grey as a raw image is; None when they do not decode."""
@@ -80,7 +104,13 @@ def grey_compressed(data: Any) -> np.ndarray | None:
 
 
 def _bytes(data: Any) -> np.ndarray:
-    """A message's byte array (numpy from rosbags; bytes or array.array from rclpy) as uint8, without a copy."""
+    """A message's byte array (numpy from rosbags; bytes or array.array from rclpy; a str of one character per
+    byte from libqi's Python bindings) as uint8, without a copy but for a str."""
+    if isinstance(data, str):
+        try:
+            return np.frombuffer(data.encode("latin-1"), np.uint8)
+        except UnicodeEncodeError:
+            raise ValueError("the image data are text, not one character per byte") from None
     if isinstance(data, np.ndarray):
         return data.astype(np.uint8, copy=False).ravel()
     return np.frombuffer(data, np.uint8)

@@ -110,6 +110,43 @@ def offsets_yaml(profile: Profile, cal: Calibration) -> str:
     return yaml.safe_dump(doc, sort_keys=False, width=100)
 
 
+def estimated_offsets_deg(profile: Profile, cal: Calibration) -> dict[str, float]:
+    """Per joint whose offset the calibration estimated (NAO's full mode: the 12 leg joints), the offset to add
+    to its reading, deg (the paper's alpha)."""
+    p = cal.params(profile)
+    estimated = {q.name for q in cal.parameters if q.estimated}
+    names = profile.parameter_names
+    return {
+        joint: round(float(np.degrees(delta)), DIGITS)
+        for joint, (i, delta) in joint_offsets(profile, p).items()
+        if names[i] in estimated and not profile.joints[profile.joint(joint)].prismatic
+    }
+
+
+def bhuman_joint_calibration(profile: Profile, cal: Calibration) -> str:
+    """The joints of B-Human's jointCalibration.cfg (Config/Robots/<robot>/, the form most RoboCup SPL teams'
+    code descends from): per joint `offset`, `minAngle`, `maxAngle`. B-Human subtracts `offset` from the
+    sensor reading and adds it to the request, so its offset is minus the one added to the reading here."""
+    offsets = estimated_offsets_deg(profile, cal)
+    lines = [
+        f"// B-Human joint calibration from robot-selfcal: robot '{profile.name}', mode '{cal.mode}', "
+        f"created {cal.created}.",
+        "// offset = -(the offset added to the reading): B-Human subtracts it from the sensor angle.",
+        "joints = {",
+    ]
+    for k, joint in enumerate(profile.joints):
+        lo, hi = (round(profile.joint_to_display(k, v), 4) for v in (joint.lower, joint.upper))
+        offset = round(-offsets.get(joint.name, 0.0), 6) + 0.0  # no "-0"
+        lines += [
+            f"  {joint.name[0].lower()}{joint.name[1:]} = {{",
+            f"    offset = {offset:.10g}deg;",
+            f"    minAngle = {lo:g}deg;",
+            f"    maxAngle = {hi:g}deg;",
+            "  };",
+        ]
+    return "\n".join([*lines, "};", ""])
+
+
 def calibrated_urdf(profile: Profile, cal: Calibration) -> str:
     """The robot's URDF with the calibration's geometry and offsets in its joint origins."""
     p = cal.params(profile)

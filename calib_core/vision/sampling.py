@@ -46,16 +46,21 @@ class Sampler:
         lo, hi = prof.joint_limits()
         target = prof.data.target if prof.data.target is not None else 0
         found: list[np.ndarray] = []
+        drawn: list[np.ndarray] = []
         for _ in range(200):
             if stop():
                 raise Cancelled("the draw was cancelled")
             q = self.rng.uniform(lo, hi, (max(4 * n, 64), len(lo)))
+            drawn.append(q)
             ok = self.view.sees(q, np.full(len(q), target))
             found += list(q[ok])
             if len(found) >= n:
                 break
         if len(found) < n:
-            raise InputError(f"found only {len(found)} visible configurations of the {n} asked: ask for fewer")
+            raise InputError(
+                f"found only {len(found)} visible configurations of the {n} asked: ask for fewer"
+                + self.view.too_small(np.concatenate(drawn), target)
+            )
         return np.array(found[:n]), np.full(n, target)
 
     def _stances(

@@ -85,6 +85,34 @@ class Visibility:
                     seen[rows] = finder.clear(self, q[rows])
         return seen
 
+    def too_small(self, q: np.ndarray, target: int) -> str:
+        """Why a board is seen in none of configurations q (N, n_joints) rad, when it is too small: "" unless every
+        configuration that puts it whole in the field of view gives neighbouring vertices closer in the image than
+        its finder needs; else a sentence with the numbers."""
+        prof = self.profile
+        s = prof.data.sensor
+        finder = finder_for(prof, s, target)
+        spacing_px = getattr(finder, "min_spacing_px", None)
+        if finder is None or spacing_px is None:
+            return ""
+        n = len(target_points(prof, self.p, target))
+        x = sensor_points(prof, self.p, q, np.full(len(q), target), sensor=s)[:, :n]
+        whole = prof.sensors[s].visible(self.p, x.reshape(-1, 3), self.margin_px).reshape(len(q), n).all(axis=1)
+        spacing = finder.spacing_px(self.p, x[whole]) if whole.any() else None
+        if spacing is None or spacing.max() >= spacing_px:
+            return ""
+        grid = prof.targets[target].grid
+        apart = float(np.linalg.norm(grid[1] - grid[0])) if grid is not None and len(grid) > 1 else float("nan")
+        distance = np.linalg.norm(x[whole].mean(axis=1), axis=1)
+        unit = prof.length_unit
+        return (
+            f"; target '{prof.targets[target].name}' is too small to be seen: in the {int(whole.sum())} of {len(q)} "
+            f"configurations that put it in view of '{prof.sensors[s].name}' ({distance.min():.0f}-"
+            f"{distance.max():.0f} {unit} away) its corners, {apart:g} {unit} apart, are at most "
+            f"{spacing.max():.1f} px apart in the image, and its finder needs {spacing_px:g} px: a bigger board "
+            "or a closer camera"
+        )
+
     def targets_in_view(self, q: np.ndarray, sensor: int | None = None) -> list[int]:
         """The targets a sensor (default: the data format's) sees whole in one configuration q (n_joints,) rad."""
         every = np.arange(len(self.profile.targets))

@@ -121,18 +121,26 @@ class BoardFinder(BoundFinder):
 
     def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Whether the board (vertices x (N, K, 3) in the sensor frame) shows its face well enough (N,) bool."""
-        n_rows, n_cols = self.shape
+        n_cols = self.shape[1]
         c = x.mean(axis=1)
         face = self.face_sign * np.cross(x[:, 1] - x[:, 0], x[:, n_cols] - x[:, 0])
         towards = -np.einsum("ni,ni->n", face, c)  # the camera sits at the origin of these coordinates
         cos = towards / np.maximum(np.linalg.norm(face, axis=1) * np.linalg.norm(c, axis=1), 1e-300)
         ok = (towards > 0) & (cos >= math.cos(math.radians(self.max_obliquity_deg)))
-        uv = self.profile.sensors[self.sensor].project(p, x.reshape(-1, 3))
-        if uv is not None:
-            g = uv.reshape(len(x), n_rows, n_cols, 2)
-            spacing = np.minimum(
-                np.linalg.norm(np.diff(g, axis=1), axis=3).min(axis=(1, 2)),
-                np.linalg.norm(np.diff(g, axis=2), axis=3).min(axis=(1, 2)),
-            )
+        spacing = self.spacing_px(p, x)
+        if spacing is not None:
             ok &= spacing >= self.min_spacing_px
         return ok
+
+    def spacing_px(self, p: np.ndarray, x: np.ndarray) -> np.ndarray | None:
+        """The least distance (px) between neighbouring vertices in the image of a board whose vertices x
+        (N, K, 3) lie in the sensor frame (N,); None for a sensor that does not project."""
+        n_rows, n_cols = self.shape
+        uv = self.profile.sensors[self.sensor].project(p, x.reshape(-1, 3))
+        if uv is None:
+            return None
+        g = uv.reshape(len(x), n_rows, n_cols, 2)
+        return np.minimum(
+            np.linalg.norm(np.diff(g, axis=1), axis=3).min(axis=(1, 2)),
+            np.linalg.norm(np.diff(g, axis=2), axis=3).min(axis=(1, 2)),
+        )
