@@ -60,6 +60,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 WHERE_HELP = "use only the rows with this value in this column (repeatable; e.g. leica_frame_group=A)"
+VERBOSE_HELP = "list each diagnostic of a kind that has several (by default: one line per kind, its parameters named)"
 
 
 def _where(data: Dataset, items: list[str]) -> Dataset:
@@ -97,6 +98,7 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="estimate a minimal identifiable parameter set (QR of the data, no priors); hold and name the rest",
     )
+    s.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
 
     pr = sub.add_parser("predict", help="add the model's predictions to each row of a dataset")
     pr.add_argument("--robot", required=True)
@@ -145,6 +147,7 @@ def _parser() -> argparse.ArgumentParser:
     so.add_argument("--holdout", type=float, default=0.3, help="share of poses held out (default 0.3)")
     so.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
     so.add_argument("--out", required=True, help="where to write the calibration JSON")
+    so.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
 
     ex = sub.add_parser("export", help="what a driver takes: the calibrated URDF or the joint offsets (YAML)")
     ex.add_argument("--robot", required=True, help="built-in profile or a profile YAML file")
@@ -384,9 +387,17 @@ def _solve(args: argparse.Namespace) -> int:
         minimal=args.minimal,
     )
     _save(args.out, lambda: cal.save(args.out))
-    print(cal.summary())
+    _print_summary(cal, args.verbose)
     print(f"  written: {args.out}")
     return 0
+
+
+def _print_summary(cal: Calibration, verbose: bool) -> None:
+    """The calibration's summary, its diagnostics one line per kind; how to see each when some were grouped."""
+    print(cal.summary(verbose))
+    grouped = sum(len(g.messages) for g in cal.diagnostic_groups() if len(g.messages) > 1)
+    if grouped and not verbose:
+        print(f"  ({grouped} findings grouped above: --verbose lists each)")
 
 
 def _predict(args: argparse.Namespace) -> int:
@@ -467,7 +478,7 @@ def _self_observe(args: argparse.Namespace) -> int:
     _check_writable(args.out)
     cal = calibrate(profile, data, args.mode, holdout=args.holdout, seed=args.seed)
     _save(args.out, lambda: cal.save(args.out))
-    print(cal.summary())
+    _print_summary(cal, args.verbose)
     print(f"  written: {args.out}")
     return 0
 

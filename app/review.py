@@ -11,6 +11,12 @@ Errors are the papers' figure: the distance between prediction and measurement p
 The summary and the histogram count observations, like `Calibration.figures`, so the numbers agree
 with the calibration's own on the same data.
 
+A frame's change (new - old) is "better" or "worse" only beyond CHANGE_BANDS times its band, how far the
+calibrations' own uncertainty moves the frame's predictions (`calib_core.estimation.change`: each side with
+a covariance, in quadrature; the nominal model and files written before covariances were kept have none),
+"same" within it: the uncertainty moves all of a frame's points together, so noise over sqrt(points)
+would call most frames of two equally good calibrations changed.
+
 Where the points are in 3-D (base frame, metres) and in the image: each sensor places its own measurement
 (`Sensor.place`, `Sensor.measured_pixels`) through that side's sensor pose. A 3-D sensor's measurement is
 the point; a camera measures only directions, so a measured pixel is back-projected onto the plane of the
@@ -28,7 +34,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from calib_core import Dataset, FrameStatus, Profile
-from calib_core.estimation import figures
+from calib_core.estimation import Covariance, figures, frame_band
 from calib_core.io import to_urdf
 from calib_core.model import forward, to_sensor
 from calib_core.sensors import Sensor
@@ -37,6 +43,7 @@ from calib_core.units import length_factor
 from .errors import NotFound
 
 HISTOGRAM_BINS = 20
+CHANGE_BANDS = 2.0  # a frame's change is "better" or "worse" beyond this many bands
 
 
 class SightingLike(Protocol):
@@ -97,6 +104,8 @@ class Review:
         heldout: np.ndarray,
         bounds_m: np.ndarray,
         sensor: int,
+        band: np.ndarray,
+        band_of: list[str],
     ) -> None:
         self.profile = profile
         self.indices = indices
@@ -109,6 +118,8 @@ class Review:
         self.sides = sides
         self.heldout = heldout
         self.bounds_m = bounds_m
+        self.band = band
+        self.band_of = band_of
         self._row = {int(i): r for r, i in enumerate(indices)}
         self.sensor_index = sensor
         self.sensor = profile.sensors[sensor]
@@ -126,10 +137,12 @@ class Review:
         *,
         heldout_frames: Iterable[int] = frozenset(),
         sensor: int | None = None,
+        covariances: dict[str, Covariance | None] | None = None,
     ) -> Review:
         """Precompute every frame for both calibrations, as one sensor (default: the data format's) sees
         it. `data`: the session's measured frames (frame_ids = frame indices), None when nothing was
-        measured; frames without an observation of the sensor get no error."""
+        measured; frames without an observation of the sensor get no error. `covariances`: per side ("old",
+        "new"), its calibration's covariance (None or missing: it has none), what a frame's band is of."""
         sensor = profile.data.sensor if sensor is None else sensor
         if data is not None:
             data = data.of_sensor(sensor) if sensor in data.sensors else None
@@ -150,6 +163,13 @@ class Review:
         }
         heldout = np.isin(indices, np.fromiter(heldout_frames, dtype=int))
         bounds = frame_bounds_m(profile, old_p, joints, [s.predicted_m for s in sides.values()])
+        covariances = {k: v for k, v in (covariances or {}).items() if v is not None and k in params}
+        band = np.zeros(n)
+        if data is not None and covariances:
+            row_of = np.array([np.searchsorted(indices, f) for f in data.frame_ids])
+            known = np.isin(data.frame_ids, indices)
+            for side, cov in covariances.items():
+                band[row_of[known]] += frame_band(profile, data, params[side], cov)[known] ** 2
         return cls(
             profile,
             indices,
@@ -163,6 +183,8 @@ class Review:
             heldout,
             bounds,
             sensor,
+            np.sqrt(band) if covariances else np.full(n, np.nan),
+            sorted(covariances, key=["old", "new"].index),
         )
 
     # --- per frame ------------------------------------------------------------------------------
@@ -175,7 +197,8 @@ class Review:
             raise NotFound(f"frame {index} is not in this review ({known})") from None
 
     def table(self) -> list[dict[str, Any]]:
-        """Per frame: {index, status, target, err_old, err_new, heldout}; errors None when not measured."""
+        """Per frame: {index, status, target, err_old, err_new, heldout, band, verdict}; errors None when not
+        measured, band None without a covariance, verdict "better", "worse", "same" or None (see the module)."""
         old = self.sides["old"].frame_error
         new = self.sides["new"].frame_error if "new" in self.sides else None
         return [
@@ -186,6 +209,8 @@ class Review:
                 "err_old": _num(old[r]),
                 "err_new": None if new is None else _num(new[r]),
                 "heldout": bool(self.heldout[r]),
+                "band": _num(self.band[r]) if math.isfinite(old[r]) else None,
+                "verdict": None if new is None else _verdict(new[r] - old[r], self.band[r]),
             }
             for r, i in enumerate(self.indices)
         ]
@@ -226,9 +251,10 @@ class Review:
 
     # --- the session ----------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
-        """{unit, frames, measured, heldout_frames, old, new, heldout_old, heldout_new, histogram}.
+        """{unit, frames, measured, heldout_frames, old, new, heldout_old, heldout_new, histogram, band}.
         Figures are {mean, rms, max, n} over observations (n = 0 and None figures when there are
-        none); new and heldout_* are None when there is no new calibration or no held-out frame."""
+        none); new and heldout_* are None when there is no new calibration or no held-out frame. band:
+        {k, of (the sides whose covariance it is of), median (over measured frames; None: no band)}."""
         obs_heldout = np.repeat(self.heldout, np.diff(self.start))
         has_heldout = bool(np.any(self.heldout & self._measured_frames()))
         out: dict[str, Any] = {
@@ -242,6 +268,12 @@ class Review:
             out[side] = None if s is None else _figures(s.error)
             out[f"heldout_{side}"] = _figures(s.error[obs_heldout]) if s is not None and has_heldout else None
         out["histogram"] = self._histogram()
+        measured = self._measured_frames() & np.isfinite(self.band)
+        out["band"] = {
+            "k": CHANGE_BANDS,
+            "of": self.band_of,
+            "median": float(np.median(self.band[measured])) if measured.any() else None,
+        }
         return out
 
     def _measured_frames(self) -> np.ndarray:
@@ -394,6 +426,15 @@ def _figures(error: np.ndarray) -> dict[str, Any]:
     e = error[np.isfinite(error)][:, None]
     f = figures(e, np.zeros_like(e), "")
     return {k: (None if f.n == 0 else getattr(f, k)) for k in ("mean", "rms", "max")} | {"n": f.n}
+
+
+def _verdict(delta: float, band: float) -> str | None:
+    """A frame's new - old error read against its band: None when either is missing."""
+    if not (math.isfinite(delta) and math.isfinite(band)):
+        return None
+    if abs(delta) <= CHANGE_BANDS * band:
+        return "same"
+    return "better" if delta < 0 else "worse"
 
 
 def _num(v: float) -> float | None:

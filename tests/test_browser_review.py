@@ -213,3 +213,157 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_
             page.wait_for_timeout(500)
     assert problems == [], problems
     assert actions >= 1, actions  # clicks that landed: 45 in 25 s at load 2, 3 at load 13 (two software 3-D views)
+
+
+def test_noise_is_not_coloured_as_change(chromium, tmp_path) -> None:
+    """NAO's sample calibrated twice (everything, and 70 % of its frames): the two differ on every frame by what
+    their own uncertainty explains, so the frame list says "same" on (nearly) every frame and colours the rest as
+    the server judged them, and says what the band is; against the nominal model (no covariance: the new
+    calibration's band only, as the page says) every frame is better."""
+    with served(tmp_path / "data") as server:
+        whole = calibrated(server, "nao", mode="full", holdout=0.0)
+        part = calibrated(server, "nao", mode="full", holdout=0.3)
+        page = ready_page(chromium, server.url, 1600, 1000)
+        page.click("li[data-session='nao']")
+        page.wait_for_function("document.querySelector('#review-new').value !== ''")
+        page.click("#tabs button[data-tab='review']")
+        for old, new, of in ((whole, part, "old new"), ("", part, "new")):
+            page.select_option("#review-old", old)
+            page.select_option("#review-new", new)
+            page.click("#review-load")
+            page.wait_for_function(
+                "([n, of]) => document.querySelector('#apply-what').dataset.id === n"
+                " && document.querySelector('#change-band').dataset.of === of",
+                arg=[new, of],
+            )
+            rows = server.post("/api/review", json={"session": "nao", "old": old or None, "new": new}).json()["table"]
+            want = {r["index"]: r["verdict"] for r in rows}
+            shown = page.eval_on_selector_all(
+                "#frames tr[data-frame]", "trs => trs.map(t => [+t.dataset.frame, t.lastChild.dataset.verdict])"
+            )
+            assert dict(shown) == want
+            text = page.text_content("#change-band")
+            assert "beyond 2× the frame's band" in text
+            verdicts = list(want.values())
+            if old:
+                assert "the old and the new calibration's own uncertainty" in text
+                assert verdicts.count("same") >= 0.9 * len(verdicts), verdicts
+                shot(page, "review-5-same")
+            else:
+                assert "the old calibration has none" in text
+                assert verdicts.count("better") == len(verdicts)
+                shot(page, "review-5-better")
+
+
+def test_a_wall_of_warnings_is_a_line_per_kind(chromium, tmp_path) -> None:
+    """TALOS (FIGAROH's data) added to the desk and calibrated in `origins` mode: its 61 findings are two lines, the
+    weak parameters before the held ones, each naming its parameters, every finding listed when opened."""
+    figaroh = Path(__file__).resolve().parents[1] / "sample_sessions" / "figaroh"
+    with served(tmp_path / "data") as server:
+        added = server.post("/api/robots", data={"name": "talos", "profile": str(figaroh / "talos.yaml")})
+        assert added.status_code == 201, added.text
+        csv = (figaroh / "talos_left_arm_02_10_contact.csv").read_bytes()
+        imported = server.post(
+            "/api/sessions/import", data={"robot": "talos", "name": "talos"}, files={"data": ("talos.csv", csv)}
+        )
+        assert imported.status_code == 201, imported.text
+        sid = imported.json()["id"]
+        cal = calibrated(server, sid, mode="origins", holdout=0.0)
+        saved = server.get(f"/api/calibrations/{cal}").json()["diagnostics"]
+        assert len(saved) == 61
+
+        page = ready_page(chromium, server.url, 1600, 1000)
+        page.click(f"li[data-session='{sid}']")
+        page.wait_for_function("document.querySelector('#review-new').value !== ''")
+        page.click("#tabs button[data-tab='review']")
+        page.wait_for_selector("#warnings details")
+        lines = page.eval_on_selector_all("#warnings > *", "es => es.map(e => [e.tagName, e.dataset.code])")
+        assert lines == [["DETAILS", "weak"], ["DETAILS", "held-fixed"]]
+        for code, n in (("weak", 30), ("held-fixed", 33)):
+            title = page.text_content(f"#warnings details[data-code='{code}'] summary")
+            named = {p for d in saved if d["code"] == code for p in d["parameters"]}
+            assert title.startswith(f"⚠ {n} parameters") and all(p in title for p in named)
+            assert not page.is_visible(f"#warnings details[data-code='{code}'] li")
+        page.click("#warnings details[data-code='held-fixed'] summary")
+        items = page.locator("#warnings details[data-code='held-fixed'] li")
+        assert items.count() == 33 and items.first.is_visible()
+        assert "cannot be told apart" in items.first.text_content()
+        page.locator("#warnings").scroll_into_view_if_needed()
+        shot(page, "review-12-warnings")
+
+
+def _figure(page, column: str) -> str:
+    return page.text_content(f"#summary tr[data-figure='mean'] td[data-col='{column}']")
+
+
+def test_figures_follow_an_apply_and_the_session_shown(chromium, tmp_path) -> None:
+    """A calibration made on the page, reviewed against the robot's active one (the nominal model) and applied: the
+    review's old side is then the applied calibration (its figures the new side's); another session opened shows
+    no job line or cost curve of this one's calibration."""
+    with served(tmp_path / "data") as server:
+        page = ready_page(chromium, server.url, 1600, 1000)
+        page.on("dialog", lambda d: d.accept())
+        page.click("li[data-session='nao']")
+        page.wait_for_selector("#frames tr[data-frame]", state="attached")
+        page.click("#tabs button[data-tab='calibrate']")
+        page.click("#calibrate-start")
+        page.wait_for_selector("#tab-review:not([hidden])", timeout=120_000)  # done: the review of the new one
+        assert page.input_value("#review-old") == "active"
+        new = page.input_value("#review-new")
+        assert new and _figure(page, "old") != _figure(page, "new")
+        page.click("#tabs button[data-tab='apply']")
+        page.click("#apply")
+        page.wait_for_function("id => document.querySelector('#active-cal').dataset.id === id", arg=new)
+        page.wait_for_function(
+            "() => { const c = (k) => document.querySelector(`#summary tr[data-figure='mean'] td[data-col='${k}']`);"
+            " return c('old').textContent === c('new').textContent; }"
+        )
+        page.click("#tabs button[data-tab='review']")
+        shot(page, "review-6-after-apply")
+
+        page.click("#tabs button[data-tab='calibrate']")
+        assert page.text_content("#job-state").startswith("done")
+        page.click("li[data-session='robonaut-a-day1']")
+        page.wait_for_function("document.querySelector('#sessions li.selected').dataset.session === 'robonaut-a-day1'")
+        page.click("#tabs button[data-tab='calibrate']")
+        page.wait_for_function("document.querySelector('#job-state').textContent === ''")  # once it has opened
+        assert page.eval_on_selector("#job-progress", "p => p.value") == 0
+        drawn = page.eval_on_selector(
+            "#cost-curve",
+            "c => c.getContext('2d').getImageData(0, 0, c.width, c.height).data.filter((v) => v > 0).length",
+        )
+        shot(page, "review-6-other-session")
+        assert not drawn, drawn
+        shot(page, "review-6-other-session")
+
+
+def test_captured_frames_show_their_errors_and_place_at_once(chromium, tmp_path) -> None:
+    """A frame captured by hand and selected, then frames auto-captured while the robot wanders: each joins the
+    list with its error (no "—" until clicked), and the label counts them all."""
+    with served(tmp_path / "data", sim_speed=10.0) as server:
+        page, sid = new_nao_session(chromium, server.url, "auto")
+        page.wait_for_selector("#capture:enabled", timeout=30_000)
+        page.click("#capture")
+        page.wait_for_selector("#frames tr[data-frame='1']", state="attached", timeout=30_000)
+        page.click("#tabs button[data-tab='review']")
+        page.click("#frames tr[data-frame='1']")
+        page.wait_for_function("document.querySelector('#frame-label').textContent === 'frame 1 (1/1)'")
+        page.click("#tabs button[data-tab='observe']")
+        page.check("#autocapture")
+        page.check("#wander")
+        page.wait_for_function(
+            "document.querySelectorAll('#frames tr[data-frame]').length >= 4", timeout=120_000, polling=200
+        )
+        page.uncheck("#wander")
+        page.uncheck("#autocapture")
+        page.click("#tabs button[data-tab='review']")
+        page.wait_for_function(  # every measured frame's old error, and the label's count, without a click
+            "() => { const rows = [...document.querySelectorAll('#frames tr[data-frame]')];"
+            " const label = document.querySelector('#frame-label').textContent;"
+            " return rows.every((r) => r.children[1].textContent !== 'measured' || r.children[2].textContent !== '—')"
+            " && label.endsWith(`/${rows.length})`); }",
+            timeout=30_000,
+        )
+        measured = [f for f in server.get(f"/api/sessions/{sid}").json()["frames"] if f["status"] == "measured"]
+        assert len(measured) >= 2
+        shot(page, "review-6-auto-captured")

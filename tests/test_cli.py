@@ -806,3 +806,28 @@ def test_evaluate_bad_input_exits_2_naming_file_line_and_column(evaluated: dict,
     assert re.search(must, proc.stderr, re.IGNORECASE), proc.stderr
     missing = calib("evaluate", "--robot", "robonaut-a", "--calibration", "none.json", "--data", "fresh.csv", cwd=d)
     assert missing.returncode == 2 and "none.json" in missing.stderr, missing.stderr
+
+
+def test_a_talos_origins_solve_prints_one_line_per_kind_of_warning(tmp_path) -> None:
+    """FIGAROH's TALOS data in `origins` mode: 33 parameters held and 30 weak ones (61 findings) are two lines,
+    the weak ones first (they change how far to trust the estimate) and every parameter named; --verbose lists
+    each finding under its line."""
+    figaroh = ROOT / "sample_sessions" / "figaroh"
+    args = ("solve", "--robot", str(figaroh / "talos.yaml"), "--mode", "origins")
+    args += ("--data", str(figaroh / "talos_left_arm_02_10_contact.csv"), "--out", "talos.json")
+    short = ok(calib(*args, cwd=tmp_path)).stdout.splitlines()
+    warnings = [line for line in short if line.startswith("  warning: ")]
+    assert len(warnings) == 2, short
+    assert warnings[0].startswith("  warning: 30 parameters weakly determined")
+    assert warnings[1].startswith("  warning: 33 parameters held at their base values")
+    saved = json.loads((tmp_path / "talos.json").read_text())["diagnostics"]
+    for code, line in (("weak", warnings[0]), ("held-fixed", warnings[1])):
+        named = {p for d in saved if d["code"] == code for p in d["parameters"]}
+        assert named and all(p in line for p in named)
+    assert "  (61 findings grouped above: --verbose lists each)" in short
+
+    long = ok(calib(*args, "--verbose", cwd=tmp_path)).stdout.splitlines()
+    listed = [line for line in long if line.startswith("    - ")]
+    assert len(listed) == len(saved) == 61
+    assert sum("cannot be told apart" in line for line in listed) == 33
+    assert not any("--verbose" in line for line in long)

@@ -22,7 +22,7 @@ from sim_frames import Frame, measured_frames, unmeasured_frames
 from app.errors import NotFound
 from app.review import Review, live_geometry
 from app.server import create_app
-from calib_core import Problem, SimulatedRobot, Simulation, load_profile, to_csv
+from calib_core import Problem, SimulatedRobot, Simulation, calibrate, load_profile, to_csv
 from calib_core.model.kinematics import forward
 from calib_core.model.profile import Profile
 
@@ -92,7 +92,16 @@ def test_heldout_figures_use_only_heldout_frames(robonaut_review) -> None:
 def test_frames_without_a_measurement_have_no_error_but_a_prediction(robonaut_review) -> None:
     _, _, _, review = robonaut_review
     row = review.table()[-1]
-    assert row == {"index": 42, "status": "not found", "target": 0, "err_old": None, "err_new": None, "heldout": False}
+    assert row == {
+        "index": 42,
+        "status": "not found",
+        "target": 0,
+        "err_old": None,
+        "err_new": None,
+        "heldout": False,
+        "band": None,
+        "verdict": None,
+    }
     g = review.frame_geometry(42)
     assert np.isnan(g.measured_m["old"]).all() and np.isfinite(g.predicted_m["new"]).all()
     marks = review.marks(42)
@@ -288,3 +297,56 @@ def test_a_live_look_shows_every_sensor_s_sighting_where_the_truth_puts_it() -> 
     off = np.linalg.norm(g.measured_m["old"] - g.predicted_m["old"], axis=1)
     assert off[0] < 5 * mm.simulation["noise"]["point"]  # m: the tracker's reading
     assert off[rows[0] :].max() < 1e-9  # the cameras' pixels, noise-free
+
+
+def _nao_calibrations(seeds: tuple[int, int]) -> tuple[Profile, Simulation, list]:
+    """Two NAO sessions of 60 frames from independent draws of the same robot, each calibrated (full)."""
+    profile = load_profile("nao")
+    sims = [SimulatedRobot.from_profile(profile, seed=s).simulate(60) for s in seeds]
+    return profile, sims[0], [calibrate(profile, s.data, "full") for s in sims]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seeds", [(1, 2), (3, 4)])
+def test_two_calibrations_of_the_same_robot_are_the_same_on_nearly_every_frame(seeds) -> None:
+    """Independent sessions of the same robot: both calibrations are as good, their difference on a frame is
+    their uncertainty's (a 0.1-0.2 px shift of all its points, against 0.45 px of noise per point)."""
+    profile, sim, (here, there) = _nao_calibrations(seeds)
+    review = Review.build(
+        profile,
+        measured_frames(sim.data),
+        sim.data,
+        there.params(profile),
+        here.params(profile),
+        covariances={"old": there.covariance, "new": here.covariance},
+    )
+    table = review.table()
+    verdicts = [r["verdict"] for r in table]
+    assert verdicts.count("same") >= 0.9 * len(table)  # 54 and 60 of 60 (seeds 1-2, 3-4)
+    changes = np.abs([r["err_new"] - r["err_old"] for r in table])
+    assert np.median(changes) > 0.05  # what 0.45 px / sqrt(24 points) = 0.09 px of noise called "changed"
+    band = review.summary()["band"]
+    assert band["of"] == ["old", "new"] and band["k"] == 2.0 and 0.05 < band["median"] < 0.5
+
+
+@pytest.mark.slow
+def test_a_calibration_against_a_wrong_one_is_better_on_most_frames() -> None:
+    """The old calibration's leg offsets off by 1 deg (no covariance: the band is the new calibration's)."""
+    profile, sim, (here, _) = _nao_calibrations((5, 6))
+    wrong = here.params(profile)
+    for name in ("LHipPitch", "LKneePitch", "RHipPitch", "RKneePitch", "LAnklePitch", "RAnklePitch"):
+        wrong[profile.param(name)] += np.radians(1.0)
+    review = Review.build(
+        profile,
+        measured_frames(sim.data),
+        sim.data,
+        wrong,
+        here.params(profile),
+        covariances={"old": None, "new": here.covariance},
+    )
+    verdicts = [r["verdict"] for r in review.table()]
+    assert verdicts.count("better") >= 0.9 * len(verdicts)
+    assert review.summary()["band"]["of"] == ["new"]
+    # Without any covariance there is no band and no verdict.
+    bare = Review.build(profile, measured_frames(sim.data), sim.data, wrong, here.params(profile))
+    assert {r["verdict"] for r in bare.table()} == {None} and bare.summary()["band"]["median"] is None

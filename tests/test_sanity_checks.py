@@ -105,3 +105,35 @@ def test_residuals_far_above_the_declared_noise_are_warned_about() -> None:
     quiet = calibrate(mm, SimulatedRobot.from_profile(mm, seed=2).simulate(80).data, "full")
     assert "noise-excess" not in [d.code for d in quiet.diagnostics]
     assert np.isfinite(quiet.figures["after"].rms)
+
+
+def test_diagnostics_group_one_line_per_kind_the_decisive_ones_first() -> None:
+    """Weak and held parameters after what changes whether to apply (a fit that did not converge, residuals above
+    the noise); a kind of several is one line naming its parameters, each message kept; notes after warnings."""
+    from calib_core.estimation import Diagnostic, Severity
+    from calib_core.estimation.reports import group_diagnostics
+
+    def warn(code: str, message: str, *parameters: str) -> Diagnostic:
+        return Diagnostic(Severity.WARNING, code, message, parameters)
+
+    found = [
+        warn("weak", "a, b: weakly determined", "a", "b"),
+        Diagnostic(Severity.INFO, "model-error", "3 observations kept"),
+        warn("held-fixed", "c held", "c"),
+        warn("weak", "d: weakly determined", "d"),
+        warn("noise-excess", "the residuals of 'tracker' are 40 times the noise"),
+        warn("held-fixed", "e held", "e"),
+        warn("not-converged", "the solver did not converge"),
+    ]
+    groups = group_diagnostics(found)
+    assert [(g.severity, g.code) for g in groups] == [
+        (Severity.WARNING, "not-converged"),
+        (Severity.WARNING, "noise-excess"),
+        (Severity.WARNING, "weak"),
+        (Severity.WARNING, "held-fixed"),
+        (Severity.INFO, "model-error"),
+    ]
+    assert groups[0].title == "the solver did not converge" and groups[0].messages == ("the solver did not converge",)
+    assert groups[2].title.startswith("3 parameters weakly determined") and groups[2].title.endswith(": a, b, d")
+    assert groups[2].messages == ("a, b: weakly determined", "d: weakly determined")
+    assert groups[3].parameters == ("c", "e") and groups[3].title.endswith(": c, e")

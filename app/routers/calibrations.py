@@ -8,7 +8,7 @@ from typing import Literal
 from fastapi import APIRouter, Response
 from pydantic import BaseModel, Field
 
-from calib_core.estimation import Correlation, Diagnostic, HeldParameter, Outlier, ParameterEstimate
+from calib_core.estimation import Correlation, Diagnostic, DiagnosticGroup, HeldParameter, Outlier, ParameterEstimate
 from calib_core.io import calibrated_urdf, offsets_yaml
 
 from .deps import ApplyDep, CalibrationsDep, RobotsDep
@@ -86,6 +86,7 @@ class CalibrationOut(BaseModel):
     identifiability: Identifiability
     outliers: list[Outlier]
     diagnostics: list[Diagnostic]
+    diagnostic_groups: list[DiagnosticGroup]  # the diagnostics one line per kind, those that change a decision first
     frames: dict[str, list[int]]  # "holdout": the frames held out
     sensor_figures: dict[str, dict[str, Figures]]  # with several sensors: each one's figures, by name
     format: str
@@ -98,9 +99,17 @@ class CalibrationOut(BaseModel):
 @router.get("/calibrations/{cal_id}")
 def calibration(calibrations: CalibrationsDep, cal_id: str) -> CalibrationOut:
     info = calibrations.info(cal_id)
-    body = calibrations.load(cal_id).to_dict()
+    cal = calibrations.load(cal_id)
+    groups = [g.to_dict() for g in cal.diagnostic_groups()]
     return CalibrationOut.model_validate(
-        {**body, "id": cal_id, "session": info.session_id, "base": info.base_id, "holdout": info.holdout}
+        {
+            **cal.to_dict(),
+            "diagnostic_groups": groups,
+            "id": cal_id,
+            "session": info.session_id,
+            "base": info.base_id,
+            "holdout": info.holdout,
+        }
     )
 
 

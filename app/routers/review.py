@@ -5,6 +5,8 @@ reviewing different sessions never move each other (app/viewers.py)."""
 
 from __future__ import annotations
 
+from typing import Literal
+
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
@@ -30,6 +32,10 @@ class ReviewRow(BaseModel):
     err_old: float | None  # None: not measured
     err_new: float | None
     heldout: bool
+    band: float | None = (
+        None  # how far the calibrations' uncertainty moves the frame's predictions (None: no covariance)
+    )
+    verdict: Literal["better", "worse", "same"] | None = None  # new - old beyond / within k bands (None: no band)
 
 
 class ReviewFigures(BaseModel):
@@ -50,6 +56,15 @@ class Histogram(BaseModel):
     new: list[int] | None  # None: no new calibration
 
 
+class ChangeBand(BaseModel):
+    """What a frame's change is read against (app/review.py): better or worse beyond k times its band, the RMS
+    over its points of how far the uncertainty of the calibrations named in `of` moves their predictions."""
+
+    k: float
+    of: list[str]  # the sides ("old", "new") with a covariance; [] : no band, no verdict
+    median: float | None  # over the measured frames
+
+
 class ReviewSummary(BaseModel):
     """Counted over observations, like a calibration's figures; heldout_* over the new calibration's held-out
     frames (None: it held none out, or there is no new calibration)."""
@@ -63,6 +78,7 @@ class ReviewSummary(BaseModel):
     new: ReviewFigures | None  # None: no new calibration
     heldout_new: ReviewFigures | None
     histogram: Histogram
+    band: ChangeBand
 
 
 class ReviewOut(BaseModel):
@@ -80,6 +96,19 @@ class ReviewOut(BaseModel):
 @router.post("/review")
 def review(reviews: ReviewDep, viewer: ViewerDep, body: ReviewRequest) -> ReviewOut:
     return ReviewOut.model_validate(reviews.load(viewer, body.session, body.old, body.new, body.sensor))
+
+
+class ReviewTable(BaseModel):
+    table: list[ReviewRow]
+    summary: ReviewSummary
+
+
+@router.post("/review/table")
+def review_table(reviews: ReviewDep, body: ReviewRequest) -> ReviewTable:
+    """A review's frame table and summary as `POST /review` answers them, the scene untouched (what the page asks
+    when frames join the session it shows: a live view keeps running)."""
+    review, _ = reviews.build(body.session, body.old, body.new, body.sensor)
+    return ReviewTable.model_validate({"table": review.table(), "summary": review.summary()})
 
 
 class SelectRequest(BaseModel):

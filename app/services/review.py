@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from calib_core import Dataset, InputError, Profile
-from calib_core.estimation import register, registration_params
+from calib_core.estimation import Covariance, register, registration_params
 
 from ..review import Review
 from ..robot_look import robot_look
@@ -51,8 +51,8 @@ class ReviewService:
         session = self.store.sessions.get(session_id)
         profile = self.robots.get(session.robot).profile
         sensor_index = self._sensor(profile, session.robot, sensor)
-        old_id, old_p = self._params(session.robot, profile, old)
-        new_id, new_p = (None, None) if new is None else self._params(session.robot, profile, new)
+        old_id, old_p, old_cov = self._params(session.robot, profile, old)
+        new_id, new_p, new_cov = (None, None, None) if new is None else self._params(session.robot, profile, new)
         heldout: set[int] = set()
         if new_id is not None:
             heldout = set(self.store.calibrations.load(new_id).frames.get("holdout", []))
@@ -61,7 +61,16 @@ class ReviewService:
         if data is not None and registration_params(profile):
             old_p = self._registered(profile, data, old_p, old_id, session_id, heldout)
             new_p = None if new_p is None else self._registered(profile, data, new_p, new_id, session_id, heldout)
-        review = Review.build(profile, frames, data, old_p, new_p, heldout_frames=heldout, sensor=sensor_index)
+        review = Review.build(
+            profile,
+            frames,
+            data,
+            old_p,
+            new_p,
+            heldout_frames=heldout,
+            sensor=sensor_index,
+            covariances={"old": old_cov, "new": new_cov},
+        )
         observed = sorted(data.sensors) if data is not None else [profile.data.sensor]
         key = {"session": session_id, "old": old_id, "new": new_id, "robot": session.robot}
         return review, key | {
@@ -99,15 +108,19 @@ class ReviewService:
             raise InputError(f"sensor: '{name}' is not a sensor of robot {robot} (its sensors: {', '.join(names)})")
         return names.index(name)
 
-    def _params(self, robot: str, profile: Profile, ref: str | None) -> tuple[str | None, np.ndarray]:
+    def _params(
+        self, robot: str, profile: Profile, ref: str | None
+    ) -> tuple[str | None, np.ndarray, Covariance | None]:
+        """(id, parameters, covariance) of a calibration, "active" or None (the nominal model: no covariance)."""
         if ref == "active":
-            return self.robots.active_params(robot)
+            ref = self.store.calibrations.active(robot)
         if ref is None:
-            return None, profile.nominal()
+            return None, profile.nominal(), None
         info = self.store.calibrations.info(ref)
         if info.robot != robot:
             raise InputError(f"calibration '{ref}' is for robot {info.robot}, not {robot}")
-        return ref, self.store.calibrations.load(ref).params(profile)
+        cal = self.store.calibrations.load(ref)
+        return ref, cal.params(profile), cal.covariance
 
     def _registered(
         self, profile: Profile, data: Dataset, p: np.ndarray, cal_id: str | None, session_id: str, heldout: set[int]

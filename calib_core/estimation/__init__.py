@@ -13,11 +13,11 @@ __getattr__ = lazy_exports(
     __name__,
     {
         "calibrate": ("METHODS", "check_can_fit", "fit_parameters"),
-        "calibration": ("Calibration", "Outlier", "ParameterEstimate"),
+        "calibration": ("Calibration", "Covariance", "Outlier", "ParameterEstimate"),
+        "change": ("frame_band",),
         "evaluation": ("Evaluation", "evaluate"),
         "planning": (
             "AccuracyPrediction",
-            "Around",
             "Around",
             "Plan",
             "PlanProgress",
@@ -32,6 +32,7 @@ __getattr__ = lazy_exports(
         "reports": (
             "Correlation",
             "Diagnostic",
+            "DiagnosticGroup",
             "HeldParameter",
             "IdentifiabilityReport",
             "NoiseTest",
@@ -47,7 +48,9 @@ __all__ = [
     "Around",
     "Calibration",
     "Correlation",
+    "Covariance",
     "Diagnostic",
+    "DiagnosticGroup",
     "Evaluation",
     "Figures",
     "HeldParameter",
@@ -68,6 +71,7 @@ __all__ = [
     "evaluate",
     "figures",
     "fit_parameters",
+    "frame_band",
     "needs_seed",
     "plan",
     "predict_accuracy",
@@ -78,7 +82,8 @@ __all__ = [
 
 if TYPE_CHECKING:
     from .calibrate import METHODS, check_can_fit, fit_parameters
-    from .calibration import Calibration, Outlier, ParameterEstimate
+    from .calibration import Calibration, Covariance, Outlier, ParameterEstimate
+    from .change import frame_band
     from .evaluation import Evaluation, evaluate
     from .plan_seed import around_seed, needs_seed, seeded_model
     from .planning import (
@@ -96,6 +101,7 @@ if TYPE_CHECKING:
     from .reports import (
         Correlation,
         Diagnostic,
+        DiagnosticGroup,
         HeldParameter,
         IdentifiabilityReport,
         NoiseTest,

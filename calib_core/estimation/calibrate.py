@@ -31,7 +31,7 @@ from scipy.special import chdtri  # chdtri(k, 1 - q): the chi-square q quantile
 from ..dataset import Dataset
 from ..errors import InputError
 from ..model.profile import Mode, Profile
-from .calibration import Calibration, Outlier, parameter_estimate
+from .calibration import Calibration, Covariance, Outlier, parameter_estimate
 from .diagnostics import diagnose
 from .fit import Fit
 from .identifiability import find_dependencies, identifiability_report, minimal_set, report
@@ -502,4 +502,14 @@ def _result(
         diagnostics=diagnose(profile, mode, fit, rep, figs, each, solver, outliers, nuisance),
         frames=frames,
         sensor_figures=each,
+        covariance=_covariance(profile, problem, rep.covariance),
     )
+
+
+def _covariance(profile: Profile, problem: Problem, cov: np.ndarray | None) -> Covariance | None:
+    """The free parameters' covariance over every estimated parameter (a tie's follower moves as its leader)."""
+    if cov is None:
+        return None
+    estimated = np.flatnonzero(np.any(problem.A != 0, axis=1))
+    A = problem.A[estimated]
+    return Covariance.of(profile, estimated.tolist(), A @ cov @ A.T)

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InputError
 from ..files import write_atomic
 from ..model.profile import Profile
-from .reports import Diagnostic, IdentifiabilityReport, Severity, SolverReport
+from .reports import Diagnostic, DiagnosticGroup, IdentifiabilityReport, Severity, SolverReport, group_diagnostics
 from .validation import Figures
 
 FORMAT = "calib-calibration/1"
@@ -53,6 +53,28 @@ class Outlier:
 
 
 @dataclass
+class Covariance:
+    """The estimate's covariance over its estimated parameters (a tie's follower as its leader), display units:
+    what a review propagates to the predictions (`calib_core.estimation.change`)."""
+
+    parameters: list[str]
+    matrix: list[list[float]]
+
+    @classmethod
+    def of(cls, profile: Profile, indices: list[int], cov: np.ndarray) -> Covariance:
+        """From a covariance `cov` of parameters `indices`, internal units."""
+        scale = np.array([profile.to_display(i, 1.0) for i in indices])
+        display = np.nan_to_num(cov * np.outer(scale, scale))
+        return cls([profile.parameters[i].name for i in indices], display.tolist())
+
+    def internal(self, profile: Profile) -> tuple[list[int], np.ndarray]:
+        """(parameter indices, covariance in internal units)."""
+        indices = [profile.param(name) for name in self.parameters]
+        scale = np.array([profile.from_display(i, 1.0) for i in indices])
+        return indices, np.asarray(self.matrix, float).reshape(len(indices), len(indices)) * np.outer(scale, scale)
+
+
+@dataclass
 class Calibration:
     robot: str
     mode: str
@@ -67,6 +89,7 @@ class Calibration:
     diagnostics: list[Diagnostic] = field(default_factory=list)
     frames: dict[str, list[int]] = field(default_factory=dict)
     sensor_figures: dict[str, dict[str, Figures]] = field(default_factory=dict)  # several sensors: each one's
+    covariance: Covariance | None = None  # None: a file written before it was kept
     format: str = FORMAT
 
     @property
@@ -77,6 +100,10 @@ class Calibration:
     def warnings(self) -> list[str]:
         """The sentences of the diagnostics to read before applying."""
         return [d.message for d in self.diagnostics if d.severity is Severity.WARNING]
+
+    def diagnostic_groups(self) -> list[DiagnosticGroup]:
+        """The diagnostics one line per kind, those that change whether to apply it first."""
+        return group_diagnostics(self.diagnostics)
 
     # --- values -----------------------------------------------------------------------------------
     def values(self) -> dict[str, float]:
@@ -140,6 +167,7 @@ class Calibration:
                 sensor_figures={
                     n: {k: Figures(**v) for k, v in f.items()} for n, f in d.get("sensor_figures", {}).items()
                 },
+                covariance=None if d.get("covariance") is None else Covariance(**d["covariance"]),
             )
         except InputError:
             raise
@@ -166,8 +194,9 @@ class Calibration:
         return cls.from_dict(d, name)
 
     # --- people -----------------------------------------------------------------------------------
-    def summary(self) -> str:
-        """A few lines for a terminal: figures, solver, warnings."""
+    def summary(self, verbose: bool = False) -> str:
+        """A few lines for a terminal: figures, solver, the diagnostics one line per kind (`verbose`: and each
+        diagnostic of a kind that has several under its line)."""
         f = self.figures
         lines = [f"{self.robot} {self.mode} calibration ({self.method}) on {f['after'].n} observations"]
         lines.append(f"  before: {f['before']}")
@@ -190,7 +219,10 @@ class Calibration:
         if s.starts > 1:
             work += f", {s.starts} starts (kept: {s.start})"
         lines.append(f"  solver: {work} ({outcome})")
-        lines += [f"  {d.severity.value}: {d.message}" for d in self.diagnostics]
+        for g in self.diagnostic_groups():
+            lines.append(f"  {g.severity.value}: {g.title}")
+            if verbose and len(g.messages) > 1:
+                lines += [f"    - {m}" for m in g.messages]
         return "\n".join(lines)
 
 

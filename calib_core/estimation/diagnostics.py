@@ -36,11 +36,15 @@ def diagnose(
     outliers: list[Outlier],
     nuisance: frozenset[int],
 ) -> list[Diagnostic]:
-    def warn(code: str, message: str) -> Diagnostic:
-        return Diagnostic(Severity.WARNING, code, message)
+    def warn(code: str, message: str, parameters: Iterable[str] = ()) -> Diagnostic:
+        return Diagnostic(Severity.WARNING, code, message, tuple(parameters))
 
     free = fit.problem.free
-    out = [warn("held-fixed", d.describe(profile)) for d in fit.dependencies if d.remainder is None]
+    out = [
+        warn("held-fixed", d.describe(profile), [profile.label(d.fixed)])
+        for d in fit.dependencies
+        if d.remainder is None
+    ]
     if solver.minimal:
         left = [d for d in fit.dependencies if d.remainder is not None]
         n_mode = len(free) + len(fit.dependencies)
@@ -52,8 +56,8 @@ def diagnose(
                 f"pivoting of these data, no priors), {len(left)} more held than the data strictly require",
             )
         )
-        out += [Diagnostic(Severity.INFO, "minimal-set", d.describe(profile)) for d in left]
-    out += [warn("weak", w) for w in weak_parameters(profile, rep, free, nuisance)]
+        out += [Diagnostic(Severity.INFO, "minimal-set", d.describe(profile), (profile.label(d.fixed),)) for d in left]
+    out += [warn("weak", message, names) for names, message in weak_parameters(profile, rep, free, nuisance)]
     if outliers:
         out.append(
             warn(
@@ -86,6 +90,7 @@ def diagnose(
                 "at-bound",
                 f"{', '.join(bounded)} stopped at the bound the profile allows: the data push further than a "
                 "physical error would (a wrong nominal value, or data from another set-up?)",
+                bounded,
             )
         )
     if not solver.converged:

@@ -86,6 +86,7 @@ class Report:
     std: np.ndarray | None = None  # per free parameter, internal units
     inflation: np.ndarray | None = None  # sd / sd if the other parameters were known (sqrt of VIF)
     correlation: np.ndarray | None = None
+    covariance: np.ndarray | None = None  # of the free parameters, internal units (0 where the data say nothing)
 
 
 def _turns_a_joint(profile: Profile, index: int) -> bool:
@@ -245,7 +246,16 @@ def report(J: np.ndarray, r: np.ndarray, sigma: float, clusters: np.ndarray | No
         corr = cov / np.outer(std, std)
     # With unit columns, (J^T J)^-1_ii is the variance inflation factor of parameter i.
     inflation = np.sqrt(np.maximum(np.diag(bread), 1.0))
-    return Report(s.tolist(), rank, condition, o1, std=std, correlation=np.nan_to_num(corr), inflation=inflation)
+    return Report(
+        s.tolist(),
+        rank,
+        condition,
+        o1,
+        std=std,
+        correlation=np.nan_to_num(corr),
+        inflation=inflation,
+        covariance=cov,
+    )
 
 
 def strong_correlations(profile: Profile, corr: np.ndarray, free: list[int]) -> list[Correlation]:
@@ -276,8 +286,8 @@ def identifiability_report(
 
 def weak_parameters(
     profile: Profile, rep: Report, free: list[int], nuisance: frozenset[int] = frozenset()
-) -> list[str]:
-    """One warning per group of parameters the data determine only in combination.
+) -> list[tuple[list[str], str]]:
+    """One warning per group of parameters the data determine only in combination: (their labels, the message).
 
     A parameter is weak when the others mimic more than 99.75% of its effect (its standard
     deviation is at least INFLATION_WARNING times what it would be alone); weak parameters that
@@ -307,9 +317,12 @@ def weak_parameters(
         a = members[0]
         b = max((j for j in range(len(free)) if j != a), key=lambda j: abs(rep.correlation[a, j]))
         out.append(
-            f"{names}: weakly determined by these data (standard deviation {spread} what it would be if the "
-            f"other parameters were known); {profile.label(free[a])} trades off against {profile.label(free[b])} "
-            f"(correlation {rep.correlation[a, b]:+.2f}): the data fix a combination of them, not each one; "
-            "more varied configurations separate them"
+            (
+                [profile.label(free[k]) for k in members],
+                f"{names}: weakly determined by these data (standard deviation {spread} what it would be if the "
+                f"other parameters were known); {profile.label(free[a])} trades off against {profile.label(free[b])} "
+                f"(correlation {rep.correlation[a, b]:+.2f}): the data fix a combination of them, not each one; "
+                "more varied configurations separate them",
+            )
         )
     return out

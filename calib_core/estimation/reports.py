@@ -20,18 +20,97 @@ class Severity(Enum):
 class Diagnostic:
     """One finding about a calibration: `code` for programs (`not-converged`, `held-fixed`, `weak`,
     `outliers`, `model-error`, `at-bound`, `holdout-worse`, `registration-misfit`, `noise-excess`,
-    `worse-than-start`, `minimal-set`), `message` for people."""
+    `worse-than-start`, `minimal-set`), `message` for people, `parameters` the ones it is about (labels)."""
 
     severity: Severity
     code: str
     message: str
+    parameters: tuple[str, ...] = ()
 
-    def to_dict(self) -> dict[str, str]:
-        return {"severity": self.severity.value, "code": self.code, "message": self.message}
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "severity": self.severity.value,
+            "code": self.code,
+            "message": self.message,
+            "parameters": list(self.parameters),
+        }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Diagnostic:
-        return cls(Severity(d["severity"]), str(d["code"]), str(d["message"]))
+        return cls(
+            Severity(d["severity"]), str(d["code"]), str(d["message"]), tuple(str(p) for p in d.get("parameters", []))
+        )
+
+
+# The kinds of diagnostic in the order a reader should meet them: those that change whether to apply first
+# (the fit is wrong, or worse than it looks), then what is weak, then what the mode holds by design.
+DECISION_ORDER = (
+    "not-converged",
+    "worse-than-start",
+    "registration-misfit",
+    "noise-excess",
+    "holdout-worse",
+    "at-bound",
+    "outliers",
+    "weak",
+    "model-error",
+    "held-fixed",
+    "minimal-set",
+)
+# What the parameters of a kind's several diagnostics are, on its one line (followed by their names).
+_GROUP_TITLES = {
+    "weak": "weakly determined by these data (the data fix combinations of them, not each one)",
+    "held-fixed": "held at their base values (the data cannot tell each from others)",
+    "minimal-set": "left out of the minimal parameter set",
+}
+
+
+@dataclass(frozen=True)
+class DiagnosticGroup:
+    """The diagnostics of one kind and severity: one line (`title`, the parameters named) and each one's
+    message on demand."""
+
+    severity: Severity
+    code: str
+    title: str
+    parameters: tuple[str, ...]
+    messages: tuple[str, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "severity": self.severity.value,
+            "code": self.code,
+            "title": self.title,
+            "parameters": list(self.parameters),
+            "messages": list(self.messages),
+        }
+
+
+def group_diagnostics(diagnostics: list[Diagnostic]) -> list[DiagnosticGroup]:
+    """One group per (severity, code): warnings before notes, each in DECISION_ORDER (unknown kinds after the
+    known ones). A kind with one diagnostic is titled by its message; with several, by what their parameters
+    are and their names (a kind without a title: its first message and how many more)."""
+    groups: dict[tuple[Severity, str], list[Diagnostic]] = {}
+    for d in diagnostics:
+        groups.setdefault((d.severity, d.code), []).append(d)
+
+    def rank(key: tuple[Severity, str]) -> tuple[int, int]:
+        severity, code = key
+        order = DECISION_ORDER.index(code) if code in DECISION_ORDER else len(DECISION_ORDER)
+        return (0 if severity is Severity.WARNING else 1, order)
+
+    out = []
+    for key in sorted(groups, key=rank):
+        items = groups[key]
+        parameters = tuple(dict.fromkeys(p for d in items for p in d.parameters))
+        if len(items) == 1:
+            title = items[0].message
+        elif parameters and key[1] in _GROUP_TITLES:
+            title = f"{len(parameters)} parameters {_GROUP_TITLES[key[1]]}: {', '.join(parameters)}"
+        else:
+            title = f"{items[0].message} (and {len(items) - 1} more of this kind)"
+        out.append(DiagnosticGroup(key[0], key[1], title, parameters, tuple(d.message for d in items)))
+    return out
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@
 import { api } from "./api.js";
 import { calibrationName } from "./calibrate.js";
 import { $, act, el, fmt, toast } from "./dom.js";
+import { loadReview } from "./review.js";
 import { state } from "./state.js";
 
 let applying = false;  // an apply of this page is in flight
@@ -53,6 +54,8 @@ async function applyNew() {
 
 async function applied(r) {
   await refreshActive();
+  // A review whose old side is the robot's active calibration shows the one just applied.
+  if (state.reviewAsked && state.reviewAsked[0] === "active") await loadReview(...state.reviewAsked, true);
   $("#apply-state").textContent = r.recorded ? `Active: ${r.active} (previous: ${r.previous || "nominal model"})`
     : `Active: ${r.active} (it already was: sent to the robot again, history unchanged)`;
   toast(r.recorded ? "Applied to the robot." : "Already the active calibration: sent to the robot again.", "info");

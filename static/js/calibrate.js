@@ -36,19 +36,22 @@ async function startCalibration() {
   const baseValue = $("#base").value;
   const base = baseValue === "active" ? (await api("GET", `/robot/calibration?robot=${state.session.robot}`)).id : baseValue || null;
   const body = { mode: $("#mode").value, base, holdout: +$("#holdout").value };
-  const { job } = await api("POST", `/sessions/${state.session.id}/calibrations`, body);
-  state.job = { id: job, live: true };
+  const sid = state.session.id;
+  const { job } = await api("POST", `/sessions/${sid}/calibrations`, body);
+  state.job = { id: job, live: true, session: sid };
   jobControls();
+  const shown = () => state.session && state.session.id === sid;  // another session opened meanwhile: not its line
   const done = await follow(job, (j) => {
-    state.job.live = ["queued", "running"].includes(j.state);
+    if (state.job && state.job.id === job) state.job.live = ["queued", "running"].includes(j.state);
     jobControls();
+    if (!shown()) return;
     $("#job-progress").value = j.progress;
     const loading = j.state === "queued" && j.detail && j.detail.phase === "loading" ? " · reading the session's frames" : "";
     $("#job-state").textContent = `${j.state}${j.error ? `: ${j.error}` : ""}${loading}` +
       (j.cost && j.cost.length ? ` · iteration ${j.cost.length - 1}, cost ${j.cost[j.cost.length - 1].toExponential(3)}` : "");
     drawCurve($("#cost-curve"), j.cost || []);
   });
-  if (done.state === "done") {
+  if (done.state === "done" && shown()) {
     const converged = done.detail.converged !== false;
     if (!converged) $("#job-state").textContent = `done, but the solver did not converge (${done.detail.solver_status})`;
     await loadCalibrations();
@@ -57,6 +60,14 @@ async function startCalibration() {
     if (converged) toast("Calibration done: review it, then apply.", "info");
     else toast(`The calibration did not converge (${done.detail.solver_status}): read the warnings before applying.`, "error");
   }
+}
+
+// The job line and cost curve say nothing of another session's calibration.
+export function clearJob() {
+  $("#job-state").textContent = "";
+  $("#job-progress").value = 0;
+  const curve = $("#cost-curve");
+  curve.width = curve.width;  // a blank canvas
 }
 
 // The solver's cost per iteration, on a log scale.

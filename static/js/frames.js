@@ -3,7 +3,7 @@
 
 import { api } from "./api.js";
 import { $, act, el, fmt, toast } from "./dom.js";
-import { loadReview, unit } from "./review.js";
+import { loadReview, refreshFigures, unit } from "./review.js";
 import { drawSplit } from "./split.js";
 import { DEBUG, state } from "./state.js";
 
@@ -24,14 +24,11 @@ function sortedRows(rows = state.review.table) {
   });
 }
 
-// A frame's new-minus-old error (null without both) and its word: better (the new calibration's error is
-// smaller), worse, or same (within 1% of the old error).
+// A frame's new-minus-old error (null without both) and the server's word for it: better or worse beyond k
+// bands (how far the calibrations' own uncertainty moves the frame's predictions), same within; none
+// without a band (no calibration with a covariance), so the change is not coloured.
 const change = (r) => (r.err_old === null || r.err_new === null || r.err_new === undefined ? null : r.err_new - r.err_old);
-const verdict = (r) => {
-  const d = change(r);
-  if (d === null) return "";
-  return Math.abs(d) <= 0.01 * Math.abs(r.err_old) ? "same" : d < 0 ? "better" : "worse";
-};
+const verdict = (r) => (change(r) === null ? "" : r.verdict || "");
 
 const signed = (v) => (v > 0 ? "+" : v < 0 ? "−" : "±") + fmt(Math.abs(v));
 
@@ -47,7 +44,7 @@ export function renderFrames() {
     onclick: () => {
       state.sort = { key: k, dir: state.sort.key === k ? -state.sort.dir : -1 };
       renderFrames();
-      if (state.frame !== null) $("#frame-slider").value = state.frameOrder.indexOf(state.frame);
+      showPosition();
     },
   }, label + (state.sort.key === k ? (state.sort.dir < 0 ? " ▼" : " ▲") : "")))));
   const rows = sortedRows(withChange);
@@ -77,10 +74,22 @@ function renderFrameSummary(index) {
     el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
   if (state.review.new) {
     parts.push(" · new calibration ", el("span", { class: "green" }, `${fmt(r.err_new)} ${u}`));
-    if (v) parts.push(" · ", el("span", { class: v, "data-verdict": v }, `${signed(change(r))} ${u} (${v})`));
+    if (change(r) !== null) {
+      const band = r.band === null || r.band === undefined ? "" : `, band ${fmt(r.band)} ${u}`;
+      parts.push(" · ", el("span", { class: v, "data-verdict": v }, `${signed(change(r))} ${u} (${v || "no band"}${band})`));
+    }
   }
   box.replaceChildren(...parts);
   box.dataset.frame = index;
+}
+
+// The slider and its label at the selected frame's place in the frame list's order.
+function showPosition() {
+  const slider = $("#frame-slider");
+  slider.max = Math.max(0, state.frameOrder.length - 1);
+  slider.value = state.frameOrder.indexOf(state.frame);
+  $("#frame-label").textContent = state.frame === null ? "frame —"
+    : `frame ${state.frame} (${state.frameOrder.indexOf(state.frame) + 1}/${state.frameOrder.length})`;
 }
 
 // Latest wins: while a scene update is in flight only the newest request waits behind it.
@@ -93,8 +102,7 @@ export async function selectFrame(index) {
     await act(() => loadReview(...state.reviewAsked));
   }
   state.frame = index;
-  $("#frame-slider").value = state.frameOrder.indexOf(index);
-  $("#frame-label").textContent = `frame ${index} (${state.frameOrder.indexOf(index) + 1}/${state.frameOrder.length})`;
+  showPosition();
   // Only the rows that change (a session may have thousands).
   for (const tr of document.querySelectorAll("#frames tr.selected")) if (+tr.dataset.frame !== index) tr.classList.remove("selected");
   const row = document.querySelector(`#frames tr[data-frame="${index}"]`);
@@ -149,7 +157,8 @@ function togglePlay() {
 }
 
 // Frames captured while the page looks on (a replay, auto-capture) join the frame list at once: fetched with
-// the session, shown without errors (none computed yet) until the review is next loaded. Latest wins.
+// the session, then their errors (the review's figures asked again, its scene untouched: selecting a new
+// frame loads the review again). Latest wins.
 let refreshing = null;
 export async function showNewFrames(sid) {
   if (refreshing) {
@@ -179,7 +188,12 @@ export async function showNewFrames(sid) {
       if (!changed) continue;
       reviewStale = true;  // selecting one loads the review again
       renderFrames();  // the frame list's order is the stepping order
-      $("#frame-slider").max = Math.max(0, state.frameOrder.length - 1);
+      showPosition();
+      if (await refreshFigures()) {
+        renderFrames();
+        showPosition();
+        renderFrameSummary(state.frame);
+      }
     } while (refreshing.again);
   } catch (err) {
     toast(err.message);

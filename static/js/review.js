@@ -11,10 +11,13 @@ import { state } from "./state.js";
 
 export const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
 
-// `sensor`: whose observations (a session of several sensors); null: the data format's sensor.
-export async function loadReview(old, neu, sensor = null) {
-  const body = { session: state.session.id, old: old || null, new: neu || null, sensor };
-  state.review = await api("POST", "/review", body);
+const reviewBody = (old, neu, sensor) => ({ session: state.session.id, old: old || null, new: neu || null, sensor });
+
+// `sensor`: whose observations (a session of several sensors); null: the data format's sensor. `keep`: the
+// selected frame stays selected (a review asked again: the robot's active calibration changed).
+export async function loadReview(old, neu, sensor = null, keep = false) {
+  const kept = keep ? state.frame : null;
+  state.review = await api("POST", "/review", reviewBody(old, neu, sensor));
   forgetMarks();  // the server's marks are of this review from now on
   state.reviewAsked = [old, neu, sensor];
   state.newCal = state.review.new;
@@ -32,10 +35,42 @@ export async function loadReview(old, neu, sensor = null) {
   const slider = $("#frame-slider");
   slider.max = Math.max(0, rows.length - 1);
   renderFrames();
+  renderBand();
   renderSummary();
   await renderParameters();
   renderApply();
-  if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
+  if (state.frameOrder.includes(kept)) await selectFrame(kept);
+  else if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
+}
+
+// The review's figures again, its scene untouched (frames captured meanwhile: a live view keeps running).
+export async function refreshFigures() {
+  const [old, neu, sensor] = state.reviewAsked;
+  const sid = state.session.id;
+  const fresh = await api("POST", "/review/table", reviewBody(old, neu, sensor));
+  if (!state.review || state.review.session !== sid || state.reviewAsked[1] !== neu) return false;
+  Object.assign(state.review, fresh);
+  renderSummary();
+  return true;
+}
+
+// What "same", "better" and "worse" in the frame list mean (app/review.py's band).
+function renderBand() {
+  const b = state.review.summary.band;
+  const p = $("#change-band");
+  p.dataset.of = b.of.join(" ");
+  if (!state.review.new) {
+    p.textContent = "";
+    return;
+  }
+  if (!b.of.length) {
+    p.textContent = "new−old is not coloured: neither calibration has a covariance (the nominal model, or a file written before covariances were kept).";
+    return;
+  }
+  const whose = b.of.length === 2 ? "the old and the new calibration's" : `the ${b.of[0]} calibration's`;
+  const other = b.of[0] === "new" ? "old" : "new";
+  const without = b.of.length === 2 ? "" : ` (the ${other} calibration has none: the nominal model, or a file written before covariances were kept)`;
+  p.textContent = `better / worse: new−old beyond ${b.k}× the frame's band, same within it. The band: how far ${whose} own uncertainty moves the frame's predicted points (RMS over its points; median ${fmt(b.median)} ${unit()})${without}.`;
 }
 
 function renderSummary() {
@@ -64,8 +99,14 @@ async function renderParameters() {
     w.append(el("p", { class: "warning", "data-code": "not-converged" },
       `⚠ Did not converge: ${cal.solver.message} after ${cal.solver.iterations} iterations.`));
   }
-  for (const d of cal.diagnostics.filter((d) => d.severity === "warning" && d.code !== "not-converged")) {
-    w.append(el("p", { class: "warning", "data-code": d.code }, `⚠ ${d.message}`));
+  // One line per kind, those that change whether to apply first; a kind of several lists each on demand.
+  for (const g of cal.diagnostic_groups.filter((g) => g.severity === "warning" && g.code !== "not-converged")) {
+    if (g.messages.length === 1) {
+      w.append(el("p", { class: "warning", "data-code": g.code }, `⚠ ${g.title}`));
+      continue;
+    }
+    w.append(el("details", { class: "warning", "data-code": g.code },
+      el("summary", {}, `⚠ ${g.title}`), el("ul", {}, ...g.messages.map((m) => el("li", {}, m)))));
   }
   if (cal.outliers.length) {
     w.append(el("p", {}, `Outliers left out: ${cal.outliers.map((o) => `frame ${o.frame} (${fmt(o.error, 2)} ${o.unit})`).join(", ")}`));

@@ -2,7 +2,7 @@
 
 import { api } from "./api.js";
 import { renderApply } from "./apply.js";
-import { loadCalibrations } from "./calibrate.js";
+import { clearJob, loadCalibrations } from "./calibrate.js";
 import { jobControls } from "./controls.js";
 import { $, act, checkForm, el, toast } from "./dom.js";
 import { fillReplaySources, setUntilUnit } from "./replay.js";
@@ -38,6 +38,7 @@ async function openSession(id) {
   mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
   mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
   setUntilUnit(robot);
+  if (!state.job || state.job.session !== id) clearJob();
   jobControls();
   await loadCalibrations();
   await loadReview("active", state.calibrations.length ? state.calibrations[0].id : "");
@@ -55,6 +56,7 @@ export function closeSession() {
   $("#frame-label").textContent = "frame —";
   $("#frame-slider").max = 0;
   renderApply();
+  clearJob();
   jobControls();
 }
 
