@@ -107,13 +107,7 @@ def _assert_same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
         np.testing.assert_allclose(a[name], b[name], rtol=0, atol=1e-9, err_msg=name)
 
 
-# The built-in profiles whose exports hold every parameter: not the hand-eye sample, whose camera and board hang
-# from registration frames (the offsets YAML's geometry leaves registrations out, and its calibrated URDF is the
-# user's URDF, which has no link for them).
-WHOLE_EXPORTS = [n for n in BUILTIN_PROFILES if n != "arm-handeye"]
-
-
-@pytest.mark.parametrize("name", WHOLE_EXPORTS)
+@pytest.mark.parametrize("name", BUILTIN_PROFILES)
 def test_calibrated_urdf_is_the_calibrated_model_at_the_raw_readings(name: str, tmp_path: Path) -> None:
     profile = load_profile(name)
     p = _perturbed(profile, 1)
@@ -124,6 +118,14 @@ def test_calibrated_urdf_is_the_calibrated_model_at_the_raw_readings(name: str, 
     assert not any(j.calibration for j in urdf.robot.joints)  # no <calibration> tags: drivers ignore them
     q = _readings(profile, 2)
     _assert_same(_urdf_points(profile, p, urdf, q), _model_points(profile, p, q))
+    # Every sensor's frame too (the hand-eye sample's camera mount, added to the user's URDF as a link).
+    poses, scale = forward(profile, p, q), length_factor(profile.length_unit, "m")
+    for k, angles in enumerate(q):
+        urdf.update_cfg(dict(zip(profile.joint_names, angles, strict=True)))
+        for f in {s.frame for s in profile.sensors}:
+            T = urdf.get_transform(frame_to=profile.frames[f].name, frame_from=profile.base)
+            np.testing.assert_allclose(T[:3, :3], poses.R[f][k], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(T[:3, 3], poses.t[f][k] * scale, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", BUILTIN_PROFILES)
@@ -141,15 +143,15 @@ def test_offsets_yaml_on_the_nominal_urdf_is_an_offsets_calibration(name: str, t
     _assert_same(_urdf_points(profile, p, urdf, q + offsets), _model_points(profile, p, q))
 
 
-@pytest.mark.parametrize("name", WHOLE_EXPORTS)
+@pytest.mark.parametrize("name", BUILTIN_PROFILES)
 def test_offsets_yaml_with_its_geometry_is_a_full_calibration(name: str) -> None:
-    """Every parameter changed: the nominal model with the YAML's geometry, at reading + offset."""
+    """Every parameter changed: the nominal model with the YAML's geometry and set-up, at reading + offset."""
     profile = load_profile(name)
     p = _perturbed(profile, 5)
     doc = yaml.safe_load(offsets_yaml(profile, _calibration(profile, p, "full")))
     offsets = np.radians([doc["joints"][j]["offset"] for j in profile.joint_names])
     g = profile.nominal()
-    for pname, change in doc["geometry"].items():
+    for pname, change in {**doc["geometry"], **doc.get("setup", {})}.items():
         i = profile.param(pname)
         assert change["unit"] == profile.unit(i)
         g[i] += profile.from_display(i, change["change"])

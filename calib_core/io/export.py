@@ -8,7 +8,8 @@ driver that model; use one of them, never both:
   followed by the rotation about the axis by the offset) and the origin corrections are in them too,
   so the driver publishes the raw encoder readings as joint positions. Most drivers ignore URDF
   `<calibration>` tags, so none are used. For a profile loaded from a URDF it is the user's own file
-  with only the changed `<origin>`s rewritten (meshes, inertials, materials, everything else kept);
+  with only the changed `<origin>`s rewritten (meshes, inertials, materials, everything else kept) and the
+  set-up's fixed frames it has no link for (a camera mount, a board) added on fixed joints;
   for the other profiles it is calib_core.urdf's model of the profile. A comment in the file says
   what changed.
 - the offsets YAML: per joint, what to add to the encoder reading (deg) before giving it to the
@@ -193,15 +194,42 @@ def corrected_urdf(profile: Profile, p: np.ndarray, robot: UrdfRobot, header: st
         ]
         _comment_before(origin, f"calibrated: origin was {old}; changes: {', '.join(changes)}")
         rewritten.append(joint.name)
-    kept = set(_urdf_params(profile, robot))
+    added = _add_setup_frames(root, profile, p, scale)
+    kept = set(_urdf_params(profile, robot)) | {op.param for f in added for op in profile.frames[f].ops}
     elsewhere = [profile.parameter_names[i] for i in np.flatnonzero(np.abs(p - nominal) > UNCHANGED) if i not in kept]
     note = f"{header} Rewritten origins: {', '.join(rewritten) or 'none'}."
+    if added:
+        names = ", ".join(profile.frames[f].name for f in added)
+        note += f" Added links, each on a fixed joint '<link>_calibrated' (the set-up the calibration found): {names}."
     if elsewhere:
         note += f" Calibrated but not in this file (the set-up: see the calibration): {', '.join(elsewhere)}."
     comment = etree.Comment(_comment_text(note))
     root.insert(0, comment)
     comment.tail = root.text
     return _document(root)
+
+
+def _add_setup_frames(root: etree._Element, profile: Profile, p: np.ndarray, scale: float) -> list[int]:
+    """Each fixed profile frame the URDF has no link for (a camera mount, a board, a tracker on a registration
+    frame) appended as a link on a fixed joint to its parent, at its calibrated pose: a ROS user's camera frame
+    comes with the robot's description, no numbers copied. The frames added, in profile order."""
+    links = {el.get("name") for el in root.findall("link")}
+    added: list[int] = []
+    for f, frame in enumerate(profile.frames):
+        parent = profile.base if frame.parent < 0 else profile.frames[frame.parent].name
+        if frame.name in links or frame.joint >= 0 or parent not in links:
+            continue
+        T = _origin(frame, p, scale)
+        _append_indented(root, "link").set("name", frame.name)
+        joint = _append_indented(root, "joint")
+        joint.set("name", f"{frame.name}_calibrated")
+        joint.set("type", "fixed")
+        etree.SubElement(joint, "parent").set("link", parent)
+        etree.SubElement(joint, "child").set("link", frame.name)
+        etree.SubElement(joint, "origin", xyz=urdf_numbers(T[:3, 3]), rpy=urdf_numbers(rpy_angles(T[:3, :3])))
+        links.add(frame.name)
+        added.append(f)
+    return added
 
 
 def _urdf_params(profile: Profile, robot: UrdfRobot) -> list[int]:
