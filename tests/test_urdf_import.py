@@ -404,10 +404,19 @@ def test_the_urdf_export_is_the_users_file_with_corrected_origins(tmp_path: Path
             np.testing.assert_allclose(poses.t[profile.frame(link)][n] / 1000, T[:3, 3], rtol=0, atol=1e-9)
             np.testing.assert_allclose(poses.t[profile.frame(link)][n] / 1000, T[:3, 3], rtol=0, atol=1e-9)
 
-    # Everything but the imported joints' origins is the user's file (comments apart).
+    # The tracker's registration frame (not in the user's file) is added as a link on a fixed joint at its pose.
+    tracker = profile.frame("tracker")
+    T = urdf.get_transform(frame_to="tracker", frame_from="base_link")
+    np.testing.assert_allclose(poses.R[tracker][0], T[:3, :3], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(poses.t[tracker][0] / 1000, T[:3, 3], rtol=0, atol=1e-9)
+
+    # Everything else but the imported joints' origins is the user's file (comments apart).
     parser = etree.XMLParser(remove_comments=True, remove_blank_text=True)
     ours = etree.fromstring(text.encode(), parser)
     theirs = etree.fromstring(arm_urdf().encode(), parser)
+    added = [ours.find("link[@name='tracker']"), ours.find("joint[@name='tracker_calibrated']")]
+    for element in added:
+        ours.remove(element)
     changed = []
     for a, b in zip(ours.findall("joint"), theirs.findall("joint"), strict=True):
         origins = [j.find("origin") for j in (a, b)]
@@ -423,7 +432,8 @@ def test_the_urdf_export_is_the_users_file_with_corrected_origins(tmp_path: Path
     assert "<!-- the test arm -->" in text
     first = etree.fromstring(text.encode())[0]
     assert isinstance(first, etree._Comment) and "raw encoder readings" in first.text
-    assert "tracker.x" in first.text and "smr.x" in first.text  # calibrated but not in the file
+    assert "Added links" in first.text and ": tracker." in first.text  # the registration, as a link
+    assert "tracker.x" not in first.text and "smr.x" in first.text  # the target's point: not in the file
     assert 'calibrated: origin was xyz="0.0 -0.12 0.425" rpy="0.0 0.0 0.0"; changes: elbow.x ' in text
 
 
@@ -595,7 +605,9 @@ def test_xml_quirks_load_with_a_note(tmp_path: Path, case: str, capsys: pytest.C
     # The export rewrites the file as read, put right: valid XML that yourdfpy reads.
     text = calibrated_urdf(profile, _calibration(profile, profile.nominal() + 0.001))
     (tmp_path / "out.urdf").write_text(text, encoding="utf-8")
-    assert _load(tmp_path / "out.urdf").joint_names == _load(tmp_path / "clean" / "arm.urdf").joint_names
+    # The user's joints, and the tracker's registration frame added on a fixed joint of its own.
+    exported = _load(tmp_path / "out.urdf").joint_names
+    assert exported == [*_load(tmp_path / "clean" / "arm.urdf").joint_names, "tracker_calibrated"]
     data = tmp_path / "data.csv"
     data.write_text("frame,x,y,z\n", encoding="utf-8")
     main(["solve", "--robot", str(path), "--mode", "offsets", "--data", str(data), "--out", str(tmp_path / "c.json")])
