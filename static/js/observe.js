@@ -87,7 +87,7 @@ export function robotEvents() {
     const o = r.observing;
     if (o && state.session && o.session === state.session.id && o.captured > autoCaptured) showNewFrames(o.session);
     autoCaptured = o ? o.captured : 0;
-    setText($("#observe-state"), o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "");
+    setText($("#observe-state"), o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" && o.reason !== o.detection ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "");
   };
   es.onerror = () => {
     es.close();
@@ -114,7 +114,7 @@ async function captureNow() {
     state.capturing = false;
     jobControls();
   }
-  toast(`Frame ${frame.index}: ${frame.status}${frame.reason && frame.reason !== "ok" ? ` (${frame.reason})` : ""}`, "info");
+  toast(`Frame ${frame.index}: ${frame.status}${frame.reason && frame.reason !== "ok" && frame.reason !== frame.status ? ` (${frame.reason})` : ""}`, "info");
   await loadSessions(state.session.id);
 }
 

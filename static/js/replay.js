@@ -161,7 +161,7 @@ function showPredicted(p, mode) {
   if (!p) { box.replaceChildren(); return; }
   const worst = [...p.parameters].sort((a, b) => (b.std ?? Infinity) - (a.std ?? Infinity)).slice(0, 3);
   box.replaceChildren(
-    el("p", { class: "predicted" }, `Predicted after a ${mode} calibration from the ${p.n} configurations captured: ` +
+    el("p", { class: "predicted" }, `Predicted after ${/^[aeiou]/i.test(mode) ? "an" : "a"} ${mode} calibration from the ${p.n} configurations captured: ` +
       `error over the workspace mean ${fmtError(p.mean, p.unit)}, max ${fmtError(p.max, p.unit)}`),
     el("p", { class: "note" }, "largest predicted standard deviations: " +
       worst.map((w) => `${w.name} ${w.std === null ? "-" : w.std.toPrecision(2)} ${w.unit}`).join(", ") +
