@@ -186,3 +186,22 @@ def test_a_half_hidden_board_is_rejected_as_partial(session):
     detection = detect_board(image, predicted=predicted)
     assert (detection.found, detection.reason) == (False, "partial")
     assert detection.detail.endswith("of 24 corners")
+
+
+def test_a_hard_view_is_found_whatever_ran_before_it():
+    """OpenCV's sector-based detector draws from a global generator, so a hard view (here one it missed in 1 of 5
+    draws) was found or not depending on what the process had run before: CI lost it, the laptop did not. It is
+    found from every state of that generator, and always the same corners."""
+    profile = load_profile("nao")
+    robot = SimulatedRobot.from_profile(profile, seed=4)
+    q, targets = robot.configurations(24)
+    n = 17
+    image, _ = robot.render(q[n], int(targets[n]))
+    predicted = board_corners(profile, profile.nominal(), robot.readings(q[n]), targets[n])
+    found = []
+    for state in range(8):
+        cv2.setRNGSeed(1000 + state)
+        cv2.findChessboardCornersSBWithMeta(image["image"], (3, 3), cv2.CALIB_CB_LARGER)  # what ran before
+        found.append(detect_board(image["image"], predicted=predicted))
+    assert all(d.found for d in found), [d.reason for d in found]
+    assert all(np.array_equal(d.corners, found[0].corners) for d in found)
