@@ -220,7 +220,7 @@ def fit_parameters(
     `minimal`: see `calibrate`."""
     start = time.perf_counter()
     priors = {} if minimal else mode.priors
-    problem = Problem(profile, data, list(mode.free), p_base, mode.ties, priors)
+    problem = Problem(profile, data, list(mode.free), p_base, mode.ties, priors, readings=True)
     initial: tuple[np.ndarray, np.ndarray] | None = problem.residuals_jacobian(problem.x0)
     J = initial[1][: problem.n_data_rows]
     deps = find_dependencies(profile, J, problem.free)
@@ -231,7 +231,7 @@ def fit_parameters(
     if deps:
         fixed = {d.fixed for d in deps}
         free = [i for i in mode.free if i not in fixed]
-        problem = Problem(profile, data, free, p_base, mode.ties, priors, noise_model=problem.weights)
+        problem = Problem(profile, data, free, p_base, mode.ties, priors, noise_model=problem.weights, readings=True)
         initial = None
     passes = _Passes(problem, mode, profile, progress, should_stop)
     if method == "nelder-mead":
@@ -246,10 +246,17 @@ def fit_parameters(
     r = problem.residuals(x)
     n_free = len(problem.free)
     n_in = sum(int(problem.included[b.obs].sum()) * b.dim for b in problem.blocks)
-    sigma = float(np.sqrt(np.sum(r[: problem.n_data_rows] ** 2) / max(n_in - n_free, 1)))
-    # Per sensor, of the residuals whitened by its noise model alone (as `inliers` computes them).
+    fitted = np.concatenate([r[: problem.n_data_rows], r[problem.reading_rows]])
+    sigma = float(np.sqrt(np.sum(fitted**2) / max(n_in - n_free, 1)))
+    # Per sensor, of the residuals whitened by its noise model alone (as `inliers` computes them: with the
+    # readings' rounding in each observation's covariance, where the fit eliminated it).
+    plain, r_plain = problem, r
+    if problem.readings is not None:
+        plain = Problem(profile, data, [], problem.params(x))
+        plain.included = problem.included
+        r_plain = plain.residuals(np.zeros(0))
     sigmas = {
-        s: float(np.sqrt(total / max(dof, 1))) for s, (total, _, dof) in sensor_scatter(problem, r, n_free).items()
+        s: float(np.sqrt(total / max(dof, 1))) for s, (total, _, dof) in sensor_scatter(plain, r_plain, n_free).items()
     }
     return Fit(
         problem,
@@ -263,7 +270,7 @@ def fit_parameters(
         sigma,
         sigmas,
         passes.verdict,
-        noise_tests(problem, r, n_free),
+        noise_tests(plain, r_plain, n_free),
         passes.starts,
         passes.start,
     )
@@ -328,8 +335,10 @@ class _Passes:
             starts = turned_starts(problem, problem.x0, poses, self.should_stop) + closed_form_starts(problem)
             if starts:
                 x = self.best_start(starts)
+        if problem.readings is not None:
+            x = self.reading_scales(x)
         if len(problem.blocks) > 1 or problem.priors:
-            if len(problem.blocks) > 1:
+            if len(problem.blocks) > 1 and problem.readings is None:
                 # Each sensor weighed by its actual scatter, not only its declared noise.
                 r = problem.residuals(x)
                 for b in problem.blocks:
@@ -351,6 +360,43 @@ class _Passes:
             problem.prior_scale = pooled_robust_sigma(problem, r)
             self.run(x, None)
 
+    def reading_scales(self, x: np.ndarray) -> np.ndarray:
+        """Each configuration's observations of a sensor weighed by their actual scatter against the readings'
+        rounding, whose size is known (a detector measures a board seen obliquely worse than one seen face on):
+        the scatter of their rows after the elimination over the degrees of freedom the corrections and the
+        parameters leave them (`ReadingErrors.leverage`), shrunk towards the sensor's pooled scatter
+        (SCALE_PRIOR_DOF), refitted until it settles; never below MIN_SCALE of the declared noise. Returns the
+        solution at the scales found."""
+        problem = self.problem
+        assert problem.readings is not None
+        M, N = problem.data.n_observations, problem.data.n_configurations
+        obs_of_row = np.concatenate([np.repeat(np.arange(M)[b.obs], b.dim) for b in problem.blocks])
+        block_of_obs = np.zeros(M, int)
+        for k, b in enumerate(problem.blocks):
+            block_of_obs[b.obs] = k
+        group_of_obs = block_of_obs * N + problem.data.cfg
+        _, group_of_obs = np.unique(group_of_obs, return_inverse=True)
+        group_of_row = group_of_obs[obs_of_row]
+        block_of_group = np.zeros(group_of_obs.max() + 1, int)
+        block_of_group[group_of_obs] = block_of_obs
+        free_share = len(problem.free) / max(problem.n_data_rows, 1)
+        for _ in range(SCALE_PASSES):
+            problem.relinearise_readings(x)
+            r = problem.residuals(x)[: problem.n_data_rows]
+            leverage = problem.readings.leverage(problem.n_data_rows)
+            used = problem.included[obs_of_row]
+            total = np.bincount(group_of_row, r**2)
+            dof = np.bincount(group_of_row, used * (1.0 - leverage - free_share))
+            pooled = np.bincount(block_of_group, total) / np.maximum(np.bincount(block_of_group, dof), 1e-9)
+            ratio = np.sqrt(
+                (total + SCALE_PRIOR_DOF * pooled[block_of_group]) / (np.maximum(dof, 0.0) + SCALE_PRIOR_DOF)
+            )
+            problem.obs_scale = np.maximum(problem.obs_scale * ratio[group_of_obs], MIN_SCALE)
+            x = self.run(x, None)
+            if np.max(np.abs(np.log(ratio))) < SCALE_SETTLED:
+                break
+        return x
+
     def best_start(self, starts: list[Start]) -> np.ndarray:
         """The lowest-cost solution: the last one's, or one from the best few of `starts` (by their cost
         before the full solve)."""
@@ -362,6 +408,14 @@ class _Passes:
         self.starts += len(starts)
         self.last = best
         return best.x
+
+
+SCALE_PASSES = 6  # refits at most while the observations' scales settle against the readings' rounding
+SCALE_SETTLED = 0.02  # a scale that changed less than 2% has settled
+SCALE_PRIOR_DOF = 20.0  # a configuration's own scatter weighs as this many rows more of its sensor's pooled one
+# The least scale of the declared noise: with scatter far below it (exact simulated pixels) the corrections'
+# linearisation error, not the noise, would set the weights.
+MIN_SCALE = 0.1
 
 
 def cross_validate(
@@ -462,7 +516,8 @@ def _result(
 ) -> Calibration:
     problem = fit.problem
     r, J = problem.residuals_jacobian(fit.p[problem.free])
-    clusters = error_clusters(profile, train)
+    # Errors the readings share, where the fit did not eliminate them: a sandwich clustered by configuration.
+    clusters = error_clusters(profile, train) if problem.readings is None else None
     rows = None
     if clusters is not None:
         rows = np.concatenate([np.repeat(clusters[train.cfg[b.obs]], b.dim) for b in problem.blocks])

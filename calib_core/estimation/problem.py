@@ -22,6 +22,7 @@ from ..dataset import Dataset
 from ..model.kinematics import Poses, forward, op_ids, op_signs, to_sensor
 from ..model.profile import Profile, Tie
 from ..sensors import Sensor
+from .readings import ReadingErrors
 
 
 @dataclass
@@ -69,9 +70,12 @@ class Problem:
         priors: dict[int, float] | None = None,
         prior_mean: np.ndarray | None = None,
         noise_model: bool | Sequence[np.ndarray | float] = True,
+        readings: bool = False,
     ) -> None:
         """`noise_model`: True to weigh by the sensors' noise models, False for none, or the
-        `weights` of an earlier Problem on the same data (they depend on the data only)."""
+        `weights` of an earlier Problem on the same data (they depend on the data only). `readings`: with a
+        noise model, the rounding of readings that several observations share as errors in the variables
+        (`ReadingErrors`: its rows follow the priors'), the weights then the sensors' noise alone."""
         self.profile = profile
         self.data = data
         self.free = list(free)
@@ -106,9 +110,18 @@ class Problem:
         )
         self.groups = [g for b in self.blocks for g in self._groups(b)]
         self.included = np.ones(data.n_observations, bool)  # False: an outlier, left out
+        # Each observation's scatter relative to its sensor's (estimated where a configuration's observations
+        # show it: `_Passes.reading_scales`); its whitened residual is divided by it and its block's scale.
+        self.obs_scale = np.ones(data.n_observations)
         self._q = np.nan_to_num(data.joints)  # joints a row does not need do not matter
+        self.readings: ReadingErrors | None = None
+        if readings and noise_model is not False:
+            row_cfg = np.concatenate([np.repeat(data.cfg[b.obs], b.dim) for b in self.blocks])
+            self.readings = ReadingErrors.of(
+                profile, data, row_cfg, lambda params: self._offset_jacobian(params, p_base)
+            )
         if noise_model is True:
-            extra = self._reading_covariance(p_base)
+            extra = None if self.readings is not None else self._reading_covariance(p_base)
             for b in self.blocks:
                 measured = data.measured[b.obs, : b.dim]
                 b.W = b.sensor.whitening(p_base, measured, None if extra is None else extra[b.index])
@@ -160,6 +173,16 @@ class Problem:
             )
         return out
 
+    def _offset_jacobian(self, params: list[int], p: np.ndarray) -> np.ndarray:
+        """The data rows' unweighted Jacobian with respect to the parameters `params` (joint offsets) at p."""
+        probe = Problem(self.profile, self.data, params, p, noise_model=False)
+        return probe.residuals_jacobian(probe.x0)[1][: probe.n_data_rows]
+
+    def relinearise_readings(self, x: np.ndarray) -> None:
+        """The readings' corrections (`ReadingErrors`) linearised at the parameters x."""
+        if self.readings is not None:
+            self.readings.relinearise(self._offset_jacobian(self.readings.params, self.params(x)))
+
     def _reading_covariance(self, p: np.ndarray) -> dict[int, np.ndarray] | None:
         """Per sensor, (n, dim, dim): what rounding each joint reading to its encoder step adds to a
         measurement.
@@ -195,32 +218,64 @@ class Problem:
         columns an observation's sensor does not have."""
         return self._evaluate(p, jacobian=False)[0]
 
+    @property
+    def reading_rows(self) -> slice:
+        """The rows of the readings' corrections (`ReadingErrors`), after the priors' (empty without)."""
+        start = self.n_data_rows + len(self.priors)
+        return slice(start, start + (0 if self.readings is None else self.readings.n))
+
     def residuals(self, x: np.ndarray) -> np.ndarray:
         p = self.params(x)
         pred, _ = self._evaluate(p, jacobian=False)
-        return self._with_priors(self._whitened(pred), p)
+        r = self._whitened(pred)
+        if self.readings is None:
+            return self._with_priors(r, p)
+        self._prepare_readings()
+        r, extra, _ = self.readings.project(r)
+        return np.concatenate([self._with_priors(r, p), extra])
 
     def residuals_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = self.params(x)
         pred, J = self._evaluate(p, jacobian=True)
         assert J is not None
-        r = self._with_priors(self._whitened(pred), p)
-        weighed = np.empty_like(J)
-        for b in self.blocks:
-            J3 = J[b.rows].reshape(-1, b.dim, len(self.free))
-            out = weighed[b.rows].reshape(J3.shape)  # views of contiguous rows: written in place
-            w = self.included[b.obs] / b.scale
-            if isinstance(b.W, np.ndarray):  # scale the (n, dim, dim) whitening, not the wide Jacobian
-                np.matmul(b.W * w[:, None, None], J3, out=out)
-            else:
-                np.multiply(J3, (w * b.W)[:, None, None], out=out)
-        J = weighed
+        r = self._whitened(pred)
+        J = self._weighed(J)
+        extra = J_extra = None
+        if self.readings is not None:
+            self._prepare_readings()
+            r, extra, J_all = self.readings.project(r, J)
+            assert J_all is not None
+            J, J_extra = J_all[: self.n_data_rows], J_all[self.n_data_rows :]
+        r = self._with_priors(r, p)
         if self.priors:
             Jp = np.zeros((len(self.priors), len(self.free)))
             for k, (i, s) in enumerate(self.priors.items()):
                 Jp[k] = self.prior_scale * self.A[i] / s
             J = np.vstack([J, Jp])
+        if extra is not None and J_extra is not None:
+            r, J = np.concatenate([r, extra]), np.vstack([J, J_extra])
         return r, J
+
+    def _weighed(self, J: np.ndarray) -> np.ndarray:
+        """Data rows of an unweighted Jacobian (any number of columns) weighed as the residuals are: by each
+        block's whitening and scale, the observations left out zero."""
+        weighed = np.empty_like(J)
+        for b in self.blocks:
+            J3 = J[b.rows].reshape(-1, b.dim, J.shape[1])
+            out = weighed[b.rows].reshape(J3.shape)  # views of contiguous rows: written in place
+            w = self.included[b.obs] / (b.scale * self.obs_scale[b.obs])
+            if isinstance(b.W, np.ndarray):  # scale the (n, dim, dim) whitening, not the wide Jacobian
+                np.matmul(b.W * w[:, None, None], J3, out=out)
+            else:
+                np.multiply(J3, (w * b.W)[:, None, None], out=out)
+        return weighed
+
+    def _prepare_readings(self) -> None:
+        """The readings' elimination for the current whitening (it changes with the scales and the
+        observations left out)."""
+        assert self.readings is not None
+        key = (self.included.tobytes(), self.obs_scale.tobytes(), tuple(b.scale for b in self.blocks))
+        self.readings.prepare(self._weighed, key)
 
     def raw_residuals(self, x: np.ndarray) -> np.ndarray:
         """Prediction - measurement, unweighted, block after block: the distances the papers report."""
@@ -238,7 +293,7 @@ class Problem:
     def _whitened(self, pred: np.ndarray) -> np.ndarray:
         parts = []
         for b in self.blocks:
-            e = self._errors(pred, b) / b.scale
+            e = self._errors(pred, b) / (b.scale * self.obs_scale[b.obs, None])
             parts.append(((b.W @ e[:, :, None])[:, :, 0] if isinstance(b.W, np.ndarray) else e * b.W).ravel())
         return np.concatenate(parts) if parts else np.zeros(0)
 

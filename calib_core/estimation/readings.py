@@ -1,0 +1,188 @@
+"""The rounding of the joint readings as errors in the variables, for observations that share a reading.
+
+A joint's reading is rounded to its encoder step: the physical angle is offset + reading + d, d uniform over
+one step (variance step^2 / 12). When a configuration gives one observation, d is noise on that observation
+alone and folds into its covariance (`Problem._reading_covariance`). When it gives many (a board's 24
+vertices), they all share d: folding it into each vertex's covariance as if it were independent weighs it
+24 times too little, and the offsets of joints that d moves alike (a leg's three pitch joints) are told apart
+worse than the data allow. Here each reading's d is a nuisance variable with a Gaussian prior of std
+step / sqrt(12), shared by every observation of the configurations that read the same values on its chain
+(a NAO stance seen in three head postures), and eliminated exactly: with U the whitened d(error)/d(d) of a
+cluster of observations (the offset's column, at the base model) and M = [U; diag(1 / std)],
+
+    min_d |r - U d|^2 + |d / std|^2 = |P [r; 0]|^2,  P = I - Q Q^T,  Q = orth(M),
+
+so each cluster's whitened rows r become the first rows of P [r; 0] (one row per observation, as before, so
+a robust loss still acts per observation) and its corrections add one row each; with U fixed, P is constant
+and the Jacobian is P [J; 0] exactly. The cost is r^T (Sigma + U S U^T)^-1 r: the generalised least squares of
+the whole configuration, whose covariance (J^T P J)^-1 accounts for the shared rounding. U is taken at the base
+model, then again at each solution the fit reaches (`relinearise`): with pixel noise far below a reading step's
+effect, U's error at a model a few degrees off would outweigh the noise and bias the offsets.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..dataset import Dataset
+from ..model.profile import Profile
+
+
+@dataclass
+class _Cluster:
+    rows: np.ndarray  # data rows of the residual vector
+    joints: np.ndarray  # (v,) each correction's column of the offsets' Jacobian
+    mask: np.ndarray  # (len(rows), v) the rows each correction moves
+    std: np.ndarray  # (v,) each correction's prior std, internal units
+
+
+class ReadingErrors:
+    """The nuisance corrections of a problem's quantised joint readings, eliminated cluster by cluster."""
+
+    def __init__(self, clusters: list[_Cluster], params: list[int], Jq: np.ndarray) -> None:
+        self.clusters = clusters
+        self.params = params  # the quantised joints' offsets
+        self.Jq = Jq  # (data rows, len(params)) unweighted d(error)/d(offset), at the model of `relinearise`
+        self.n = sum(len(c.std) for c in clusters)  # corrections: one residual row each
+        self._key: tuple | None = None
+        self._Q: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def relinearise(self, Jq: np.ndarray) -> None:
+        """The corrections' effect at another model (the fit so far): a reading's error moves the prediction
+        as the offset does where the robot is, not where the nominal model puts it."""
+        self.Jq = Jq
+        self._key = None
+
+    @classmethod
+    def of(
+        cls, profile: Profile, data: Dataset, row_cfg: np.ndarray, offset_jacobian: Callable[[list[int]], np.ndarray]
+    ) -> ReadingErrors | None:
+        """The corrections of `data`'s quantised readings, or None when no reading is shared by more than one
+        observation (then folding its rounding into each observation's covariance is exact). `row_cfg`: the
+        configuration of each data row; `offset_jacobian(params)`: the unweighted data rows' Jacobian with
+        respect to those joint offsets at the base model."""
+        steps = {
+            op.param: (op.joint, profile.joints[op.joint].resolution)
+            for f in profile.frames
+            for op in f.ops
+            if op.joint >= 0 and profile.joints[op.joint].resolution > 0
+        }
+        if not steps or len(row_cfg) == 0:
+            return None
+        params = list(steps)
+        Jq = offset_jacobian(params)
+        keys = _keys(profile, data, [steps[i][0] for i in params])
+        moved = np.zeros((data.n_configurations, len(params)), bool)
+        np.logical_or.at(moved, row_cfg, Jq != 0)
+        variables: dict[tuple, list[int]] = {}
+        for c, k in zip(*np.nonzero(moved), strict=True):
+            variables.setdefault((int(k), keys[c][k]), []).append(int(c))
+        obs_of_cfg = np.bincount(data.cfg, minlength=data.n_configurations)
+        if all(sum(obs_of_cfg[c] for c in cfgs) <= 1 for cfgs in variables.values()):
+            return None
+        group = _components(data.n_configurations, variables.values())
+        members: dict[int, list[tuple[int, list[int]]]] = {}
+        for (k, _), cfgs in variables.items():
+            members.setdefault(group[cfgs[0]], []).append((k, cfgs))
+        clusters = []
+        for g, vs in members.items():
+            rows = np.flatnonzero(group[row_cfg] == g)
+            mask = np.stack([np.isin(row_cfg[rows], cfgs) for _, cfgs in vs], axis=1)
+            std = np.array([steps[params[k]][1] / np.sqrt(12.0) for k, _ in vs])
+            clusters.append(_Cluster(rows, np.array([k for k, _ in vs]), mask, std))
+        return cls(clusters, params, Jq)
+
+    def prepare(self, weigh: Callable[[np.ndarray], np.ndarray], key: tuple) -> None:
+        """Each cluster's Q for the data rows' current whitening (`weigh(J)`: data rows weighed as the
+        residuals are, by the noise model, the scale and the observations left out); recomputed when `key`
+        (what the whitening depends on) changes."""
+        if key == self._key:
+            return
+        Jw = weigh(self.Jq)
+        self._Q = []
+        for c in self.clusters:
+            M = np.vstack([Jw[c.rows][:, c.joints] * c.mask, np.diag(1.0 / c.std)])
+            Q = np.linalg.qr(M)[0]
+            self._Q.append((Q[: len(c.rows)], Q[len(c.rows) :]))
+        self._key = key
+
+    def leverage(self, n_rows: int) -> np.ndarray:
+        """(n_rows,) each data row's share of the corrections' fit (the diagonal of Q Q^T on the data rows):
+        what the elimination takes from its variance."""
+        out = np.zeros(n_rows)
+        for c, (top, _) in zip(self.clusters, self._Q, strict=True):
+            out[c.rows] = np.sum(top**2, axis=1)
+        return out
+
+    def project(self, r: np.ndarray, J: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The data rows r (and their Jacobian J) with every cluster's corrections eliminated, and the
+        corrections' rows (module doc)."""
+        r = r.copy()
+        extra = np.zeros(self.n)
+        J_extra = None
+        if J is not None:
+            J = J.copy()
+            J_extra = np.zeros((self.n, J.shape[1]))
+        at = 0
+        for c, (top, bottom) in zip(self.clusters, self._Q, strict=True):
+            v = slice(at, at + len(c.std))
+            coef = top.T @ r[c.rows]
+            r[c.rows] -= top @ coef
+            extra[v] = -bottom @ coef
+            if J is not None and J_extra is not None:
+                C = top.T @ J[c.rows]
+                J[c.rows] -= top @ C
+                J_extra[v] = -bottom @ C
+            at = v.stop
+        return r, extra, (None if J is None else np.vstack([J, J_extra]))
+
+
+def _keys(profile: Profile, data: Dataset, joints: list[int]) -> list[list[tuple]]:
+    """Per configuration and quantised joint: what its rounding is shared by, the readings of the joints on its
+    side of the chain (the target's joints the sensor's chain lacks, or the sensor's): the same readings are the
+    same rounding (a stance seen in several head postures)."""
+    first_target = np.zeros(data.n_configurations, int)
+    first_target[data.cfg[::-1]] = data.target[::-1]
+    first_sensor = np.zeros(data.n_configurations, int)
+    first_sensor[data.cfg[::-1]] = data.sensor[::-1]
+    q = np.round(np.nan_to_num(data.joints), 9)
+    sides: dict[tuple[int, int], tuple[set[int], set[int]]] = {}
+    out = []
+    for c in range(data.n_configurations):
+        t, s = int(first_target[c]), int(first_sensor[c])
+        if (t, s) not in sides:
+            target = {profile.frames[f].joint for f in profile.chain(profile.targets[t].frame)} - {-1}
+            sensor = {profile.frames[f].joint for f in profile.chain(profile.sensors[s].frame)} - {-1}
+            sides[(t, s)] = (target - sensor, sensor - target)
+        target_side, sensor_side = sides[(t, s)]
+        row = []
+        for j in joints:
+            if j in target_side:
+                side, who = sorted(target_side), ("target", t)
+            elif j in sensor_side:
+                side, who = sorted(sensor_side), ("sensor", s)
+            else:
+                side, who = [], ("configuration", c)
+            row.append((who, tuple(q[c, side].tolist())))
+        out.append(row)
+    return out
+
+
+def _components(n: int, links) -> np.ndarray:
+    """Connected components of n items joined by the item lists in `links`: a label per item."""
+    parent = np.arange(n)
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for items in links:
+        first = root(items[0])
+        for i in items[1:]:
+            parent[root(i)] = first
+    return np.array([root(i) for i in range(n)])
