@@ -119,9 +119,9 @@ def _parser() -> argparse.ArgumentParser:
     pl.add_argument("--seed", type=int, default=0, help="seed of the candidate configurations")
     pl.add_argument(
         "--criterion",
-        default="task",
-        choices=["task", "d", "random"],
-        help="task: least predicted error over the workspace (default); d: D-optimal; random: a random draw",
+        choices=["task", "offsets", "d", "random"],
+        help="task: least predicted error over the workspace; offsets: least variance of the joint offsets; "
+        "d: D-optimal; random: a random draw (default: what the mode's `plan` says, else task)",
     )
     pl.add_argument("--out", required=True, help="the plan CSV (joint columns, no measurements)")
 
@@ -434,7 +434,8 @@ def _plan(args: argparse.Namespace) -> int:
         raise InputError(f"--configurations must be at least 1, got {args.configurations}")
     p_base = _load_calibration(args.base, profile).params(profile) if args.base else None
     _check_writable(args.out)
-    result = plan(profile, args.mode, args.configurations, p_base, seed=args.seed, criterion=args.criterion)
+    criterion = args.criterion or profile.mode(args.mode).plan
+    result = plan(profile, args.mode, args.configurations, p_base, seed=args.seed, criterion=criterion)
     _save(args.out, lambda: write_atomic(Path(args.out), plan_csv(profile, result.q, result.targets)))
     pred = result.predicted
     print(

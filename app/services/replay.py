@@ -338,7 +338,14 @@ class ReplayService:
             if key in self._plans:
                 return self._plans[key]
         planned = plan_configurations(
-            profile, mode, count, believed, seed=seed, criterion="task", around=near, **_pacing(ctx, share)
+            profile,
+            mode,
+            count,
+            believed,
+            seed=seed,
+            criterion=profile.mode(mode).plan,
+            around=near,
+            **_pacing(ctx, share),
         )
         with self._lock:
             self._plans[key] = planned

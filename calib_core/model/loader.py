@@ -33,6 +33,7 @@ JOINT_KINDS = ("revolute", "prismatic")  # a joint entry's `type`: its op rotate
 GRID_PATTERNS = ("checkerboard", "sandal")  # what a grid target may be: a plain board, the NAO's sandal
 # A mode's `free: ["cam.intrinsics"]`: the camera's fx, fy, cx, cy and its distortion coefficients.
 INTRINSICS_SUFFIX = ".intrinsics"
+PLAN_GOALS = ("task", "offsets")  # a mode's `plan`: what a plan for it makes accurate (Mode.plan)
 
 # An elementary transform before it is an Op: (t|r, vector, field or parameter name, value, jointed).
 Step = tuple[str, np.ndarray, str, float, bool]
@@ -648,7 +649,10 @@ class _Compiler:
             sensors = tuple(
                 self.index_of(n, self.sensor_index, f"{where}.sensors[{k}]", "sensor") for k, n in enumerate(listed)
             )
-        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds, sensors)
+        plan = str(spec.get("plan", "task"))
+        if plan not in PLAN_GOALS:
+            raise self.fail(f"{where}.plan", f"expected one of {', '.join(PLAN_GOALS)}, got {plan!r}")
+        return Mode(name, str(spec.get("description", "")), tuple(free), tuple(ties), priors, bounds, sensors, plan)
 
     def lens_params(self, pattern: str) -> list[str]:
         """`<sensor>.intrinsics`: the names of that sensor's intrinsics and distortion coefficients."""

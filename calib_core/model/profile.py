@@ -110,6 +110,9 @@ class Mode:
     priors: dict[int, float]  # parameter index -> standard deviation (internal units)
     bounds: dict[int, float] = field(default_factory=dict)  # index -> largest |change| from nominal
     sensors: tuple[int, ...] | None = None  # the sensors whose observations it fits (None: every one)
+    # What a plan for it makes accurate: "task" the error over the workspace, "offsets" the joint offsets
+    # (a robot whose calibration is its offsets, used in every pose: the NAO).
+    plan: str = "task"
 
 
 @dataclass(frozen=True)
