@@ -71,7 +71,7 @@ def test_plan_within_limits_less_margin_and_predicted_visible(rn) -> None:
     m = np.minimum(math.radians(JOINT_MARGIN_DEG), (hi - lo) / 2)
     assert np.all(planned.q >= lo + m - 1e-12) and np.all(planned.q <= hi - m + 1e-12)
     assert within_margin(rn, planned.q).all()
-    margin_px, share = plan_margins(rn)  # a stereo head's plan keeps more clear than its detector needs
+    margin_px, share, _ = plan_margins(rn)  # a stereo head's plan keeps more clear than its detector needs
     assert margin_px > 10.0 and share > MIN_SPHERE_SHARE
     believer = Visibility(rn, rn.nominal(), margin_px=margin_px, sphere_share=share)
     assert believer.sees(planned.q, planned.targets).all()

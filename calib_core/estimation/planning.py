@@ -322,6 +322,7 @@ def candidates(
     margin_deg: float = JOINT_MARGIN_DEG,
     occlusion: bool = True,
     view_margin_px: float = VIEW_MARGIN_PX,
+    obliquity_margin_deg: float = 0.0,
     should_stop: Callable[[], bool] | None = None,
     around: Around | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -331,13 +332,14 @@ def candidates(
     frames; any other, uniform draws. `count`: about how many (default: CANDIDATES, a stance structure
     STANCE_CANDIDATES). `occlusion=False`: without the costly check that the arm leaves a stereo head's sphere in
     view (`CandidateView` makes it for the configurations a plan picks). `view_margin_px`: kept clear of
-    the image border. `should_stop`: asked before each batch drawn; Cancelled once it says yes."""
+    the image border; `obliquity_margin_deg`: a board seen this much less obliquely than its finder's limit.
+    `should_stop`: asked before each batch drawn; Cancelled once it says yes."""
 
     def check() -> None:
         if should_stop is not None and should_stop():
             raise Cancelled("the draw was cancelled")
 
-    view = Visibility(profile, p_base, margin_px=view_margin_px)
+    view = Visibility(profile, p_base, margin_px=view_margin_px, obliquity_margin_deg=obliquity_margin_deg)
     sampler = Sampler(view, np.random.default_rng(seed))
     if profile.simulation.get("sampling", {}).get("kind") == "contact":
         raise InputError(f"robot '{profile.name}' is calibrated from contacts with planes: there is nothing to plan")
@@ -628,17 +630,21 @@ class Selection:
         return swaps
 
 
-def plan_margins(profile: Profile) -> tuple[float, float]:
-    """What a plan's configurations keep clear with the base model: px from the image border, and the share
-    of a stereo head's sphere outline the arm must leave free; more than these defaults where the data
-    sensor's finder asks for more (`Finder.plan_margins`: a stereo head's sphere)."""
+def plan_margins(profile: Profile) -> tuple[float, float, float]:
+    """What a plan's configurations keep clear with the base model: px from the image border, the share
+    of a stereo head's sphere outline the arm must leave free, and deg below a board's obliquity limit; more
+    than these defaults where the data sensor's finder asks for more (`Finder.plan_margins`: a stereo head's
+    sphere; `Finder.plan_obliquity_margin_deg`: the NAO's sandals)."""
     s = profile.data.sensor
-    margin_px, share = VIEW_MARGIN_PX, MIN_SPHERE_SHARE
+    margin_px, share, obliquity_deg = VIEW_MARGIN_PX, MIN_SPHERE_SHARE, 0.0
     for t in found_targets(profile, s):
         finder = finder_for(profile, s, t)
-        if finder is not None and finder.plan_margins is not None:
+        if finder is None:
+            continue
+        obliquity_deg = max(obliquity_deg, finder.plan_obliquity_margin_deg)
+        if finder.plan_margins is not None:
             margin_px, share = max(margin_px, finder.plan_margins[0]), max(share, finder.plan_margins[1])
-    return margin_px, share
+    return margin_px, share, obliquity_deg
 
 
 class CandidateView:
@@ -646,8 +652,8 @@ class CandidateView:
     occlusion by the robot's body included; checked when first asked and remembered."""
 
     def __init__(self, profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> None:
-        margin_px, share = plan_margins(profile)
-        self.view = Visibility(profile, p, margin_px=margin_px, sphere_share=share)
+        margin_px, share, obliquity_deg = plan_margins(profile)
+        self.view = Visibility(profile, p, margin_px=margin_px, sphere_share=share, obliquity_margin_deg=obliquity_deg)
         self.q, self.targets = q, targets
         self.known = np.full(len(q), -1, np.int8)  # -1: not checked yet, else 0/1
 
@@ -724,6 +730,7 @@ def plan(
             margin_deg=margin_deg,
             occlusion=False,
             view_margin_px=plan_margins(profile)[0],
+            obliquity_margin_deg=plan_margins(profile)[2],
             should_stop=should_stop,
             around=around,
         )
@@ -868,6 +875,7 @@ class SequentialPlan:
             margin_deg=margin_deg,
             occlusion=False,
             view_margin_px=plan_margins(profile)[0],
+            obliquity_margin_deg=plan_margins(profile)[2],
             should_stop=should_stop,
             around=around,
         )

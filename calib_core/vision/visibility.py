@@ -43,6 +43,7 @@ class Visibility:
     p: np.ndarray
     margin_px: float = VIEW_MARGIN_PX
     sphere_share: float = MIN_SPHERE_SHARE
+    obliquity_margin_deg: float = 0.0  # a board seen at least this much less obliquely than its finder's limit
 
     def points(self, q: np.ndarray, targets: np.ndarray, sensor: int | None = None) -> np.ndarray:
         """Whether a sensor (default: the data format's) sees each point of each configuration's target
@@ -61,7 +62,7 @@ class Visibility:
             ok[rows, n:] = False
             finder = finder_for(prof, s, t)
             if finder is not None:
-                ok[rows, :n] &= finder.shows(self.p, x[rows, :n])[:, None]
+                ok[rows, :n] &= finder.shows(self.p, x[rows, :n], self.obliquity_margin_deg)[:, None]
         return ok
 
     def sees(

@@ -13,7 +13,8 @@ a sensor and a target (`calib_core.vision.finders.finder_for`), it:
   its obliquity, the spacing of its corners in the image): what `Visibility` asks of every view;
 - `clear(view, q)`: the costly limits (the arm hiding a stereo head's sphere), asked for whole views only;
 - `plan_margins`: what a plan's configurations keep clear with the base model (px from the border, the share
-  of a sphere's outline the arm leaves free), when the detector needs more than `Visibility`'s defaults.
+  of a sphere's outline the arm leaves free), when the detector needs more than `Visibility`'s defaults;
+  `plan_obliquity_margin_deg`: how much less obliquely than its limit a plan's boards are seen.
 
 A new board is one module with its finder and one line in `FINDERS` (calib_core/vision/finders/__init__.py).
 """
@@ -48,6 +49,7 @@ class Finder(Protocol):
 
     images: ClassVar[tuple[str, ...]]
     plan_margins: ClassVar[tuple[float, float] | None]
+    plan_obliquity_margin_deg: ClassVar[float]
     profile: Profile
     sensor: int
     target: int
@@ -58,7 +60,7 @@ class Finder(Protocol):
         self, p_believed: np.ndarray, q: np.ndarray, images: dict[str, np.ndarray], head: StereoHead | None = None
     ) -> Sighting: ...
 
-    def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray: ...
+    def shows(self, p: np.ndarray, x: np.ndarray, obliquity_margin_deg: float = 0.0) -> np.ndarray: ...
 
     def clear(self, view: Visibility, q: np.ndarray) -> np.ndarray: ...
 
@@ -72,9 +74,11 @@ class BoundFinder:
     target: int
 
     plan_margins: ClassVar[tuple[float, float] | None] = None
+    plan_obliquity_margin_deg: ClassVar[float] = 0.0
 
-    def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Whether the detector finds the target whose points x (N, K, 3) in the sensor frame are in view (N,)."""
+    def shows(self, p: np.ndarray, x: np.ndarray, obliquity_margin_deg: float = 0.0) -> np.ndarray:
+        """Whether the detector finds the target whose points x (N, K, 3) in the sensor frame are in view (N,)
+        (a board at least `obliquity_margin_deg` less obliquely than its limit)."""
         return np.ones(len(x), bool)
 
     def clear(self, view: Visibility, q: np.ndarray) -> np.ndarray:
@@ -119,14 +123,15 @@ class BoardFinder(BoundFinder):
         status = FrameStatus.NOT_FOUND if measured is None else FrameStatus.MEASURED
         return Sighting(self.sensor, self.target, status, reason, measured, grid[vertices], vertices, detail)
 
-    def shows(self, p: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Whether the board (vertices x (N, K, 3) in the sensor frame) shows its face well enough (N,) bool."""
+    def shows(self, p: np.ndarray, x: np.ndarray, obliquity_margin_deg: float = 0.0) -> np.ndarray:
+        """Whether the board (vertices x (N, K, 3) in the sensor frame) shows its face well enough (N,) bool, seen
+        at least `obliquity_margin_deg` less obliquely than its limit."""
         n_cols = self.shape[1]
         c = x.mean(axis=1)
         face = self.face_sign * np.cross(x[:, 1] - x[:, 0], x[:, n_cols] - x[:, 0])
         towards = -np.einsum("ni,ni->n", face, c)  # the camera sits at the origin of these coordinates
         cos = towards / np.maximum(np.linalg.norm(face, axis=1) * np.linalg.norm(c, axis=1), 1e-300)
-        ok = (towards > 0) & (cos >= math.cos(math.radians(self.max_obliquity_deg)))
+        ok = (towards > 0) & (cos >= math.cos(math.radians(self.max_obliquity_deg - obliquity_margin_deg)))
         spacing = self.spacing_px(p, x)
         if spacing is not None:
             ok &= spacing >= self.min_spacing_px
