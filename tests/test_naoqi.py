@@ -254,13 +254,18 @@ def test_a_nao_over_naoqi_is_calibrated_and_its_offsets_are_stored_on_it(desk):
         + ", ".join(f"{n} {e:+.3f}" for n, e in error.items())
     )
     for name, p in found.items():  # every parameter within three of its reported standard deviations
-        assert abs(error[name]) < 3 * p["std"] + 0.02, (name, error[name], p["std"])
+        assert abs(error[name]) < 3 * p["std"] + 0.01, (name, error[name], p["std"])
     for name in ("CamYaw", "CamPitch", "CamRoll"):
-        assert abs(error[name]) < 0.1, (name, error[name])
-    for side in "LR":  # a leg's pitch offsets are told apart by little; their sum, the foot's pitch, is sharp
-        assert abs(sum(error[f"{side}{j}"] for j in PITCH)) < 0.15, side
+        assert abs(error[name]) < 0.05, (name, error[name])
+    # The readings' 0.1 deg rounding, shared by a frame's 24 vertices, is what limits the offsets: weighed as
+    # such, 60 frames determine each leg offset to 0.15 deg or better (the knees' about 0.12; before, 0.4-0.7).
+    assert all(found[name]["std"] < 0.15 for name in LEGS), {n: found[n]["std"] for n in LEGS}
+    for side in "LR":  # a leg's pitch offsets are told apart less well than their sum, the foot's pitch
+        assert abs(sum(error[f"{side}{j}"] for j in PITCH)) < 0.1, side
+        for j in PITCH:
+            assert abs(error[f"{side}{j}"]) < 0.35, (side, j, error[f"{side}{j}"])
         for j in ("HipYawPitch", "HipRoll", "AnkleRoll"):
-            assert abs(error[f"{side}{j}"]) < 0.25, (side, j, error[f"{side}{j}"])
+            assert abs(error[f"{side}{j}"]) < 0.15, (side, j, error[f"{side}{j}"])
 
     applied = server.post(f"/api/calibrations/{cal['id']}/apply", json={"confirm": True})
     assert applied.status_code == 200, applied.text
