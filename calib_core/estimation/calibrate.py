@@ -365,8 +365,8 @@ class _Passes:
         rounding, whose size is known (a detector measures a board seen obliquely worse than one seen face on):
         the scatter of their rows after the elimination over the degrees of freedom the corrections and the
         parameters leave them (`ReadingErrors.leverage`), shrunk towards the sensor's pooled scatter
-        (SCALE_PRIOR_DOF), refitted until it settles; never below MIN_SCALE of the declared noise. Returns the
-        solution at the scales found."""
+        (SCALE_PRIOR_DOF; the pooled one alone below FRAME_SCALE_DOF), refitted until it settles; never below
+        MIN_SCALE of the declared noise. Returns the solution at the scales found."""
         problem = self.problem
         assert problem.readings is not None
         M, N = problem.data.n_observations, problem.data.n_configurations
@@ -388,9 +388,8 @@ class _Passes:
             total = np.bincount(group_of_row, r**2)
             dof = np.bincount(group_of_row, used * (1.0 - leverage - free_share))
             pooled = np.bincount(block_of_group, total) / np.maximum(np.bincount(block_of_group, dof), 1e-9)
-            ratio = np.sqrt(
-                (total + SCALE_PRIOR_DOF * pooled[block_of_group]) / (np.maximum(dof, 0.0) + SCALE_PRIOR_DOF)
-            )
+            own = (total + SCALE_PRIOR_DOF * pooled[block_of_group]) / (np.maximum(dof, 0.0) + SCALE_PRIOR_DOF)
+            ratio = np.sqrt(np.where(dof >= FRAME_SCALE_DOF, own, pooled[block_of_group]))
             problem.obs_scale = np.maximum(problem.obs_scale * ratio[group_of_obs], MIN_SCALE)
             x = self.run(x, None)
             if np.max(np.abs(np.log(ratio))) < SCALE_SETTLED:
@@ -413,6 +412,10 @@ class _Passes:
 SCALE_PASSES = 6  # refits at most while the observations' scales settle against the readings' rounding
 SCALE_SETTLED = 0.02  # a scale that changed less than 2% has settled
 SCALE_PRIOR_DOF = 20.0  # a configuration's own scatter weighs as this many rows more of its sensor's pooled one
+# A configuration's observations of a sensor get a scale of their own only with this many degrees of freedom (a
+# board's 24 vertices); fewer (a tracker's two bodies) keep the sensor's: weights fitted to a few rows each follow
+# their noise, and the reported standard deviations come out a quarter too small (tests/test_pose6d.py).
+FRAME_SCALE_DOF = 24.0
 # The least scale of the declared noise: with scatter far below it (exact simulated pixels) the corrections'
 # linearisation error, not the noise, would set the weights.
 MIN_SCALE = 0.1
