@@ -18,16 +18,22 @@ from .review import image_pixels
 JPEG_QUALITY = 85
 
 
-def look_view(profile: Profile, look: Look, p: np.ndarray, number: int) -> dict[str, Any]:
+def look_view(profile: Profile, look: Look, p: np.ndarray | None, number: int) -> dict[str, Any]:
     """{look, sensor, status, reason, width, height, image, measured, predicted} of the data sensor's sighting:
     `image` a JPEG data URL (None: the sensor takes no image), `measured` and `predicted` [u, v] px per point
-    (None where a point has no pixel), `number` the look's count since Observe began."""
+    (None where a point has no pixel; predicted None without `p`, while the camera's pose is not known yet),
+    `number` the look's count since Observe began."""
     sighting = look.sightings[0]
     sensor = profile.sensors[sighting.sensor]
     image = next((look.images[r] for r in sensor.image_roles if r in look.images), None)
-    x = predicted_points(profile, p, look.readings_rad, sighting.target, sensor=sighting.sensor)
-    predicted = sensor.project(p, x)
-    measured = None if sighting.measured is None else sensor.measured_pixels(p, sighting.measured)
+    predicted = None
+    if p is not None:
+        predicted = sensor.project(p, predicted_points(profile, p, look.readings_rad, sighting.target, sighting.sensor))
+    measured = (
+        None
+        if sighting.measured is None
+        else sensor.measured_pixels(profile.nominal() if p is None else p, sighting.measured)
+    )
     height, width = image.shape[:2] if image is not None else (None, None)
     return {
         "look": number,

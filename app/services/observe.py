@@ -64,7 +64,7 @@ class Observer:
         self._registration: tuple[tuple, np.ndarray | None] | None = None  # (frames and calibration, fitted p)
         self._period = OBSERVE_PERIOD_S
         self._seen: Look | None = None  # the latest look: its target's points stand in while the robot moves
-        self._shown: tuple[int, Profile, Look, np.ndarray] | None = None  # the latest look shown with an image
+        self._shown: tuple[int, Profile, Look, np.ndarray | None] | None = None  # the latest look with an image
 
     def start(self) -> None:
         self._thread.start()
@@ -113,17 +113,23 @@ class Observer:
         profile = self.driver.profile
         detection, reason = look_outcome(profile, look)
         p, registered = self._live_params()
+        if look.images:  # the 2-D view: the pixels found need no pose; a prediction needs the sensor's
+            number = self._shown[0] + 1 if self._shown is not None else 1
+            self._shown = (number, profile, look, p if registered else None)
         if not registered:  # where the tracker stands is unknown: its reading has no place in the scene yet
             unplaced = [
                 replace(s, measured=None) if registration_params(profile, [s.sensor]) else s for s in look.sightings
             ]
             look = Look(look.readings_rad, look.target, unplaced, look.images)
-            reason = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
+            unknown = sorted(
+                {profile.sensors[s.sensor].name for s in look.sightings if registration_params(profile, [s.sensor])}
+            )
+            reason = (
+                f"placed in 3-D once {MIN_REGISTRATION_FRAMES} frames are measured ({', '.join(unknown)}: pose unknown)"
+            )
         self.live.show_live(profile, look, p)
-        if look.images:
-            number = self._shown[0] + 1 if self._shown is not None else 1
-            self._shown = (number, profile, look, p)
-            self._last["look"] = number
+        if self._shown is not None:
+            self._last["look"] = self._shown[0]
         # Said once the scene shows it: whoever reads the detection finds the look in the scene.
         self._last["detection"], self._last["reason"] = detection, reason
 
