@@ -668,6 +668,7 @@ def test_a_session_of_three_sensors_calibrates_in_each_mode(client: TestClient) 
     cal = runs["tracker-cameras"]["id"]
     tracker = client.post("/api/review", json={"session": "motoman-left-cube", "new": cal}).json()
     assert tracker["sensor"] == "tracker" and tracker["sensors"] == ["tracker", "camera1", "camera2"]
+    assert tracker["images"] == ["camera1", "camera2"]  # the tracker takes none: the 2-D view's are the cameras'
     assert tracker["summary"]["unit"] == "m"
     camera = client.post("/api/review", json={"session": "motoman-left-cube", "new": cal, "sensor": "camera1"})
     assert camera.status_code == 200, camera.text

@@ -175,7 +175,7 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
 
 
 def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(chromium, tmp_path: Path) -> None:
-    """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in m, a camera in px); a
+    """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in mm, a camera in px); a
     one-sensor session shows no sensor choice. A daily calibration from the nominal model stops at the solver's
     iteration limit: the page says so (job line, toast, warning) and applying it asks the operator first."""
     with served(tmp_path / "data") as server:
@@ -193,7 +193,7 @@ def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(ch
             "camera2",
         ]
         assert page.input_value("#review-sensor") == "tracker"
-        assert page.text_content("#summary th") == "error (m)"
+        assert page.text_content("#summary th") == "error (mm)"  # its metres, shown in mm
         page.select_option("#review-sensor", "camera1")
         page.wait_for_function("document.querySelector('#summary th').textContent === 'error (px)'")
         camera1 = server.post("/api/review", json={"session": "motoman-left-cube", "sensor": "camera1"}).json()

@@ -88,6 +88,7 @@ class ReviewOut(BaseModel):
     new: str | None
     sensor: str  # the sensor the table, the summary and the scene's red marks are of
     sensors: list[str]  # the sensors the session has observations of
+    images: list[str]  # those of them that take an image: the sensors a 2-D view can be of
     table: list[ReviewRow]
     summary: ReviewSummary
     warnings: list[str] = []  # what the scene could not show as asked (a URDF robot's mesh that cannot be read)

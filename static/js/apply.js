@@ -3,7 +3,7 @@
 
 import { api } from "./api.js";
 import { calibrationName } from "./calibrate.js";
-import { $, act, el, fmt, toast } from "./dom.js";
+import { $, act, displayUnit, el, fmt, toast } from "./dom.js";
 import { loadReview } from "./review.js";
 import { state } from "./state.js";
 
@@ -79,9 +79,9 @@ export async function refreshActive(asked = null) {
   t.replaceChildren(el("tr", {}, ...["applied", "calibration and its mean error", ""].map((h) => el("th", {}, h))));
   for (const [k, h] of history.entries()) {
     const f = h.figures || {};
-    const u = (f.after && f.after.unit) || "";
-    const errors = [f.before && `before ${fmt(f.before.mean)}`, f.after && `after ${fmt(f.after.mean)}`,
-      f.holdout_after && `held out ${fmt(f.holdout_after.mean)}`].filter(Boolean).join(" → ");
+    const [u, factor] = displayUnit((f.after && f.after.unit) || "");
+    const errors = [f.before && `before ${fmt(f.before.mean * factor)}`, f.after && `after ${fmt(f.after.mean * factor)}`,
+      f.holdout_after && `held out ${fmt(f.holdout_after.mean * factor)}`].filter(Boolean).join(" → ");
     const current = k === 0 && h.calibration === a.id;  // the newest apply: what the robot runs
     t.append(el("tr", { "data-calibration": h.calibration, title: h.note || "" },
       el("td", {}, h.time.replace("T", " ").slice(0, 16)),
