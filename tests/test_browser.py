@@ -60,6 +60,12 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         offered = page.eval_on_selector_all("#replay-from option", "os => os.map(o => o.value)")
         assert set(offered) == set(created) and len(offered) >= 1, (robot, offered)
         assert [created[i] for i in offered] == sorted(created.values(), reverse=True)
+        page.click("#tabs button[data-tab='replay']")  # its menu of sessions (long names) stays inside the panel
+        right = page.eval_on_selector(
+            "#replay-from", "s => [s.getBoundingClientRect().right, s.closest('aside').getBoundingClientRect().right]"
+        )
+        assert right[0] <= right[1], right
+        page.click("#tabs button[data-tab='observe']")
 
         # No session yet: nothing to calibrate, capture or replay into; Stop is always there.
         assert all(page.is_disabled(b) for b in ("#calibrate-start", "#calibrate-cancel", "#capture", "#replay-start"))
@@ -157,6 +163,7 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         page.wait_for_selector(f"#history tr[data-calibration='{new_id}']", state="attached")
         history = page.text_content(f"#history tr[data-calibration='{new_id}']")
         assert "full" in history and "before" in history and "after" in history, history
+        assert "fitted)" in history and "Robonaut" in history, history  # over which frames; the session's name
         shot(page, "5-apply")
 
         # The history's re-apply button shows whole inside the panel at this width (it was clipped), and works.
