@@ -270,8 +270,13 @@ def test_observe_and_replay_in_the_browser(chromium, tmp_path: Path) -> None:
             "sid => document.querySelector(`li[data-session='${sid}']`).textContent.includes('/1 frames')", arg=sid
         )
         page.wait_for_function("document.querySelector('#observe-state').textContent.startsWith('live:')")
+        # The camera's latest look beside it: the boards' corners found (red) and predicted (blue).
+        page.wait_for_function("document.querySelector('#live-caption').textContent.includes('points found')")
+        look = int(page.get_attribute("#live-image", "data-look"))
+        assert look >= 1 and page.text_content("#live-caption").startswith(f"look {look}, lower_camera on ")
         shot(page, "1-observe")
         page.locator("#observe-on").uncheck()
+        page.wait_for_function("document.querySelector('#live-caption').textContent === ''")  # no stale look
 
         # Replay: a dry run of six new configurations, then drive through them (enough that the pause below
         # lands before the last frame: a pause that comes after it finds the replay done).

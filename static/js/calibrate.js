@@ -66,8 +66,9 @@ async function startCalibration() {
 export function clearJob() {
   $("#job-state").textContent = "";
   $("#job-progress").value = 0;
+  // A new canvas: under load Chromium sometimes kept showing a cleared canvas's old curve (read back too).
   const curve = $("#cost-curve");
-  curve.width = curve.width;  // a blank canvas
+  curve.replaceWith(curve.cloneNode(false));
 }
 
 // The solver's cost per iteration, on a log scale.
