@@ -2,7 +2,7 @@
 // bodies, so a hand in front of its board, or the overlay's translucent copy, never hides a measurement. viser's
 // API has no depth test for point clouds and line segments: this reads the three.js object of each marks node
 // from viser's client (window.__viserMutable.nodeRefFromName, the hook viser keeps for its own browser tests; the
-// pinned viser minor version is checked by tests/test_browser_scene.py) and turns their materials' depth test off,
+// pinned viser minor version is checked by tests/test_browser_scene.py; app/viser_private.py lists every such use) and turns their materials' depth test off,
 // drawing them last: the old side's, then the new side's over them (as app/scene.py lifts the new side nearer);
 // on each side the residual lines, then the measurement rings, then the prediction dots.
 (() => {
