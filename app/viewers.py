@@ -62,6 +62,7 @@ class Viewer:
         self.index: int | None = None
         self.overlay = False
         self.all = False
+        self.magnify = 1.0  # the scene's residuals drawn this many times their length
         self.live = False  # the scene shows Observe's live view
         self.scene: ReviewScene | None = None  # drawn on while its client is connected (`_drawn`)
         self.client_id: int | None = None  # the viser client the scene draws on
@@ -107,6 +108,20 @@ class Viewer:
                 scene.show_all(show_all)
                 scene.select(index)
 
+    def set_magnify(self, k: float) -> None:
+        """The scene's residuals drawn k times their length (the review's and every later one's)."""
+        with self.lock:
+            self.magnify = float(k)
+            if (scene := self._drawn()) is not None:
+                scene.set_magnify(k)
+
+    def frame_marks(self) -> None:
+        """The page's "frame it": the scene's camera onto the selected frame's marks (app/scene.py; without a
+        review, onto the robot)."""
+        with self.lock:
+            if (scene := self._drawn()) is not None:
+                scene.frame_marks()
+
     def current(self) -> Review:
         if self.review is None:
             raise InputError("no session is loaded for review (POST /api/review first)")
@@ -129,7 +144,7 @@ class Viewer:
                 scene.hide_live()
 
     def state(self) -> dict[str, Any]:
-        """{id, connected, robot, session, old, new, sensor, index, overlay, all, live}."""
+        """{id, connected, robot, session, old, new, sensor, index, overlay, all, magnify, live}."""
         with self.lock:
             return {
                 "id": self.id,
@@ -142,6 +157,7 @@ class Viewer:
                 "index": self.index,
                 "overlay": self.overlay,
                 "all": self.all,
+                "magnify": self.magnify,
                 "live": self.live,
             }
 
@@ -154,6 +170,7 @@ class Viewer:
             self.clients = {c: handle for c, handle in self.clients.items() if c in self.connections}
             self.clients[client.client_id] = client
             scene = ReviewScene(client)
+            scene.set_magnify(self.magnify)
             if self.review is not None:
                 scene.set_overlay(self.overlay)
                 scene.show_all(self.all)

@@ -93,6 +93,16 @@ class ReviewService:
         viewer.select(index, show_all=show_all, overlay=overlay)
         return {"index": index, "all": show_all, "overlay": overlay, "server_ms": (time.perf_counter() - t0) * 1e3}
 
+    @staticmethod
+    def magnify(viewer: Viewer, factor: float) -> dict[str, Any]:
+        viewer.set_magnify(factor)
+        return {"factor": factor}
+
+    @staticmethod
+    def frame_marks(viewer: Viewer) -> dict[str, Any]:
+        viewer.frame_marks()
+        return {"index": viewer.index}
+
     def marks(self, viewer: Viewer, index: int) -> dict[str, Any]:
         with viewer.lock:
             review, session = viewer.current(), viewer.key["session"]
