@@ -261,6 +261,9 @@ def test_a_frame_whose_detection_failed_shows_as_not_found(chromium, tmp_path: P
             )
         assert page.get_attribute("#split-old", "data-status") == "not found"
         assert page.get_attribute("#split-new", "data-status") == "not found"
+        page.wait_for_function(f"document.querySelector('#frame-summary').dataset.frame === '{failed[1]}'")
+        summary = page.text_content("#frame-summary")  # said, not an error of "- cm"
+        assert summary == f"Frame {failed[1]} not found: no error to show", summary
         toast = page.locator("#toast")
         assert toast.is_hidden() or "Cannot read" not in toast.text_content()
         assert errors == []

@@ -84,8 +84,13 @@ function renderFrameSummary(index) {
   }
   const u = unit();
   const v = verdict(r);
-  const parts = [el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`), ` ${r.status} · old calibration `,
-    el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
+  const title = el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`);
+  if (r.err_old === null || r.err_old === undefined) {  // nothing measured: no error to give, only why
+    box.replaceChildren(title, ` ${r.status}${r.reason && r.reason !== r.status ? ` (${r.reason})` : ""}: no error to show`);
+    box.dataset.frame = index;
+    return;
+  }
+  const parts = [title, ` ${r.status} · old calibration `, el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
   if (state.review.new) {
     parts.push(" · new calibration ", el("span", { class: "green" }, `${fmt(r.err_new)} ${u}`));
     if (change(r) !== null) {
