@@ -20,7 +20,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import cv2
 import numpy as np
 import yaml
 
@@ -28,7 +27,6 @@ from calib_core import (
     Calibration,
     InputError,
     Problem,
-    SimulatedRobot,
     calibrate,
     evaluate,
     load_profile,
@@ -41,11 +39,12 @@ from calib_core.estimation import check_share, register, registration_params
 from calib_core.io import FrameRecord, measurement_values, plan_csv, readings_beyond_limits, select_rows, write_session
 from calib_core.model import BUILTIN_PROFILES, Profile
 from calib_core.units import length_factor
-from calib_core.vision import detect_board, find_sphere
 
 from .limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
 
 if TYPE_CHECKING:
+    from calib_core import SimulatedRobot
+
     from .desk_config import DeskConfig
 
 SIGPIPE_STATUS = 141  # 128 + SIGPIPE: how a shell reports a command that wrote to a closed pipe
@@ -516,6 +515,8 @@ def _simulate(args: argparse.Namespace) -> int:
     perfect = _perfect_simulation(profile, args.day, images=args.session is not None)
     for note in perfect.values():
         print(f"calib simulate: note: {note}", file=sys.stderr)
+    from calib_core import SimulatedRobot  # the simulator, its finders and OpenCV: only for the commands using them
+
     robot = SimulatedRobot.from_profile(profile, seed=args.seed).on_day(args.day)
     start = time.perf_counter()
     if args.session:
@@ -623,6 +624,8 @@ def _detect_sphere(args: argparse.Namespace) -> int:
             raise InputError(f"--seed '{args.seed}' is not three finite numbers X,Y,Z")
     if seed is not None and seed[2] <= 0:
         raise InputError(f"--seed '{args.seed}' lies behind the camera (Z must be positive)")
+    from calib_core.vision import find_sphere
+
     try:
         found = find_sphere(depth, args.fx, args.fy, args.cx, args.cy, args.radius, seed)
     except ValueError as exc:  # the finder's own checks of its arguments
@@ -636,6 +639,10 @@ def _detect_board(args: argparse.Namespace) -> int:
         raise InputError("--cols and --rows must be at least 3 (inner corners)")
     if not Path(args.image).is_file():
         raise InputError("image file does not exist", file=args.image)
+    import cv2
+
+    from calib_core.vision import detect_board
+
     image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise InputError("is not an image OpenCV can read", file=args.image)

@@ -6,6 +6,10 @@ the robot shown changes, `ClientFraming.frame` moves the camera of every browser
 own framing would show a 2 m robot through a camera set for a 0.5 m one, or the other way round): one
 viewer's browser, or every connected one, when viser's initial camera is set too for browsers that connect
 later. A browser that has not reported its camera yet is framed when it first does.
+
+A framing may stand at a given distance (`distance_m`): each browser then narrows its field of view until the
+box fits (a telephoto view, the Review's "frame it": both side-by-side copies seen from nearly the same
+direction); one without it sets the default field of view back (`fov_rad`), or keeps the browser's.
 """
 
 from __future__ import annotations
@@ -22,6 +26,9 @@ ELEVATION_DEG = 20.0  # the camera's height above the box centre, as an angle
 MARGIN = 1.1  # room around the bounding sphere
 DEFAULT_FOV_RAD = math.radians(75.0)  # viser's vertical field of view (three.js' default)
 MIN_RADIUS_M = 0.05  # a box of a single point still gets a view
+FRONT = np.array(  # from the look-at point to the camera: ahead (+x) and a little above
+    [math.cos(math.radians(ELEVATION_DEG)), 0.0, math.sin(math.radians(ELEVATION_DEG))]
+)
 
 
 @dataclass(frozen=True)
@@ -33,7 +40,20 @@ class Framing:
     direction: np.ndarray
     radius_m: float  # of the box's bounding sphere
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    keep: bool = False  # a browser's camera keeps its own direction (a selected frame: turn, do not swing round)
+    distance_m: float | None = None  # stand this far from the look-at point, the field of view narrowed to fit
+    fov_rad: float | None = None  # the vertical field of view to set (None: the browser's own)
+
+    def view(self, fov_rad: float = DEFAULT_FOV_RAD, aspect: float = 1.0) -> tuple[float, float]:
+        """(distance, vertical field of view) for a browser whose camera has `fov_rad` and `aspect`."""
+        aspect = aspect if math.isfinite(aspect) and aspect > 0 else 1.0
+        if self.distance_m is None:
+            fov = fov_rad if self.fov_rad is None else self.fov_rad
+            return self.distance(fov, aspect), fov
+        # The narrower of the two fields of view just holds the bounding sphere (with the margin).
+        narrow = 2 * math.asin(min(1.0, MARGIN * self.radius_m / self.distance_m))
+        fov = narrow if aspect >= 1 else 2 * math.atan(math.tan(narrow / 2) / aspect)
+        fov = min(fov, DEFAULT_FOV_RAD)
+        return max(self.distance_m, self.distance(fov, aspect)), fov
 
     def distance(self, fov_rad: float = DEFAULT_FOV_RAD, aspect: float = 1.0) -> float:
         """From the look-at point to the camera: the bounding sphere inside the vertical field of view
@@ -44,17 +64,29 @@ class Framing:
         horizontal = 2 * math.atan(math.tan(fov_rad / 2) * aspect)
         return MARGIN * self.radius_m / math.sin(min(fov_rad, horizontal) / 2)
 
-    def position(self, fov_rad: float = DEFAULT_FOV_RAD, aspect: float = 1.0) -> np.ndarray:
-        return self.look_at + self.distance(fov_rad, aspect) * self.direction
 
-
-def framing(box_m: np.ndarray, *, min_radius_m: float = MIN_RADIUS_M, keep: bool = False) -> Framing:
+def framing(
+    box_m: np.ndarray,
+    *,
+    min_radius_m: float = MIN_RADIUS_M,
+    distance_m: float | None = None,
+    fov_rad: float | None = None,
+) -> Framing:
     """The framing of a (2, 3) min/max box in the world (z up), its bounding sphere at least `min_radius_m`;
-    `keep`: each browser's camera keeps its direction."""
+    `distance_m`, `fov_rad`: see Framing."""
     box = np.asarray(box_m, dtype=float).reshape(2, 3)
-    e = math.radians(ELEVATION_DEG)
     radius = max(float(np.linalg.norm(box[1] - box[0])) / 2, min_radius_m, MIN_RADIUS_M)
-    return Framing(box, box.mean(axis=0), np.array([math.cos(e), 0.0, math.sin(e)]), radius, keep=keep)
+    return Framing(box, box.mean(axis=0), FRONT, radius, distance_m=distance_m, fov_rad=fov_rad)
+
+
+def leave_box(start: np.ndarray, direction: np.ndarray, box_m: np.ndarray) -> float:
+    """How far from `start` along unit `direction` a ray leaves the (2, 3) box (0: it starts outside)."""
+    start = np.asarray(start, float)
+    if not np.all((box_m[0] <= start) & (start <= box_m[1])):
+        return 0.0
+    with np.errstate(divide="ignore"):
+        far = np.where(direction > 0, box_m[1] - start, box_m[0] - start) / direction
+    return float(np.min(far[np.isfinite(far) & (direction != 0)]))
 
 
 def camera_reported(camera: viser.CameraHandle) -> bool:
@@ -93,7 +125,9 @@ class ClientFraming:
             if isinstance(self.target, viser.ViserServer):
                 self.target.initial_camera.up = f.up
                 self.target.initial_camera.look_at = tuple(float(v) for v in f.look_at)
-                self.target.initial_camera.position = tuple(float(v) for v in f.position())
+                distance, fov = f.view()
+                self.target.initial_camera.fov = fov
+                self.target.initial_camera.position = tuple(float(v) for v in f.look_at + distance * f.direction)
         for client in list(self._clients().values()):
             self._apply(client)
 
@@ -136,11 +170,10 @@ class ClientFraming:
                 return
             self._framed[client.client_id] = version
             aspect = cam.image_width / cam.image_height if cam.image_height else 1.0
-            position = f.position(cam.fov, aspect)
-            if f.keep:
-                seen = np.asarray(cam.position, float) - np.asarray(cam.look_at, float)
-                if np.linalg.norm(seen) > 1e-9:
-                    position = f.look_at + f.distance(cam.fov, aspect) * seen / np.linalg.norm(seen)
+            distance, fov = f.view(cam.fov, aspect)
+            position = f.look_at + distance * f.direction
+            if not np.isclose(fov, cam.fov):
+                cam.fov = fov
             cam.up_direction = f.up
             cam.position = position  # moves the look-at point along with it
             cam.look_at = f.look_at

@@ -229,9 +229,9 @@ class Review:
             "role": roles[0] if roles else None,
             "width": width,
             "height": height,
-            "measured": _pixels(self.measured_px[s]),
-            "old": _pixels(self.sides["old"].image_px[s]),
-            "new": _pixels(self.sides["new"].image_px[s]) if "new" in self.sides else None,
+            "measured": image_pixels(self.measured_px[s]),
+            "old": image_pixels(self.sides["old"].image_px[s]),
+            "new": image_pixels(self.sides["new"].image_px[s]) if "new" in self.sides else None,
         }
 
     def frame_geometry(self, index: int) -> FrameGeometry:
@@ -441,5 +441,6 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def _pixels(uv: np.ndarray) -> list[list[float] | None]:
+def image_pixels(uv: np.ndarray) -> list[list[float] | None]:
+    """[u, v] px per row of uv (M, 2), None where it has no pixel (NaN: behind the camera, nothing measured)."""
     return [[float(u), float(v)] if math.isfinite(u) and math.isfinite(v) else None for u, v in uv]

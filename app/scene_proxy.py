@@ -4,8 +4,9 @@ The viser server is bound to 127.0.0.1 only; browsers reach it through FastAPI, 
 the API (app/security.py guards `/scene` like `/api`, the websocket included):
 
 - `GET /scene/<viewer>/` answers viser's prebuilt client page (the `index.html` of the installed package's
-  `client/build/`). viser's client makes its websocket URL from the page's address without the query, so the
-  iframe's websocket comes to `/scene/<viewer>`: the path names the viewer (app/viewers.py).
+  `client/build/`) with static/viser_marks.js inlined (the review's marks drawn over the bodies). viser's
+  client makes its websocket URL from the page's address without the query, so the iframe's websocket comes to
+  `/scene/<viewer>`: the path names the viewer (app/viewers.py).
 - `/scene/<viewer>` (websocket) opens a websocket to the viser server offering the browser's `viser-v<version>`
   subprotocol (viser closes with 1002 without it), accepts the browser's with the one viser chose, then copies
   frames (binary and text) both ways until one side closes, and closes the other with its code.
@@ -34,6 +35,7 @@ from fastapi import APIRouter, Path, Response, WebSocket, WebSocketDisconnect
 from starlette.concurrency import run_in_threadpool
 from websockets.asyncio.client import ClientConnection, connect
 
+from .static_dir import STATIC_DIR
 from .viewers import VIEWER_PATTERN, TooManyViewers
 from .viser_private import Address, on_connections
 
@@ -47,8 +49,14 @@ log = logging.getLogger("calib.scene")
 
 @cache
 def client_page() -> bytes:
-    """viser's prebuilt client: one HTML file with everything inlined, shipped in the viser package."""
-    return importlib.resources.files("viser").joinpath("client", "build", "index.html").read_bytes()
+    """viser's prebuilt client (one HTML file with everything inlined, shipped in the viser package) and the
+    script that draws the review's marks over the robot's bodies (static/viser_marks.js)."""
+    page = importlib.resources.files("viser").joinpath("client", "build", "index.html").read_bytes()
+    marks = (STATIC_DIR / "viser_marks.js").read_bytes()
+    head, body_end, tail = page.rpartition(b"</body>")
+    if not body_end:
+        raise RuntimeError("viser's client page has no </body>: the marks' script has no place")
+    return head + b"<script>\n" + marks + b"</script>\n" + body_end + tail
 
 
 class ViserClients:

@@ -13,7 +13,6 @@ import logging
 import socket
 from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
-from importlib import resources
 from pathlib import Path
 
 from fastapi import FastAPI, Request
@@ -34,20 +33,10 @@ from .limits import Limits
 from .routers import api
 from .routers.robots import VERSION
 from .safety import ConfirmationRequired
+from .static_dir import STATIC_DIR
 from .store import StoreWriteError
 from .viewers import TooManyViewers
 
-
-def _static_dir() -> Path:
-    """The page: package data, in a wheel as in a checkout; a checkout run through PYTHONPATH (a git worktree
-    beside an editable install of another) serves its own static/, not the installed checkout's."""
-    checkout = Path(__file__).resolve().parent.parent
-    if (checkout / "pyproject.toml").is_file() and (checkout / "static" / "index.html").is_file():
-        return checkout / "static"
-    return Path(str(resources.files("app.static")))
-
-
-STATIC_DIR = _static_dir()
 SHUTDOWN_WAIT_S = 3
 log = logging.getLogger("calib.server")
 

@@ -62,9 +62,11 @@ class Viewer:
         self.index: int | None = None
         self.overlay = False
         self.all = False
+        self.magnify = 1.0  # the scene's residuals drawn this many times their length
         self.live = False  # the scene shows Observe's live view
         self.scene: ReviewScene | None = None  # drawn on while its client is connected (`_drawn`)
         self.client_id: int | None = None  # the viser client the scene draws on
+        self.clients: dict[int, viser.ClientHandle] = {}  # the viser clients attached, oldest first
         self.connections: set[int] = set()  # viser clients of this viewer's proxied websockets
         self.idle_since = time.monotonic()  # since when it has no connection
 
@@ -106,6 +108,20 @@ class Viewer:
                 scene.show_all(show_all)
                 scene.select(index)
 
+    def set_magnify(self, k: float) -> None:
+        """The scene's residuals drawn k times their length (the review's and every later one's)."""
+        with self.lock:
+            self.magnify = float(k)
+            if (scene := self._drawn()) is not None:
+                scene.set_magnify(k)
+
+    def frame_marks(self) -> None:
+        """The page's "frame it": the scene's camera onto the selected frame's marks (app/scene.py; without a
+        review, onto the robot)."""
+        with self.lock:
+            if (scene := self._drawn()) is not None:
+                scene.frame_marks()
+
     def current(self) -> Review:
         if self.review is None:
             raise InputError("no session is loaded for review (POST /api/review first)")
@@ -128,7 +144,7 @@ class Viewer:
                 scene.hide_live()
 
     def state(self) -> dict[str, Any]:
-        """{id, connected, robot, session, old, new, sensor, index, overlay, all, live}."""
+        """{id, connected, robot, session, old, new, sensor, index, overlay, all, magnify, live}."""
         with self.lock:
             return {
                 "id": self.id,
@@ -141,6 +157,7 @@ class Viewer:
                 "index": self.index,
                 "overlay": self.overlay,
                 "all": self.all,
+                "magnify": self.magnify,
                 "live": self.live,
             }
 
@@ -150,7 +167,10 @@ class Viewer:
         with self.lock:
             if client.client_id not in self.connections:
                 return  # its websocket closed before viser reported it
+            self.clients = {c: handle for c, handle in self.clients.items() if c in self.connections}
+            self.clients[client.client_id] = client
             scene = ReviewScene(client)
+            scene.set_magnify(self.magnify)
             if self.review is not None:
                 scene.set_overlay(self.overlay)
                 scene.show_all(self.all)
@@ -160,6 +180,17 @@ class Viewer:
             elif self.shown is not None:
                 scene.show_robot(self.shown.profile, self.shown.urdf_text)
             self.scene, self.client_id = scene, client.client_id
+
+    def redraw(self) -> None:
+        """When the client drawn on has gone and another of this viewer's stays, draw on the newest one left.
+        After a server restart the old iframe's viser client may reconnect, be drawn on, and then close as the
+        page reloads its iframe: the new iframe's client, attached first, would otherwise show nothing new."""
+        with self.lock:
+            if self.client_id in self.connections:
+                return
+            left = [handle for c, handle in self.clients.items() if c in self.connections]
+            if left:
+                self.attach(left[-1])
 
     def _drawn(self) -> ReviewScene | None:
         """The scene, while its viser client is connected (a closed one's scene waits for the next client)."""
@@ -255,6 +286,8 @@ class Viewers:
             viewer.connections.discard(client_id)
             if not viewer.connections:
                 viewer.idle_since = time.monotonic()
+                return
+        threading.Thread(target=viewer.redraw, name=f"redraw-{viewer.id}", daemon=True).start()
 
     def sweep(self) -> list[str]:
         """Drop the viewers (but the default) without a connection for linger_s; their ids."""

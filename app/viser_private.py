@@ -6,8 +6,11 @@
 - The share tunnel closed: the share button is hidden (`configure_theme`), but any websocket client can still
   send the message that asks viser to tunnel the scene through an external service; its handlers are dropped.
 
+In viser's client (the browser), one more: static/viser_marks.js reads the three.js objects of the marks' nodes
+(`window.__viserMutable.nodeRefFromName`, viser's hook for its own browser tests) to draw them over the bodies.
+
 pyproject.toml pins viser to the minor version these were written and tested against (tests/test_security.py,
-tests/test_viewers.py); a new minor version is taken only once they pass on it.
+tests/test_viewers.py, tests/test_browser_scene.py); a new minor version is taken only once they pass on it.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import { buildJoints, robotEvents, wireObserve } from "./js/observe.js";
 import { followRunning, wireReplay } from "./js/replay.js";
 import { wireReview } from "./js/review.js";
 import { fillRobots, wireRobots } from "./js/robots.js";
-import { showScene, watchServer } from "./js/scene.js";
+import { showScene, watchServer, wireScene } from "./js/scene.js";
 import { loadSessions, wireSessions } from "./js/sessions.js";
 import { wireSplit } from "./js/split.js";
 import { state } from "./js/state.js";
@@ -58,6 +58,7 @@ function wire() {
   wireReview();
   wireFrames();
   wireSplit();
+  wireScene();
   wireApply();
 }
 

@@ -225,3 +225,11 @@ def calibrated(server: Server, session: str, **request) -> str:
     snap = job_ended(server, job)
     assert snap["state"] == "done", snap
     return snap["result"]
+
+
+def shot(page, name: str) -> None:
+    """The page's screenshot as `name`.png in the folder CALIB_SCREENSHOTS names (none without it)."""
+    folder = os.environ.get("CALIB_SCREENSHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(folder) / f"{name}.png"))

@@ -6,6 +6,7 @@ numbers the server wrote.
 
 from __future__ import annotations
 
+import base64
 import dataclasses
 import io
 import json
@@ -13,13 +14,14 @@ import math
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
 import yourdfpy
 from desk_jobs import wait_job
 from fastapi.testclient import TestClient
-from test_viewers import browser
+from test_viewers import browser, wait_until
 
 from app.drivers.simulated import can_simulate
 from app.limits import Limits
@@ -382,6 +384,31 @@ def test_capture_observe_and_replay_on_a_new_session(client: TestClient) -> None
     assert off["observing"] is None
 
 
+def test_observe_shows_the_cameras_latest_look_with_what_was_found_and_predicted(client: TestClient) -> None:
+    """GET /api/robot/look: the image Observe last looked at (a JPEG of the camera's size), the board's corners the
+    finder found in it and the active calibration's prediction of them (the nominal NAO's is tens of px off)."""
+    client.post("/api/robot/stop")
+    client.post("/api/robot/connect", json={"robot": "nao"})
+    absent = client.get("/api/robot/look", params={"robot": "nao"})
+    assert absent.status_code == 404 and "Watch live" in absent.json()["detail"]
+    sid = client.post("/api/sessions", json={"robot": "nao", "name": "watched"}).json()["id"]
+    assert client.app.state.desk.robots.driver("nao").wait_settled(0.1, timeout_s=20)
+    client.post(f"/api/sessions/{sid}/observe", json={"on": True})
+    try:
+        wait_until(lambda: "look" in (client.get("/api/robot", params={"robot": "nao"}).json()["observing"] or {}))
+        look = client.get("/api/robot/look", params={"robot": "nao"}).json()
+    finally:
+        client.post(f"/api/sessions/{sid}/observe", json={"on": False})
+    assert (look["sensor"], look["width"], look["height"]) == ("lower_camera", 640, 480)
+    jpeg = np.frombuffer(base64.b64decode(look["image"].removeprefix("data:image/jpeg;base64,")), np.uint8)
+    assert cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE).shape == (480, 640)
+    assert look["status"] == "measured", look["reason"]
+    found, predicted = np.array(look["measured"]), np.array(look["predicted"])
+    assert found.shape == predicted.shape == (24, 2)
+    assert np.all((found >= 0) & (found < [640, 480]))
+    assert np.linalg.norm(found - predicted, axis=1).mean() < 80  # the finder takes the prediction's identities
+
+
 @pytest.mark.slow
 def test_a_replay_asked_twice_is_one_job_and_another_replay_of_the_robot_waits(client: TestClient) -> None:
     """A double click on Start (or two tabs): one replay; a different replay of the same robot while it drives is
@@ -641,6 +668,7 @@ def test_a_session_of_three_sensors_calibrates_in_each_mode(client: TestClient) 
     cal = runs["tracker-cameras"]["id"]
     tracker = client.post("/api/review", json={"session": "motoman-left-cube", "new": cal}).json()
     assert tracker["sensor"] == "tracker" and tracker["sensors"] == ["tracker", "camera1", "camera2"]
+    assert tracker["images"] == ["camera1", "camera2"]  # the tracker takes none: the 2-D view's are the cameras'
     assert tracker["summary"]["unit"] == "m"
     camera = client.post("/api/review", json={"session": "motoman-left-cube", "new": cal, "sensor": "camera1"})
     assert camera.status_code == 200, camera.text

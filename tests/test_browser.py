@@ -60,6 +60,12 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         offered = page.eval_on_selector_all("#replay-from option", "os => os.map(o => o.value)")
         assert set(offered) == set(created) and len(offered) >= 1, (robot, offered)
         assert [created[i] for i in offered] == sorted(created.values(), reverse=True)
+        page.click("#tabs button[data-tab='replay']")  # its menu of sessions (long names) stays inside the panel
+        right = page.eval_on_selector(
+            "#replay-from", "s => [s.getBoundingClientRect().right, s.closest('aside').getBoundingClientRect().right]"
+        )
+        assert right[0] <= right[1], right
+        page.click("#tabs button[data-tab='observe']")
 
         # No session yet: nothing to calibrate, capture or replay into; Stop is always there.
         assert all(page.is_disabled(b) for b in ("#calibrate-start", "#calibrate-cancel", "#capture", "#replay-start"))
@@ -157,6 +163,7 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         page.wait_for_selector(f"#history tr[data-calibration='{new_id}']", state="attached")
         history = page.text_content(f"#history tr[data-calibration='{new_id}']")
         assert "full" in history and "before" in history and "after" in history, history
+        assert "fitted)" in history and "Robonaut" in history, history  # over which frames; the session's name
         shot(page, "5-apply")
 
         # The history's re-apply button shows whole inside the panel at this width (it was clipped), and works.
@@ -175,7 +182,7 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
 
 
 def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(chromium, tmp_path: Path) -> None:
-    """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in m, a camera in px); a
+    """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in mm, a camera in px); a
     one-sensor session shows no sensor choice. A daily calibration from the nominal model stops at the solver's
     iteration limit: the page says so (job line, toast, warning) and applying it asks the operator first."""
     with served(tmp_path / "data") as server:
@@ -193,7 +200,7 @@ def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(ch
             "camera2",
         ]
         assert page.input_value("#review-sensor") == "tracker"
-        assert page.text_content("#summary th") == "error (m)"
+        assert page.text_content("#summary th") == "error (mm)"  # its metres, shown in mm
         page.select_option("#review-sensor", "camera1")
         page.wait_for_function("document.querySelector('#summary th').textContent === 'error (px)'")
         camera1 = server.post("/api/review", json={"session": "motoman-left-cube", "sensor": "camera1"}).json()
@@ -254,6 +261,9 @@ def test_a_frame_whose_detection_failed_shows_as_not_found(chromium, tmp_path: P
             )
         assert page.get_attribute("#split-old", "data-status") == "not found"
         assert page.get_attribute("#split-new", "data-status") == "not found"
+        page.wait_for_function(f"document.querySelector('#frame-summary').dataset.frame === '{failed[1]}'")
+        summary = page.text_content("#frame-summary")  # said, not an error of "- cm"
+        assert summary == f"Frame {failed[1]} not found: no error to show", summary
         toast = page.locator("#toast")
         assert toast.is_hidden() or "Cannot read" not in toast.text_content()
         assert errors == []
@@ -270,8 +280,13 @@ def test_observe_and_replay_in_the_browser(chromium, tmp_path: Path) -> None:
             "sid => document.querySelector(`li[data-session='${sid}']`).textContent.includes('/1 frames')", arg=sid
         )
         page.wait_for_function("document.querySelector('#observe-state').textContent.startsWith('live:')")
+        # The camera's latest look beside it: the boards' corners found (red) and predicted (blue).
+        page.wait_for_function("document.querySelector('#live-caption').textContent.includes('points found')")
+        look = int(page.get_attribute("#live-image", "data-look"))
+        assert look >= 1 and page.text_content("#live-caption").startswith(f"look {look}, lower_camera on ")
         shot(page, "1-observe")
         page.locator("#observe-on").uncheck()
+        page.wait_for_function("document.querySelector('#live-caption').textContent === ''")  # no stale look
 
         # Replay: a dry run of six new configurations, then drive through them (enough that the pause below
         # lands before the last frame: a pause that comes after it finds the replay done).
@@ -461,10 +476,12 @@ def test_the_scene_follows_a_robot_change_in_the_browser(chromium) -> None:
         assert _in_client(page, f"{robonaut['old']}/visual/shoulder_roll/")  # the arm with its sphere
         robonaut_distance = _distance(_framed(reports, 0.0, _shown_box(scene)))
 
-        # Selecting a frame turns the camera onto its marks and labels, closer than the whole robots.
+        # "Frame it" turns the camera onto the selected frame's marks and labels (from afar, through a narrow field
+        # of view: tests/test_scene.py).
         since = time.time()
         scene.select(3)
-        _aimed(reports, since, _marks_and_labels(scene), within=0.8 * robonaut_distance)
+        scene.frame_marks()
+        _aimed(reports, since, _marks_and_labels(scene), within=np.inf)
 
         since = time.time()
         scene.load(build("nao", 3, new=False))

@@ -70,6 +70,10 @@ def test_observe_replay_calibrate_review_and_apply_the_hand_eye_sample(chromium,
         page.wait_for_function(
             "document.querySelector('#observe-state').textContent.startsWith('live: measured')", timeout=60_000
         )
+        # The corners found in the wrist camera's image beside it, though where the camera stands is not known yet.
+        page.wait_for_function(
+            "(m => m && +m[1] >= 4)(document.querySelector('#live-caption').textContent.match(/ (\\d+) points found/))"
+        )
         shot(page, "1-observe")
         page.locator("#observe-on").uncheck()
 

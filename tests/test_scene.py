@@ -3,18 +3,25 @@
 from __future__ import annotations
 
 import io
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 import viser
+import websockets.sync.client
 import yourdfpy
 from sim_frames import measured_frames, unmeasured_frames
+from test_viewers import PROTOCOL, camera_message, wait_until
 
 from app.errors import NotFound
+from app.framing import camera_reported
 from app.review import Review
-from app.scene import ReviewScene
+from app.scene import ReviewScene, display_rotation
 from calib_core import SimulatedRobot, load_profile
 from calib_core.model.kinematics import forward
 from calib_core.vision.sighting import Sighting
@@ -244,3 +251,115 @@ def test_switching_robots_removes_everything_the_previous_one_showed(
     shown = {n for n, v in state["nodes"].items() if v["kind"] in ("points", "lines", "rings") and v["shown"]}
     assert shown == {f"/review/old/base/frame/{part}" for part in ("measured", "predicted", "lines")}
     assert len(_points(state, "/review/old/base/frame/measured")) == 24
+
+
+def test_residuals_are_drawn_magnified_and_the_labels_say_so(
+    viser_server: viser.ViserServer, robonaut_review: Review
+) -> None:
+    """x10: each measurement's ring at prediction + 10 (measurement - prediction), its residual line ten times as
+    long, the predictions where they were; every frame's marks too; x1 draws the measurements where they are."""
+    scene = ReviewScene(viser_server)
+    scene.load(robonaut_review)
+    scene.select(5)
+    scene.set_magnify(10)
+    g = robonaut_review.frame_geometry(5)
+    state = scene.state()
+    assert state["magnify"] == 10
+    for side in ("old", "new"):
+        base = f"/review/{side}/base/frame"
+        got = np.isfinite(g.measured_m[side]).all(axis=1)
+        pred, meas = g.predicted_m[side][got], g.measured_m[side][got]
+        residual_m = np.linalg.norm(meas - pred, axis=1)
+        assert residual_m.max() > 0
+        rings = _points(state, f"{base}/measured")
+        np.testing.assert_allclose(rings, pred + 10 * (meas - pred), atol=1e-6)
+        lines = _points(state, f"{base}/lines")
+        np.testing.assert_allclose(np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1), 10 * residual_m, atol=1e-6)
+        np.testing.assert_allclose(_points(state, f"{base}/predicted"), g.predicted_m[side], atol=1e-6)
+        assert "residuals x10" in state["nodes"][f"/review/{side}/label"]["text"]
+        every_measured, every_predicted = robonaut_review.all_points(side)
+        np.testing.assert_allclose(
+            _points(state, f"/review/{side}/base/all/measured"),
+            every_predicted + 10 * (every_measured - every_predicted),
+            atol=1e-6,
+        )
+    scene.select(6)  # the next frame keeps the factor
+    g6 = robonaut_review.frame_geometry(6)
+    got = np.isfinite(g6.measured_m["new"]).all(axis=1)
+    pred, meas = g6.predicted_m["new"][got], g6.measured_m["new"][got]
+    np.testing.assert_allclose(
+        _points(scene.state(), "/review/new/base/frame/measured"), pred + 10 * (meas - pred), atol=1e-6
+    )
+    scene.set_magnify(1)
+    state = scene.state()
+    np.testing.assert_allclose(_points(state, "/review/new/base/frame/measured"), meas, atol=1e-6)
+    assert state["nodes"]["/review/new/label"]["text"] == "new calibration"
+    with pytest.raises(ValueError, match=r"magnify: 0\.5 is not a factor from 1 to 1000"):
+        scene.set_magnify(0.5)
+
+
+@contextmanager
+def reported_camera(server: viser.ViserServer) -> Iterator[tuple[viser.ClientHandle, Any]]:
+    """A client of the server that has reported its camera (a browser's first message, tests/test_viewers.py's),
+    so framings move it, and its websocket (to report where the operator put the camera)."""
+    with websockets.sync.client.connect(
+        f"ws://127.0.0.1:{server.get_port()}", subprotocols=[PROTOCOL], proxy=None
+    ) as ws:
+        ws.send(camera_message())
+        wait_until(lambda: any(camera_reported(c.camera) for c in server.get_clients().values()), what="a camera")
+        yield next(iter(server.get_clients().values())), ws
+
+
+def _in_view(camera: viser.CameraHandle, points: np.ndarray) -> bool:
+    """Every point inside the camera's field of view (both directions)."""
+    axis = (camera.look_at - camera.position) / np.linalg.norm(camera.look_at - camera.position)
+    rays = (points - camera.position) / np.linalg.norm(points - camera.position, axis=1)[:, None]
+    half = min(camera.fov, 2 * np.arctan(np.tan(camera.fov / 2) * camera.image_width / camera.image_height)) / 2
+    return bool(np.all(np.arccos(np.clip(rays @ axis, -1, 1)) < half))
+
+
+def _marks_world(scene: ReviewScene, side: str) -> np.ndarray:
+    """The selected frame's marks on one copy, in the world."""
+    state = scene.state()
+    R = display_rotation(load_profile(state["robot"]))
+    group = f"/review/{side}/base/frame"
+    lift = np.asarray(state["nodes"][group]["position"])
+    local = np.concatenate([_points(state, f"{group}/{part}") for part in ("measured", "predicted")])
+    return (local + lift) @ R.T + np.asarray(state["nodes"][f"/review/{side}"]["position"])
+
+
+def test_the_camera_stays_where_the_operator_put_it_until_frame_it(
+    viser_server: viser.ViserServer, robonaut_review: Review
+) -> None:
+    """Stepping frames, the overlay and every frame leave the camera where the operator put it (as in RViz);
+    "frame it" brings it onto both copies' marks, from far enough (a narrow field of view) that the two copies are
+    seen from directions within 5 degrees of each other, the marks filling a good part of the view."""
+    with reported_camera(viser_server) as (client, ws):
+        scene = ReviewScene(viser_server)
+        scene.load(robonaut_review)
+        wait_until(lambda: scene.camera.state()["clients"][client.client_id]["framed"], what="the robot's framing")
+        put = np.array([1.7, -0.9, 1.3])
+        report = msgspec.msgpack.decode(camera_message())
+        ws.send(msgspec.msgpack.encode(report | {"position": put.tolist(), "look_at": [0.1, 0.2, 0.4]}))
+        wait_until(lambda: np.allclose(client.camera.position, put), what="the operator's camera")
+        for index in (3, 5, 7):
+            scene.select(index)
+        scene.set_overlay(True)
+        scene.select(8)
+        scene.show_all(True)
+        scene.show_all(False)
+        scene.set_overlay(False)
+        scene.select(9)
+        np.testing.assert_allclose(client.camera.position, put)  # a moved camera is set here at once
+        np.testing.assert_allclose(client.camera.look_at, [0.1, 0.2, 0.4])
+
+        scene.frame_marks()
+        camera = client.camera
+        old, new = _marks_world(scene, "old"), _marks_world(scene, "new")
+        assert _in_view(camera, np.concatenate([old, new]))
+        to_old, to_new = camera.position - old.mean(axis=0), camera.position - new.mean(axis=0)
+        apart_deg = np.degrees(np.arccos(to_old @ to_new / np.linalg.norm(to_old) / np.linalg.norm(to_new)))
+        assert apart_deg <= 5.0 + 1e-6, apart_deg
+        # Not a speck: the marks of both copies span more than half the narrower field of view.
+        span = np.linalg.norm(new.mean(axis=0) - old.mean(axis=0)) / np.linalg.norm(camera.position - camera.look_at)
+        assert span > 0.5 * min(camera.fov, 2 * np.arctan(np.tan(camera.fov / 2) * 640 / 480)), span

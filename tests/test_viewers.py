@@ -23,6 +23,7 @@ from starlette.testclient import WebSocketTestSession
 from starlette.websockets import WebSocketDisconnect
 
 from app.desk import Desk
+from app.static_dir import STATIC_DIR
 from app.viewers import Viewer
 
 PROTOCOL = f"viser-v{viser.__version__}"
@@ -260,6 +261,20 @@ def test_a_reloaded_iframe_is_drawn_as_before(client: TestClient) -> None:
             np.testing.assert_allclose([joints[n] for n in viewer.review.profile.joint_names], expected, atol=1e-12)
 
 
+def test_when_the_client_drawn_on_closes_the_viewer_draws_on_the_one_left(client: TestClient) -> None:
+    """After a server restart the old iframe's client may reconnect after the new iframe's and then close: the
+    viewer goes on drawing on the new iframe's client (it showed nothing new before: issue seen in CI)."""
+    client.post("/api/review", json={"session": "robonaut-a-day1"}, headers=tab("restarted"))
+    viewer = client.app.state.desk.viewers.get("restarted")
+    with browser(client, "restarted"):
+        new_iframe = viewer.client_id
+        with browser(client, "restarted", width=800):
+            wait_until(lambda: viewer.client_id != new_iframe, what="the old iframe's client drawn on")
+        wait_until(lambda: viewer.client_id == new_iframe, what="the new iframe's client drawn on again")
+        client.post("/api/review/frame", json={"index": 20}, headers=tab("restarted"))
+        assert viewer.scene.state()["index"] == 20
+
+
 def test_viewers_are_listed_and_the_scene_is_no_api(client: TestClient) -> None:
     listed = client.get("/api/viewers").json()
     assert listed[0]["id"] == "default" and all(set(v) >= {"id", "connected", "session", "index"} for v in listed)
@@ -293,3 +308,31 @@ def test_the_live_robot_follows_the_robot_while_it_moves(client: TestClient, mon
         client.post("/api/sessions/nao/observe", json={"on": False}, headers=tab("follower"))
     between = {x for x in shown if min(abs(x - start[k]), abs(x - goal[k])) > 0.05}
     assert len(between) >= 3, (start[k], goal[k], sorted(shown))
+
+
+def test_a_viewer_magnifies_its_residuals_and_frames_its_marks(client: TestClient) -> None:
+    """POST /api/review/magnify draws the viewer's 3-D residuals k times their length (1 to 1000, else a 422
+    naming the field), kept when its page reloads; POST /api/review/frame-marks frames its selected frame."""
+    desk: Desk = client.app.state.desk
+    with browser(client, "tab-mag"):
+        assert client.post("/api/review", json={"session": "nao"}, headers=tab("tab-mag")).status_code == 200
+        assert client.post("/api/review/frame", json={"index": 101}, headers=tab("tab-mag")).status_code == 200
+        robot = desk.viewers.get("tab-mag").scene.camera.state()["framing"]  # framed on NAO as it was loaded
+        r = client.post("/api/review/frame-marks", headers=tab("tab-mag"))
+        assert r.status_code == 200 and r.json() == {"index": 101}
+        marks = desk.viewers.get("tab-mag").scene.camera.state()["framing"]
+        assert marks["radius_m"] < 0.8 * robot["radius_m"] and marks["look_at"] != robot["look_at"]
+        for bad in (0.5, 1e6, "x10"):
+            r = client.post("/api/review/magnify", json={"factor": bad}, headers=tab("tab-mag"))
+            assert r.status_code == 422 and "factor" in r.text, r.text
+        r = client.post("/api/review/magnify", json={"factor": 100}, headers=tab("tab-mag"))
+        assert r.status_code == 200 and r.json() == {"factor": 100}
+        state = desk.viewers.get("tab-mag").scene.state()
+        assert state["magnify"] == 100 and "residuals x100" in state["nodes"]["/review/old/label"]["text"]
+        listed = {v["id"]: v for v in client.get("/api/viewers").json()}
+        assert listed["tab-mag"]["magnify"] == 100 and listed["default"]["magnify"] == 1
+        # The scene's page draws the marks over the bodies (static/viser_marks.js, inlined).
+        page = client.get("/scene/tab-mag/")
+        assert page.status_code == 200 and (STATIC_DIR / "viser_marks.js").read_text() in page.text
+    with browser(client, "tab-mag"):  # its page reloaded: a new scene, at the same factor
+        assert desk.viewers.get("tab-mag").scene.state()["magnify"] == 100

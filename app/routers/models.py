@@ -25,6 +25,7 @@ class ObserveState(BaseModel):
     detection: str | None = Field(None, exclude_if=lambda v: v is None)  # the latest look's status, or "moving"
     reason: str | None = Field(None, exclude_if=lambda v: v is None)  # why it found nothing ("ok": it measured)
     message: str | None = Field(None, exclude_if=lambda v: v is None)  # the latest look's failure
+    look: int | None = Field(None, exclude_if=lambda v: v is None)  # the latest look with an image (GET /robot/look)
 
 
 class Figures(BaseModel):

@@ -12,7 +12,7 @@ from pydantic import BaseModel, Field
 
 from calib_core import FrameStatus
 
-from ..validation import FRAME_MAX, FRAME_MIN
+from ..validation import FRAME_MAX, FRAME_MIN, MAGNIFY_MAX
 from .deps import FrameIndex, ReviewDep, ViewerDep, ViewersDep
 
 router = APIRouter()
@@ -88,6 +88,7 @@ class ReviewOut(BaseModel):
     new: str | None
     sensor: str  # the sensor the table, the summary and the scene's red marks are of
     sensors: list[str]  # the sensors the session has observations of
+    images: list[str]  # those of them that take an image: the sensors a 2-D view can be of
     table: list[ReviewRow]
     summary: ReviewSummary
     warnings: list[str] = []  # what the scene could not show as asked (a URDF robot's mesh that cannot be read)
@@ -129,6 +130,34 @@ def select(reviews: ReviewDep, viewer: ViewerDep, body: SelectRequest) -> Select
     return Selected.model_validate(reviews.select(viewer, body.index, show_all=body.all, overlay=body.overlay))
 
 
+class MagnifyRequest(BaseModel):
+    """The 3-D view's residuals drawn `factor` times their length: a measurement at prediction + factor
+    (measurement - prediction), the copies' labels saying so."""
+
+    factor: float = Field(ge=1, le=MAGNIFY_MAX)
+
+
+class Magnified(BaseModel):
+    factor: float
+
+
+@router.post("/review/magnify")
+def magnify(reviews: ReviewDep, viewer: ViewerDep, body: MagnifyRequest) -> Magnified:
+    return Magnified.model_validate(reviews.magnify(viewer, body.factor))
+
+
+class Framed(BaseModel):
+    index: int | None  # the frame whose marks the camera was brought onto
+
+
+@router.post("/review/frame-marks")
+def frame_marks(reviews: ReviewDep, viewer: ViewerDep) -> Framed:
+    """The page's "frame it": the viewer's 3-D camera onto the selected frame's marks, both copies seen from nearly
+    the same direction (a narrow field of view), never inside a body (without a review: onto the robot). Selecting a
+    frame leaves the camera where it is."""
+    return Framed.model_validate(reviews.frame_marks(viewer))
+
+
 class Marks(BaseModel):
     """The 2-D split view of one frame: [u, v] px per point (None: not measured, or behind the camera)."""
 
@@ -160,6 +189,7 @@ class ViewerOut(BaseModel):
     index: int | None  # the frame selected
     overlay: bool
     all: bool
+    magnify: float  # its 3-D residuals drawn this many times their length
     live: bool  # its scene shows Observe's live view
 
 

@@ -39,6 +39,28 @@ async def robot_events(
         await asyncio.sleep(ROBOT_EVENT_PERIOD_S)
 
 
+class LiveLook(BaseModel):
+    """Observe's latest look through the data sensor's camera: its image and marks, as the Review's 2-D view."""
+
+    look: int  # its count since Observe began: a new one has a higher number
+    sensor: str
+    target: str
+    status: str  # measured or not found
+    reason: str
+    width: int | None  # px; None with no image
+    height: int | None
+    image: str | None  # a JPEG data URL; None: the sensor takes no image
+    measured: list[list[float] | None] | None  # [u, v] px per point found (vision); None: nothing found
+    predicted: list[list[float] | None] | None  # [u, v] px per target point, the active calibration's
+
+
+@router.get("/robot/look", responses={404: {"description": "not observing that robot, or no look yet"}})
+def robot_look(connection: ConnectionDep, robot: str | None = None) -> LiveLook:
+    """Observe's latest settled look through the camera (`robot`; none: the one observed): the image, what the
+    finder found and where the active calibration predicts the target."""
+    return LiveLook(**connection.look(robot))
+
+
 class ActiveCalibration(BaseModel):
     id: str | None  # None: the robot runs with its nominal model
     robot: str

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..drivers import RobotDriver
+from ..errors import NotFound
 from ..robots import Robot, Robots
 from ..store import Store
 from ..viewers import Shown, Viewer, Viewers
@@ -115,6 +116,13 @@ class Connection:
         if observer is None or (robot is not None and observer.robot != robot):
             return None
         return observer.snapshot()
+
+    def look(self, robot: str | None = None) -> dict[str, Any]:
+        """Observe's latest look through the camera (app/live_look.py); NotFound when not observing `robot`."""
+        observer = self._observer
+        if observer is None or (robot is not None and observer.robot != robot):
+            raise NotFound(f"Observe is not watching {robot or 'a robot'}: turn on Watch live")
+        return observer.look()
 
     def reviewing(self, viewer: Viewer, robot: str) -> None:
         """The viewer loads a review of `robot`: watching another robot live, it stops; the live view ends when

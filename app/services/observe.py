@@ -21,6 +21,8 @@ from calib_core.estimation import register, registration_params
 
 from ..capture import AutoCapture, look_outcome
 from ..drivers import Look, RobotDriver
+from ..errors import NotFound
+from ..live_look import look_view
 from ..robots import Robots
 from ..scene import LookLike
 from ..store import Store
@@ -62,6 +64,7 @@ class Observer:
         self._registration: tuple[tuple, np.ndarray | None] | None = None  # (frames and calibration, fitted p)
         self._period = OBSERVE_PERIOD_S
         self._seen: Look | None = None  # the latest look: its target's points stand in while the robot moves
+        self._shown: tuple[int, Profile, Look, np.ndarray | None] | None = None  # the latest look with an image
 
     def start(self) -> None:
         self._thread.start()
@@ -72,6 +75,14 @@ class Observer:
 
     def snapshot(self) -> dict[str, Any]:
         return dict(self._last)
+
+    def look(self) -> dict[str, Any]:
+        """The latest settled look with an image, for Observe's 2-D view (app/live_look.py)."""
+        shown = self._shown
+        if shown is None:
+            raise NotFound(f"Observe has not looked through {self.robot}'s camera yet")
+        number, profile, look, p = shown
+        return look_view(profile, look, p, number)
 
     def _run(self) -> None:
         while not self._stop.wait(self._period):
@@ -102,13 +113,23 @@ class Observer:
         profile = self.driver.profile
         detection, reason = look_outcome(profile, look)
         p, registered = self._live_params()
+        if look.images:  # the 2-D view: the pixels found need no pose; a prediction needs the sensor's
+            number = self._shown[0] + 1 if self._shown is not None else 1
+            self._shown = (number, profile, look, p if registered else None)
         if not registered:  # where the tracker stands is unknown: its reading has no place in the scene yet
             unplaced = [
                 replace(s, measured=None) if registration_params(profile, [s.sensor]) else s for s in look.sightings
             ]
             look = Look(look.readings_rad, look.target, unplaced, look.images)
-            reason = f"shown once {MIN_REGISTRATION_FRAMES} frames are measured (the tracker's pose)"
+            unknown = sorted(
+                {profile.sensors[s.sensor].name for s in look.sightings if registration_params(profile, [s.sensor])}
+            )
+            reason = (
+                f"placed in 3-D once {MIN_REGISTRATION_FRAMES} frames are measured ({', '.join(unknown)}: pose unknown)"
+            )
         self.live.show_live(profile, look, p)
+        if self._shown is not None:
+            self._last["look"] = self._shown[0]
         # Said once the scene shows it: whoever reads the detection finds the look in the scene.
         self._last["detection"], self._last["reason"] = detection, reason
 

@@ -47,7 +47,8 @@ class ReviewService:
     ) -> tuple[Review, dict[str, Any]]:
         """A session's review with an old and a new calibration ("active": the robot's active one; None: the
         nominal model) as one sensor sees it (its name; None: the data format's), and its key (session, old,
-        new, sensor, and the sensors the session has observations of); `show` puts it in the scene."""
+        new, sensor, the sensors the session has observations of and those of them that take an image: the 2-D
+        view's); `show` puts it in the scene."""
         session = self.store.sessions.get(session_id)
         profile = self.robots.get(session.robot).profile
         sensor_index = self._sensor(profile, session.robot, sensor)
@@ -76,6 +77,7 @@ class ReviewService:
         return review, key | {
             "sensor": profile.sensors[sensor_index].name,
             "sensors": [profile.sensors[i].name for i in observed],
+            "images": [profile.sensors[i].name for i in observed if profile.sensors[i].image_size_px() is not None],
         }
 
     def show(self, viewer: Viewer, review: Review, key: dict[str, Any]) -> dict[str, Any]:
@@ -90,6 +92,16 @@ class ReviewService:
         t0 = time.perf_counter()
         viewer.select(index, show_all=show_all, overlay=overlay)
         return {"index": index, "all": show_all, "overlay": overlay, "server_ms": (time.perf_counter() - t0) * 1e3}
+
+    @staticmethod
+    def magnify(viewer: Viewer, factor: float) -> dict[str, Any]:
+        viewer.set_magnify(factor)
+        return {"factor": factor}
+
+    @staticmethod
+    def frame_marks(viewer: Viewer) -> dict[str, Any]:
+        viewer.frame_marks()
+        return {"index": viewer.index}
 
     def marks(self, viewer: Viewer, index: int) -> dict[str, Any]:
         with viewer.lock:

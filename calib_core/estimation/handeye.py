@@ -21,7 +21,6 @@ from OpenCV 5's Python package.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -141,6 +140,8 @@ def board_poses(points: np.ndarray, rays: np.ndarray) -> list[np.ndarray]:
     spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
     if spread[1] <= PLANAR_SHARE * spread[0]:
         return []
+    import cv2  # a camera's start only: every other calibration starts without OpenCV
+
     image = np.ascontiguousarray(rays[:, :2] / rays[:, 2:], dtype=np.float64)
     obj = np.ascontiguousarray(points, dtype=np.float64)
     method = cv2.SOLVEPNP_IPPE if spread[2] <= PLANAR_SHARE * spread[0] else cv2.SOLVEPNP_SQPNP

@@ -16,7 +16,6 @@ from enum import Enum
 
 import numpy as np
 import scipy.linalg
-import scipy.optimize
 
 from ..errors import Cancelled
 
@@ -250,6 +249,8 @@ def nelder_mead(
         e = x0.copy()
         e[k] = x0[k] * 1.05 if x0[k] != 0 else 0.02
         simplex.append(e)
+    import scipy.optimize  # the paper's simplex only: the solver's own LM needs none of it (a faster start)
+
     res = scipy.optimize.minimize(
         objective,
         x0,

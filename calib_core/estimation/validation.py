@@ -13,9 +13,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from ..dataset import Dataset
 from ..errors import InputError
@@ -129,6 +126,10 @@ def configuration_groups(data: Dataset, tolerance_rad: float = REPEAT_TOLERANCE_
     Exact repeats are merged first and the near pairs found with a k-d tree (max-norm), so time and memory
     grow with the configurations and their near pairs, not with their square (96,000 configurations: 4 s and
     tens of MB; pairwise blocks took minutes and 2.7 GB)."""
+    from scipy.sparse import coo_matrix  # only where a share is held out: a plain solve starts without them
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     q = np.nan_to_num(data.joints)
     n = len(q)
     if n == 0:

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from ..dataset import Dataset
@@ -82,6 +81,8 @@ def write_session(
             for role, img in (images or {}).get(fr.frame, {}).items():
                 # JPEG keeps sessions small; the detections were made on the uncompressed images.
                 rel = f"images/{fr.frame:04d}_{role}.jpg"
+                import cv2  # a session with images only: reading and solving sessions start without OpenCV
+
                 if not cv2.imwrite(str(work / rel), img, [cv2.IMWRITE_JPEG_QUALITY, 90]):
                     raise OSError(f"cannot write {rel}")
                 paths[role] = rel

@@ -16,7 +16,7 @@ __getattr__ = lazy_exports(
         "finders": ("FINDERS", "Finder", "finder_for", "finders_served", "found_targets"),
         "sampling": ("Sampler",),
         "sandal_board": ("detect_board", "render_board_image"),
-        "sighting": ("Sighting",),
+        "sighting": ("Sighting", "predicted_points"),
         "stereo": ("StereoHead", "depth_from_pair", "render_pair"),
         "visibility": ("VIEW_MARGIN_PX", "Visibility"),
     },
@@ -35,6 +35,7 @@ __all__ = [
     "finder_for",
     "finders_served",
     "found_targets",
+    "predicted_points",
     "render_board_image",
     "render_pair",
 ]
@@ -44,6 +45,6 @@ if TYPE_CHECKING:
     from .finders import FINDERS, Finder, finder_for, finders_served, found_targets
     from .sampling import Sampler
     from .sandal_board import detect_board, render_board_image
-    from .sighting import Sighting
+    from .sighting import Sighting, predicted_points
     from .stereo import StereoHead, depth_from_pair, render_pair
     from .visibility import VIEW_MARGIN_PX, Visibility

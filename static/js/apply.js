@@ -3,7 +3,7 @@
 
 import { api } from "./api.js";
 import { calibrationName } from "./calibrate.js";
-import { $, act, el, fmt, toast } from "./dom.js";
+import { $, act, displayUnit, el, fmt, toast } from "./dom.js";
 import { loadReview } from "./review.js";
 import { state } from "./state.js";
 
@@ -56,9 +56,10 @@ async function applied(r) {
   await refreshActive();
   // A review whose old side is the robot's active calibration shows the one just applied.
   if (state.reviewAsked && state.reviewAsked[0] === "active") await loadReview(...state.reviewAsked, true);
-  $("#apply-state").textContent = r.recorded ? `Active: ${r.active} (previous: ${r.previous || "nominal model"})`
-    : `Active: ${r.active} (it already was: sent to the robot again, history unchanged)`;
-  toast(r.recorded ? "Applied to the robot." : "Already the active calibration: sent to the robot again.", "info");
+  const sent = r.deployed ? ` On the robot: ${r.deployed}.` : "";  // what the driver did with it (ROS 2, NAOqi)
+  $("#apply-state").textContent = (r.recorded ? `Active: ${r.active} (previous: ${r.previous || "nominal model"})`
+    : `Active: ${r.active} (it already was: sent to the robot again, history unchanged)`) + sent;
+  toast((r.recorded ? "Applied to the robot." : "Already the active calibration: sent to the robot again.") + sent, "info");
 }
 
 // The header and the Apply panel both say which calibration the robot runs; the history says for each apply
@@ -79,14 +80,18 @@ export async function refreshActive(asked = null) {
   t.replaceChildren(el("tr", {}, ...["applied", "calibration and its mean error", ""].map((h) => el("th", {}, h))));
   for (const [k, h] of history.entries()) {
     const f = h.figures || {};
-    const u = (f.after && f.after.unit) || "";
-    const errors = [f.before && `before ${fmt(f.before.mean)}`, f.after && `after ${fmt(f.after.mean)}`,
-      f.holdout_after && `held out ${fmt(f.holdout_after.mean)}`].filter(Boolean).join(" → ");
+    const [u, factor] = displayUnit((f.after && f.after.unit) || "");
+    // Means over the calibration's own session: the observations it was fitted on, then those it held out.
+    const v = (x) => `${fmt(x.mean * factor)}${u ? ` ${u}` : ""}`;
+    const fitted = [f.before && `before ${v(f.before)}`, f.after && `after ${v(f.after)}`].filter(Boolean).join(" → ");
+    const errors = [fitted && `${fitted}${f.after ? ` (mean over the ${f.after.n} fitted)` : ""}`,
+      f.holdout_after && `held out ${v(f.holdout_after)} (${f.holdout_after.n})`].filter(Boolean).join(" · ");
+    const session = h.session && ((state.sessions || []).find((x) => x.id === h.session) || { name: h.session }).name;
     const current = k === 0 && h.calibration === a.id;  // the newest apply: what the robot runs
     t.append(el("tr", { "data-calibration": h.calibration, title: h.note || "" },
       el("td", {}, h.time.replace("T", " ").slice(0, 16)),
-      el("td", {}, el("b", {}, h.mode || "—"), ` ${errors}${u ? ` ${u}` : ""}`, el("br", {}),
-        el("small", {}, `${h.calibration}${h.session ? ` · ${h.session}` : ""}`)),
+      el("td", {}, el("b", {}, h.mode || "—"), ` ${errors}`, el("br", {}),
+        el("small", {}, `${h.calibration}${session ? ` · ${session}` : ""}`)),
       el("td", {}, current ? el("small", {}, "active") : el("button", { class: "small", onclick: () => act(async () => {
         const r = await applyCalibration(h.calibration, "re-applied from history");
         if (r) await applied(r);

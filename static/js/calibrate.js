@@ -3,8 +3,8 @@
 import { api, follow } from "./api.js";
 import { axes, ticks } from "./charts.js";
 import { jobControls } from "./controls.js";
-import { $, act, el, fmt, toast } from "./dom.js";
-import { loadReview, unit } from "./review.js";
+import { $, act, displayUnit, el, fmt, toast } from "./dom.js";
+import { loadReview } from "./review.js";
 import { state } from "./state.js";
 import { showTab } from "./tabs.js";
 
@@ -21,12 +21,17 @@ export async function loadCalibrations() {
   const ul = $("#calibrations");
   ul.replaceChildren();
   for (const c of state.calibrations) {
-    const after = c.figures && c.figures.after ? `${fmt(c.figures.after.mean)} ${unit()}` : "";
+    const after = c.figures && c.figures.after ? shown(c.figures.after.mean, c.figures.after.unit) : "";
     const label = `${calibrationName(c)} · ${after}`;
     for (const s of [base, oldSel, newSel]) s.append(el("option", { value: c.id }, label));
     ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => loadReview("active", c.id)) }, label));
   }
 }
+
+const shown = (v, unit) => {
+  const [u, factor] = displayUnit(unit);
+  return `${fmt(v * factor)} ${u}`;
+};
 
 // A calibration as the page names it: its mode and when it was made.
 export const calibrationName = (c) => `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)}`;
@@ -66,8 +71,9 @@ async function startCalibration() {
 export function clearJob() {
   $("#job-state").textContent = "";
   $("#job-progress").value = 0;
+  // A new canvas: under load Chromium sometimes kept showing a cleared canvas's old curve (read back too).
   const curve = $("#cost-curve");
-  curve.width = curve.width;  // a blank canvas
+  curve.replaceWith(curve.cloneNode(false));
 }
 
 // The solver's cost per iteration, on a log scale.

@@ -10,6 +10,10 @@ export const fmt = (v, d = 3) => {
   return x !== 0 && Math.abs(x) < 0.01 ? x.toPrecision(d) : x.toFixed(d);
 };
 
+// The unit errors are shown in and the factor to it: a length in metres reads better in millimetres (a tracker's
+// 0.0000716 m is 0.0716 mm); cm, mm and px as they are.
+export const displayUnit = (unit) => (unit === "m" ? ["mm", 1000] : [unit, 1]);
+
 // Text written only when it changes (no layout or repaint for the same words).
 export const setText = (e, text) => {
   if (e.textContent !== text) e.textContent = text;

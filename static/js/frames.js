@@ -45,6 +45,7 @@ export function renderFrames() {
       state.sort = { key: k, dir: state.sort.key === k ? -state.sort.dir : -1 };
       renderFrames();
       showPosition();
+      revealSelected();
     },
   }, label + (state.sort.key === k ? (state.sort.dir < 0 ? " ▼" : " ▲") : "")))));
   const rows = sortedRows(withChange);
@@ -60,6 +61,19 @@ export function renderFrames() {
   }
 }
 
+// The selected frame's row in view: out of it, centred below the list's sticky header; then the panel scrolled to
+// it if need be. Nothing while the list is hidden.
+function revealSelected() {
+  const row = document.querySelector("#frames tr.selected");
+  if (!row || !row.offsetParent) return;
+  const list = row.closest(".scroll");
+  const box = list.getBoundingClientRect();
+  const top = box.top + $("#frames tr").getBoundingClientRect().height;
+  const r = row.getBoundingClientRect();
+  if (r.top < top || r.bottom > box.bottom) list.scrollTop += r.top - (top + box.bottom - r.height) / 2;
+  row.scrollIntoView({ block: "nearest" });
+}
+
 // The selected frame's figures: old and new error, their difference, better or worse.
 function renderFrameSummary(index) {
   const r = state.review && state.review.table.find((x) => x.index === index);
@@ -70,8 +84,13 @@ function renderFrameSummary(index) {
   }
   const u = unit();
   const v = verdict(r);
-  const parts = [el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`), ` ${r.status} · old calibration `,
-    el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
+  const title = el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`);
+  if (r.err_old === null || r.err_old === undefined) {  // nothing measured: no error to give, only why
+    box.replaceChildren(title, ` ${r.status}${r.reason && r.reason !== r.status ? ` (${r.reason})` : ""}: no error to show`);
+    box.dataset.frame = index;
+    return;
+  }
+  const parts = [title, ` ${r.status} · old calibration `, el("span", { class: "blue" }, `${fmt(r.err_old)} ${u}`)];
   if (state.review.new) {
     parts.push(" · new calibration ", el("span", { class: "green" }, `${fmt(r.err_new)} ${u}`));
     if (change(r) !== null) {
@@ -106,10 +125,8 @@ export async function selectFrame(index) {
   // Only the rows that change (a session may have thousands).
   for (const tr of document.querySelectorAll("#frames tr.selected")) if (+tr.dataset.frame !== index) tr.classList.remove("selected");
   const row = document.querySelector(`#frames tr[data-frame="${index}"]`);
-  if (row) {
-    row.classList.add("selected");
-    row.scrollIntoView({ block: "nearest" });
-  }
+  if (row) row.classList.add("selected");
+  revealSelected();
   renderFrameSummary(index);
   if (selecting) {
     pending = index;
@@ -203,6 +220,9 @@ export async function showNewFrames(sid) {
 }
 
 export function wireFrames() {
+  // A review loaded while its tab was hidden (a calibration's end) selected its frame unseen: shown, the list
+  // goes to it.
+  new ResizeObserver(revealSelected).observe($("#frames").parentElement);
   $("#frame-slider").addEventListener("input", () => selectFrame(state.frameOrder[+$("#frame-slider").value]));
   $("#step-back").addEventListener("click", () => step(-1));
   $("#step-fwd").addEventListener("click", () => step(+1));

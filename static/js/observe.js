@@ -4,6 +4,7 @@ import { api } from "./api.js";
 import { jobControls } from "./controls.js";
 import { $, act, el, setText, toast } from "./dom.js";
 import { showNewFrames } from "./frames.js";
+import { clearLive, showLook } from "./live.js";
 import { loadSessions } from "./sessions.js";
 import { state } from "./state.js";
 
@@ -61,6 +62,7 @@ let stream = null;
 export function robotEvents() {
   if (stream) stream.close();
   stream = null;
+  clearLive();
   state.moving = false;
   if (!state.robots[state.robot].drivable) return;
   const robot = state.robot;
@@ -87,6 +89,8 @@ export function robotEvents() {
     const o = r.observing;
     if (o && state.session && o.session === state.session.id && o.captured > autoCaptured) showNewFrames(o.session);
     autoCaptured = o ? o.captured : 0;
+    if (o) showLook(o.look);
+    else clearLive();
     setText($("#observe-state"), o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" && o.reason !== o.detection ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "");
   };
   es.onerror = () => {

@@ -4,12 +4,27 @@
 import { api } from "./api.js";
 import { renderApply } from "./apply.js";
 import { axes, ticks } from "./charts.js";
-import { $, act, el, fmt } from "./dom.js";
+import { $, act, displayUnit, el, fmt } from "./dom.js";
 import { renderFrames, selectFrame } from "./frames.js";
-import { forgetMarks } from "./split.js";
+import { forgetMarks, showSplitFor } from "./split.js";
 import { state } from "./state.js";
 
 export const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
+
+// A review's table and summary (POST /review, /review/table) in the unit errors are shown in, in place.
+function inDisplayUnit(answer) {
+  const [shown, factor] = displayUnit(answer.summary.unit);
+  const scale = (v) => (v === null || v === undefined ? v : v * factor);
+  for (const r of answer.table) Object.assign(r, { err_old: scale(r.err_old), err_new: scale(r.err_new), band: scale(r.band) });
+  const s = answer.summary;
+  for (const k of ["old", "new", "heldout_old", "heldout_new"]) {
+    if (s[k]) Object.assign(s[k], { mean: scale(s[k].mean), rms: scale(s[k].rms), max: scale(s[k].max) });
+  }
+  if (s.histogram.edges) s.histogram.edges = s.histogram.edges.map(scale);
+  s.band.median = scale(s.band.median);
+  s.unit = shown;
+  return answer;
+}
 
 const reviewBody = (old, neu, sensor) => ({ session: state.session.id, old: old || null, new: neu || null, sensor });
 
@@ -17,7 +32,7 @@ const reviewBody = (old, neu, sensor) => ({ session: state.session.id, old: old 
 // selected frame stays selected (a review asked again: the robot's active calibration changed).
 export async function loadReview(old, neu, sensor = null, keep = false) {
   const kept = keep ? state.frame : null;
-  state.review = await api("POST", "/review", reviewBody(old, neu, sensor));
+  state.review = inDisplayUnit(await api("POST", "/review", reviewBody(old, neu, sensor)));
   forgetMarks();  // the server's marks are of this review from now on
   state.reviewAsked = [old, neu, sensor];
   state.newCal = state.review.new;
@@ -28,6 +43,7 @@ export async function loadReview(old, neu, sensor = null, keep = false) {
   sensors.replaceChildren(...names.map((s) => el("option", { value: s }, s)));
   sensors.value = state.review.sensor;
   $("#review-sensor-label").hidden = state.review.sensors.length < 2;
+  showSplitFor(state.review);
   // What the scene could not show as asked (a URDF robot's mesh that cannot be read): said once per review.
   $("#review-warnings").replaceChildren(...(state.review.warnings || []).map((w) => el("p", { class: "warning" }, w)));
   const rows = state.review.table;
@@ -47,7 +63,7 @@ export async function loadReview(old, neu, sensor = null, keep = false) {
 export async function refreshFigures() {
   const [old, neu, sensor] = state.reviewAsked;
   const sid = state.session.id;
-  const fresh = await api("POST", "/review/table", reviewBody(old, neu, sensor));
+  const fresh = inDisplayUnit(await api("POST", "/review/table", reviewBody(old, neu, sensor)));
   if (!state.review || state.review.session !== sid || state.reviewAsked[1] !== neu) return false;
   Object.assign(state.review, fresh);
   renderSummary();
@@ -109,7 +125,11 @@ async function renderParameters() {
       el("summary", {}, `⚠ ${g.title}`), el("ul", {}, ...g.messages.map((m) => el("li", {}, m)))));
   }
   if (cal.outliers.length) {
-    w.append(el("p", {}, `Outliers left out: ${cal.outliers.map((o) => `frame ${o.frame} (${fmt(o.error, 2)} ${o.unit})`).join(", ")}`));
+    const shown = (o) => {
+      const [u, factor] = displayUnit(o.unit);
+      return `frame ${o.frame} (${fmt(o.error * factor, 2)} ${u})`;
+    };
+    w.append(el("p", {}, `Outliers left out: ${cal.outliers.map(shown).join(", ")}`));
   }
   // "start": where the solver started (the nominal model or the calibration it was based on), not the review's
   // old calibration.
@@ -152,4 +172,8 @@ export function wireReview() {
   const reviewAgain = () => act(() => loadReview($("#review-old").value, $("#review-new").value, $("#review-sensor").value || null));
   $("#review-load").addEventListener("click", reviewAgain);
   $("#review-sensor").addEventListener("change", reviewAgain);
+  $("#split-sensor").addEventListener("change", () => {
+    const sensor = $("#split-sensor").value;
+    if (sensor) act(() => loadReview($("#review-old").value, $("#review-new").value, sensor));
+  });
 }

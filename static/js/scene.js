@@ -10,6 +10,20 @@ export function showScene() {
   $("#scene").src = `/scene/${VIEWER}/`;
 }
 
+// The 3-D residuals' magnification, sent to this tab's scene and said over it (the scene's labels say it too).
+async function magnify() {
+  const factor = +$("#scene-magnify-select").value || 1;
+  await api("POST", "/review/magnify", { factor });
+  const said = $("#scene-magnify");
+  said.hidden = factor === 1;
+  said.textContent = `residuals x${factor}`;
+}
+
+export function wireScene() {
+  $("#frame-marks").addEventListener("click", () => act(() => api("POST", "/review/frame-marks")));
+  $("#scene-magnify-select").addEventListener("change", () => act(magnify));
+}
+
 // A restarted server knows nothing of this tab's viewer, and viser's client in an iframe does not reconnect
 // until it gets focus: when /api/health names another server instance, reload the scene and show the review
 // (and frame) this tab showed.
@@ -25,6 +39,7 @@ export function watchServer(instance) {
 async function reopenScene() {
   await api("GET", "/robots");  // a new read cookie (off loopback): the old server's is no longer valid
   showScene();
+  await magnify();  // the new server's viewer draws at x1
   if (!state.session || !state.reviewAsked) return;
   const frame = state.frame;
   await loadReview(...state.reviewAsked);

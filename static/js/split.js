@@ -1,9 +1,11 @@
 // The Review's 2-D split view: the frame's image at full size, both halves zoomed and panned together (wheel,
 // drag, the buttons), measurements as red rings with their point numbers, predictions as dots in the side's
-// colour, residuals as lines, optionally magnified (said on the view).
+// colour, residuals as lines, optionally magnified (said on the view). With the Overlay, one image: a ring per
+// measurement and both predictions, each in its own colour. It shows the reviewed sensor's image; a session of
+// several sensors offers those that take one.
 
 import { api } from "./api.js";
-import { $ } from "./dom.js";
+import { $, el } from "./dom.js";
 import { state } from "./state.js";
 
 const split = { marks: null, img: null, zoom: 1, cx: null, cy: null, drag: null };
@@ -33,12 +35,30 @@ function frameMarks(index) {
   return got;
 }
 
+const OLD_BLUE = "#0050ff";
+const NEW_GREEN = "#00b000";
+const VISION_RED = "#ff2020";
+
+// Whether the reviewed sensor takes an image (a laser tracker does not: nothing to mark in 2-D).
+const imaged = () => Boolean(state.review && state.review.images.includes(state.review.sensor));
+
+// The 2-D view of a review: its sensor's image, and a choice of the session's sensors that take one when there
+// is a choice (or the sensor reviewed takes none). Choosing one reviews that sensor.
+export function showSplitFor(review) {
+  const sel = $("#split-sensor");
+  const names = review.images.includes(review.sensor) ? review.images : ["", ...review.images];
+  sel.replaceChildren(...names.map((s) => el("option", { value: s }, s || `— (${review.sensor}: no image)`)));
+  sel.value = review.images.includes(review.sensor) ? review.sensor : "";
+  $("#split-sensor-label").hidden = names.length < 2;
+  $("#split").hidden = !review.images.length;
+  $("#split-view").hidden = !imaged();
+}
+
 export async function drawSplit(index) {
-  const robot = state.review && state.robots[state.review.robot];
-  $("#split").hidden = Boolean(robot && !robot.sensor.image);  // a laser tracker has no image to mark
-  if ($("#split").hidden) return;
+  if (!imaged()) return;
   const { m, img } = await frameMarks(index);
   if (!split.marks || split.marks.width !== m.width || split.marks.height !== m.height) fitSplit(m);
+  else if (split.marks.index !== m.index) keepInView(m);
   Object.assign(split, { marks: m, img });
   redrawSplit();
   const k = state.frameOrder.indexOf(index);
@@ -52,13 +72,51 @@ function fitSplit(m) {
   Object.assign(split, { zoom: 1, cx: (m.width || 640) / 2, cy: (m.height || 480) / 2 });
 }
 
+// The image box [u0, v0, u1, v1] px around a frame's measurements (its predictions where nothing was measured);
+// null: none.
+function marksBox(m) {
+  const points = (sides) => sides.flatMap((side) => side || []).filter((p) => p);
+  const measured = points([m.measured]);
+  const ps = measured.length ? measured : points([m.old, m.new]);
+  if (!ps.length) return null;
+  const us = ps.map((p) => p[0]);
+  const vs = ps.map((p) => p[1]);
+  return [Math.min(...us), Math.min(...vs), Math.max(...us), Math.max(...vs)];
+}
+
+// The image box [u0, v0, u1, v1] px the view shows.
+function viewBox(canvas, m) {
+  const { s, x0, y0 } = splitTransform(canvas, m);
+  return [-x0 / s, -y0 / s, (canvas.clientWidth - x0) / s, (canvas.clientHeight - y0) / s];
+}
+
+const MARGIN = 0.1;  // of the view, kept free around the marks
+
+// Another frame's marks in view: the zoom kept unless they need more room, centred on them if any is out.
+function keepInView(m) {
+  const box = marksBox(m);
+  if (!box || split.zoom <= 1) return;
+  const canvas = $("#split-new");
+  const [u0, v0, u1, v1] = viewBox(canvas, m);
+  const room = Math.min((u1 - u0) / (box[2] - box[0] || 1), (v1 - v0) / (box[3] - box[1] || 1)) * (1 - 2 * MARGIN);
+  if (room < 1) split.zoom = Math.max(1, split.zoom * room);
+  if (room < 1 || box[0] < u0 || box[1] < v0 || box[2] > u1 || box[3] > v1) centreOn(box);
+}
+
+function centreOn(box) {
+  Object.assign(split, { cx: (box[0] + box[2]) / 2, cy: (box[1] + box[3]) / 2 });
+}
+
 function redrawSplit() {
   const m = split.marks;
   if (!m) return;
   const found = (m.measured || []).some((p) => p);
-  for (const [id, predicted, colour] of [["#split-old", m.old, "#0050ff"], ["#split-new", m.new, "#00b000"]]) {
-    const canvas = $(id);
-    drawMarks(canvas, split.img, m, predicted, colour, found);
+  const overlaid = $("#overlay").checked;
+  $("#split").classList.toggle("overlaid", overlaid);
+  const sides = overlaid ? [["#split-new", [[m.old, OLD_BLUE], [m.new, NEW_GREEN]]]]
+    : [["#split-old", [[m.old, OLD_BLUE]]], ["#split-new", [[m.new, NEW_GREEN]]]];
+  for (const [id, predictions] of sides) drawMarks($(id), split.img, m, predictions, found);
+  for (const canvas of [$("#split-old"), $("#split-new")]) {
     canvas.dataset.frame = m.index;
     canvas.dataset.status = found ? "measured" : "not found";
   }
@@ -74,7 +132,8 @@ function splitTransform(canvas, m) {
 }
 
 // Points are [u, v] px or null (not measured; a prediction behind the camera): nulls are not drawn.
-function drawMarks(canvas, img, m, predicted, colour, found) {
+// `predictions`: [points or null (no calibration on that side), colour] each.
+function drawMarks(canvas, img, m, predictions, found) {
   const dpr = window.devicePixelRatio || 1;
   const cw = canvas.clientWidth;
   const ch = canvas.clientHeight;
@@ -96,7 +155,8 @@ function drawMarks(canvas, img, m, predicted, colour, found) {
   }
   const measured = m.measured || [];
   const mag = +$("#magnify").value || 1;
-  if (predicted) {
+  for (const [predicted, colour] of predictions) {
+    if (!predicted) continue;
     ctx.strokeStyle = colour;
     ctx.lineWidth = 1.5;
     predicted.forEach((p, i) => {
@@ -117,7 +177,7 @@ function drawMarks(canvas, img, m, predicted, colour, found) {
       ctx.fill();
     }
   }
-  ctx.strokeStyle = "#ff2020";
+  ctx.strokeStyle = VISION_RED;
   ctx.lineWidth = 2;
   for (const p of measured) {
     if (!p) continue;
@@ -141,10 +201,11 @@ function drawMarks(canvas, img, m, predicted, colour, found) {
   ctx.font = "12px sans-serif";
   ctx.fillStyle = "#eee";
   const notes = [];
-  if (!predicted) notes.push("no calibration on this side");
+  const drawn = predictions.some(([predicted]) => predicted);
+  if (!drawn) notes.push("no calibration on this side");
   if (!found) notes.push("not found: the detector found no fixture in this frame");
   notes.forEach((t, k) => ctx.fillText(t, 8, 16 + 16 * k));
-  if (mag > 1 && predicted) {
+  if (mag > 1 && drawn) {
     ctx.fillStyle = "#ffd24a";
     ctx.font = "bold 13px sans-serif";
     const label = `residuals x${mag}`;
@@ -163,18 +224,27 @@ function spaced(points, s) {
   return closest * s >= 14;
 }
 
-function zoomSplit(factor, canvas = $("#split-old"), cssX = null, cssY = null) {
+// About the cursor (the wheel): the image point under it stays there.
+function zoomSplit(factor, canvas, cssX, cssY) {
   const m = split.marks;
   if (!m) return;
   const before = splitTransform(canvas, m);
-  const x = cssX ?? canvas.clientWidth / 2;
-  const y = cssY ?? canvas.clientHeight / 2;
-  const u = (x - before.x0) / before.s;  // the image point under the cursor stays there
-  const v = (y - before.y0) / before.s;
+  const u = (cssX - before.x0) / before.s;
+  const v = (cssY - before.y0) / before.s;
   split.zoom = Math.min(Math.max(split.zoom * factor, 1), 64);
   const after = splitTransform(canvas, m);
-  split.cx += (u - (x - after.x0) / after.s);
-  split.cy += (v - (y - after.y0) / after.s);
+  split.cx += (u - (cssX - after.x0) / after.s);
+  split.cy += (v - (cssY - after.y0) / after.s);
+  redrawSplit();
+}
+
+// The buttons: about the frame's marks, centred on them (about the view's centre without marks).
+function zoomOnMarks(factor) {
+  const m = split.marks;
+  if (!m) return;
+  split.zoom = Math.min(Math.max(split.zoom * factor, 1), 64);
+  const box = marksBox(m);
+  if (box) centreOn(box);
   redrawSplit();
 }
 
@@ -192,11 +262,13 @@ export function clearSplit() {
   split.marks = null;
   marksCache.clear();
   $("#split").hidden = !state.robots[state.robot].sensor.image;  // a laser tracker has no image to mark
+  $("#split-view").hidden = false;
+  $("#split-sensor-label").hidden = true;
 }
 
 export function wireSplit() {
-  $("#zoom-in").addEventListener("click", () => zoomSplit(2));
-  $("#zoom-out").addEventListener("click", () => zoomSplit(0.5));
+  $("#zoom-in").addEventListener("click", () => zoomOnMarks(2));
+  $("#zoom-out").addEventListener("click", () => zoomOnMarks(0.5));
   $("#zoom-fit").addEventListener("click", () => {
     if (split.marks) fitSplit(split.marks);
     redrawSplit();
