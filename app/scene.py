@@ -73,7 +73,8 @@ PARTS = ("measured", "predicted", "lines")
 RED = (255, 0, 0)
 SIDE_COLOR = {"old": (0, 0, 255), "new": (0, 200, 0)}
 LABELS = {"old": "old calibration", "new": "new calibration", "live": "live: active calibration"}
-OVERLAY_LABELS = {"old": "old calibration (translucent)", "new": "new calibration"}
+# In the overlay both copies stand in one place and one label names both (two labels would stack).
+OVERLAY_LABELS = {"old": "old calibration (translucent)", "new": "old calibration (translucent) and new calibration"}
 GHOST_RGBA = (0.45, 0.55, 1.0, 0.35)  # the old copy in the overlay: translucent, tinted like its points
 DEFAULT_RING_M = 0.01  # a measurement's ring (diameter) when the target says nothing of its size
 DOT_PER_RING = 0.22  # a prediction's dot, as a share of the ring's diameter (viser draws it about twice that)
@@ -536,8 +537,10 @@ class ReviewScene:
         framed = self.review is not None and self.index is not None
         for side in SIDES:
             text = (OVERLAY_LABELS if self.overlay else LABELS)[side] + self._magnify_text()
-            self._nodes[f"/review/{side}/label"].text = text  # type: ignore[attr-defined]
-            self._nodes[f"/review/{side}/label"].position = self._label_position(side, framed and not self.all)
+            label = self._nodes[f"/review/{side}/label"]
+            label.text = text  # type: ignore[attr-defined]
+            label.position = self._label_position(side, framed and not self.all)
+            label.visible = not (self.overlay and has_new and side == "old")
         for side in SIDES:
             for part in PARTS:
                 for group, on in (("frame", framed and not self.all), ("all", self.review is not None and self.all)):

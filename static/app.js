@@ -15,7 +15,7 @@ import { wireReview } from "./js/review.js";
 import { fillRobots, wireRobots } from "./js/robots.js";
 import { showScene, watchServer, wireScene } from "./js/scene.js";
 import { loadSessions, wireSessions } from "./js/sessions.js";
-import { wireSplit } from "./js/split.js";
+import { clearSplit, wireSplit } from "./js/split.js";
 import { state } from "./js/state.js";
 import { showTab, wireTabs } from "./js/tabs.js";
 
@@ -37,6 +37,7 @@ async function init() {
   fillRobots();
   wire();
   await loadSessions(undefined, sessions);
+  if (!state.session) clearSplit();  // the 2-D view says how to fill it
   robotEvents();
   buildJoints();
   showDrivable();

@@ -67,7 +67,10 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         assert right[0] <= right[1], right
         page.click("#tabs button[data-tab='observe']")
 
-        # No session yet: nothing to calibrate, capture or replay into; Stop is always there.
+        # No session yet: nothing to calibrate, capture or replay into; Stop is always there. The 2-D view says how
+        # to fill it.
+        assert page.get_attribute("#split-old", "data-status") == "no frame"
+        shot(page, "0-start")
         assert all(page.is_disabled(b) for b in ("#calibrate-start", "#calibrate-cancel", "#capture", "#replay-start"))
         assert page.is_enabled("#stop")
 

@@ -99,6 +99,9 @@ def test_overlay_and_show_all_change_the_scene(viser_server: viser.ViserServer, 
     assert state["overlay"]
     assert state["nodes"]["/review/old"]["position"] == state["nodes"]["/review/new"]["position"]
     assert state["urdf"]["ghost"]["shown"] and not state["urdf"]["old"]["shown"] and state["urdf"]["new"]["shown"]
+    # One label names both copies (two in one place would stack).
+    assert not state["nodes"]["/review/old/label"]["shown"] and state["nodes"]["/review/new/label"]["shown"]
+    assert state["nodes"]["/review/new/label"]["text"] == "old calibration (translucent) and new calibration"
     ghost = state["urdf"]["ghost"]["joints"]
     np.testing.assert_allclose(
         [ghost[n] for n in robonaut_review.profile.joint_names],
@@ -109,6 +112,10 @@ def test_overlay_and_show_all_change_the_scene(viser_server: viser.ViserServer, 
     state = scene.state()
     assert state["nodes"]["/review/old"]["position"] != state["nodes"]["/review/new"]["position"]
     assert state["urdf"]["old"]["shown"] and not state["urdf"]["ghost"]["shown"]
+    assert (
+        state["nodes"]["/review/old/label"]["shown"]
+        and state["nodes"]["/review/new/label"]["text"] == "new calibration"
+    )
 
     scene.show_all(True)
     state = scene.state()

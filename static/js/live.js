@@ -16,6 +16,7 @@ export function clearLive() {
   const canvas = $("#live-image");
   canvas.replaceWith(canvas.cloneNode(false));
   setText($("#live-caption"), "");
+  $("#live").hidden = true;
 }
 
 // `look`: the number of the robot's latest look (the stream's observing.look), undefined when there is none.
@@ -27,6 +28,7 @@ export async function showLook(look) {
     const l = await api("GET", `/robot/look?robot=${encodeURIComponent(robot)}`).catch(() => null);
     if (!l || robot !== state.robot || l.look <= shown) return;
     shown = l.look;
+    $("#live").hidden = false;
     const img = l.image ? await decoded(l.image) : null;
     draw($("#live-image"), img, l);
     const found = l.measured ? l.measured.filter(Boolean).length : 0;

@@ -204,6 +204,7 @@ function drawMarks(canvas, img, m, predictions, found) {
   const drawn = predictions.some(([predicted]) => predicted);
   if (!drawn) notes.push("no calibration on this side");
   if (!found) notes.push("not found: the detector found no fixture in this frame");
+  if (!img) notes.push("no image kept with this frame: its marks on a blank frame of the camera's size");
   notes.forEach((t, k) => ctx.fillText(t, 8, 16 + 16 * k));
   if (mag > 1 && drawn) {
     ctx.fillStyle = "#ffd24a";
@@ -255,15 +256,24 @@ export function forgetMarks() {
 
 // No session: nothing drawn, nothing kept.
 export function clearSplit() {
-  for (const sel of ["#split-old", "#split-new"]) {
-    const canvas = $(sel);
-    canvas.getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
-  }
-  split.marks = null;
-  marksCache.clear();
   $("#split").hidden = !state.robots[state.robot].sensor.image;  // a laser tracker has no image to mark
   $("#split-view").hidden = false;
   $("#split-sensor-label").hidden = true;
+  for (const sel of ["#split-old", "#split-new"]) {
+    const canvas = $(sel);
+    const dpr = window.devicePixelRatio || 1;
+    canvas.width = Math.round(canvas.clientWidth * dpr);  // resets it: blank, at the panel's resolution
+    canvas.height = Math.round(canvas.clientHeight * dpr);
+    const ctx = canvas.getContext("2d");
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.font = "12px sans-serif";
+    ctx.fillStyle = "#eee";
+    ctx.fillText("no frame to show: open a session (Sessions, left) to review its frames", 8, 16);
+    delete canvas.dataset.frame;
+    canvas.dataset.status = "no frame";
+  }
+  split.marks = null;
+  marksCache.clear();
 }
 
 export function wireSplit() {
