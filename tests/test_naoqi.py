@@ -262,10 +262,12 @@ def test_a_nao_over_naoqi_is_calibrated_and_its_offsets_are_stored_on_it(desk):
     assert all(found[name]["std"] < 0.15 for name in LEGS), {n: found[n]["std"] for n in LEGS}
     for side in "LR":  # a leg's pitch offsets are told apart less well than their sum, the foot's pitch
         assert abs(sum(error[f"{side}{j}"] for j in PITCH)) < 0.1, side
-        for j in PITCH:
-            assert abs(error[f"{side}{j}"]) < 0.3, (side, j, error[f"{side}{j}"])
         for j in ("HipYawPitch", "HipRoll", "AnkleRoll"):
             assert abs(error[f"{side}{j}"]) < 0.15, (side, j, error[f"{side}{j}"])
+    # "About 0.1 deg": each leg offset within 0.2 deg of the truth (the worst, a knee, +0.13 with 0.12 std), and
+    # the twelve together within 0.1 deg RMS (0.05 here; 144 frames take every one within 0.1 deg).
+    assert all(abs(error[name]) < 0.2 for name in LEGS), {n: round(error[n], 3) for n in LEGS}
+    assert np.sqrt(np.mean([error[name] ** 2 for name in LEGS])) < 0.1
 
     applied = server.post(f"/api/calibrations/{cal['id']}/apply", json={"confirm": True})
     assert applied.status_code == 200, applied.text
