@@ -230,8 +230,10 @@ def test_a_camera_robot_is_measured_by_the_detectors_in_images_from_its_topics(g
     job = server.post(f"/api/sessions/{sid}/calibrations", json={"mode": "full"}).json()["job"]
     cal = server.get(f"/api/calibrations/{wait_done(server, job)['result']}").json()
     # The board corners found by the sandal-board detector in the Image messages, fitted to the
-    # pixel noise (0.3 px) from the nominal model's tens of pixels.
-    assert cal["figures"]["after"]["n"] == 10 * 24  # 24 inner corners a board
+    # pixel noise (0.3 px) from the nominal model's tens of pixels. Each frame weighed by its own scatter, a
+    # corner of a very oblique random view may stand out of its frame's: at most one, said in a warning.
+    rejected = 10 * 24 - cal["figures"]["after"]["n"]  # 24 inner corners a board
+    assert rejected == 0 or (rejected == 1 and any("1 observations rejected" in w for w in cal["warnings"]))
     assert cal["figures"]["before"]["rms"] > 10 and cal["figures"]["after"]["rms"] < 1.0
 
     # Its robot_state_publisher takes the new description and never answers: the operator sees which node
