@@ -64,11 +64,21 @@ class Viewer:
         self.all = False
         self.magnify = 1.0  # the scene's residuals drawn this many times their length
         self.live = False  # the scene shows Observe's live view
-        self.scene: ReviewScene | None = None  # drawn on while its client is connected (`_drawn`)
-        self.client_id: int | None = None  # the viser client the scene draws on
-        self.clients: dict[int, viser.ClientHandle] = {}  # the viser clients attached, oldest first
+        self.scenes: dict[int, ReviewScene] = {}  # a scene per viser client attached, oldest first
         self.connections: set[int] = set()  # viser clients of this viewer's proxied websockets
         self.idle_since = time.monotonic()  # since when it has no connection
+
+    @property
+    def client_id(self) -> int | None:
+        """The newest attached viser client still connected (None: none is)."""
+        live = [c for c in list(self.scenes) if c in self.connections]
+        return live[-1] if live else None
+
+    @property
+    def scene(self) -> ReviewScene | None:
+        """The scene on that client."""
+        client = self.client_id
+        return None if client is None else self.scenes.get(client)
 
     @property
     def robot(self) -> str | None:
@@ -85,7 +95,7 @@ class Viewer:
                 return
             self.shown = shown
             self._close_review()
-            if (scene := self._drawn()) is not None:
+            for scene in self._drawn():
                 scene.show_robot(shown.profile, shown.urdf_text)
 
     def load(self, review: Review, key: dict[str, Any]) -> None:
@@ -94,7 +104,7 @@ class Viewer:
             self.review, self.key = review, key
             self.index = int(review.indices[0]) if len(review.indices) else None
             self.live = False
-            if (scene := self._drawn()) is not None:
+            for scene in self._drawn():
                 scene.load(review)
 
     def select(self, index: int, *, show_all: bool, overlay: bool) -> None:
@@ -103,7 +113,7 @@ class Viewer:
             review = self.current()
             review.row(index)  # NotFound naming the frames, scene or not
             self.index, self.all, self.overlay, self.live = int(index), bool(show_all), bool(overlay), False
-            if (scene := self._drawn()) is not None:
+            for scene in self._drawn():
                 scene.set_overlay(overlay)
                 scene.show_all(show_all)
                 scene.select(index)
@@ -112,14 +122,14 @@ class Viewer:
         """The scene's residuals drawn k times their length (the review's and every later one's)."""
         with self.lock:
             self.magnify = float(k)
-            if (scene := self._drawn()) is not None:
+            for scene in self._drawn():
                 scene.set_magnify(k)
 
     def frame_marks(self) -> None:
         """The page's "frame it": the scene's camera onto the selected frame's marks (app/scene.py; without a
         review, onto the robot)."""
         with self.lock:
-            if (scene := self._drawn()) is not None:
+            for scene in self._drawn():
                 scene.frame_marks()
 
     def current(self) -> Review:
@@ -134,13 +144,13 @@ class Viewer:
                 self.shown = Shown(profile)
                 self._close_review()
             self.live = True
-            if (scene := self._drawn()) is not None:
+            for scene in self._drawn():
                 scene.show_live(profile, look, p)
 
     def hide_live(self) -> None:
         with self.lock:
             self.live = False
-            if (scene := self._drawn()) is not None:
+            for scene in self._drawn():
                 scene.hide_live()
 
     def state(self) -> dict[str, Any]:
@@ -163,12 +173,11 @@ class Viewer:
 
     # --- its browser ----------------------------------------------------------------------------------
     def attach(self, client: viser.ClientHandle) -> None:
-        """Draw on this viser client from now on (a new iframe of this viewer): everything shown, again."""
+        """Draw on this viser client too (a new iframe of this viewer): everything shown, again."""
         with self.lock:
             if client.client_id not in self.connections:
                 return  # its websocket closed before viser reported it
-            self.clients = {c: handle for c, handle in self.clients.items() if c in self.connections}
-            self.clients[client.client_id] = client
+            self.scenes = {c: scene for c, scene in self.scenes.items() if c in self.connections}
             scene = ReviewScene(client)
             scene.set_magnify(self.magnify)
             if self.review is not None:
@@ -179,22 +188,13 @@ class Viewer:
                     scene.select(self.index)
             elif self.shown is not None:
                 scene.show_robot(self.shown.profile, self.shown.urdf_text)
-            self.scene, self.client_id = scene, client.client_id
+            self.scenes[client.client_id] = scene
 
-    def redraw(self) -> None:
-        """When the client drawn on has gone and another of this viewer's stays, draw on the newest one left.
-        After a server restart the old iframe's viser client may reconnect, be drawn on, and then close as the
-        page reloads its iframe: the new iframe's client, attached first, would otherwise show nothing new."""
-        with self.lock:
-            if self.client_id in self.connections:
-                return
-            left = [handle for c, handle in self.clients.items() if c in self.connections]
-            if left:
-                self.attach(left[-1])
-
-    def _drawn(self) -> ReviewScene | None:
-        """The scene, while its viser client is connected (a closed one's scene waits for the next client)."""
-        return self.scene if self.client_id in self.connections else None
+    def _drawn(self) -> list[ReviewScene]:
+        """The scenes of the connected clients (a closed one's wait for the next client). Usually one; after a
+        server restart the old iframe's viser client may reconnect beside the new iframe's, in either order, and
+        which one the page shows is the browser's business: every one is drawn on."""
+        return [scene for c, scene in list(self.scenes.items()) if c in self.connections]
 
     def _close_review(self) -> None:
         self.review, self.key, self.index, self.live = None, {}, None, False
@@ -286,8 +286,6 @@ class Viewers:
             viewer.connections.discard(client_id)
             if not viewer.connections:
                 viewer.idle_since = time.monotonic()
-                return
-        threading.Thread(target=viewer.redraw, name=f"redraw-{viewer.id}", daemon=True).start()
 
     def sweep(self) -> list[str]:
         """Drop the viewers (but the default) without a connection for linger_s; their ids."""
