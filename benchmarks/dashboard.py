@@ -1,12 +1,12 @@
-"""Dashboard figures (issues 4 and 13): page ready time, a frame step in the page until both the 2-D view and
-the 3-D scene show the new frame (with other viewers open), frame-scrub latency on a 1000-frame session, and
-the server's memory with the three sample sessions open. Starts `calib serve` as a user would, drives it over
-HTTP and, for the page, through a headless Debian chromium.
+"""Dashboard figures (issues 4, 13 and 25): page ready time, the Motoman sample's first and second open, a frame step in
+the page until both the 2-D view and the 3-D scene show the new frame (with other viewers open), frame-scrub latency
+on a 1000-frame session, and the server's memory with the three sample sessions open. Starts `calib serve` as a user
+would, drives it over HTTP and, for the page, through a headless Debian chromium.
 
     .venv/bin/python benchmarks/dashboard.py [--frames 1000] [--selects 200] [--viewers 10] [--steps 40] [--loads 7]
         [--quick]
 
---quick: page ready and the frame step only (no memory figures, no 1000-frame session).
+--quick: page ready, the Motoman's open and the frame step only (no memory figures, no 1000-frame session).
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def main() -> None:
     )
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--loads", type=int, default=7, help="page loads timed")
-    ap.add_argument("--quick", action="store_true", help="page ready and the frame step only")
+    ap.add_argument("--quick", action="store_true", help="page ready, the Motoman's open and the frame step only")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp, served(Path(tmp) / "data") as server:
         pid = server.process.pid
@@ -105,6 +105,7 @@ def main() -> None:
         print(f"page ready (controls usable): {figures(ready)}")
         print(f"page ready and a first click answered: {figures(clicked)}")
         print(f"page ready with the 3-D view drawn: {figures(drawn)}")
+        first_open(server, browser)
         step(server, browser, args.viewers, args.steps)
         if args.quick:
             browser.close()
@@ -161,6 +162,22 @@ def main() -> None:
         print(f"machine load average (1 min) at the end: {Path('/proc/loadavg').read_text().split()[0]}")
         browser.close()
         pw.stop()
+
+
+def first_open(server, browser, session: str = "motoman-left-cube") -> None:
+    """The Motoman's three-sensor sample (216 frames of 30 markers) opened in a fresh page, the first time since
+    the server started and again in another page: from the click on the session to its frame list and its review
+    summary shown (the review's predictions are computed the first time, then kept)."""
+    for when in ("first", "second"):
+        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        page.goto(server.url)
+        page.wait_for_selector("body[data-ready='1']", timeout=180_000)
+        t0 = time.perf_counter()
+        page.click(f"li[data-session='{session}']")
+        page.wait_for_selector("#frames tr[data-frame]", state="attached", timeout=180_000)
+        page.wait_for_function("document.querySelector('#summary th')?.textContent.startsWith('error')")
+        print(f"{session} opened in the page, the {when} time: {(time.perf_counter() - t0) * 1e3:.0f} ms")
+        page.close()
 
 
 # In the page: click "next frame", then until the 2-D view (its canvas' frame) and the 3-D scene (the iframe's

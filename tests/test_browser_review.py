@@ -163,15 +163,16 @@ CLICKABLE = (
     "details[open] form button[type=submit]",
     "#history button",
 )
+RANDOM_ACTIONS = 40
 SELECTS = ("#robot-select", "#review-old", "#review-new", "#mode", "#base", "#magnify")
 
 
 def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_path) -> None:
-    """Seeded random clicks and choices in two tabs for about 25 s (robot changes while Observe runs, forms sent
-    empty, replays started and stopped): no uncaught error in either page, no console error but the 4xx answers
-    the page says in its toast, and no answer of the server 5xx."""
+    """Forty seeded random clicks and choices in two tabs (robot changes while Observe runs, forms sent empty,
+    replays started and stopped): no uncaught error in either page, no console error but the 4xx answers the page
+    says in its toast, and no answer of the server 5xx. Counted, not timed: on a loaded machine a click waits for
+    the page's main thread (two software 3-D views), so a time limit landed as few as 3."""
     import random
-    import time
 
     rng = random.Random(25)
     problems: list[str] = []
@@ -189,15 +190,14 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_
             )
             page.on("response", lambda r, k=k: r.status >= 500 and problems.append(f"tab {k}: {r.status} {r.url}"))
             page.on("dialog", lambda d: d.dismiss())
-        end = time.monotonic() + 25.0
-        actions = 0
-        while time.monotonic() < end:
+        actions = missed = 0
+        while actions + missed < RANDOM_ACTIONS:
             page = rng.choice(tabs)
             if rng.random() < 0.2:
                 sel = rng.choice(SELECTS)
                 options = page.eval_on_selector_all(f"{sel}:enabled option", "os => os.map(o => o.value)")
                 if options and page.is_visible(sel):
-                    page.select_option(sel, rng.choice(options), timeout=2_000)
+                    page.select_option(sel, rng.choice(options), timeout=5_000)
                     actions += 1
                 continue
             found = page.locator(", ".join(CLICKABLE))
@@ -208,11 +208,12 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_
             except Exception as exc:  # disabled or gone meanwhile: the next click
                 if "Timeout" not in type(exc).__name__:
                     raise
+                missed += 1
         shot(tabs[0], "review-15-random-clicks")
         for page in tabs:  # the requests still under way answer too
             page.wait_for_timeout(500)
     assert problems == [], problems
-    assert actions >= 1, actions  # clicks that landed: 45 in 25 s at load 2, 3 at load 13 (two software 3-D views)
+    assert actions >= RANDOM_ACTIONS * 3 // 4, (actions, missed)  # a control disabled or gone meanwhile: rare
 
 
 def test_noise_is_not_coloured_as_change(chromium, tmp_path) -> None:

@@ -46,6 +46,23 @@ def test_importing_calib_core_or_a_subpackage_loads_neither_scipy_nor_opencv() -
     assert proc.stdout.split() == []
 
 
+@pytest.mark.subprocess
+def test_a_small_calib_solve_loads_neither_scipy_nor_lxml(tmp_path: Path) -> None:
+    """`calib solve` of a daily calibration on a sample session starts in about 0.25 s: SciPy (0.3 s) and lxml
+    load only where a solve needs them (a pivoted QR, a rotation's closed form, a profile built on a URDF)."""
+    data = ROOT / "sample_sessions" / "robonaut-a-day1" / "data.csv"
+    argv = ["calib", "solve", "--robot", "robonaut-a", "--mode", "daily", "--data", str(data)]
+    code = (
+        f"import sys; sys.argv = {[*argv, '--out', str(tmp_path / 'cal.json')]!r}; from app.cli import main\n"
+        "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+        "print(' '.join(m for m in ('scipy', 'cv2', 'lxml', 'yourdfpy') if m in sys.modules))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.splitlines()[-1].split() == []
+    assert (tmp_path / "cal.json").exists()
+
+
 def _imports(path: Path) -> list[str]:
     """The modules a file imports at run time (not in `if TYPE_CHECKING:`), relative ones made absolute."""
     package = ".".join(path.relative_to(ROOT).with_suffix("").parts)

@@ -26,12 +26,12 @@ from dataclasses import replace
 from datetime import UTC, datetime
 
 import numpy as np
-from scipy.special import chdtri  # chdtri(k, 1 - q): the chi-square q quantile
 
 from ..dataset import Dataset
 from ..errors import InputError
 from ..model.profile import Mode, Profile
 from .calibration import Calibration, Covariance, Outlier, parameter_estimate
+from .chi_square import upper_quantile
 from .diagnostics import diagnose
 from .fit import Fit
 from .identifiability import find_dependencies, identifiability_report, minimal_set, report
@@ -351,7 +351,9 @@ class _Passes:
         if robust and len(problem.free) and problem_outliers(problem, problem.residuals(x)).any():
             r = problem.residuals(x)
             problem.prior_scale = pooled_robust_sigma(problem, r)
-            scale = {b.index: robust_sigma(r[b.rows], b.dim) * np.sqrt(chdtri(b.dim, 0.05)) for b in problem.blocks}
+            scale = {
+                b.index: robust_sigma(r[b.rows], b.dim) * np.sqrt(upper_quantile(b.dim, 0.05)) for b in problem.blocks
+            }
             x = self.run(x, Robust([(b.rows, b.dim, scale[b.index]) for b in problem.blocks]))
             r = problem.residuals(x)
             # Beyond the limit is not enough: only what no smooth model predicts is a gross error.

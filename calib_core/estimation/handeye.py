@@ -22,7 +22,6 @@ from OpenCV 5's Python package.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 # A board's points lie on a plane when their thinnest spread is below this share of their widest.
 PLANAR_SHARE = 1e-6
@@ -89,6 +88,8 @@ def solve_ax_xb(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """X (4, 4) with A_k X = X B_k for relative motions A, B (k, 4, 4), at least two about distinct axes
     (Park and Martin): R_A = R_X R_B R_X^T, so the rotation vectors a_k = R_X b_k (a Kabsch fit without
     centring); then (R_A - I) t_X = R_X t_B - t_A in least squares."""
+    from scipy.spatial.transform import Rotation  # here, not at the top: SciPy slows every start
+
     a = Rotation.from_matrix(A[:, :3, :3]).as_rotvec()
     b = Rotation.from_matrix(B[:, :3, :3]).as_rotvec()
     R = nearest_rotation(a.T @ b)
@@ -121,6 +122,8 @@ def rotation_spread_deg(T: np.ndarray) -> float:
     """The largest angle (deg) between the rotation axes of the motions between poses T (n, 4, 4), of the
     motions that turn at all: 0 when every motion turns about one axis (the hand-eye equations then leave the
     poses undetermined)."""
+    from scipy.spatial.transform import Rotation  # here, not at the top: SciPy slows every start
+
     axes = Rotation.from_matrix(relative_motions(T, left=True)[:, :3, :3]).as_rotvec()
     angle = np.linalg.norm(axes, axis=1)
     axes = axes[angle > np.radians(1.0)] / angle[angle > np.radians(1.0), None]

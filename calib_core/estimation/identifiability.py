@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 
 from ..model.profile import Profile
 from .reports import Correlation, HeldParameter, IdentifiabilityReport
@@ -157,6 +156,8 @@ def minimal_set(
         A = A - Q @ (Q.T @ A)
     keep = list(forced)
     if rest:
+        import scipy.linalg  # only here: NumPy has no pivoted QR, and SciPy slows every start
+
         _, R, pivots = scipy.linalg.qr(A, mode="economic", pivoting=True)
         diag = np.abs(np.diag(R))
         chosen = int(np.sum(diag > MINIMAL_TOLERANCE))  # of unit columns: no relative scale

@@ -14,8 +14,8 @@ compliance, drift) adds to the noise. The factor (residual RMS over the declared
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import chdtrc  # chdtrc(k, x): the chi-square survival function
 
+from .chi_square import survival
 from .problem import Problem
 from .reports import NoiseTest
 
@@ -42,6 +42,6 @@ def noise_tests(problem: Problem, r: np.ndarray, n_free: int) -> list[NoiseTest]
     for b in problem.blocks:
         total, rows, dof = scatter[b.index]
         if dof > 0:
-            p_value = float(chdtrc(dof, total))
+            p_value = float(survival(dof, total))
             out.append(NoiseTest(b.sensor.name, float(np.sqrt(total / dof)), rows, dof, p_value, NOISE_TEST_LEVEL))
     return out

@@ -9,11 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtri  # chi-square quantiles (scipy.stats would slow every `calib` start)
 
 from ..dataset import Dataset
 from ..model.profile import Profile
 from ..sensors import Sensor
+from .chi_square import upper_quantile
 from .problem import Problem
 from .solver import block_norms_sq
 
@@ -26,7 +26,7 @@ def robust_sigma(r: np.ndarray, dim: int) -> float:
     norms = norms[norms > 0]
     if len(norms) == 0:
         return 1.0
-    return float(np.median(norms) / np.sqrt(chdtri(dim, 0.5)))
+    return float(np.median(norms) / np.sqrt(upper_quantile(dim, 0.5)))
 
 
 def pooled_robust_sigma(problem: Problem, r: np.ndarray) -> float:
@@ -41,7 +41,7 @@ def outlier_limit(sensor: Sensor) -> float:
     99.99% quantile. A detector fails now and then (a misread corner); a laser tracker does not, and
     the heavy tail of a real robot's model error is not an outlier, so its profile sets a wide limit."""
     declared = sensor.outlier_sigmas()
-    return declared if declared is not None else float(np.sqrt(chdtri(sensor.dim, 1 - OUTLIER_QUANTILE)))
+    return declared if declared is not None else float(np.sqrt(upper_quantile(sensor.dim, 1 - OUTLIER_QUANTILE)))
 
 
 def outliers_of(r: np.ndarray, dim: int, limit: float) -> np.ndarray:

@@ -10,7 +10,6 @@ p_model - R p_meas. This is the least-squares registration when the model is rig
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..dataset import Dataset
 from ..model.profile import Profile
@@ -20,6 +19,8 @@ from .problem import Problem
 def pose_registration(profile: Profile, own: Dataset, p: np.ndarray, params: list[int]) -> np.ndarray:
     """The registration parameters (x, y, z, yaw, pitch, roll; internal units) that best put the model's
     poses of `own`'s targets on its measured ones (one sensor's observations; `params`: its frame's)."""
+    from scipy.spatial.transform import Rotation  # here, not at the top: SciPy slows every start
+
     q = p.copy()
     q[params] = 0.0  # the sensor at its parent's origin: the predicted poses are in the parent's frame
     model = Problem(profile, own, [], q, noise_model=False).predict(q)[:, :6]

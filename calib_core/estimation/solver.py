@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 import numpy as np
-import scipy.linalg
 
 from ..errors import Cancelled
 
@@ -156,7 +155,7 @@ def levenberg_marquardt(
         while True:
             try:
                 dx = _box_step(H + lam * np.diag(diag), g, x, lo, hi, held)
-            except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+            except np.linalg.LinAlgError:
                 lam *= nu
                 nu *= 2.0
                 continue
@@ -210,7 +209,7 @@ def _box_step(
     while True:
         free = ~fixed
         rhs = -(g[free] + A[np.ix_(free, fixed)] @ dx[fixed])
-        dx[free] = scipy.linalg.solve(A[np.ix_(free, free)], rhs, assume_a="pos") if free.any() else 0.0
+        dx[free] = _solve_positive(A[np.ix_(free, free)], rhs) if free.any() else 0.0
         out = free & ((x + dx < lo) | (x + dx > hi))
         if not out.any():
             return dx
@@ -273,3 +272,10 @@ def nelder_mead(
         SolveStatus.SIMPLEX_TOLERANCE if res.success else SolveStatus.MAX_EVALUATIONS,
         history,
     )
+
+
+def _solve_positive(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A^-1 b for a symmetric positive definite A, by Cholesky: np.linalg.LinAlgError when A is not
+    (the damping then grows). NumPy's, not SciPy's: importing scipy.linalg would slow every start."""
+    L = np.linalg.cholesky(A)
+    return np.linalg.solve(L.T, np.linalg.solve(L, b))

@@ -20,7 +20,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..model.profile import Profile
 from .camera_registration import camera_starts, is_camera
@@ -75,6 +74,8 @@ def unknown_poses(profile: Profile, free: list[int], settled: frozenset[int]) ->
 
 def cube_turns() -> list[tuple[str, np.ndarray]]:
     """The 23 rotations other than the identity that map a cube onto itself, each with its description."""
+    from scipy.spatial.transform import Rotation  # here, not at the top: SciPy slows every start
+
     out = []
     for perm in itertools.permutations(range(3)):
         for signs in itertools.product((1.0, -1.0), repeat=3):
@@ -98,6 +99,10 @@ def turned_starts(
     should_stop: Callable[[], bool] | None = None,
 ) -> list[Start]:
     """From `x0`: each pose turned in its own frame through `cube_turns`, its translation re-fitted."""
+    if not poses:
+        return []
+    from scipy.spatial.transform import Rotation  # here, not at the top: SciPy slows every start
+
     out = []
     for name, positions in poses:
         yaw, pitch, roll = x0[positions[3:]]

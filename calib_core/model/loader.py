@@ -24,7 +24,6 @@ from ..sensors.pose6d import ROTATIONS
 from ..units import ANGLE_IN_RAD, LENGTH_IN_M
 from .boards import read_charuco
 from .profile import DataFormat, Frame, Joint, Marker, Mode, Op, Parameter, Profile, Target, Tie
-from .urdf_import import compile_urdf_profile
 
 BUILTIN_PROFILES = ("robonaut-a", "nao", "motoman", "arm-handeye")
 
@@ -51,6 +50,8 @@ def load_profile(name_or_path: str | Path, *, urdf: str | Path | None = None) ->
         if "urdf" in doc and urdf is not None:
             doc = {**doc, "urdf": str(Path(urdf).resolve())}
         if "urdf" in doc:  # frames, joints and default modes from a URDF file
+            from .urdf_import import compile_urdf_profile  # lxml: only for a profile built on a URDF
+
             profile = compile_urdf_profile(doc, source, lambda d: _Compiler(d, source).compile())
         else:
             profile = _Compiler(doc, source).compile()
