@@ -25,15 +25,29 @@
     });
   }
 
-  function frame() {
+  function marksOverBodies() {
     const nodes = window.__viserMutable && window.__viserMutable.nodeRefFromName;
-    if (nodes) {
-      for (const [name, object] of Object.entries(nodes)) {
-        const m = object && MARKS.exec(name);
-        if (m) overBodies(object, ORDER + SIDE[m[2]] + PART[m[4]]);
-      }
+    if (!nodes) return;
+    for (const [name, object] of Object.entries(nodes)) {
+      const m = object && MARKS.exec(name);
+      if (m) overBodies(object, ORDER + SIDE[m[2]] + PART[m[4]]);
     }
-    requestAnimationFrame(frame);
   }
-  requestAnimationFrame(frame);
+
+  // Before each frame viser draws (it draws on demand), not in a loop of our own: an idle scene then costs
+  // nothing (a loop per animation frame kept a software-rendered browser busy at 60 Hz). The scene exists once
+  // the client has connected: looked for four times a second, in case the client makes another.
+  let hooked = null;
+  function hook() {
+    const scene = window.__viserMutable && window.__viserMutable.scene;
+    if (!scene || scene === hooked) return;
+    const before = scene.onBeforeRender;
+    scene.onBeforeRender = function (...args) {
+      marksOverBodies();
+      return before.apply(this, args);
+    };
+    hooked = scene;
+  }
+  hook();
+  setInterval(hook, 250);
 })();

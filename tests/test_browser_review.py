@@ -163,12 +163,12 @@ CLICKABLE = (
     "details[open] form button[type=submit]",
     "#history button",
 )
-RANDOM_ACTIONS = 40
+RANDOM_ACTIONS = 30
 SELECTS = ("#robot-select", "#review-old", "#review-new", "#mode", "#base", "#magnify")
 
 
 def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_path) -> None:
-    """Forty seeded random clicks and choices in two tabs (robot changes while Observe runs, forms sent empty,
+    """Thirty seeded random clicks and choices in two tabs (robot changes while Observe runs, forms sent empty,
     replays started and stopped): no uncaught error in either page, no console error but the 4xx answers the page
     says in its toast, and no answer of the server 5xx. Counted, not timed: on a loaded machine a click waits for
     the page's main thread (two software 3-D views), so a time limit landed as few as 3."""

@@ -328,6 +328,33 @@ def test_serve_on_a_taken_port_says_so_and_exits_2(tmp_path: Path) -> None:
     assert not (tmp_path / "data").exists()  # nothing started
 
 
+def test_the_served_connections_send_at_once() -> None:
+    """The socket `calib serve` listens on says it is TCP, so asyncio turns Nagle's algorithm off on its
+    connections (TCP_NODELAY): with it on, every answer on a kept-alive connection (a page's second request
+    and on) waited about 40 ms for the browser's delayed ACK."""
+    import asyncio
+
+    from app.server import listen
+
+    async def accepted() -> int:
+        options: list[int] = []
+        sock = listen("127.0.0.1", 0)
+
+        def connected(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            options.append(writer.get_extra_info("socket").getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
+            writer.close()
+
+        server = await asyncio.start_server(connected, sock=sock)
+        async with server:
+            _, writer = await asyncio.open_connection(*sock.getsockname()[:2])
+            while not options:
+                await asyncio.sleep(0)  # the server's callback runs on this loop: no wall time waited
+            writer.close()
+        return options[0]
+
+    assert asyncio.run(accepted()) != 0
+
+
 def test_a_closed_output_pipe_ends_quietly(tmp_path: Path) -> None:
     """`calib detect-board ... | head -1`: the reader goes away before the answer is written; the command ends
     with 141 (a shell's status for SIGPIPE) and nothing on stderr, neither a traceback nor an internal error."""
