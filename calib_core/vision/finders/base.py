@@ -30,9 +30,9 @@ import numpy as np
 from ...frame_status import FrameStatus
 from ...model.profile import Profile
 from ..sighting import Sighting, predicted_points
-from ..stereo import StereoHead
 
 if TYPE_CHECKING:
+    from ..stereo import StereoHead  # OpenCV and SciPy: loaded by the finders that render or read a stereo pair
     from ..visibility import Visibility
 
 
