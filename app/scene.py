@@ -154,9 +154,9 @@ def display_rotation(profile: Profile) -> np.ndarray:
 def configure(server: viser.ViserServer) -> None:
     """The viser client as the page embeds it, for every browser: no share button (it would tunnel the scene
     through an external service), the (empty) control panel minimised so the scene gets the room, and the
-    default lights without shadows: viser's client draws every frame, and its shadows (three cascades) draw
-    the scene three more times per frame, which a software-rendered browser pays for in the latency of every
-    change (a frame step's marks wait for the next frame)."""
+    default lights without shadows: their shadows (three cascades) draw the scene three more times per frame,
+    which a software-rendered browser pays for in the latency of every change (a frame step's marks wait for
+    the frame that shows them)."""
     server.gui.configure_theme(show_share_button=False)
     server.gui.main_panel.minimize()
     server.scene.configure_default_lights(cast_shadow=False)
