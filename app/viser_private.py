@@ -7,7 +7,8 @@
   send the message that asks viser to tunnel the scene through an external service; its handlers are dropped.
 
 In viser's client (the browser), one more: static/viser_marks.js reads the three.js objects of the marks' nodes
-(`window.__viserMutable.nodeRefFromName`, viser's hook for its own browser tests) to draw them over the bodies.
+(`window.__viserMutable.nodeRefFromName`, viser's hook for its own browser tests) to draw them over the bodies,
+before each frame the client draws (`window.__viserMutable.scene`, three.js's `onBeforeRender` of the scene).
 
 pyproject.toml pins viser to the minor version these were written and tested against (tests/test_security.py,
 tests/test_viewers.py, tests/test_browser_scene.py); a new minor version is taken only once they pass on it.

@@ -3,9 +3,9 @@
 Written here rather than taken from SciPy: importing any part of SciPy costs every `calib` start
 about 0.3 s, more than the rest of a small solve. The tail is the regularized upper incomplete gamma
 function Q(k/2, x/2), by its power series below the mean and Lentz's continued fraction above it
-(Numerical Recipes, 6.2), within 1e-12 of SciPy's (relative) up to a thousand degrees of freedom, 1e-9
-at a hundred thousand; the quantile inverts it by Newton steps kept
-inside a bracket.
+(Numerical Recipes, 6.2): within 1e-12 of SciPy's (relative) up to a thousand degrees of freedom, 1e-9
+at a hundred thousand (tests/test_chi_square.py). The quantile inverts it by Newton steps kept inside
+a bracket.
 """
 
 from __future__ import annotations
