@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib
 import io
 import json
 import os
 import shlex
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -746,11 +748,20 @@ def _serve(args: argparse.Namespace) -> int:
         raise InputError(f"--max-rows {args.max_rows} must be at least 1")
     limits = Limits(upload_bytes=int(args.max_upload_mb * 1024 * 1024), rows=args.max_rows)
     config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
-    if args.ros2:
-        config = _with_ros2(config, args.ros2, Path(args.data_dir))
-    if args.naoqi:
-        config = _with_naoqi(config, args.naoqi)
-    from .server import serve  # the web stack loads only for this subcommand, once the robots are checked
+    # Meeting a robot mostly waits for its graph to answer (a ROS 2 robot's latched description: up to 3 s):
+    # the web stack, loaded only for this subcommand, is imported meanwhile.
+    web = threading.Thread(target=importlib.import_module, args=(f"{__package__}.server",), daemon=True)
+    if args.ros2 or args.naoqi:
+        web.start()
+    try:
+        if args.ros2:
+            config = _with_ros2(config, args.ros2, Path(args.data_dir))
+        if args.naoqi:
+            config = _with_naoqi(config, args.naoqi)
+    finally:
+        if web.is_alive():
+            web.join()
+    from .server import serve
 
     serve(
         args.host,
