@@ -265,10 +265,8 @@ def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str,
             got["joints"] = list(msg.name)
             ready.set()
 
-        checks = [
-            link.node.create_subscription(String, conn.description_topic, on_description, LATCHED_QOS),
-            link.node.create_subscription(JointState, conn.joint_states, on_joints, SENSOR_QOS),
-        ]
+        link.node.create_subscription(String, conn.description_topic, on_description, LATCHED_QOS)
+        link.node.create_subscription(JointState, conn.joint_states, on_joints, SENSOR_QOS)
         log(f"calib serve: waiting for {conn.robot} on the ROS 2 graph ({conn.description_topic}, {conn.joint_states})")
         wait_s = conn.options["wait_s"]
         deadline = time.monotonic() + wait_s
@@ -282,8 +280,6 @@ def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str,
             )
         if "joints" not in got:
             raise InputError(f"no joint states on {conn.joint_states} within {wait_s:g} s: {hint}", file=str(conn.path))
-        for subscription in checks:  # the driver subscribes for itself: these would run on every message
-            link.node.destroy_subscription(subscription)
         data_dir = Path(data_dir).resolve()
         folder = robot_dir(data_dir, conn.robot)
         urdf_text = _nominal(folder, got["urdf"])
