@@ -8,6 +8,7 @@ for the user's mistakes.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import importlib
 import io
@@ -750,7 +751,7 @@ def _serve(args: argparse.Namespace) -> int:
     config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
     # Meeting a robot mostly waits for its graph to answer (a ROS 2 robot's latched description: up to 3 s):
     # the web stack, loaded only for this subcommand, is imported meanwhile.
-    web = threading.Thread(target=importlib.import_module, args=(f"{__package__}.server",), daemon=True)
+    web = threading.Thread(target=_import_quietly, args=(f"{__package__}.server",), daemon=True)
     if args.ros2 or args.naoqi:
         web.start()
     try:
@@ -774,6 +775,13 @@ def _serve(args: argparse.Namespace) -> int:
         limits=limits,
     )
     return 0
+
+
+def _import_quietly(module: str) -> None:
+    """Import ahead in a thread; a failure is left to the import that needs the module (said as the command's
+    error, not as a thread's traceback)."""
+    with contextlib.suppress(Exception):  # the main thread's import raises it again
+        importlib.import_module(module)
 
 
 def _with_ros2(config: DeskConfig | None, files: list[str], data_dir: Path) -> DeskConfig:
