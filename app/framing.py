@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 import viser
 
+from .viser_private import send_fov
+
 ELEVATION_DEG = 20.0  # the camera's height above the box centre, as an angle
 MARGIN = 1.1  # room around the bounding sphere
 DEFAULT_FOV_RAD = math.radians(75.0)  # viser's vertical field of view (three.js' default)
@@ -172,8 +174,7 @@ class ClientFraming:
             aspect = cam.image_width / cam.image_height if cam.image_height else 1.0
             distance, fov = f.view(cam.fov, aspect)
             position = f.look_at + distance * f.direction
-            if not np.isclose(fov, cam.fov):
-                cam.fov = fov
+            send_fov(cam, fov)
             cam.up_direction = f.up
             cam.position = position  # moves the look-at point along with it
             cam.look_at = f.look_at

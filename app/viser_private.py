@@ -5,6 +5,9 @@
   and reads the connection's peer address there.
 - The share tunnel closed: the share button is hidden (`configure_theme`), but any websocket client can still
   send the message that asks viser to tunnel the scene through an external service; its handlers are dropped.
+- A browser's field of view set for sure: viser's setter sends nothing when the value equals the one the browser
+  last reported, and that report may predate the browser taking the previous setting (a narrow "frame it"
+  view, then a robot change asking for the default: the browser kept the narrow one at the default's distance).
 
 In viser's client (the browser), one more: static/viser_marks.js reads the three.js objects of the marks' nodes
 (`window.__viserMutable.nodeRefFromName`, viser's hook for its own browser tests) to draw them over the bodies,
@@ -16,6 +19,7 @@ tests/test_viewers.py, tests/test_browser_scene.py); a new minor version is take
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import viser
@@ -50,3 +54,13 @@ def close_share_tunnel(server: viser.ViserServer) -> None:
     for message in (_messages.ShareUrlRequest, _messages.ShareUrlDisconnect):
         if message in websock._incoming_handlers:
             websock.unregister_handler(message)
+
+
+def send_fov(camera: viser.CameraHandle, fov_rad: float) -> None:
+    """Set the browser's vertical field of view to `fov_rad`, sent even if viser believes it has it already."""
+    from viser import _messages
+
+    state = camera._state
+    state.fov = float(fov_rad)
+    state.update_timestamp = time.time()
+    state.client._websock_connection.queue_message(_messages.SetCameraFovMessage(float(fov_rad)))

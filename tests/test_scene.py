@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,11 +15,12 @@ import pytest
 import viser
 import websockets.sync.client
 import yourdfpy
+import zstandard
 from sim_frames import measured_frames, unmeasured_frames
 from test_viewers import PROTOCOL, camera_message, wait_until
 
 from app.errors import NotFound
-from app.framing import camera_reported
+from app.framing import DEFAULT_FOV_RAD, camera_reported
 from app.review import Review
 from app.scene import ReviewScene, display_rotation
 from calib_core import SimulatedRobot, load_profile
@@ -370,3 +371,50 @@ def test_the_camera_stays_where_the_operator_put_it_until_frame_it(
         # Not a speck: the marks of both copies span more than half the narrower field of view.
         span = np.linalg.norm(new.mean(axis=0) - old.mean(axis=0)) / np.linalg.norm(camera.position - camera.look_at)
         assert span > 0.5 * min(camera.fov, 2 * np.arctan(np.tan(camera.fov / 2) * 640 / 480)), span
+
+
+def _messages(ws: Any, until: Callable[[dict], bool]) -> list[dict]:
+    """The messages viser sends this websocket (its wire format: two sizes, zstd-compressed msgpack, buffers),
+    up to the first for which `until` holds."""
+    out: list[dict] = []
+    while not out or not until(out[-1]):
+        data = ws.recv(timeout=15)
+        size = int.from_bytes(data[8:16], "little")
+        inner = zstandard.ZstdDecompressor().decompress(data[16 : 16 + size])
+        for message in msgspec.msgpack.decode(inner)["messages"]:
+            out.append(message)
+            if until(message):
+                break
+    return out
+
+
+def _own(message: dict, kind: str) -> bool:
+    """A message of that kind to this browser's camera (not viser's initial camera, for browsers to come)."""
+    return message["type"] == kind and not message.get("initial", False)
+
+
+def test_a_robot_change_sets_the_field_of_view_the_browser_reported_late(
+    viser_server: viser.ViserServer, robonaut_review: Review
+) -> None:
+    """ "Frame it" narrows the browser's field of view; a camera report the browser sent before it took the narrow
+    one (still the default) arrives after. The next robot's framing, at the default field of view, must still send
+    it: the browser keeps the narrow one otherwise, at the default's distance (a CI run saw it)."""
+    with reported_camera(viser_server) as (client, ws):
+        scene = ReviewScene(viser_server)
+        scene.load(robonaut_review)
+        wait_until(lambda: scene.camera.state()["clients"][client.client_id]["framed"], what="the robot's framing")
+        scene.select(3)
+        scene.frame_marks()
+        assert client.camera.fov < DEFAULT_FOV_RAD / 2
+        _messages(ws, lambda m: _own(m, "SetCameraFovMessage") and m["fov"] < DEFAULT_FOV_RAD / 2)
+        stale = msgspec.msgpack.decode(camera_message()) | {"fov": DEFAULT_FOV_RAD}
+        ws.send(msgspec.msgpack.encode(stale))
+        wait_until(lambda: np.isclose(client.camera.fov, DEFAULT_FOV_RAD), what="the late report")
+
+        scene.load(build("nao", 3, new=False))
+        look_at = scene.camera.current.look_at
+        sent = _messages(
+            ws, lambda m: _own(m, "SetCameraLookAtMessage") and np.allclose(m["look_at"], look_at, atol=1e-6)
+        )
+        fovs = [m["fov"] for m in sent if _own(m, "SetCameraFovMessage")]
+        assert fovs and np.isclose(fovs[-1], DEFAULT_FOV_RAD), fovs
