@@ -735,8 +735,6 @@ def _save(path: str, write) -> None:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from .desk_config import load_desk_config
-
     if not 0 < args.port < 65536:
         raise InputError(f"--port {args.port} is not a TCP port")
     if not 0 <= args.viser_port < 65536:
@@ -748,18 +746,25 @@ def _serve(args: argparse.Namespace) -> int:
     if args.max_rows < 1:
         raise InputError(f"--max-rows {args.max_rows} must be at least 1")
     limits = Limits(upload_bytes=int(args.max_upload_mb * 1024 * 1024), rows=args.max_rows)
-    config = None if args.desk is None else load_desk_config(Path(args.desk))  # checked before anything starts
-    # Meeting a robot mostly waits for its graph to answer (a ROS 2 robot's latched description: up to 3 s):
-    # the web stack, loaded only for this subcommand, is imported meanwhile.
+    # Meeting a robot mostly waits for it to answer (a ROS 2 robot's latched description: up to 3 s), so the
+    # ROS 2 robots are listened to first and everything else is done meanwhile: the desk file read (before
+    # anything starts: nothing is written until the robots are checked), the web stack imported (loaded only for
+    # this subcommand; for NAOqi, in a thread while its sessions open).
+    meetings = _meet_ros2(args.ros2) if args.ros2 else []
     web = threading.Thread(target=_import_quietly, args=(f"{__package__}.server",), daemon=True)
-    if args.ros2 or args.naoqi:
-        web.start()
     try:
-        if args.ros2:
-            config = _with_ros2(config, args.ros2, Path(args.data_dir))
+        from .desk_config import load_desk_config
+
+        config = None if args.desk is None else load_desk_config(Path(args.desk))
+        if meetings:
+            _import_quietly(f"{__package__}.server")
+            config = _with_ros2(config, meetings, Path(args.data_dir))
         if args.naoqi:
+            web.start()
             config = _with_naoqi(config, args.naoqi)
     finally:
+        for meeting in meetings:  # not reached: the desk file or a robot before it was refused
+            meeting.close()
         if web.is_alive():
             web.join()
     from .server import serve
@@ -784,15 +789,32 @@ def _import_quietly(module: str) -> None:
         importlib.import_module(module)
 
 
-def _with_ros2(config: DeskConfig | None, files: list[str], data_dir: Path) -> DeskConfig:
-    """The desk's robots and those on ROS 2 graphs, each met and checked on its graph before the desk starts."""
+def _meet_ros2(files: list[str]) -> list[Any]:
+    """Every ROS 2 connection file checked, then each robot listened to at once (app/ros2/connection.Meeting)."""
     from .ros2 import require
 
     require()
-    from .ros2.connection import connect, load_connection
+    from .ros2.connection import Meeting, load_connection
 
     conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is met
-    return _with_robots(config, conns, lambda conn: connect(conn, data_dir), "ros2")
+    meetings: list[Any] = []
+    try:
+        for conn in conns:
+            meetings.append(Meeting(conn))
+    except BaseException:
+        for meeting in meetings:
+            meeting.close()
+        raise
+    return meetings
+
+
+def _with_ros2(config: DeskConfig | None, meetings: list[Any], data_dir: Path) -> DeskConfig:
+    """The desk's robots and those on ROS 2 graphs, each checked on its graph before the desk starts; a robot's
+    meeting is taken from `meetings` (in order) as it is connected."""
+    from .ros2.connection import connect
+
+    conns = [meeting.conn for meeting in meetings]
+    return _with_robots(config, conns, lambda _conn: connect(meetings.pop(0), data_dir), "ros2")
 
 
 def _with_robots(

@@ -3,11 +3,11 @@
     .venv/bin/python benchmarks/ros2.py               # the demo arm (docs/ros2) at its real speed
     .venv/bin/python benchmarks/ros2.py --speed 4     # quicker: trajectories run 4 times as fast
 
-Prints: the time from `calib serve --ros2` to the robot listed by GET /api/robots (and a desk without
-ROS 2, for comparison); command-to-motion latency (a JointTrajectory published here until the joint
-states move; the robot publishes them at 100 Hz, so up to 10 ms of it is the robot's period);
-measurement latency (receipt here minus header.stamp, for the mocap points and the joint states); a
-30-configuration replay's wall time against the sum of its motion times (each command's
+Prints: the time from `calib serve --ros2` to the robot listed by GET /api/robots (and a desk without ROS 2,
+for comparison); the desk's CPU while it idles beside the robot's joint stream; command-to-motion latency (a
+JointTrajectory published here until the joint states move; the robot publishes them at 100 Hz, so up to 10 ms
+of it is the robot's period); measurement latency (receipt here minus header.stamp, for the mocap points and
+the joint states); a 30-configuration replay's wall time against the sum of its motion times (each command's
 time_from_start over the speed), the overhead per frame; the desk's memory (VmRSS) with the driver and
 without. Runs on a graph of its own (a random ROS_DOMAIN_ID, this machine only).
 """
@@ -29,6 +29,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from browser import free_port
 from ros2_graph import ARM_DIR, Watcher, arm_sim, calib, graph_env, served_ros2, wait_job
+
+IDLE_S = 5.0  # how long the desk's idle CPU is measured
 
 
 def main() -> None:
@@ -54,6 +56,10 @@ def main() -> None:
                     time.sleep(0.05)
                 listed_s = time.perf_counter() - t0
                 print(f"calib serve --ros2 to the robot listed: {listed_s:.1f} s (without ROS 2: {baseline_s:.1f} s)")
+                busy = _cpu_s(server.process.pid)
+                time.sleep(IDLE_S)
+                busy = (_cpu_s(server.process.pid) - busy) / IDLE_S
+                print(f"the desk idle beside the robot's 100 Hz joint states: {busy:.2f} of a core ({IDLE_S:g} s)")
                 latency(watcher)
                 replay(server, watcher, args.configurations, args.speed)
                 kb = _rss_kb(server.process.pid)
@@ -153,6 +159,12 @@ def _desk_without_ros2(data_dir: Path) -> tuple[float, int]:
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+
+
+def _cpu_s(pid: int) -> float:
+    """The process's user + system time so far, s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _rss_kb(pid: int) -> int:

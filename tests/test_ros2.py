@@ -653,3 +653,38 @@ def test_a_charuco_board_on_a_camera_topic_is_measured_by_its_finder(tmp_path):
     assert s.measured is not None and len(s.vertices) >= 6, s.reason
     truth = board_corners(profile, sim.true_params, q, 0)[s.vertices]
     assert np.linalg.norm(s.measured - truth, axis=1).max() < 0.5
+
+
+@needs_ros2
+def test_listeners_of_a_topic_share_its_subscription_and_stop_alone(monkeypatch):
+    """The connection check and the driver listen to the same joint states: one subscription for both (the
+    check's is never destroyed under the spinning executor), and the check's stop() ends its calls alone."""
+    from std_msgs.msg import String
+
+    from app.ros2.link import SENSOR_QOS, Link
+
+    for key, value in graph_env().items():
+        monkeypatch.setenv(key, value)
+    talker, link = Link("listen_talker"), Link("listen_test")
+    try:
+        first, second = [], []
+        stop_first = link.listen(String, "/chatter", SENSOR_QOS, lambda m: first.append(m.data))
+        link.listen(String, "/chatter", SENSOR_QOS, lambda m: second.append(m.data))
+        assert len(list(link.node.subscriptions)) == 1
+        publisher = talker.node.create_publisher(String, "/chatter", 10)
+        wait_until(lambda: publisher.get_subscription_count() == 1, "the listener on the graph")
+
+        def say(text: str) -> None:
+            """Said until heard (best effort: the first may go before the listener has matched the talker)."""
+            wait_until(lambda: publisher.publish(String(data=text)) or text in second, f"{text!r} heard", poll_s=0.05)
+
+        say("before")
+        assert "before" in first
+        stop_first()
+        stop_first()  # twice: nothing more
+        heard = len(first)
+        say("after")
+        assert len(first) == heard and second[-1] == "after"
+    finally:
+        link.close()
+        talker.close()

@@ -145,18 +145,19 @@ class Ros2Transport:
         self._trajectory_type = JointTrajectory
         matched = PublisherEventCallbacks(matched=self._on_matched)
         self._command = node.create_publisher(JointTrajectory, conn.command, COMMAND_QOS, event_callbacks=matched)
-        node.create_subscription(JointState, conn.joint_states, self._on_joints, SENSOR_QOS)
+        listen = self.link.listen
+        listen(JointState, conn.joint_states, SENSOR_QOS, self._on_joints)
         for m in conn.measurements:
             if m.kind == "point":
-                node.create_subscription(PointStamped, m.topic, self._on_point(m.sensor), SENSOR_QOS)
+                listen(PointStamped, m.topic, SENSOR_QOS, self._on_point(m.sensor))
             elif m.kind == "image":
-                node.create_subscription(Image, m.topic, self._on_image(m.sensor), SENSOR_QOS)
-                node.create_subscription(CameraInfo, m.info, self._on_info(m.sensor), SENSOR_QOS)
+                listen(Image, m.topic, SENSOR_QOS, self._on_image(m.sensor))
+                listen(CameraInfo, m.info, SENSOR_QOS, self._on_info(m.sensor))
             else:
-                node.create_subscription(Image, m.topic, self._on_side(m.sensor, "left"), SENSOR_QOS)
-                node.create_subscription(Image, m.right, self._on_side(m.sensor, "right"), SENSOR_QOS)
-                node.create_subscription(CameraInfo, m.info, self._on_info(m.sensor), SENSOR_QOS)
-                node.create_subscription(CameraInfo, m.right_info, self._on_info(m.sensor, "right_info"), SENSOR_QOS)
+                listen(Image, m.topic, SENSOR_QOS, self._on_side(m.sensor, "left"))
+                listen(Image, m.right, SENSOR_QOS, self._on_side(m.sensor, "right"))
+                listen(CameraInfo, m.info, SENSOR_QOS, self._on_info(m.sensor))
+                listen(CameraInfo, m.right_info, SENSOR_QOS, self._on_info(m.sensor, "right_info"))
         if conn.apply_node is not None:
             self._set_parameters = node.create_client(SetParameters, f"{conn.apply_node.rstrip('/')}/set_parameters")
 

@@ -25,11 +25,12 @@ A stereo head's entry (an extension of the contract) names its rectified pair: t
 and their CameraInfo (the left's K gives the intrinsics, the right's P the baseline, as a ROS stereo driver or
 stereo_image_proc publishes them).
 
-connect() checks everything on the live graph before the desk starts (the description is a URDF the
-profile compiles with, the joint states name every joint of the profile, each topic that exists has the
-type the contract says) and only then writes the received URDF and the profile that uses it into the
-data directory (`ros2/<robot>/`). The URDF first received is the nominal model, kept there: a later start
-that receives the calibrated URDF the desk applied keeps the stored nominal one.
+A Meeting listens for the robot from the first moment; connect() then checks everything on the live graph
+before the desk starts (the description is a URDF the profile compiles with, the joint states name every joint
+of the profile, each topic that exists has the type the contract says) and only then writes the received URDF
+and the profile that uses it into the data directory (`ros2/<robot>/`). The URDF first received is the nominal
+model, kept there: a later start that receives the calibrated URDF the desk applied keeps the stored nominal
+one.
 """
 
 from __future__ import annotations
@@ -242,37 +243,58 @@ def robot_dir(data_dir: Path, robot: str) -> Path:
     return Path(data_dir) / "ros2" / robot
 
 
-def connect(conn: Connection, data_dir: Path, *, log: Any = print) -> tuple[str, dict[str, Any]]:
-    """Meet the robot on its graph and check it (InputError naming what is wrong; nothing is written then).
-    Returns the profile reference the desk loads the robot with and the driver's options; the link stays
-    open for the driver."""
-    require()
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import String
+class Meeting:
+    """A robot being met: its link open and listening for its description and joint states, which DDS delivers
+    while the caller does other work (a late joiner waits up to seconds for a latched description)."""
 
-    from .link import LATCHED_QOS, SENSOR_QOS, Link
+    def __init__(self, conn: Connection, log: Any = print) -> None:
+        require()
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import String
 
-    link = Link(f"calib_desk_{_node_name(conn.robot)}")
-    try:
-        got: dict[str, Any] = {}
-        ready = threading.Event()
+        from .link import LATCHED_QOS, SENSOR_QOS, Link
 
-        def on_description(msg: Any) -> None:
-            got.setdefault("urdf", msg.data)  # the first received is the nominal one
-            ready.set()
-
-        def on_joints(msg: Any) -> None:
-            got["joints"] = list(msg.name)
-            ready.set()
-
-        link.node.create_subscription(String, conn.description_topic, on_description, LATCHED_QOS)
-        link.node.create_subscription(JointState, conn.joint_states, on_joints, SENSOR_QOS)
+        self.conn = conn
+        self.link = Link(f"calib_desk_{_node_name(conn.robot)}")
+        self.got: dict[str, Any] = {}
+        self._ready = threading.Event()
+        self._listening = [
+            self.link.listen(String, conn.description_topic, LATCHED_QOS, self._on_description),
+            self.link.listen(JointState, conn.joint_states, SENSOR_QOS, self._on_joints),
+        ]
         log(f"calib serve: waiting for {conn.robot} on the ROS 2 graph ({conn.description_topic}, {conn.joint_states})")
+
+    def _on_description(self, msg: Any) -> None:
+        self.got.setdefault("urdf", msg.data)  # the first received is the nominal one
+        self._ready.set()
+
+    def _on_joints(self, msg: Any) -> None:
+        self.got["joints"] = list(msg.name)
+        self._ready.set()
+
+    def wait(self) -> dict[str, Any]:
+        """What came within the connection's wait_s ({urdf, joints}, either missing if it did not); the
+        listeners stop then (the joint states go on to the driver's listener alone)."""
+        deadline = time.monotonic() + self.conn.options["wait_s"]
+        while not ("urdf" in self.got and "joints" in self.got) and time.monotonic() < deadline:
+            self._ready.wait(0.05)
+            self._ready.clear()
+        for stop in self._listening:
+            stop()
+        return dict(self.got)
+
+    def close(self) -> None:
+        self.link.close()
+
+
+def connect(meeting: Meeting, data_dir: Path) -> tuple[str, dict[str, Any]]:
+    """Meet the robot on its graph (what `meeting` receives) and check it (InputError naming what is wrong;
+    nothing is written then). Returns the profile reference the desk loads the robot with and the driver's
+    options; the link stays open for the driver."""
+    conn, link = meeting.conn, meeting.link
+    try:
+        got = meeting.wait()
         wait_s = conn.options["wait_s"]
-        deadline = time.monotonic() + wait_s
-        while not ("urdf" in got and "joints" in got) and time.monotonic() < deadline:
-            ready.wait(0.05)
-            ready.clear()
         hint = "is the robot running, with the same ROS_DOMAIN_ID and discovery range as the desk?"
         if "urdf" not in got:
             raise InputError(

@@ -7,12 +7,13 @@ graph is the environment's: ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE and RMW
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import rclpy
 from rclpy.context import Context
 from rclpy.exceptions import InvalidHandle
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -30,7 +31,16 @@ COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 
 
 class Link:
-    """A node on the graph, spun by a multi-threaded executor in a daemon thread until close()."""
+    """A node on the graph, spun by an executor in a daemon thread until close(): a single-threaded one unless
+    `threads` > 1 (a node whose callbacks may stall, as the simulated robot's parameter service). rclpy's
+    multi-threaded executor spins hot under a stream of messages: it yields a task it has handed to its pool
+    again until a worker starts it, and hands it over again each time (a desk meeting a 100 Hz joint stream
+    spent a whole core on it, and its other threads waited for the GIL).
+
+    Listeners of one topic (same type and QoS) share one subscription, which stays until close(): destroying a
+    subscription while the executor spins can kill its thread (InvalidHandle, rclpy's executor reads the
+    handles of the node's subscriptions between its wait and its dispatch). So the connection check's listeners
+    stop when it has met the robot, and the driver's joint states come through the same subscription."""
 
     def __init__(
         self,
@@ -38,7 +48,7 @@ class Link:
         *,
         namespace: str | None = None,
         parameter_overrides: list[Any] | None = None,
-        threads: int = 2,
+        threads: int = 1,
     ) -> None:
         self.context = Context()
         rclpy.init(context=self.context)
@@ -49,9 +59,15 @@ class Link:
         except BaseException:
             self.context.try_shutdown()
             raise
-        self.executor = MultiThreadedExecutor(num_threads=threads, context=self.context)
+        self.executor = (
+            MultiThreadedExecutor(num_threads=threads, context=self.context)
+            if threads > 1
+            else SingleThreadedExecutor(context=self.context)
+        )
         self.executor.add_node(self.node)
         self._closed = False
+        self._lock = threading.Lock()
+        self._topics: list[tuple[str, Any, QoSProfile, list[Callable[[Any], None]]]] = []
         self._thread = threading.Thread(target=self._spin, name=f"ros2-{node_name}", daemon=True)
         self._thread.start()
 
@@ -63,6 +79,30 @@ class Link:
         except InvalidHandle:  # close() shut the executor down while a callback's guard condition fired
             if not self._closed:
                 raise
+
+    def listen(self, msg_type: Any, topic: str, qos: QoSProfile, callback: Callable[[Any], None]) -> Callable[[], None]:
+        """Call `callback` with each message on `topic` (in an executor thread) until the returned stop() is called."""
+        with self._lock:
+            entry = next((t for t in self._topics if t[:3] == (topic, msg_type, qos)), None)
+            if entry is None:
+                entry = (topic, msg_type, qos, [])
+                self._topics.append(entry)
+                listeners = entry[3]
+                self.node.create_subscription(msg_type, topic, lambda msg: self._dispatch(listeners, msg), qos)
+            entry[3].append(callback)
+
+        def stop() -> None:
+            with self._lock:
+                if callback in entry[3]:
+                    entry[3].remove(callback)
+
+        return stop
+
+    def _dispatch(self, listeners: list[Callable[[Any], None]], msg: Any) -> None:
+        with self._lock:
+            now = list(listeners)
+        for callback in now:
+            callback(msg)
 
     def now_s(self) -> float:
         """The node's clock (the graph's time stamps), s."""
