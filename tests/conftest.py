@@ -5,7 +5,9 @@ them changed (a desk's sessions, say), another module starts from a fresh one. `
 (create_app in a TestClient); a module that needs it otherwise (no samples, another clock) overrides
 `desk_options`. `sample_copy` copies sample sessions where a test may change or break them.
 
-`chromium` is a headless chromium a module's browser tests share.
+`chromium` is a headless chromium a module's browser tests share; `chromium_2d` the same for the tests that look
+at the rest of the page: its pages load the desk without the 3-D view's client (chromium draws WebGL in software,
+about a third of such a test's time), but with it when CALIB_SCREENSHOTS asks for screenshots.
 
 Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where Debian's chromium is missing),
 `subprocess` (starts `calib`, `calib serve` or another program, beyond a desk's own job workers) and `slow`;
@@ -14,6 +16,7 @@ Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where D
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -119,3 +122,24 @@ def chromium(_chromium_process: Browser) -> Iterator[Browser]:
     yield _chromium_process
     for context in _chromium_process.contexts:
         context.close()
+
+
+class WithoutScene:
+    """A browser whose pages get an empty page in the 3-D view's iframe (the desk's /scene/ paths): the page's
+    API calls, 2-D view and controls work as ever, the scene's viewer simply has no browser."""
+
+    def __init__(self, browser: Browser) -> None:
+        self.browser = browser
+
+    def new_page(self, **options: Any) -> Any:
+        page = self.browser.new_page(**options)
+        page.route(
+            "**/scene/**",
+            lambda route: route.fulfill(body="<!doctype html><title>no 3-D view</title>", content_type="text/html"),
+        )
+        return page
+
+
+@pytest.fixture
+def chromium_2d(chromium: Browser) -> Browser | WithoutScene:
+    return chromium if os.environ.get("CALIB_SCREENSHOTS") else WithoutScene(chromium)

@@ -23,14 +23,14 @@ def shot(page, name: str) -> None:
         page.screenshot(path=str(Path(SHOTS) / f"{name}.png"))
 
 
-def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_screen(chromium, tmp_path) -> None:
+def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_screen(chromium_2d, tmp_path) -> None:
     with served(tmp_path / "data") as server:
         older = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.0)
         newer = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.3)
         listed = [c["id"] for c in server.get("/api/sessions/robonaut-a-day1/calibrations").json()]
         assert listed == [newer, older]  # the API: newest first
 
-        page = ready_page(chromium, server.url)
+        page = ready_page(chromium_2d, server.url)
         page.on("dialog", lambda d: d.accept())
         page.click("li[data-session='robonaut-a-day1']")
         page.wait_for_function("document.querySelector('#review-new').value !== ''")
@@ -57,12 +57,12 @@ def _far_move(server, robot: str, share: float = 0.6) -> dict[str, float]:
     return goal
 
 
-def test_each_tab_follows_its_own_robot(chromium, tmp_path) -> None:
+def test_each_tab_follows_its_own_robot(chromium_2d, tmp_path) -> None:
     """Tab A drives NAO, tab B then connects Robonaut (the desk's last connected robot): NAO moved meanwhile shows
     moving in tab A, with its capture disabled until it stands still again; tab B says Robonaut is still."""
     with served(tmp_path / "data") as server:
-        a, _ = new_nao_session(chromium, server.url, "tab A")
-        b = ready_page(chromium, server.url)
+        a, _ = new_nao_session(chromium_2d, server.url, "tab A")
+        b = ready_page(chromium_2d, server.url)
         b.select_option("#robot-select", "robonaut-a")
         b.wait_for_function("document.querySelector('#robot-state').textContent === 'robonaut-a: still'")
         assert server.get("/api/robot").json()["robot"] == "robonaut-a"
@@ -100,11 +100,11 @@ def test_each_tab_follows_its_own_robot(chromium, tmp_path) -> None:
         assert server.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"] == before
 
 
-def test_a_reload_mid_replay_gives_back_its_controls(chromium, tmp_path) -> None:
+def test_a_reload_mid_replay_gives_back_its_controls(chromium_2d, tmp_path) -> None:
     """A replay started on the page, then the page reloaded: it comes back on the replay's session and step, with
     Pause, Resume and Abort acting on the running job and Start disabled; aborted, Start is offered again."""
     with served(tmp_path / "data") as server:
-        page, sid = new_nao_session(chromium, server.url, "reloaded")
+        page, sid = new_nao_session(chromium_2d, server.url, "reloaded")
         page.click("#tabs button[data-tab='replay']")
         page.check("input[name=replay-source][value=count]")
         page.fill("#replay-count", "40")  # minutes of motion: still running after the reload
@@ -216,7 +216,7 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_
     assert actions >= RANDOM_ACTIONS * 3 // 4, (actions, missed)  # a control disabled or gone meanwhile: rare
 
 
-def test_noise_is_not_coloured_as_change(chromium, tmp_path) -> None:
+def test_noise_is_not_coloured_as_change(chromium_2d, tmp_path) -> None:
     """NAO's sample calibrated twice (everything, and 70 % of its frames): the two differ on every frame by what
     their own uncertainty explains, so the frame list says "same" on (nearly) every frame and colours the rest as
     the server judged them, and says what the band is; against the nominal model (no covariance: the new
@@ -224,7 +224,7 @@ def test_noise_is_not_coloured_as_change(chromium, tmp_path) -> None:
     with served(tmp_path / "data") as server:
         whole = calibrated(server, "nao", mode="full", holdout=0.0)
         part = calibrated(server, "nao", mode="full", holdout=0.3)
-        page = ready_page(chromium, server.url, 1600, 1000)
+        page = ready_page(chromium_2d, server.url, 1600, 1000)
         page.click("li[data-session='nao']")
         page.wait_for_function("document.querySelector('#review-new').value !== ''")
         page.click("#tabs button[data-tab='review']")
@@ -256,7 +256,7 @@ def test_noise_is_not_coloured_as_change(chromium, tmp_path) -> None:
                 shot(page, "review-5-better")
 
 
-def test_a_wall_of_warnings_is_a_line_per_kind(chromium, tmp_path) -> None:
+def test_a_wall_of_warnings_is_a_line_per_kind(chromium_2d, tmp_path) -> None:
     """TALOS (FIGAROH's data) added to the desk and calibrated in `origins` mode: its 61 findings are two lines, the
     weak parameters before the held ones, each naming its parameters, every finding listed when opened."""
     figaroh = Path(__file__).resolve().parents[1] / "sample_sessions" / "figaroh"
@@ -273,7 +273,7 @@ def test_a_wall_of_warnings_is_a_line_per_kind(chromium, tmp_path) -> None:
         saved = server.get(f"/api/calibrations/{cal}").json()["diagnostics"]
         assert len(saved) == 61
 
-        page = ready_page(chromium, server.url, 1600, 1000)
+        page = ready_page(chromium_2d, server.url, 1600, 1000)
         page.click(f"li[data-session='{sid}']")
         page.wait_for_function("document.querySelector('#review-new').value !== ''")
         page.click("#tabs button[data-tab='review']")
@@ -297,12 +297,12 @@ def _figure(page, column: str) -> str:
     return page.text_content(f"#summary tr[data-figure='mean'] td[data-col='{column}']")
 
 
-def test_figures_follow_an_apply_and_the_session_shown(chromium, tmp_path) -> None:
+def test_figures_follow_an_apply_and_the_session_shown(chromium_2d, tmp_path) -> None:
     """A calibration made on the page, reviewed against the robot's active one (the nominal model) and applied: the
     review's old side is then the applied calibration (its figures the new side's); another session opened shows
     no job line or cost curve of this one's calibration."""
     with served(tmp_path / "data") as server:
-        page = ready_page(chromium, server.url, 1600, 1000)
+        page = ready_page(chromium_2d, server.url, 1600, 1000)
         page.on("dialog", lambda d: d.accept())
         page.click("li[data-session='nao']")
         page.wait_for_selector("#frames tr[data-frame]", state="attached")
@@ -338,11 +338,11 @@ def test_figures_follow_an_apply_and_the_session_shown(chromium, tmp_path) -> No
         shot(page, "review-6-other-session")
 
 
-def test_captured_frames_show_their_errors_and_place_at_once(chromium, tmp_path) -> None:
+def test_captured_frames_show_their_errors_and_place_at_once(chromium_2d, tmp_path) -> None:
     """A frame captured by hand and selected, then frames auto-captured while the robot wanders: each joins the
     list with its error (no "—" until clicked), and the label counts them all."""
     with served(tmp_path / "data", sim_speed=10.0) as server:
-        page, sid = new_nao_session(chromium, server.url, "auto")
+        page, sid = new_nao_session(chromium_2d, server.url, "auto")
         page.wait_for_selector("#capture:enabled", timeout=30_000)
         page.click("#capture")
         page.wait_for_selector("#frames tr[data-frame='1']", state="attached", timeout=30_000)

@@ -59,11 +59,11 @@ def rows(page) -> list[int]:
     return page.eval_on_selector_all("#frames tr[data-frame]", "rs => rs.map(r => +r.dataset.frame)")
 
 
-def test_the_overlay_draws_one_ring_per_measurement_and_each_prediction_in_its_colour(chromium, desk) -> None:
+def test_the_overlay_draws_one_ring_per_measurement_and_each_prediction_in_its_colour(chromium_2d, desk) -> None:
     """NAO's nominal model (34 px) against its calibration (under 1 px), overlaid in 2-D: one image, a red ring per
     measurement, the old prediction a blue dot well outside it and the new one a green dot inside it."""
     server, cals = desk
-    page = review_page(chromium, server, "nao")
+    page = review_page(chromium_2d, server, "nao")
     first = rows(page)[0]
     frame_drawn(page, first)
     page.uncheck("#indices")  # no point numbers over the marks sampled
@@ -91,12 +91,12 @@ def test_the_overlay_draws_one_ring_per_measurement_and_each_prediction_in_its_c
     shot(page, "review-8-overlay")
 
 
-def test_several_sensors_offer_their_cameras_in_2d_and_show_lengths_in_the_display_unit(chromium, desk) -> None:
+def test_several_sensors_offer_their_cameras_in_2d_and_show_lengths_in_the_display_unit(chromium_2d, desk) -> None:
     """The Motoman sample (a laser tracker and two cameras) opens on the tracker: its errors in mm (the profile is in
     metres) in a frame list that fits its panel, and a choice of the cameras for the 2-D view; a camera chosen, its
     marks are drawn and its errors are in px."""
     server, cals = desk
-    page = review_page(chromium, server, "motoman-left-cube")
+    page = review_page(chromium_2d, server, "motoman-left-cube")
     answer = server.post("/api/review", json={"session": "motoman-left-cube", "new": cals["motoman-left-cube"]})
     table = {r["index"]: r for r in answer.json()["table"]}
     assert answer.json()["summary"]["unit"] == "m"
@@ -138,11 +138,11 @@ def test_several_sensors_offer_their_cameras_in_2d_and_show_lengths_in_the_displ
     shot(page, "review-9-camera1")
 
 
-def test_the_2d_zoom_stays_on_the_marks(chromium, desk) -> None:
+def test_the_2d_zoom_stays_on_the_marks(chromium_2d, desk) -> None:
     """NAO's board sits at the top of its image: + zooms centred on the measurements, so at 4x its rings are in view
     (not the floor); a step to the next frame keeps its rings in view (as many as the whole image shows)."""
     server, _ = desk
-    page = review_page(chromium, server, "nao")
+    page = review_page(chromium_2d, server, "nao")
     order = rows(page)
     frame_drawn(page, order[0])
     whole = page.evaluate(RED_PIXELS, "#split-new")
@@ -165,11 +165,11 @@ def test_the_2d_zoom_stays_on_the_marks(chromium, desk) -> None:
     assert stepped >= 0.8 * page.evaluate(RED_PIXELS, "#split-new"), stepped
 
 
-def test_the_frame_list_shows_the_selected_frame_after_a_sort_and_a_calibration(chromium, desk) -> None:
+def test_the_frame_list_shows_the_selected_frame_after_a_sort_and_a_calibration(chromium_2d, desk) -> None:
     """The frame list scrolled to its end: sorted by frame number, the selected (worst) frame's row is in view; a
     calibration made on the page opens its review on its worst frame, in view."""
     server, _ = desk
-    page = review_page(chromium, server, "nao")
+    page = review_page(chromium_2d, server, "nao")
     page.wait_for_function(SELECTED_IN_VIEW)  # the tab shown and laid out (polled each frame)
     bottom = "() => { const s = document.querySelector('#frames').parentElement; s.scrollTop = s.scrollHeight; }"
     page.evaluate(bottom)
