@@ -167,17 +167,18 @@ RANDOM_ACTIONS = 30
 SELECTS = ("#robot-select", "#review-old", "#review-new", "#mode", "#base", "#magnify")
 
 
-def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium, tmp_path) -> None:
+def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium_2d, tmp_path) -> None:
     """Thirty seeded random clicks and choices in two tabs (robot changes while Observe runs, forms sent empty,
     replays started and stopped): no uncaught error in either page, no console error but the 4xx answers the page
     says in its toast, and no answer of the server 5xx. Counted, not timed: on a loaded machine a click waits for
-    the page's main thread (two software 3-D views), so a time limit landed as few as 3."""
+    the page's main thread, so a time limit landed as few as 3. The 3-D view's own buttons act on the server's
+    scene as ever; its client is not loaded (tests/test_browser_scene.py clicks in it)."""
     import random
 
     rng = random.Random(25)
     problems: list[str] = []
     with served(tmp_path / "data", sim_speed=10.0) as server:
-        tabs = [ready_page(chromium, server.url) for _ in range(2)]
+        tabs = [ready_page(chromium_2d, server.url) for _ in range(2)]
         for k, page in enumerate(tabs):
             page.on("pageerror", lambda e, k=k: problems.append(f"tab {k}: page error {e}"))
             page.on(
