@@ -646,7 +646,10 @@ def _detect_board(args: argparse.Namespace) -> int:
 
     from calib_core.vision import detect_board
 
-    image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
+    try:
+        image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
+    except cv2.error as exc:  # a damaged header: more pixels than OpenCV reads, say
+        raise InputError(f"is not an image OpenCV can read ({exc.err})", file=args.image) from None
     if image is None:
         raise InputError("is not an image OpenCV can read", file=args.image)
     _print_json(detect_board(image, args.cols, args.rows).to_json(), args.json)

@@ -183,6 +183,34 @@ def test_detect_board_on_a_damaged_image_exits_2_naming_it(
         assert err.startswith(f"calib detect-board: error: {path}"), err
 
 
+def _png_header_only(width: int, height: int) -> bytes:
+    """A PNG's signature and header (grey, 8 bits) with no image data: what a damaged file may claim."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+        + chunk(b"IEND", b"")
+    )
+
+
+def test_an_image_claiming_more_pixels_than_opencv_reads_is_refused_naming_it(tmp_path, capsys) -> None:
+    """OpenCV raises (not returns None) on a header of 100,000 x 100,000 px: `calib detect-board` says the file
+    is no image it can read, and a bag's compressed image of those bytes is one that does not decode."""
+    from calib_core.io.camera_images import grey_compressed
+
+    raw = _png_header_only(100_000, 100_000)
+    path = tmp_path / "huge.png"
+    path.write_bytes(raw)
+    code, _, err = run_cli(capsys, "detect-board", "--image", str(path), "--cols", "6", "--rows", "4")
+    assert code == 2 and err.startswith(f"calib detect-board: error: {path}: is not an image OpenCV can read"), err
+    assert grey_compressed(np.frombuffer(raw, np.uint8)) is None
+
+
 def _npy(array: np.ndarray) -> bytes:
     import io
 

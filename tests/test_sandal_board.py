@@ -205,3 +205,18 @@ def test_a_hard_view_is_found_whatever_ran_before_it():
         found.append(detect_board(image["image"], predicted=predicted))
     assert all(d.found for d in found), [d.reason for d in found]
     assert all(np.array_equal(d.corners, found[0].corners) for d in found)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 200), (14, 14), (200, 14), (14, 200, 3)])
+def test_an_image_too_small_for_a_board_is_not_found_without_an_opencv_error(shape):
+    """OpenCV's detectors raise on an image with a side under 15 px (its adaptive threshold's block size; the
+    sector-based detector's "image must be continuous"): such an image holds no board, as a damaged file decoded
+    to a few pixels showed (tests/test_malformed.py)."""
+    detection = detect_board(np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8), 6, 4)
+    assert (detection.found, detection.reason) == (False, "not found")
+    assert detection.detail == f"an image of {shape[1]} x {shape[0]} px holds no board"
+
+
+def test_the_smallest_image_the_detector_takes_raises_nothing():
+    for shape in [(15, 15), (15, 200), (200, 15)]:
+        assert detect_board(np.zeros(shape, np.uint8), 6, 4).reason == "not found"

@@ -93,7 +93,10 @@ def grey_compressed(data: Any) -> np.ndarray | None:
     """The grey uint8 image of a compressed image's bytes (JPEG, PNG: sensor_msgs/CompressedImage's data), turned
     grey as a raw image is; None when they do not decode."""
     buffer = _bytes(data)
-    image = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED) if buffer.size else None
+    try:
+        image = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED) if buffer.size else None
+    except cv2.error:  # a header that claims more pixels than OpenCV reads (damaged bytes)
+        return None
     if image is None:
         return None
     if image.dtype == np.uint16:

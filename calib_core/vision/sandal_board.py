@@ -65,6 +65,7 @@ GRID_RESIDUAL_PX = 0.3
 # "partial", "inconsistent" or "not found"; the simulator picks no such view.
 MAX_OBLIQUITY_DEG = 86.0
 MIN_VERTEX_SPACING_PX = 2.5
+MIN_IMAGE_PX = 15  # an image with a side shorter than this holds no board (and makes OpenCV's detectors raise)
 
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
 
@@ -241,6 +242,9 @@ def detect_board(
     """
     if cols < 3 or rows < 3:
         raise ValueError("OpenCV's chessboard detectors need at least 3 x 3 inner corners")
+    if min(image.shape[:2]) < MIN_IMAGE_PX:
+        height, width = image.shape[:2]
+        return BoardDetection(False, None, "not found", f"an image of {width} x {height} px holds no board")
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     predicted = None if predicted is None else np.asarray(predicted, float)
     seen, inconsistent = 0, None
