@@ -247,7 +247,7 @@ class Meeting:
     """A robot being met: its link open and listening for its description and joint states, which DDS delivers
     while the caller does other work (a late joiner waits up to seconds for a latched description)."""
 
-    def __init__(self, conn: Connection, log: Any = print) -> None:
+    def __init__(self, conn: Connection) -> None:
         require()
         from sensor_msgs.msg import JointState
         from std_msgs.msg import String
@@ -262,7 +262,9 @@ class Meeting:
             self.link.listen(String, conn.description_topic, LATCHED_QOS, self._on_description),
             self.link.listen(JointState, conn.joint_states, SENSOR_QOS, self._on_joints),
         ]
-        log(f"calib serve: waiting for {conn.robot} on the ROS 2 graph ({conn.description_topic}, {conn.joint_states})")
+        print(
+            f"calib serve: waiting for {conn.robot} on the ROS 2 graph ({conn.description_topic}, {conn.joint_states})"
+        )
 
     def _on_description(self, msg: Any) -> None:
         self.got.setdefault("urdf", msg.data)  # the first received is the nominal one
