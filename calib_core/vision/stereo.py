@@ -549,10 +549,14 @@ def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHe
         b = np.einsum("nki,ni->nk", rays, c)
         disc_ = np.maximum(b * b - rr * (dist * dist - radius * radius)[:, None], 0.0)
         hit = rays * ((b - np.sqrt(disc_)) / rr)[..., None]  # relative to the camera
+        # Every point of a ray's segment lies within the sphere's radius of the segment camera -> centre: a link
+        # farther than its own radius plus that from this segment hides no ray, and is not tested ray by ray.
         clear = np.ones(rays.shape[:2], bool)
         for a, b_end, r_link, _, _ in body.links:
-            gap = _segment_distance(np.zeros(3), hit, (a - origin)[:, None], (b_end - a)[:, None])
-            clear &= gap >= r_link
+            near = np.flatnonzero(_segment_distance(np.zeros(3), c, a - origin, b_end - a) < r_link + radius)
+            if near.size:
+                gap = _segment_distance(np.zeros(3), hit[near], (a[near] - origin)[:, None], (b_end - a)[near, None])
+                clear[near] &= gap >= r_link
         visible[:, cam] = np.where(ahead & background_behind, clear.mean(axis=1), 0.0)
     centre = body.centre
     with np.errstate(divide="ignore", invalid="ignore"):
