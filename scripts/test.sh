@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs the test dependencies into .venv (made if missing; pip runs only when pyproject.toml changed
-# since the last install, scripts/venv.sh), Debian's chromium for the browser tests (apt-get, when it is
-# missing), and runs ruff and the whole test suite: what CI runs.
+# since the last install, scripts/venv.sh), Debian's chromium and Mesa's EGL (its WebGL without a GPU, faster
+# than chromium's own: tests/browser.py) for the browser tests (apt-get, when missing), and runs ruff and the
+# whole test suite: what CI runs.
 #   --fast  ruff, then the tests marked neither slow, browser nor subprocess (pyproject.toml): calib_core and
 #           the API in-process, in under a minute. Options after it go to pytest.
 # The tests run in two pytest-xdist workers (a test module stays in one worker, where its module fixtures live);
@@ -13,10 +14,10 @@ if [ "${1:-}" = "--fast" ]; then
     FAST=true
     shift
 fi
-if ! $FAST && ! command -v chromium >/dev/null 2>&1; then
+if ! $FAST && { ! command -v chromium >/dev/null 2>&1 || [ ! -e /usr/share/glvnd/egl_vendor.d/50_mesa.json ]; }; then
     SUDO=$([ "$(id -u)" = 0 ] && echo "" || echo "sudo")
     $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium libegl-mesa0 libgl1-mesa-dri >/dev/null
 fi
 source scripts/venv.sh
 ensure_venv '.[test,ros2,naoqi]'
