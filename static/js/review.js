@@ -38,6 +38,7 @@ export async function loadReview(old, neu, sensor = null, keep = false) {
   state.newCal = state.review.new;
   $("#review-old").value = old || "";
   $("#review-new").value = neu || "";
+  renderApply();  // with the review's choice, before anything awaited: Apply never names the one before
   const sensors = $("#review-sensor");
   const names = [...new Set([state.review.sensor, ...state.review.sensors])];
   sensors.replaceChildren(...names.map((s) => el("option", { value: s }, s)));
@@ -54,7 +55,6 @@ export async function loadReview(old, neu, sensor = null, keep = false) {
   renderBand();
   renderSummary();
   await renderParameters();
-  renderApply();
   if (state.frameOrder.includes(kept)) await selectFrame(kept);
   else if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
 }

@@ -28,6 +28,8 @@ export async function loadSessions(selectId, sessions = null) {
 
 async function openSession(id) {
   state.session = await api("GET", `/sessions/${id}`);
+  state.newCal = null;  // Apply names nothing of the session before while this one's review loads
+  renderApply();
   for (const li of document.querySelectorAll("#sessions li")) li.classList.toggle("selected", li.dataset.session === id);
   if (state.session.robot !== state.robot) {
     await connect(state.session.robot);
