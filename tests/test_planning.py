@@ -234,3 +234,44 @@ def test_candidates_a_camera_sees_rarely_are_drawn_near_those_seen_too() -> None
         draw = rng.uniform(lo, hi, (300, len(lo)))
         draws.append(draw[Visibility(rn, rn.nominal(), planning.VIEW_MARGIN_PX).sees(draw, np.zeros(300, int))])
     np.testing.assert_array_equal(q_rn, np.concatenate(draws)[:300])
+
+
+@pytest.mark.parametrize("robot", ["nao", "arm-handeye", "robonaut-a"])
+def test_each_configurations_information_is_its_rows_weighed_by_their_whole_covariance(robot: str) -> None:
+    """The planner's information per configuration against the dense formula written out here: J^T C^-1 J, C the
+    noise model's per observation plus the readings' rounding (step^2 / 12 per quantised joint) that all of a
+    configuration's observations share. A board's 48 or 84 rows (Woodbury's identity) and a sphere's 3 alike."""
+    from calib_core.estimation.problem import Problem
+
+    profile = load_profile(robot)
+    robot_sim = SimulatedRobot.from_profile(profile, seed=1)
+    q, targets = robot_sim.configurations(5)
+    p = robot_sim.true_params
+    data = planning._dataset(profile, p, q[:5], targets[:5])
+    mode = profile.mode("full" if robot != "arm-handeye" else "offsets")
+    problem = Problem(profile, data, list(mode.free), p, noise_model=False)
+    _, J = problem.residuals_jacobian(problem.x0)
+    J = J[: problem.n_data_rows]
+    B = planning._whitened(problem, J, p, isotropic=False)
+
+    rows_of = np.concatenate([np.repeat(data.cfg[b.obs], b.dim) for b in problem.blocks])
+    noise = np.zeros((len(J), len(J)))
+    for b in problem.blocks:
+        cov = b.sensor.covariance(p, data.measured[b.obs, : b.dim])
+        for k, start in enumerate(range(b.rows.start, b.rows.stop, b.dim)):
+            noise[start : start + b.dim, start : start + b.dim] = cov[k]
+    quantised = [
+        (op.param, profile.joints[op.joint].resolution)
+        for f in profile.frames
+        for op in f.ops
+        if op.joint >= 0 and profile.joints[op.joint].resolution > 0
+    ]
+    Jq = np.zeros((len(J), 0))  # the sample arm's readings are not rounded
+    if quantised:
+        probe = Problem(profile, data, [i for i, _ in quantised], p, noise_model=False)
+        Jq = probe.residuals_jacobian(probe.x0)[1][: probe.n_data_rows] * [s / np.sqrt(12.0) for _, s in quantised]
+    for c in range(data.n_configurations):
+        mine = rows_of == c
+        C = noise[np.ix_(mine, mine)] + Jq[mine] @ Jq[mine].T
+        want = J[mine].T @ np.linalg.solve(C, J[mine])
+        np.testing.assert_allclose(B[c].T @ B[c], want, rtol=1e-7, atol=1e-9 * np.abs(want).max())

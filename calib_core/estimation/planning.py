@@ -98,6 +98,8 @@ REFINE_CHUNK = 100  # chosen configurations whose draws are checked and added at
 # An information matrix (scaled by a typical configuration's) whose smallest eigenvalue is below this share
 # of its largest leaves a parameter direction undetermined: no finite prediction.
 UNDETERMINED = 1e-10
+# An eigenvalue of a configuration's information below this share of its largest is round-off (`_whitened`).
+EIGEN_ROUND_OFF = 1e-13
 # Information every parameter starts with, relative to one typical configuration's: it only keeps the
 # greedy start (fewer configurations than parameters) finite; its effect on a plan's figures is below 1e-5.
 REGULARISATION = 1e-6
@@ -446,23 +448,21 @@ def _row_slots(problem: Problem) -> tuple[np.ndarray, np.ndarray, int]:
 
 
 def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -> np.ndarray:
-    """The data rows of an unweighted Jacobian, grouped by configuration (N, r, n), zero-padded, and
-    whitened by each configuration's whole covariance: the sensor's noise model per observation plus
-    what rounding the joint readings to their encoder step adds, which the observations of one
-    configuration share (a board's 24 vertices move together when a reading is off). `isotropic`:
-    unit covariance instead."""
+    """Each configuration's information J^T C^-1 J as a factor B (N, k, n), B^T B = J^T C^-1 J: J the data rows of
+    an unweighted Jacobian that configuration has, C their whole covariance, the sensor's noise model per
+    observation (D, block-diagonal) plus what rounding the joint readings to their encoder step adds (U U^T, one
+    column per quantised joint), which the observations of one configuration share (a board's 24 vertices move
+    together when a reading is off). By Woodbury's identity with D's blocks whitened first, J_d = D^-1/2 J,
+    U_d = D^-1/2 U: J^T C^-1 J = J_d^T J_d - J_d^T U_d (I + U_d^T U_d)^-1 U_d^T J_d, whose size is the
+    parameters' and the joints', not the rows' (a board's 84: the dense whitening took a third of a hand-eye
+    plan); a configuration of fewer rows than parameters is whitened whole, B = L^-1 J_d with L L^T = I + U_d
+    U_d^T. `isotropic`: unit covariance instead (the rows themselves, zero-padded)."""
     cfg, slot, r = _row_slots(problem)
-    N = problem.data.n_configurations
-    Jc = np.zeros((N, r, J.shape[1]))
-    Jc[cfg, slot] = J
+    N, n = problem.data.n_configurations, J.shape[1]
     if isotropic:
+        Jc = np.zeros((N, r, n))
+        Jc[cfg, slot] = J
         return Jc
-    cov = np.zeros((N, r, r))
-    for b in problem.blocks:
-        rows = np.arange(b.rows.start, b.rows.stop).reshape(-1, b.dim)  # (n_obs, dim)
-        block = b.sensor.covariance(p, problem.data.measured[b.obs, : b.dim])
-        c, s = cfg[rows[:, 0]], slot[rows]
-        cov[c[:, None, None], s[:, :, None], s[:, None, :]] = block
     profile = problem.profile
     steps = {
         op.param: profile.joints[op.joint].resolution
@@ -470,16 +470,32 @@ def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -
         for op in f.ops
         if op.joint >= 0 and profile.joints[op.joint].resolution > 0
     }
+    U = np.zeros((len(J), len(steps)))
     if steps:
         probe = Problem(profile, problem.data, list(steps), p, noise_model=False)
         _, Jq = probe.residuals_jacobian(probe.x0)
-        Jqc = np.zeros((N, r, len(steps)))
-        Jqc[cfg, slot] = Jq[: probe.n_data_rows] * np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
-        cov += Jqc @ Jqc.transpose(0, 2, 1)
-    pad = np.ones((N, r), bool)
-    pad[cfg, slot] = False
-    cov[pad.nonzero()[0], pad.nonzero()[1], pad.nonzero()[1]] = 1.0  # rows a configuration lacks: no information
-    return np.linalg.solve(np.linalg.cholesky(cov), Jc)
+        U = Jq[: probe.n_data_rows] * np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
+    Jd, Ud = np.empty_like(J), np.empty_like(U)
+    for b in problem.blocks:
+        rows = np.arange(b.rows.start, b.rows.stop).reshape(-1, b.dim)  # (n_obs, dim)
+        L = np.linalg.cholesky(b.sensor.covariance(p, problem.data.measured[b.obs, : b.dim]))
+        Jd[rows] = np.linalg.solve(L, J[rows])
+        Ud[rows] = np.linalg.solve(L, U[rows])
+    Jc, Uc = np.zeros((N, r, n)), np.zeros((N, r, len(steps)))  # by configuration, zero-padded
+    Jc[cfg, slot], Uc[cfg, slot] = Jd, Ud
+    if r <= n:  # few rows (a sphere's 3): whitened whole by the Cholesky factor of I + U_d U_d^T
+        cov = np.eye(r) + Uc @ Uc.transpose(0, 2, 1)
+        return np.linalg.solve(np.linalg.cholesky(cov), Jc)
+    info = Jc.transpose(0, 2, 1) @ Jc
+    if steps:
+        JtU = Jc.transpose(0, 2, 1) @ Uc
+        inner = np.eye(len(steps)) + Uc.transpose(0, 2, 1) @ Uc
+        info -= JtU @ np.linalg.solve(inner, JtU.transpose(0, 2, 1))
+    w, V = np.linalg.eigh(0.5 * (info + info.transpose(0, 2, 1)))
+    # Directions the configuration does not inform are zero to the eigensolver's round-off (1e-16 of the largest),
+    # not below _compress's cut (1e-12 of the largest singular value, 1e-24 of the eigenvalue): made zero here.
+    w = np.where(w > EIGEN_ROUND_OFF * w.max(axis=1, keepdims=True), w, 0.0)
+    return np.sqrt(w)[:, :, None] * V.transpose(0, 2, 1)
 
 
 def design(
