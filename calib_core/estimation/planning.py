@@ -86,6 +86,8 @@ MAX_STANCE_BATCHES = 200
 SPARSE_SHARE = 0.02
 SPARSE_SPREAD_DEG = 10.0
 WORKSPACE = 300  # configurations the predicted workspace error is averaged over
+# Candidates linearised at once by `design`: its memory (a board's 84 rows each: 16000 at once took 0.6 GB more).
+DESIGN_CHUNK = 2000
 EXCHANGE_PASSES = 2
 # Local refinement (module doc): candidates drawn about each chosen configuration, with this spread on every
 # joint, then one exchange pass. On Robonaut full (32 configurations, seeds 0-3) the expected held-out error
@@ -512,12 +514,16 @@ def design(
     """The linearised calibration in `mode` at p_base over candidate configurations q (rad) with their
     targets. `workspace`: where the predicted error is averaged (default: WORKSPACE of the candidates);
     `isotropic`: weigh every measurement alike (to show what ignoring the noise model costs)."""
-    m = profile.mode(mode)
-    data = _dataset(profile, p_base, q, targets)
-    m = observed_mode(profile, data, m)
-    problem = Problem(profile, data, list(m.free), p_base, m.ties, m.priors, noise_model=False)
-    _, J = problem.residuals_jacobian(problem.x0)
-    Jw = _whitened(problem, J[: problem.n_data_rows], p_base, isotropic)
+    _, one = np.unique(targets, return_index=True)  # which parameters the data observe: their targets say
+    m = observed_mode(profile, _dataset(profile, p_base, q[one], targets[one]), profile.mode(mode))
+    parts = []
+    for at in range(0, len(q), DESIGN_CHUNK):
+        data = _dataset(profile, p_base, q[at : at + DESIGN_CHUNK], targets[at : at + DESIGN_CHUNK])
+        problem = Problem(profile, data, list(m.free), p_base, m.ties, m.priors, noise_model=False)
+        _, J = problem.residuals_jacobian(problem.x0)
+        parts.append(_whitened(problem, J[: problem.n_data_rows], p_base, isotropic))
+    rows = max(x.shape[1] for x in parts)
+    Jw = np.concatenate([np.pad(x, ((0, 0), (0, rows - x.shape[1]), (0, 0))) for x in parts])
     # Which parameters the data determine is a property of the robot and the workspace: a few hundred
     # configurations show it as well as thousands (and the QR and least squares cost 20 times less).
     some = Jw[:WORKSPACE].reshape(-1, Jw.shape[2])
