@@ -34,8 +34,10 @@ def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_
         page.on("dialog", lambda d: d.accept())
         # The review's parameters (read after the review's choice) held back: Apply names the choice meanwhile (a CI
         # run clicked Apply before it did, and found it naming nothing).
-        held: list = []
-        page.route(f"**/api/calibrations/{newer}", lambda route: held.append(route))
+        held: list | None = []
+        page.route(
+            f"**/api/calibrations/{newer}", lambda route: held.append(route) if held is not None else route.continue_()
+        )
         page.click("li[data-session='robonaut-a-day1']")
         page.wait_for_function("document.querySelector('#review-new').value !== ''")
         assert page.input_value("#review-new") == newer
@@ -44,8 +46,8 @@ def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_
         shown = page.get_attribute("#apply-what", "data-id")
         assert shown == newer and newer in page.text_content("#apply-what")
         assert held  # the parameters were still under way
-        page.unroute(f"**/api/calibrations/{newer}")
-        for route in held:
+        release, held = held, None  # from now on the handler lets them through
+        for route in release:
             route.continue_()
         shot(page, "review-1-newest")
         page.click("#apply")
