@@ -50,6 +50,7 @@ def test_the_registry_gives_each_shipped_profile_its_finder() -> None:
     expected = {
         "charuco-arm.yaml": {("cam", "board"): CharucoFinder},
         "handeye-charuco.yaml": {("cam", "board"): CharucoFinder},
+        "handeye-two-boards.yaml": {("cam", "board"): CharucoFinder, ("cam", "side"): CharucoFinder},
         "handeye-in-hand.yaml": camera,
         "handeye-to-hand.yaml": camera,
         "handeye-intrinsics.yaml": camera,

@@ -25,9 +25,12 @@ from app.server import create_app
 from calib_core import FrameStatus, SimulatedRobot
 from calib_core.estimation.calibration import Calibration
 from calib_core.io.session import read_session
-from calib_core.sim.recorded_drive import BagSpec, Images, camera_images, make_drive, write_bag
+from calib_core.model import load_profile
+from calib_core.sim.recorded_drive import BagSpec, Drive, Images, camera_images, make_drive, write_bag
+from calib_core.vision import Visibility
 
 PROFILE = PROFILES / "handeye-charuco.yaml"
+TWO_BOARDS = PROFILES / "handeye-two-boards.yaml"
 POSES = 20
 MODE = "offsets"  # the registrations and the joint offsets the truth carries
 FLOOR = 1.05  # held-out RMS within 5% of the true model's
@@ -127,6 +130,74 @@ def test_the_same_board_through_the_ros2_driver_calibrates_the_same(bag_run: Sim
     assert mm < CAMERA_MM and deg < CAMERA_DEG, (mm, deg)
     mm, deg = camera_error(run.profile, p, run.params, run.held.joints)  # the two sessions' cameras
     assert mm < CAMERA_MM and deg < CAMERA_DEG, (mm, deg)
+
+
+# --- two boards nobody placed -------------------------------------------------------------------------------------
+
+
+def each_board(profile_path: Path, per_board: int, seed: int) -> tuple[SimulatedRobot, np.ndarray, np.ndarray]:
+    """per_board configurations in which the true robot shows each of the profile's boards, shuffled: the
+    readings (N, n_joints) and each one's board (N,)."""
+    profile = load_profile(str(profile_path))
+    robot = SimulatedRobot.from_profile(profile, seed=seed)
+    rng = np.random.default_rng(seed)
+    view, (lo, hi) = Visibility(profile, robot.true_params), profile.joint_limits()
+    qs, targets = [], []
+    for t in range(len(profile.targets)):
+        q = rng.uniform(lo, hi, (20000, len(lo)))
+        seen = q[view.sees(q, np.full(len(q), t))][:per_board]
+        assert len(seen) == per_board, (t, len(seen))
+        qs.append(seen)
+        targets += [t] * per_board
+    order = rng.permutation(len(targets))
+    return robot, np.concatenate(qs)[order], np.array(targets)[order]
+
+
+def two_board_bag(profile_path: Path, per_board: int, folder: Path) -> tuple[Drive, Path]:
+    robot, q, targets = each_board(profile_path, per_board, seed=5)
+    drive = Drive(robot, q, targets, hold_s=1.0, move_s=0.6)
+    drive.record_joints(np.random.default_rng(5))
+    return drive, write_bag(folder / "bag", drive, camera_images(drive, 2.0), BagSpec(ros=2))
+
+
+@pytest.mark.slow
+def test_two_boards_nobody_placed_are_each_found_and_placed(tmp_path: Path) -> None:
+    """Two ChArUco boards of other sizes and dictionaries, no pose anywhere: the believed model places neither,
+    so every image is given to both finders; each view is measured as the board it shows, and the calibration
+    places both boards and predicts new views of either as well as the true model does (measured: 1.018)."""
+    drive, bag = two_board_bag(TWO_BOARDS, 12, tmp_path)
+    session, cal = tmp_path / "session", tmp_path / "cal.json"
+    assert main(import_bag_args(bag, session, TWO_BOARDS)) == 0
+    profile = drive.robot.profile
+    s = read_session(session, profile)
+    assert [f.status for f in s.frames] == [FrameStatus.MEASURED] * 24, [f.reason for f in s.frames]
+    shown = dict(zip(s.data.frame_ids[s.data.cfg].tolist(), s.data.target.tolist(), strict=True))
+    assert [shown[f.frame] for f in s.frames] == drive.targets.tolist()
+    solve = ["solve", "--robot", str(TWO_BOARDS), "--mode", MODE, "--data", str(session / "data.csv")]
+    assert main([*solve, "--out", str(cal)]) == 0
+    p, truth = Calibration.load(cal).params(profile), drive.robot.true_params
+    robot, q, targets = each_board(TWO_BOARDS, 15, seed=11)
+    held = robot.measure(q, targets).data
+    assert set(held.target.tolist()) == {0, 1}
+    assert rms_px(profile, held, p) / rms_px(profile, held, truth) < FLOOR
+    for frame in ("board_frame", "side_frame"):
+        xyz = [profile.param(f"{frame}.{k}") for k in "xyz"]
+        assert np.abs(p[xyz] - truth[xyz]).max() < 0.5, (frame, p[xyz], truth[xyz])  # mm (measured: 0.07)
+
+
+def test_boards_the_finders_cannot_tell_apart_are_not_guessed(tmp_path: Path, capsys) -> None:
+    """The same two boards printed alike: both finders find every image, so no view is given to either; the
+    import measures nothing, says why, and writes nothing."""
+    alike = tmp_path / "alike.yaml"
+    text = TWO_BOARDS.read_text(encoding="utf-8").replace(
+        "[7, 5], square: 30, marker: 22, dictionary: DICT_4X4_50",
+        "[8, 6], square: 30, marker: 22, dictionary: DICT_5X5_100",
+    )
+    alike.write_text(text.replace("../../docs/", f"{PROFILE.parents[2] / 'docs'}/"), encoding="utf-8")
+    _, bag = two_board_bag(alike, 1, tmp_path)
+    err = cli_error(capsys, *import_bag_args(bag, tmp_path / "session", alike))
+    assert "2 still periods, but the detector measured none of them (ambiguous: board and side are each found" in err
+    assert not (tmp_path / "session").exists()
 
 
 # --- bad input: a sentence, exit 2 or a 4xx, and nothing written ---------------------------------------------------

@@ -20,9 +20,10 @@ NAO's lower camera. A calibration frame needs a robot that stood still while its
 4. The frame's images go through the data sensor's finder exactly as the simulated capture's do
    (`calib_core.vision.finders`): the Robonaut pair -> stereo depth -> BallFinder, the NAO image -> sandal
    board detector, a camera's image -> its board's detector (of several boards, those the believed
-   kinematics predict in view first), seeded by the believed calibration (default: the profile's
-   nominal model), with the camera intrinsics and baseline from it. Frames where the finder finds nothing
-   stay as "not found" records with the reason.
+   kinematics predict in view first; boards it cannot place, the camera's or their pose not estimated yet,
+   each tried and kept when exactly one is found), seeded by the believed calibration (default: the
+   profile's nominal model), with the camera intrinsics and baseline from it. Frames where the finder finds
+   nothing stay as "not found" records with the reason.
 5. `write_session` writes the session folder whole (session.json, data.csv, images/) or not at all.
 
 Times: the messages' header stamps when every message read has one (non-zero), else the times the bag
@@ -35,7 +36,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -344,19 +345,34 @@ def _image_roles(profile: Profile) -> tuple[Sensor, list[str]]:
     )
 
 
-def _ranked_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> list[int]:
-    """The targets to look for in configuration q, best first: of the targets the data sensor has a finder for,
-    those the believed kinematics predict fully in view (`Visibility`, nearest the image centre first), then
-    those partly in view (most points first). A sensor with one such target always looks for it."""
+def _unplaced(profile: Profile, believed: np.ndarray, frame: int) -> bool:
+    """Whether the believed parameters cannot place `frame`: a registration frame on its chain still has the
+    profile's nominal pose (a registration's nominal is zero: nobody has estimated where it stands yet)."""
+    return any(
+        profile.frames[f].registration and not believed[[op.param for op in profile.frames[f].ops]].any()
+        for f in profile.chain(frame)
+    )
+
+
+def _ranked_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> tuple[list[int], list[int]]:
+    """The targets to look for in configuration q: those the believed kinematics place, best first, and those
+    they cannot (`_unplaced`, the camera's or the board's pose unknown), in the profile's order. Of the targets
+    the data sensor has a finder for, the placed ones predicted fully in view (`Visibility`, nearest the image
+    centre first), then those partly in view (most points first). A sensor with one such target always looks
+    for it."""
     s = profile.data.sensor
     found = found_targets(profile, s)
     if len(found) == 1:
-        return found
+        return found, []
     sensor = profile.sensors[s]
+    camera_unplaced = _unplaced(profile, believed, sensor.frame)
+    unplaced = [t for t in found if camera_unplaced or _unplaced(profile, believed, profile.targets[t].frame)]
+    boards = np.array([t for t in found if t not in unplaced], int)
+    if not len(boards):
+        return [], unplaced
     size = sensor.image_size_px()
     assert size is not None  # a finder's sensor has its image size
     width, height = size
-    boards = np.array(found, int)
     qs = np.repeat(q[None], len(boards), axis=0)
     whole = Visibility(profile, believed).sees(qs, boards)
     inside = Visibility(profile, believed, margin_px=0.0).points(qs, boards).sum(axis=1)
@@ -368,13 +384,16 @@ def _ranked_targets(profile: Profile, believed: np.ndarray, q: np.ndarray) -> li
         uv = uv[np.isfinite(uv[:, 0])]
         off_centre = float(np.hypot(*(uv.mean(axis=0) - [width / 2, height / 2])))
         scored.append((not full, -int(n_inside), off_centre, t))
-    return [t for *_, t in sorted(scored)]
+    return [t for *_, t in sorted(scored)], unplaced
 
 
 def _sight(profile: Profile, believed: np.ndarray, q: np.ndarray, images: dict[str, np.ndarray]) -> Sighting:
-    """What the finders make of one frame's images, as in the simulated capture."""
-    candidates = _ranked_targets(profile, believed, q)
-    if not candidates:
+    """What the finders make of one frame's images, as in the simulated capture. The placed targets are tried
+    in their rank and the first found is the frame's; then every unplaced one, and the frame is its target's
+    only when exactly one is found: boards the finders cannot tell apart (two checkerboards or two ChArUco
+    boards alike) stay "not found" until a calibration places them."""
+    ranked, unplaced = _ranked_targets(profile, believed, q)
+    if not ranked and not unplaced:
         t = profile.data.target if profile.data.target is not None else 0
         grid = profile.targets[t].grid
         points = grid if grid is not None else np.full((1, 3), np.nan)
@@ -382,15 +401,36 @@ def _sight(profile: Profile, believed: np.ndarray, q: np.ndarray, images: dict[s
         return Sighting(
             profile.data.sensor, t, FrameStatus.NOT_FOUND, "no board predicted in view", None, points, vertices, {}
         )
-    sighting = None
-    for t in candidates:
+    sightings = []
+    for t in [*ranked, *unplaced]:
         finder = finder_for(profile, profile.data.sensor, t)
         assert finder is not None  # a candidate has its finder
-        sighting = finder.find(believed, q, images)
-        if sighting.status == FrameStatus.MEASURED:
-            break
-    assert sighting is not None
-    return sighting
+        sightings.append(finder.find(believed, q, images))
+        if sightings[-1].status == FrameStatus.MEASURED and t in ranked:
+            return sightings[-1]
+    measured = [s for s in sightings if s.status == FrameStatus.MEASURED]
+    if len(measured) == 1:
+        return measured[0]
+    if not measured:
+        return sightings[0]
+    names = " and ".join(profile.targets[s.target].name for s in measured)
+    first = measured[0]
+    reason = (
+        f"ambiguous: {names} are each found in this image and nobody has placed them yet; boards the finders "
+        "tell apart (ChArUco boards of another size or dictionary) or a calibration that places them decide"
+    )
+    grid = profile.targets[first.target].grid
+    assert grid is not None  # an unplaced target with a finder is a board
+    detail = {**first.detail, "found": False, "reason": reason}
+    return replace(
+        first,
+        status=FrameStatus.NOT_FOUND,
+        reason=reason,
+        measured=None,
+        points=grid,
+        vertices=np.arange(len(grid)),
+        detail=detail,
+    )
 
 
 def _closest(times_s: np.ndarray, period: StillPeriod) -> int | None:
