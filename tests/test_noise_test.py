@@ -119,6 +119,23 @@ def test_a_fit_left_far_above_the_noise_is_not_a_plain_converged(wrist, monkeypa
     assert "times the noise 'cam' declares" in cal.summary()
 
 
+def test_a_mode_that_cannot_model_the_error_names_the_mode_that_estimates_more() -> None:
+    """The ChArUco hand-eye set-up whose joints carry offsets, fitted by the poses-only mode `handeye` (as OpenCV's
+    closed forms are): the residuals stay about 10 times the noise and the warning names mode 'offsets' and the
+    joint offsets it adds; that mode fits to the noise."""
+    profile = load_profile(PROFILES / "handeye-charuco.yaml")
+    data = SimulatedRobot.from_profile(profile, seed=2).simulate(15).data
+    poses_only = calibrate(profile, data, "handeye")
+    (warning,) = [d for d in poses_only.diagnostics if d.code == "noise-excess"]
+    assert poses_only.solver.noise_tests[0].factor > 5
+    assert (
+        "; mode 'offsets' also estimates shoulder_pan, shoulder_lift, elbow, wrist_1, wrist_2, wrist_3,"
+        in warning.message
+    )
+    with_offsets = calibrate(profile, data, "offsets")
+    assert "noise-excess" not in [d.code for d in with_offsets.diagnostics] and with_offsets.solver.fits_noise
+
+
 def test_a_registration_fitted_in_closed_form_is_not_turned() -> None:
     """A tracker's registration starts from its least-squares fit (Kabsch): a mode that leaves the model far
     above the noise (offsets where the arm's origins are off: 60 times) solves once."""

@@ -112,7 +112,7 @@ def diagnose(
             )
         )
     out += _registration_misfit(profile, fit, figs, each)
-    out += _noise_excess(fit)
+    out += _noise_excess(profile, mode, fit)
     if figs["after"].rms > figs["before"].rms:
         out.append(warn("worse-than-start", "the calibration fits the data worse than its starting point"))
     return out
@@ -124,12 +124,13 @@ def _frames(frames: Iterable[int]) -> str:
     return ", ".join(str(f) for f in ids[:10]) + (" ..." if len(ids) > 10 else "")
 
 
-def _noise_excess(fit: Fit) -> list[Diagnostic]:
+def _noise_excess(profile: Profile, mode: Mode, fit: Fit) -> list[Diagnostic]:
     """A sensor whose residuals a chi-square test finds clearly above its declared noise. On a real robot
     that is usual (model error adds to the noise) and the estimate may still be right, so a warning that
-    says how far above and what a user can do; far above (FAR_ABOVE_NOISE), it may also be a wrong minimum
-    or data in another unit."""
+    says how far above and what a user can do (the profile's mode that estimates more, when it has one); far
+    above (FAR_ABOVE_NOISE), it may also be a wrong minimum or data in another unit."""
     out = []
+    richer = _richer_mode(profile, mode)
     for test in fit.noise_tests:
         if not test.rejected:
             continue
@@ -139,12 +140,14 @@ def _noise_excess(fit: Fit) -> list[Diagnostic]:
                 "beyond errors the mode cannot model and a noise figure that is too optimistic, so large a factor may "
                 f"be a wrong minimum ({tried}; a closer start, a base calibration, may find a better one) or data in "
                 "another unit (data.joint_unit, the measurement's unit): check these before applying it"
+                + (f"; {richer}, and may fit what this one cannot" if richer else "")
             )
         else:
+            more = f"{richer}, and may fit more" if richer else "a mode with more parameters may fit more"
             why = (
                 "errors the mode cannot model (unmodelled geometry, compliance, drift: a real robot has some) or a "
                 "noise figure that is too optimistic. The estimate is this mode's best fit and its standard deviations "
-                "use the actual scatter; a mode with more parameters may fit more, or declare the sensor's noise about "
+                f"use the actual scatter; {more}, or declare the sensor's noise about "
                 f"{test.factor:.2g} times larger (it weighs this sensor against the others and sets the outlier limits)"
             )
         out.append(
@@ -156,6 +159,19 @@ def _noise_excess(fit: Fit) -> list[Diagnostic]:
             )
         )
     return out
+
+
+def _richer_mode(profile: Profile, mode: Mode, shown: int = 6) -> str:
+    """The profile's smallest mode that estimates all `mode` does and more, for the same sensors, as a clause
+    naming what it adds ("mode 'offsets' also estimates shoulder_lift, ..."); "" when there is none."""
+    mine = set(mode.free)
+    richer = [m for m in profile.modes.values() if mine < set(m.free) and m.sensors == mode.sensors]
+    if not richer:
+        return ""
+    best = min(richer, key=lambda m: (len(m.free), m.name))
+    extra = [profile.label(i) for i in best.free if i not in mine]
+    names = ", ".join(extra[:shown]) + (f" and {len(extra) - shown} more" if len(extra) > shown else "")
+    return f"mode '{best.name}' also estimates {names}"
 
 
 def _registration_misfit(
