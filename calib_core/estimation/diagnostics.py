@@ -6,7 +6,7 @@ than its start."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -35,7 +35,11 @@ def diagnose(
     solver: SolverReport,
     outliers: list[Outlier],
     nuisance: frozenset[int],
+    modes: Sequence[Mode] = (),
 ) -> list[Diagnostic]:
+    """`mode` and `modes` (the profile's others, for `_richer_mode`): as these data observe them
+    (`calibrate.observed_mode`: the parameters of the other arm of a two-armed robot left out)."""
+
     def warn(code: str, message: str, parameters: Iterable[str] = ()) -> Diagnostic:
         return Diagnostic(Severity.WARNING, code, message, tuple(parameters))
 
@@ -112,7 +116,7 @@ def diagnose(
             )
         )
     out += _registration_misfit(profile, fit, figs, each)
-    out += _noise_excess(profile, mode, fit)
+    out += _noise_excess(profile, mode, modes, fit)
     if figs["after"].rms > figs["before"].rms:
         out.append(warn("worse-than-start", "the calibration fits the data worse than its starting point"))
     return out
@@ -124,13 +128,13 @@ def _frames(frames: Iterable[int]) -> str:
     return ", ".join(str(f) for f in ids[:10]) + (" ..." if len(ids) > 10 else "")
 
 
-def _noise_excess(profile: Profile, mode: Mode, fit: Fit) -> list[Diagnostic]:
+def _noise_excess(profile: Profile, mode: Mode, modes: Sequence[Mode], fit: Fit) -> list[Diagnostic]:
     """A sensor whose residuals a chi-square test finds clearly above its declared noise. On a real robot
     that is usual (model error adds to the noise) and the estimate may still be right, so a warning that
     says how far above and what a user can do (the profile's mode that estimates more, when it has one); far
     above (FAR_ABOVE_NOISE), it may also be a wrong minimum or data in another unit."""
     out = []
-    richer = _richer_mode(profile, mode)
+    richer = _richer_mode(profile, mode, modes)
     for test in fit.noise_tests:
         if not test.rejected:
             continue
@@ -161,11 +165,11 @@ def _noise_excess(profile: Profile, mode: Mode, fit: Fit) -> list[Diagnostic]:
     return out
 
 
-def _richer_mode(profile: Profile, mode: Mode, shown: int = 6) -> str:
-    """The profile's smallest mode that estimates all `mode` does and more, for the same sensors, as a clause
+def _richer_mode(profile: Profile, mode: Mode, modes: Sequence[Mode], shown: int = 6) -> str:
+    """The smallest of `modes` that estimates all `mode` does and more, for the same sensors, as a clause
     naming what it adds ("mode 'offsets' also estimates shoulder_lift, ..."); "" when there is none."""
     mine = set(mode.free)
-    richer = [m for m in profile.modes.values() if mine < set(m.free) and m.sensors == mode.sensors]
+    richer = [m for m in modes if mine < set(m.free) and m.sensors == mode.sensors]
     if not richer:
         return ""
     best = min(richer, key=lambda m: (len(m.free), m.name))
