@@ -38,7 +38,6 @@ if TYPE_CHECKING:
     from .store import FrameInfo, Store
 
 DEFAULT_MIN_GAP_DEG = 2.0
-DEFAULT_SETTLE_S = 0.3
 CHECK_CHUNK = 100  # configurations a dry run checks between two reports of its progress
 
 
@@ -204,7 +203,6 @@ def replay(
     *,
     seen: np.ndarray | None = None,
     believed: np.ndarray | None = None,
-    settle_s: float = DEFAULT_SETTLE_S,
     settle_timeout_s: float = 30.0,
 ) -> str | None:
     """Drive through the configurations and capture a frame at each (a thread job; returns the session id).
@@ -242,7 +240,7 @@ def replay(
                         session_id, index=index, joints_rad=q[k], target=int(t[k]), status=status, reason=reason
                     )
             else:
-                frame = _capture_at(ctx, store, driver, session_id, q[k], int(t[k]), index, settle_s, settle_timeout_s)
+                frame = _capture_at(ctx, store, driver, session_id, q[k], int(t[k]), index, settle_timeout_s)
                 index, status, reason = frame.index, frame.status, frame.reason
             counts[status] += 1
             ctx.progress(
@@ -277,7 +275,6 @@ def capture_until(
     until: Until,
     believed: np.ndarray,
     *,
-    settle_s: float = DEFAULT_SETTLE_S,
     settle_timeout_s: float = 30.0,
 ) -> str | None:
     """Capture until good enough (a thread job; returns the session id): drive to the configuration the
@@ -320,7 +317,7 @@ def capture_until(
             if row["action"] != "capture":
                 sequence.measured(False)
                 continue
-            frame = _capture_at(ctx, store, driver, session_id, q, target, None, settle_s, settle_timeout_s)
+            frame = _capture_at(ctx, store, driver, session_id, q, target, None, settle_timeout_s)
             sequence.measured(frame.status == FrameStatus.MEASURED)
             counts[frame.status] += 1
             k += 1
@@ -341,7 +338,7 @@ def capture_until(
 
 
 class AutoCapture:
-    """Observe with autocapture: poll() stores a frame when the robot has settled for settle_s, its
+    """Observe with autocapture: poll() stores a frame when the robot has settled (its own settle window), its
     configuration differs from the last captured by at least min_gap_rad (largest joint difference), and the
     detector measured the target. A configuration whose look failed is not looked at again."""
 
@@ -352,21 +349,19 @@ class AutoCapture:
         session_id: str,
         *,
         min_gap_rad: float = math.radians(DEFAULT_MIN_GAP_DEG),
-        settle_s: float = DEFAULT_SETTLE_S,
     ) -> None:
         _check_robot(store, driver, session_id)
         self.store = store
         self.driver = driver
         self.session_id = session_id
         self.min_gap_rad = min_gap_rad
-        self.settle_s = settle_s
         frames = store.sessions.frames(session_id)
         self._last: np.ndarray | None = max(frames, key=lambda f: f.index).joints_rad if frames else None
         self._looked: np.ndarray | None = None
         self.last_look: Look | None = None  # the latest look poll() made (for a live view)
 
     def poll(self) -> FrameInfo | None:
-        if not self.driver.settled(self.settle_s):
+        if not self.driver.settled():
             return None
         q = self.driver.read_joints()
         if self._last is not None and np.max(np.abs(q - self._last)) < self.min_gap_rad:
@@ -404,7 +399,6 @@ def _capture_at(
     q_rad: np.ndarray,
     target: int,
     index: int | None,
-    settle_s: float,
     settle_timeout_s: float,
 ) -> FrameInfo:
     """Drive to q (out of the safety margin), let the robot settle and keep a frame there. A pause holds at once:
@@ -425,7 +419,7 @@ def _capture_at(
             if ctx.cancelled or not held:
                 raise Cancelled("cancelled" if ctx.cancelled else "the robot was stopped")
             continue
-        if not driver.wait_settled(settle_s, settle_timeout_s, should_stop=stop_asked):
+        if not driver.wait_settled(None, settle_timeout_s, should_stop=stop_asked):
             if ctx.cancelled:
                 raise Cancelled("cancelled")
             continue

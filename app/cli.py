@@ -896,6 +896,9 @@ def _sim_naoqi(args: argparse.Namespace) -> int:
     if args.connection_out:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
         doc = {"robot": args.name or profile.name, "profile": ref, "url": args.url, "camera": 1}
+        from .drivers.core import DEFAULT_SETTLE_S
+
+        doc["settle_s"] = round(DEFAULT_SETTLE_S / args.speed, 6)  # the robot's time: it moves --speed times as fast
         write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
     return _until_stopped(f"calib sim-naoqi: {profile.name} at {args.url} (Ctrl-C ends it)", session.close)
 
@@ -927,7 +930,7 @@ def _sim_ros2(args: argparse.Namespace) -> int:
     )
     if args.connection_out:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
-        doc = connection_doc(ref, args.name or profile.name, profile, topics)
+        doc = connection_doc(ref, args.name or profile.name, profile, topics, args.speed)
         write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
     domain = os.environ.get("ROS_DOMAIN_ID", "0")
     return _until_stopped(f"calib sim-ros2: {profile.name} on ROS_DOMAIN_ID={domain} (Ctrl-C ends it)", node.close)

@@ -129,6 +129,7 @@ def test_a_bad_connection_file_names_its_field(tmp_path):
         ("robot: nao-3\ncamera: 2\n", r"^camera: expected 0 \(the upper camera\) or 1"),
         ("robot: nao-3\nport: 9559\n", r"^port: no such field"),
         ("robot: nao 3\n", r"^robot: robot name 'nao 3'"),
+        ("robot: nao-3\nsettle_s: 0\n", r"^settle_s: expected a positive number, got 0"),
     ):
         conn.write_text(text, encoding="utf-8")
         with pytest.raises(InputError) as err:
@@ -176,6 +177,23 @@ def test_a_joint_whose_stiffness_stays_off_is_refused_and_nothing_moves(served_n
         d.move_to(goal)
     assert nao.commands == []
     np.testing.assert_array_equal(d.read_joints(), here)
+
+
+@needs_qi
+def test_a_connections_settle_window_is_the_one_a_capture_waits_for(served_nao):
+    """`settle_s: 2.5`: the robot standing still 0.3 s has not settled for a capture, which asks the driver's
+    own window (settled() without a time)."""
+    make, _ = served_nao
+    _, url = make()
+    nao = load_profile("nao")
+    d = registry.create(DriverSpec("naoqi", {"url": url, "settle_s": 2.5}), nao, DriverContext())
+    try:
+        wait_until(lambda: d.settled(0.3), "the robot stands still 0.3 s", 10)
+        assert not d.settled()
+        wait_until(lambda: d.settled(), "the robot stands still 2.5 s", 10)
+        assert d.settled(2.5)
+    finally:
+        d.close()
 
 
 @needs_qi

@@ -144,11 +144,13 @@ class RobotDriver(Protocol):
         """Halt motion at once (from any thread)."""
         ...
 
-    def settled(self, for_s: float = 0.3) -> bool:
-        """Not moving for at least for_s."""
+    def settled(self, for_s: float | None = None) -> bool:
+        """Not moving for at least for_s (None: the robot's own settle window, its connection's `settle_s`)."""
         ...
 
-    def wait_settled(self, for_s: float, timeout_s: float, should_stop: Callable[[], bool] | None = None) -> bool:
+    def wait_settled(
+        self, for_s: float | None, timeout_s: float, should_stop: Callable[[], bool] | None = None
+    ) -> bool:
         """Until settled(for_s): True; False when should_stop() says so; RobotFault when disconnected or not
         settled within timeout_s."""
         ...

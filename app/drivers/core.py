@@ -32,6 +32,7 @@ from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, Look, RobotFault, RobotStatus, check_limits
 
 POLL_S = 0.01  # how often a wait asks its caller whether to stop
+DEFAULT_SETTLE_S = 0.3  # the robot's time its readings stay still before a capture looks
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,7 @@ class Motion:
     duration_factor: float = 1.0  # a move is commanded this much longer than the velocity limits need
     min_duration_s: float = 0.0
     time_scale: float = 1.0  # the robot's clock runs this much faster than the driver's (a simulation)
+    settle_s: float = DEFAULT_SETTLE_S  # a capture looks once the readings stayed still this long (robot's time)
 
 
 def per_joint(profile: Profile, deg: float, m: float) -> np.ndarray:
@@ -312,14 +314,17 @@ class Driver:
         with self._lock:
             return self._check_link()
 
-    def settled(self, for_s: float = 0.3) -> bool:
-        """No move under way and the readings still for for_s of the robot's time."""
+    def settled(self, for_s: float | None = None) -> bool:
+        """No move under way and the readings still for for_s of the robot's time (None: `Motion.settle_s`)."""
+        for_s = self.motion.settle_s if for_s is None else for_s
         now = self.clock.now()
         with self._lock:
             still_s = (self._at - self._still_since) * self.motion.time_scale
             return self._connected(now) and self._move is None and still_s >= for_s
 
-    def wait_settled(self, for_s: float, timeout_s: float, should_stop: Callable[[], bool] | None = None) -> bool:
+    def wait_settled(
+        self, for_s: float | None, timeout_s: float, should_stop: Callable[[], bool] | None = None
+    ) -> bool:
         """Until settled(for_s): True; False when should_stop() says so; RobotFault when disconnected or not
         settled within timeout_s."""
         deadline = self.clock.now() + timeout_s

@@ -33,7 +33,7 @@ from calib_core.io import NAOQI_COLOR_SPACES, estimated_offsets_deg, naoqi_image
 
 from ..clock import Clock
 from . import RobotFault
-from .core import Command, Driver, Feed, Measurement, Motion, Poller, per_joint
+from .core import DEFAULT_SETTLE_S, Command, Driver, Feed, Measurement, Motion, Poller, per_joint
 from .registry import DriverContext
 
 OPTIONS: dict[str, Any] = {
@@ -46,8 +46,9 @@ OPTIONS: dict[str, Any] = {
     "still_deg": 0.05,
     "timeout_s": 1.0,
     "measurement_wait_s": 5.0,
+    "settle_s": DEFAULT_SETTLE_S,
 }
-NUMBERS = ("margin_deg", "tolerance_deg", "still_deg", "timeout_s", "measurement_wait_s")
+NUMBERS = ("margin_deg", "tolerance_deg", "still_deg", "timeout_s", "measurement_wait_s", "settle_s")
 RATE_HZ = 50.0  # joint readings asked for this often
 RETRY_S = 1.0  # a robot that does not answer is asked again this often
 STILL_WINDOW_S = 0.15
@@ -95,6 +96,7 @@ def create(profile: Profile, options: Mapping[str, Any], context: DriverContext)
         margin_deg=options["margin_deg"],
         still_window_s=STILL_WINDOW_S,
         timeout_s=options["timeout_s"],
+        settle_s=options["settle_s"],
     )
     return Driver(profile, NaoqiTransport(profile, options), motion, clock=context.clock)
 

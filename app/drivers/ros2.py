@@ -94,6 +94,7 @@ def ros2_driver(
         timeout_s=o["timeout_s"],
         duration_factor=DURATION_FACTOR,
         min_duration_s=MIN_DURATION_S,
+        settle_s=o["settle_s"],
     )
     return Driver(profile, Ros2Transport(profile, conn, link, files), motion, clock=clock)
 

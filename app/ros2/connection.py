@@ -19,7 +19,8 @@ change less than this stand still: above the encoders' jitter), `tolerance_m: 0.
 capture waits for a measurement newer than the settling), `margin_deg: 1.0` and `margin_m: 0.001` (the joint
 limits' safety margin, revolute and prismatic), `apply_timeout_s: 5.0` (the parameter call),
 `stereo_sync_s: 0.005` (a stereo pair's left and right images are one exposure when their stamps differ by at
-most this).
+most this), `settle_s: 0.3` (a capture looks once the joint states stayed still this long: more for a robot
+that sways after a move; `calib sim-ros2 --speed N` writes 0.3 / N, its robot settling N times as fast).
 
 A stereo head's entry (an extension of the contract) names its rectified pair: two sensor_msgs/Image topics
 and their CameraInfo (the left's K gives the intrinsics, the right's P the baseline, as a ROS stereo driver or
@@ -50,6 +51,7 @@ from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
 from ..connection_file import profile_ref, read_connection
+from ..drivers.core import DEFAULT_SETTLE_S
 from . import require
 
 FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")
@@ -65,6 +67,7 @@ OPTIONS = {
     "margin_m": 0.001,
     "apply_timeout_s": 5.0,
     "stereo_sync_s": 0.005,
+    "settle_s": DEFAULT_SETTLE_S,
 }
 URDF_FROM_GRAPH = "ros2"  # a profile's `urdf: ros2`
 TYPES = {

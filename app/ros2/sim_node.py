@@ -36,6 +36,7 @@ from calib_core.sim import SimulatedRobot
 from calib_core.units import length_factor
 from calib_core.vision import StereoHead, found_targets
 
+from ..drivers.core import DEFAULT_SETTLE_S
 from ..sim_view import home, render_in_view
 from . import require
 
@@ -101,8 +102,11 @@ def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
     return profile, to_urdf(profile)
 
 
-def connection_doc(profile_ref: str, robot: str, profile: Profile, topics: Topics) -> dict[str, Any]:
-    """A connection file for the desk that matches this node (`calib sim-ros2 --connection-out`)."""
+def connection_doc(
+    profile_ref: str, robot: str, profile: Profile, topics: Topics, speed: float = 1.0
+) -> dict[str, Any]:
+    """A connection file for the desk that matches this node (`calib sim-ros2 --connection-out`): its settle window
+    the default one in the robot's time, which runs `speed` times as fast."""
     sensor = profile.sensors[profile.data.sensor]
     return {
         "robot": robot,
@@ -112,6 +116,7 @@ def connection_doc(profile_ref: str, robot: str, profile: Profile, topics: Topic
         "command": topics.command,
         "measurements": {sensor.name: topics.measurement(sensor.name, sensor_kind(profile))},
         "apply": {"node": topics.node, "parameter": "robot_description"},
+        "settle_s": round(DEFAULT_SETTLE_S / speed, 6),
     }
 
 
