@@ -11,6 +11,7 @@ import pytest
 
 from calib_core import Problem, SimulatedRobot, Visibility
 from calib_core.model.kinematics import forward
+from calib_core.vision import Sampler
 from calib_core.vision.stereo import SPHERE, StereoHead, no_depth_band_px, render_pair, sphere_views
 
 # specs/nao.md joint limits (deg).
@@ -156,6 +157,25 @@ def test_nao_protocol_24_stances_by_3_head_postures_per_leg(nao, nao_sim) -> Non
         obs = data.cfg == c
         assert sorted(data.vertex[obs].tolist()) == list(range(24))
         assert len(np.unique(data.target[obs])) == 1
+
+
+@pytest.mark.parametrize("believed", ["nominal", "true"])
+def test_a_stance_is_aimed_as_trying_every_head_angle_would(nao, believed: str) -> None:
+    """The head yaw that centres the board: every tenth of the 121 angles first, then the neighbours of the best of
+    them, picks the angle that trying all 121 picks (on the nominal and a drifted model, both boards)."""
+    robot = SimulatedRobot.from_profile(nao, seed=4)
+    p = nao.nominal() if believed == "nominal" else robot.true_params
+    sampler = Sampler(Visibility(nao, p), np.random.default_rng(4))
+    sampling = nao.simulation["sampling"]
+    look = nao.joint(sampling["look_at"])
+    lo, hi = nao.joint_limits()
+    every = np.linspace(max(lo[look], -1.2), min(hi[look], 1.2), 121)
+    for name, ranges in sampling["stance"].items():
+        target = nao.target(name)
+        stances, _ = sampler._stance_batch(sampling, ranges, target, 200, 3)
+        cost = sampler._off_centre(stances, look, target, np.broadcast_to(every, (len(stances), len(every))))
+        assert cost is not None and np.isfinite(cost).any(axis=1).all()
+        np.testing.assert_array_equal(sampler._aim(stances, look, target), every[np.argmin(cost, axis=1)])
 
 
 def test_robonaut_configurations_show_the_sphere_to_both_cameras(rn, rn_robot) -> None:

@@ -19,6 +19,8 @@ from ..model.kinematics import forward, sensor_points, target_points, to_sensor
 from .visibility import Visibility
 
 STANCE_BATCH = 32  # stances drawn and checked at once
+AIM_STEPS = 121  # the head angles a stance is aimed from (`Sampler._aim`)
+AIM_COARSE = 10  # every so many of them tried first
 
 
 class Sampler:
@@ -137,25 +139,43 @@ class Sampler:
 
     def _aim(self, q: np.ndarray, joint: int, target: int) -> np.ndarray:
         """For each configuration (row of q), the angle of `joint` that puts the target's centre in the
-        image's centre column."""
+        image's centre column: of AIM_STEPS angles over the joint's range (within +-1.2 rad), the best. The
+        centre's distance from that column falls and rises once as the joint turns (where the target is behind
+        the camera it is infinite), so every AIM_COARSE-th angle is tried first and then the angles within
+        AIM_COARSE of the best of those: the same angle as trying all of them, for a quarter of the cost."""
+        lo, hi = self.view.profile.joint_limits()
+        angles = np.linspace(max(lo[joint], -1.2), min(hi[joint], 1.2), AIM_STEPS)
+        coarse = np.arange(0, AIM_STEPS, AIM_COARSE)
+        cost = self._off_centre(q, joint, target, np.broadcast_to(angles[coarse], (len(q), len(coarse))))
+        if cost is None:
+            return np.zeros(len(q))
+        best = coarse[np.argmin(cost, axis=1)]
+        near = np.clip(best[:, None] + np.arange(-AIM_COARSE, AIM_COARSE + 1), 0, AIM_STEPS - 1)
+        cost = self._off_centre(q, joint, target, angles[near])
+        assert cost is not None
+        return angles[near[np.arange(len(q)), np.argmin(cost, axis=1)]]
+
+    def _off_centre(self, q: np.ndarray, joint: int, target: int, angles: np.ndarray) -> np.ndarray | None:
+        """How far (px) from the image's centre column the target's centre is with `joint` at each of the
+        angles (N, K) of each configuration (row of q): (N, K), infinite out of view; None for a sensor
+        without an image."""
         prof, p = self.view.profile, self.view.p
-        lo, hi = prof.joint_limits()
-        candidates = np.linspace(max(lo[joint], -1.2), min(hi[joint], 1.2), 121)
-        qs = np.repeat(q, len(candidates), axis=0)
-        qs[:, joint] = np.tile(candidates, len(q))
+        k = angles.shape[1]
+        qs = np.repeat(q, k, axis=0)
+        qs[:, joint] = angles.ravel()
         sensor = prof.sensors[prof.data.sensor]
         tf = prof.targets[target].frame
         if any(op.joint == joint for f in prof.chain(tf) for op in prof.frames[f].ops):
             x = sensor_points(prof, p, qs, np.full(len(qs), target), center_only=True)
-        else:  # only the sensor turns: the target's centre once per row, the sensor's chain per candidate
+        else:  # only the sensor turns: the target's centre once per row, the sensor's chain per angle
             centre = target_points(prof, p, target).mean(axis=0, keepdims=True)
             at_target = forward(prof, p, q, frames=[tf])
             poses = forward(prof, p, qs, frames=[sensor.frame])
-            poses.R[tf] = np.repeat(at_target.R[tf], len(candidates), axis=0)  # the target's pose per candidate
-            poses.t[tf] = np.repeat(at_target.t[tf], len(candidates), axis=0)
+            poses.R[tf] = np.repeat(at_target.R[tf], k, axis=0)  # the target's pose per angle
+            poses.t[tf] = np.repeat(at_target.t[tf], k, axis=0)
             x = to_sensor(poses, tf, sensor.frame, np.arange(len(qs)), np.repeat(centre, len(qs), axis=0))[1]
         uv = sensor.project(p, x)
         if uv is None or sensor.image is None:
-            return np.zeros(len(q))
+            return None
         cost = np.where(np.isfinite(uv[:, 0]), np.abs(uv[:, 0] - sensor.image[0] / 2), np.inf)
-        return candidates[np.argmin(cost.reshape(len(q), len(candidates)), axis=1)]
+        return cost.reshape(len(q), k)
