@@ -11,9 +11,11 @@ from __future__ import annotations
 import errno
 import logging
 import socket
+import threading
 from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
 from pathlib import Path
+from types import FrameType
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -57,7 +59,8 @@ def create_app(
 ) -> FastAPI:
     """`config`: the robots (None: the built-in ones). `host`: the address the server is bound to; off loopback
     every /api request but /api/health, and the scene under /scene, need the access token (app/security.py);
-    `app.state.new_token` is the token made at this start (shown once), None when one was stored before.
+    `app.state.new_token` is the token made at this start (shown once), None when one was stored before;
+    `app.state.closing` is set once the server is asked to stop (`serve`): the pages' event streams end then.
     `viser_port`: the viser server's port, on 127.0.0.1 whatever `host` is (0: any free one). `trusted_hosts`:
     the Host names answered (None: any). `limits`: the size of an upload and the rows of an import or a
     calibration (None: app/limits.py's defaults). `clock`: the drivers' (app/clock.py; a test's ManualClock)."""
@@ -87,6 +90,7 @@ def create_app(
 
     app = FastAPI(title="robot-selfcal dashboard", version=VERSION, lifespan=lifespan, docs_url=None, redoc_url=None)
     app.state.new_token = token
+    app.state.closing = threading.Event()
     add_docs(app)
     app.include_router(api)
     app.include_router(scene_proxy.router)
@@ -188,8 +192,15 @@ def serve(
         if not loopback:
             print("every API request needs the access token printed at the first start", flush=True)
     # The scene's websocket relays viser's messages uncompressed, as viser sends them: compressing meshes and
-    # point clouds costs more time than it saves on a local network. An open page's event streams never end by
-    # themselves: a stop waits for them at most SHUTDOWN_WAIT_S (the scene's websockets close at once, 1012).
+    # point clouds costs more time than it saves on a local network. An open page's event streams end when the
+    # server is asked to stop (`closing`), before uvicorn waits for the requests under way: a stop waits for
+    # them at most SHUTDOWN_WAIT_S (the scene's websockets close at once, 1012).
+
+    class Server(uvicorn.Server):
+        def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+            app.state.closing.set()
+            super().handle_exit(sig, frame)
+
     config = uvicorn.Config(
         app,
         workers=1,
@@ -197,7 +208,7 @@ def serve(
         ws_per_message_deflate=False,
         timeout_graceful_shutdown=SHUTDOWN_WAIT_S,
     )
-    uvicorn.Server(config).run(sockets=[sock])
+    Server(config).run(sockets=[sock])
 
 
 def listen(host: str, port: int) -> socket.socket:

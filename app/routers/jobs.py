@@ -36,10 +36,11 @@ def _first_snapshot(jobs: JobsDep, job_id: str) -> JobSnapshot:
 async def job_events(
     request: Request, jobs: JobsDep, job_id: str, first: Annotated[JobSnapshot, Depends(_first_snapshot)]
 ) -> AsyncIterator[JobSnapshot]:
-    """The job's snapshot now and on every change, until it has finished."""
+    """The job's snapshot now and on every change, until it has finished (or the server stops)."""
     snap = first
     yield snap
-    while not snap.state.finished and not await request.is_disconnected():
+    closing = request.app.state.closing
+    while not snap.state.finished and not closing.is_set() and not await request.is_disconnected():
         snap = await jobs.next_version(job_id, snap.version, 1.0) or await asyncio.to_thread(jobs.get, job_id)
         yield snap
 

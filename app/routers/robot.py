@@ -34,7 +34,8 @@ def _known_robot(connection: ConnectionDep, robot: str | None = None) -> str | N
 async def robot_events(
     request: Request, connection: ConnectionDep, robot: Annotated[str | None, Depends(_known_robot)]
 ) -> AsyncIterator[RobotState]:
-    while not await request.is_disconnected():
+    closing = request.app.state.closing  # the server stops: the stream ends, so the stop need not wait for it
+    while not closing.is_set() and not await request.is_disconnected():
         yield robot_state(connection, robot)
         await asyncio.sleep(ROBOT_EVENT_PERIOD_S)
 
