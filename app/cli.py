@@ -645,6 +645,7 @@ def _detect_board(args: argparse.Namespace) -> int:
     import cv2
 
     from calib_core.vision import detect_board
+    from calib_core.vision.sandal_board import MAX_IMAGE_PX, too_large
 
     try:
         image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
@@ -652,6 +653,8 @@ def _detect_board(args: argparse.Namespace) -> int:
         raise InputError(f"is not an image OpenCV can read ({exc.err})", file=args.image) from None
     if image is None:
         raise InputError("is not an image OpenCV can read", file=args.image)
+    if image.size > MAX_IMAGE_PX:
+        raise InputError(too_large(image.shape[1], image.shape[0]), file=args.image)
     _print_json(detect_board(image, args.cols, args.rows).to_json(), args.json)
     return 0
 

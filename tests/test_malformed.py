@@ -211,6 +211,28 @@ def test_an_image_claiming_more_pixels_than_opencv_reads_is_refused_naming_it(tm
     assert grey_compressed(np.frombuffer(raw, np.uint8)) is None
 
 
+def test_a_damaged_jpeg_claiming_8000_x_6000_px_is_refused_not_searched(tmp_path, capsys) -> None:
+    """The board's JPEG with its frame header saying 8000 x 6000 px: OpenCV decodes it (the rest grey) and its
+    board detectors searched the 48 MP for 19 s (this suite's fuzz test found such a file); now a sentence naming
+    the file and its size, exit 2. The library's detector says the same as "not found"."""
+    import struct
+
+    from calib_core.vision import detect_board
+
+    raw = bytearray(BOARD_JPEG)
+    sof = raw.find(b"\xff\xc0")
+    raw[sof + 5 : sof + 9] = struct.pack(">HH", 6000, 8000)  # height, width
+    path = tmp_path / "damaged.jpg"
+    path.write_bytes(bytes(raw))
+    code, _, err = run_cli(capsys, "detect-board", "--image", str(path), "--cols", "6", "--rows", "4")
+    assert code == 2 and err.strip() == (
+        f"calib detect-board: error: {path}: an image of 8000 x 6000 px (48 MP) is more than the board detector "
+        "searches (25 MP): a damaged file, or a camera's image to scale down"
+    ), err
+    found = detect_board(np.zeros((6000, 8000), np.uint8), 6, 4)
+    assert not found.found and found.detail.startswith("an image of 8000 x 6000 px (48 MP) is more than")
+
+
 def _npy(array: np.ndarray) -> bytes:
     import io
 

@@ -66,6 +66,9 @@ GRID_RESIDUAL_PX = 0.3
 MAX_OBLIQUITY_DEG = 86.0
 MIN_VERTEX_SPACING_PX = 2.5
 MIN_IMAGE_PX = 15  # an image with a side shorter than this holds no board (and makes OpenCV's detectors raise)
+# Larger images are not searched: OpenCV's detectors took 19 s on 8000 x 6000 px (a damaged JPEG header said so,
+# its pixels mostly grey) and 4 min on 20000 x 20000; a 24 MP camera's image is 6000 x 4000.
+MAX_IMAGE_PX = 25_000_000
 
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
 
@@ -221,6 +224,14 @@ def illumination(width: int, height: int, light: float, rng: np.random.Generator
 # --- detection ----------------------------------------------------------------------------------
 
 
+def too_large(width: int, height: int) -> str:
+    """Why an image of width x height px is not searched for a board (beyond MAX_IMAGE_PX)."""
+    return (
+        f"an image of {width} x {height} px ({width * height / 1e6:.0f} MP) is more than the board detector searches "
+        f"({MAX_IMAGE_PX / 1e6:.0f} MP): a damaged file, or a camera's image to scale down"
+    )
+
+
 def detect_board(
     image: np.ndarray, cols: int = 6, rows: int = 4, predicted: np.ndarray | None = None
 ) -> BoardDetection:
@@ -242,9 +253,11 @@ def detect_board(
     """
     if cols < 3 or rows < 3:
         raise ValueError("OpenCV's chessboard detectors need at least 3 x 3 inner corners")
-    if min(image.shape[:2]) < MIN_IMAGE_PX:
-        height, width = image.shape[:2]
+    height, width = image.shape[:2]
+    if min(height, width) < MIN_IMAGE_PX:
         return BoardDetection(False, None, "not found", f"an image of {width} x {height} px holds no board")
+    if height * width > MAX_IMAGE_PX:
+        return BoardDetection(False, None, "not found", too_large(width, height))
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     predicted = None if predicted is None else np.asarray(predicted, float)
     seen, inconsistent = 0, None
