@@ -23,7 +23,7 @@ source scripts/venv.sh
 ensure_venv '.[test,ros2,naoqi]'
 .venv/bin/ruff format --check calib_core app tests benchmarks
 .venv/bin/ruff check calib_core app tests benchmarks
-WORKERS=(-n "${TEST_WORKERS:-2}" --dist loadfile)
+WORKERS=(-n "${TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder)  # modules longest first: tests/conftest.py
 if $FAST; then
     .venv/bin/python -m pytest -q "${WORKERS[@]}" -m "not slow and not browser and not subprocess" "$@"
 else

@@ -43,12 +43,28 @@ settings.load_profile("unshrunk")
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
 
 
+# About how many seconds a test of each marker takes on two busy workers (a run of the suite, 2026-11-27).
+MARKER_SECONDS = {"browser": 12.0, "subprocess": 6.0, "slow": 4.0}
+UNMARKED_SECONDS = 0.15
+
+
+def _expected_s(item: pytest.Item) -> float:
+    return max((s for m, s in MARKER_SECONDS.items() if item.get_closest_marker(m)), default=UNMARKED_SECONDS)
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Chromium's tests skipped where it is missing; the modules in the order of their expected time, longest
+    first (scripts/test.sh has xdist hand out whole modules in this order, --no-loadscope-reorder): the short ones
+    then fill both workers to the end, instead of one long module running alone while the other worker waits."""
     if shutil.which("chromium") is None:
         skip = pytest.mark.skip(reason="Debian's chromium is not installed")
         for item in items:
             if item.get_closest_marker("browser"):
                 item.add_marker(skip)
+    module_s: dict[str, float] = {}
+    for item in items:
+        module_s[item.nodeid.split("::")[0]] = module_s.get(item.nodeid.split("::")[0], 0.0) + _expected_s(item)
+    items.sort(key=lambda item: -module_s[item.nodeid.split("::")[0]])  # stable: a module's own order kept
 
 
 # --- the built-in robots ------------------------------------------------------------------------------------
