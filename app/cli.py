@@ -644,8 +644,7 @@ def _detect_board(args: argparse.Namespace) -> int:
         raise InputError("image file does not exist", file=args.image)
     import cv2
 
-    from calib_core.vision import detect_board
-    from calib_core.vision.sandal_board import MAX_IMAGE_PX, too_large
+    from calib_core.vision import MAX_IMAGE_PX, detect_board, too_large
 
     try:
         image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)

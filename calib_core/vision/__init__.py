@@ -15,7 +15,7 @@ __getattr__ = lazy_exports(
         "ballfinder": ("find_sphere",),
         "finders": ("FINDERS", "Finder", "finder_for", "finders_served", "found_targets"),
         "sampling": ("Sampler",),
-        "sandal_board": ("detect_board", "render_board_image"),
+        "sandal_board": ("MAX_IMAGE_PX", "detect_board", "render_board_image", "too_large"),
         "sighting": ("Sighting", "predicted_points"),
         "stereo": ("StereoHead", "depth_from_pair", "render_pair"),
         "visibility": ("VIEW_MARGIN_PX", "Visibility"),
@@ -23,6 +23,7 @@ __getattr__ = lazy_exports(
 )
 __all__ = [
     "FINDERS",
+    "MAX_IMAGE_PX",
     "VIEW_MARGIN_PX",
     "Finder",
     "Sampler",
@@ -38,13 +39,14 @@ __all__ = [
     "predicted_points",
     "render_board_image",
     "render_pair",
+    "too_large",
 ]
 
 if TYPE_CHECKING:
     from .ballfinder import find_sphere
     from .finders import FINDERS, Finder, finder_for, finders_served, found_targets
     from .sampling import Sampler
-    from .sandal_board import detect_board, render_board_image
+    from .sandal_board import MAX_IMAGE_PX, detect_board, render_board_image, too_large
     from .sighting import Sighting, predicted_points
     from .stereo import StereoHead, depth_from_pair, render_pair
     from .visibility import VIEW_MARGIN_PX, Visibility
