@@ -238,3 +238,25 @@ def test_a_symmetric_checkerboard_with_no_guess_says_it_needs_one(tmp_path: Path
     s = sim.capture(1, q, 0, sim.true_params).sighting
     assert s.status == FrameStatus.MEASURED and s.measured is not None
     assert np.linalg.norm(s.measured - truth_px(sim, q), axis=1).max() < MAX_ERROR_PX
+
+
+@pytest.mark.parametrize(
+    "row",
+    [
+        (1e-4, 2e-4, 0.5),  # the plane ahead everywhere: the whole image
+        (-1e-4, 2e-5, -0.5),  # behind everywhere
+        (1e-3, -2e-3, 0.4),  # its horizon crosses the image
+        (0.0, 1e-3, -0.9),  # a horizontal horizon
+    ],
+)
+def test_the_board_planes_side_of_the_camera_is_each_pixels(row: tuple[float, float, float]) -> None:
+    """What the ChArUco renderer takes as the board's plane in front of the camera: per px the sign of the
+    homography's third row, given for the whole image at once only where its corners agree."""
+    from calib_core.vision.finders.charuco import _ahead
+
+    width, height = 640, 480
+    u, v = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
+    every = np.array(row[0]) * u + np.array(row[1]) * v + np.array(row[2]) > 0
+    ahead = _ahead(np.array(row), width, height)
+    np.testing.assert_array_equal(np.broadcast_to(ahead, every.shape), every)
+    assert isinstance(ahead, bool) == (every.all() or not every.any())

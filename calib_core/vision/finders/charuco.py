@@ -105,9 +105,7 @@ class CharucoFinder(BoardFinder):
             np.ones_like(grey), texture_to_fine, (width * k, height * k), flags=cv2.INTER_NEAREST, borderValue=0
         )
         # Rays that meet the board's plane behind the camera, or its blank back: the room.
-        back = np.linalg.inv(to_fine @ board_to_px)
-        u, v = np.meshgrid(np.arange(width * k, dtype=np.float32), np.arange(height * k, dtype=np.float32))
-        ahead = back[2, 0] * u + back[2, 1] * v + back[2, 2] > 0
+        ahead = _ahead(np.linalg.inv(to_fine @ board_to_px)[2], width * k, height * k)
         face = self._faces_camera(p, q)
         fine = np.where(ahead & (plate > 0), fine if face else WHITE, ROOM)
         scene = cv2.resize(fine, (width, height), interpolation=cv2.INTER_AREA).astype(float)
@@ -170,3 +168,20 @@ class CharucoFinder(BoardFinder):
         predicted = self.predicted_px(p_believed, q)[vertices]
         detail["prediction_px"] = round(float(np.linalg.norm(measured - predicted, axis=1).mean()), 2)
         return self.sighting(measured, "ok", detail, vertices)
+
+
+def _ahead(row: np.ndarray, width: int, height: int) -> np.ndarray | bool:
+    """Which px (u, v) of a width x height image see the board's plane in front of the camera: where
+    row . (u, v, 1) > 0 (the third row of the image -> plane homography). A linear function's sign over the image
+    is its corners' when they agree clearly (so True or False for the whole image, as most views are); else
+    per px, (height, width)."""
+    a, b, c = (float(x) for x in row)
+    corners = [a * u + b * v + c for u in (0, width - 1) for v in (0, height - 1)]
+    scale = abs(a) * width + abs(b) * height + abs(c)
+    if min(corners) > 1e-9 * scale:
+        return True
+    if max(corners) < -1e-9 * scale:
+        return False
+    u = np.arange(width, dtype=np.float32).astype(float)
+    v = np.arange(height, dtype=np.float32).astype(float)
+    return a * u[None, :] + b * v[:, None] + c > 0
