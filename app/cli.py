@@ -897,9 +897,9 @@ def _sim_naoqi(args: argparse.Namespace) -> int:
         raise InputError(f"--url {args.url}: cannot listen there ({exc})") from None
     if args.connection_out:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
-        doc = {"robot": args.name or profile.name, "profile": ref, "url": args.url, "camera": 1}
         from .drivers.core import DEFAULT_SETTLE_S
 
+        doc = {"robot": args.name or profile.name, "profile": ref, "url": args.url, "camera": 1}
         doc["settle_s"] = round(DEFAULT_SETTLE_S / args.speed, 6)  # the robot's time: it moves --speed times as fast
         write_atomic(Path(args.connection_out), yaml.safe_dump(doc, sort_keys=False))
     return _until_stopped(f"calib sim-naoqi: {profile.name} at {args.url} (Ctrl-C ends it)", session.close)

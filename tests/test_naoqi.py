@@ -182,16 +182,18 @@ def test_a_joint_whose_stiffness_stays_off_is_refused_and_nothing_moves(served_n
 @needs_qi
 def test_a_connections_settle_window_is_the_one_a_capture_waits_for(served_nao):
     """`settle_s: 2.5`: the robot standing still 0.3 s has not settled for a capture, which asks the driver's
-    own window (settled() without a time)."""
+    own window (settled() without a time); 2.5 s of the driver's clock later it has."""
+    from app.clock import ManualClock
+
     make, _ = served_nao
     _, url = make()
-    nao = load_profile("nao")
-    d = registry.create(DriverSpec("naoqi", {"url": url, "settle_s": 2.5}), nao, DriverContext())
+    nao, clock = load_profile("nao"), ManualClock()
+    d = registry.create(DriverSpec("naoqi", {"url": url, "settle_s": 2.5}), nao, DriverContext(clock=clock))
     try:
-        wait_until(lambda: d.settled(0.3), "the robot stands still 0.3 s", 10)
+        clock.run(lambda: d.settled(0.3), threads=1)  # the poller reads the robot at each step
         assert not d.settled()
-        wait_until(lambda: d.settled(), "the robot stands still 2.5 s", 10)
-        assert d.settled(2.5)
+        clock.run(lambda: d.settled(), threads=1)
+        assert d.settled(2.5) and not d.settled(2.6)
     finally:
         d.close()
 
