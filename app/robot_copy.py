@@ -16,13 +16,16 @@ other type is drawn fixed at its origin.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import viser
-import yourdfpy
 
 from .framing import Target
 from .robot_look import LinkVisual
+
+if TYPE_CHECKING:
+    import yourdfpy
 
 MOVING = ("revolute", "continuous", "prismatic")
 

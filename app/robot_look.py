@@ -24,10 +24,9 @@ import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
-import yourdfpy
 
 from calib_core import Profile
 from calib_core.io import BODY
@@ -35,6 +34,10 @@ from calib_core.model import profile_urdf_path
 
 from .store.meshes import MESH_SUFFIXES
 from .store.robots import PACKAGE_ROOT
+
+if TYPE_CHECKING:  # both load when a look is read (trimesh's import takes half a second: not at the desk's start)
+    import trimesh
+    import yourdfpy
 
 log = logging.getLogger(__name__)
 
@@ -132,6 +135,8 @@ def _urdf_path(profile: Profile) -> Path | None:
 
 def read_look(path: Path, max_faces: int = MAX_FACES) -> RobotLook | None:
     """Read a URDF's visuals and their meshes (see the module); None when it has no visual at all."""
+    import yourdfpy
+
     t0 = time.perf_counter()
     name = path.name
     try:
@@ -191,6 +196,8 @@ class _Unreadable(Exception):
 def _geometry(geometry: yourdfpy.Geometry, folder: Path) -> tuple[trimesh.Trimesh | None, tuple | None, str]:
     """A visual's triangles (m), the mesh file's own colour (RGBA 0-1) if it has one, and what it is; None for
     an empty <geometry>."""
+    import trimesh
+
     if geometry.box is not None:
         return trimesh.creation.box(extents=np.asarray(geometry.box.size, float)), None, "box"
     if geometry.cylinder is not None:

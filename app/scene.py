@@ -50,11 +50,10 @@ import io
 import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import viser
-import yourdfpy
 
 from calib_core import Profile, load_profile
 from calib_core.io import to_urdf
@@ -67,6 +66,9 @@ from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
 from .robot_copy import RobotCopy, quaternion
 from .robot_look import LinkVisual, link_visuals, robot_look, without_bodies
 from .validation import MAGNIFY_MAX
+
+if TYPE_CHECKING:  # loaded with the first robot drawn (with trimesh, half a second): not at the desk's start
+    import yourdfpy
 
 SIDES = ("old", "new")
 PARTS = ("measured", "predicted", "lines")
@@ -193,6 +195,8 @@ class ReviewScene:
         self._body_pad_m = 0.0  # how far its bodies reach past its frame origins
         self.camera = ClientFraming(target)
         if urdf_path is not None:
+            import yourdfpy
+
             text = Path(urdf_path).read_text(encoding="utf-8")
             self.set_robot(urdf_path, yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=False).robot.name)
 
@@ -467,6 +471,8 @@ class ReviewScene:
             return current
         look = robot_look(profile) if GENERATED in text else None  # a URDF robot's own visuals
         shown = text if look is None else without_bodies(text, look.links)
+        import yourdfpy
+
         urdf = yourdfpy.URDF.load(io.StringIO(shown), build_scene_graph=False, load_meshes=False)
         bodies, _ = link_visuals(urdf, Path.cwd())  # a generated frame tree's bodies: simple shapes, no files
         if not bodies and not (look and look.visuals):

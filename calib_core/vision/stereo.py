@@ -23,7 +23,6 @@ from functools import cache
 
 import cv2
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
 from ..errors import InputError
 from ..model.kinematics import forward
@@ -138,6 +137,8 @@ def _noise(x: np.ndarray) -> np.ndarray:
 @cache
 def _plane_texture() -> np.ndarray:
     """A periodic 512 x 512 grey texture (1.28 m period) for the planes: mottled at two scales, like stone."""
+    from scipy.ndimage import gaussian_filter  # here: SciPy's import is a sixth of a desk's start
+
     rng = np.random.default_rng(7)
     tex = np.zeros((512, 512), np.float32)
     for weight, sigma in ((0.6, 6.0), (0.4, 2.0)):
