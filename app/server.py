@@ -9,6 +9,7 @@ and its websocket under /scene, behind the same guard as the API); calibrations 
 from __future__ import annotations
 
 import errno
+import gc
 import logging
 import socket
 import threading
@@ -208,7 +209,13 @@ def serve(
         ws_per_message_deflate=False,
         timeout_graceful_shutdown=SHUTDOWN_WAIT_S,
     )
-    Server(config).run(sockets=[sock])
+    try:
+        Server(config).run(sockets=[sock])
+    finally:
+        # Stopped (uvicorn raises the signal that stopped it again), everything closed: the process ends. Its
+        # objects need no more collecting: the interpreter's collections at exit over the web stack's took 0.35
+        # of the 0.6 s from SIGINT to the process's end.
+        gc.freeze()
 
 
 def listen(host: str, port: int) -> socket.socket:
