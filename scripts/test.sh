@@ -19,6 +19,10 @@ if ! $FAST && { ! command -v chromium >/dev/null 2>&1 || [ ! -e /usr/share/glvnd
     $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium libegl-mesa0 libgl1-mesa-dri >/dev/null
 fi
+# Python may cache the compiled modules (where PYTHONDONTWRITEBYTECODE forbids it, each of the suite's hundreds of
+# `calib` processes compiled the project's modules again: 0.4 s of a desk's start, and pytest rewrote every test
+# module's assertions at each run).
+unset PYTHONDONTWRITEBYTECODE
 source scripts/venv.sh
 ensure_venv '.[test,ros2,naoqi]'
 .venv/bin/ruff format --check calib_core app tests benchmarks

@@ -130,7 +130,7 @@ def served(
                 pass
             if time.monotonic() > deadline:
                 raise RuntimeError("calib serve did not answer /api/health in time")
-            time.sleep(0.2)
+            time.sleep(0.05)
         if host != "127.0.0.1":  # printed before the server started: the first lines
             for _ in range(20):
                 line = proc.stdout.readline().decode()  # type: ignore[union-attr]
@@ -147,8 +147,12 @@ def served(
             proc.wait()
 
 
-def launch(playwright):
-    return playwright.chromium.launch(executable_path=CHROMIUM, args=[*CHROMIUM_ARGS, *WEBGL_ARGS])
+def launch(playwright, *, webgl: bool = True):
+    """Debian's chromium; `webgl=False` for pages that draw no 3-D view: without a GPU process (Mesa's GL composited
+    every page, a second of a 2-D test's CPU)."""
+    return playwright.chromium.launch(
+        executable_path=CHROMIUM, args=[*CHROMIUM_ARGS, *(WEBGL_ARGS if webgl else ["--disable-gpu"])]
+    )
 
 
 def ready_page(browser, url: str, width: int = 1500, height: int = 1000):

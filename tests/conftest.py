@@ -5,9 +5,10 @@ them changed (a desk's sessions, say), another module starts from a fresh one. `
 (create_app in a TestClient); a module that needs it otherwise (no samples, another clock) overrides
 `desk_options`. `sample_copy` copies sample sessions where a test may change or break them.
 
-`chromium` is a headless chromium a module's browser tests share; `chromium_2d` the same for the tests that look
+`chromium` is a headless chromium a module's browser tests share; `chromium_2d` another for the tests that look
 at the rest of the page: its pages load the desk without the 3-D view's client (chromium draws WebGL in software,
-about a third of such a test's time), but with it when CALIB_SCREENSHOTS asks for screenshots.
+about a third of such a test's time) and it has no GPU process (compositing a page through Mesa's GL cost a second
+of CPU a test), but it is `chromium` when CALIB_SCREENSHOTS asks for screenshots.
 
 Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where Debian's chromium is missing),
 `subprocess` (starts `calib`, `calib serve` or another program, beyond a desk's own job workers) and `slow`;
@@ -130,12 +131,29 @@ def viser_server() -> Iterator[viser.ViserServer]:
 
 
 @pytest.fixture(scope="module")
-def _chromium_process() -> Iterator[Browser]:
+def _playwright() -> Iterator[Any]:
     sync_api = pytest.importorskip("playwright.sync_api")  # imported by the browser tests only
     with sync_api.sync_playwright() as pw:
-        browser = launch(pw)
-        yield browser
-        browser.close()
+        yield pw
+
+
+@pytest.fixture(scope="module")
+def _chromium_process(_playwright: Any) -> Iterator[Browser]:
+    browser = launch(_playwright)
+    yield browser
+    browser.close()
+
+
+@pytest.fixture(scope="module")
+def _chromium_2d_process(_playwright: Any) -> Iterator[Browser]:
+    browser = launch(_playwright, webgl=False)
+    yield browser
+    browser.close()
+
+
+def _close_contexts(browser: Browser) -> None:
+    for context in browser.contexts:
+        context.close()
 
 
 @pytest.fixture
@@ -143,8 +161,7 @@ def chromium(_chromium_process: Browser) -> Iterator[Browser]:
     """Headless chromium, one per module (a start costs a second or two); the contexts and pages a test opened
     are closed after it."""
     yield _chromium_process
-    for context in _chromium_process.contexts:
-        context.close()
+    _close_contexts(_chromium_process)
 
 
 class WithoutScene:
@@ -164,5 +181,9 @@ class WithoutScene:
 
 
 @pytest.fixture
-def chromium_2d(chromium: Browser) -> Browser | WithoutScene:
-    return chromium if os.environ.get("CALIB_SCREENSHOTS") else WithoutScene(chromium)
+def chromium_2d(request: pytest.FixtureRequest) -> Iterator[Browser | WithoutScene]:
+    screenshots = bool(os.environ.get("CALIB_SCREENSHOTS"))
+    # Without screenshots, a chromium of its own without a GPU process: its pages draw no 3-D view.
+    browser = request.getfixturevalue("_chromium_process" if screenshots else "_chromium_2d_process")
+    yield browser if screenshots else WithoutScene(browser)
+    _close_contexts(browser)

@@ -28,7 +28,7 @@ def test_the_openapi_page_renders_offline(tmp_path: Path) -> None:
                 route.abort()
 
         with playwright_api.sync_playwright() as p:
-            browser = launch(p)
+            browser = launch(p, webgl=False)
             page = browser.new_page()
             page.route("**/*", offline)
             page.goto(f"{server.url}/docs")

@@ -310,8 +310,10 @@ def test_residuals_are_drawn_magnified_and_the_labels_say_so(
 def reported_camera(server: viser.ViserServer) -> Iterator[tuple[viser.ClientHandle, Any]]:
     """A client of the server that has reported its camera (a browser's first message, tests/test_viewers.py's),
     so framings move it, and its websocket (to report where the operator put the camera)."""
+    # Every message kept (max_queue=None): with the default 16 unread the connection stops reading, viser's reply
+    # to the close cannot come through, and the close waited its whole 10-s timeout.
     with websockets.sync.client.connect(
-        f"ws://127.0.0.1:{server.get_port()}", subprotocols=[PROTOCOL], proxy=None
+        f"ws://127.0.0.1:{server.get_port()}", subprotocols=[PROTOCOL], proxy=None, max_queue=None
     ) as ws:
         ws.send(camera_message())
         wait_until(lambda: any(camera_reported(c.camera) for c in server.get_clients().values()), what="a camera")

@@ -175,8 +175,8 @@ def test_concurrent_scene_connections_each_become_their_own_viser_client(client:
     def direct() -> None:
         ready.wait()
         with websockets.sync.client.connect(
-            f"ws://127.0.0.1:{desk.viser_port_number}", subprotocols=[PROTOCOL], proxy=None
-        ) as ws:
+            f"ws://127.0.0.1:{desk.viser_port_number}", subprotocols=[PROTOCOL], proxy=None, max_queue=None
+        ) as ws:  # every message kept: with 16 unread, viser's reply to the close waited out its 10-s timeout
             ws.send(camera_message(999))
             done.wait(30)
 
