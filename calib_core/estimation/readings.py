@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from operator import itemgetter
 
 import numpy as np
 
@@ -78,11 +79,11 @@ class ReadingErrors:
         moved = np.zeros((data.n_configurations, len(params)), bool)
         np.logical_or.at(moved, row_cfg, Jq != 0)
         variables: dict[tuple, list[int]] = {}
-        for c, k in zip(*np.nonzero(moved), strict=True):
-            variables.setdefault((int(k), keys[c][k]), []).append(int(c))
-        obs_of_cfg = np.bincount(data.cfg, minlength=data.n_configurations)
-        if all(sum(obs_of_cfg[c] for c in cfgs) <= 1 for cfgs in variables.values()):
-            return None
+        for c, k in zip(*(a.tolist() for a in np.nonzero(moved)), strict=True):
+            variables.setdefault((k, keys[c][k]), []).append(c)
+        obs_of_cfg = np.bincount(data.cfg, minlength=data.n_configurations).tolist()
+        if all(len(cfgs) == 1 and obs_of_cfg[cfgs[0]] == 1 for cfgs in variables.values()):
+            return None  # every reading's rounding is one observation's (a moved configuration has one at least)
         group = _components(data.n_configurations, variables.values())
         members: dict[int, list[tuple[int, list[int]]]] = {}
         for (k, _), cfgs in variables.items():
@@ -148,27 +149,34 @@ def _keys(profile: Profile, data: Dataset, joints: list[int]) -> list[list[tuple
     first_target[data.cfg[::-1]] = data.target[::-1]
     first_sensor = np.zeros(data.n_configurations, int)
     first_sensor[data.cfg[::-1]] = data.sensor[::-1]
-    q = np.round(np.nan_to_num(data.joints), 9)
-    sides: dict[tuple[int, int], tuple[set[int], set[int]]] = {}
+    q = np.round(np.nan_to_num(data.joints), 9).tolist()
+    # Per (target, sensor): each joint's owner (None: the configuration itself) and the readings that are its key.
+    keyed: dict[tuple[int, int], list[tuple[tuple | None, Callable[[list[float]], tuple]]]] = {}
     out = []
-    for c in range(data.n_configurations):
-        t, s = int(first_target[c]), int(first_sensor[c])
-        if (t, s) not in sides:
+    for c, (t, s) in enumerate(zip(first_target.tolist(), first_sensor.tolist(), strict=True)):
+        if (t, s) not in keyed:
             target = {profile.frames[f].joint for f in profile.chain(profile.targets[t].frame)} - {-1}
             sensor = {profile.frames[f].joint for f in profile.chain(profile.sensors[s].frame)} - {-1}
-            sides[(t, s)] = (target - sensor, sensor - target)
-        target_side, sensor_side = sides[(t, s)]
-        row = []
-        for j in joints:
-            if j in target_side:
-                side, who = sorted(target_side), ("target", t)
-            elif j in sensor_side:
-                side, who = sorted(sensor_side), ("sensor", s)
-            else:
-                side, who = [], ("configuration", c)
-            row.append((who, tuple(q[c, side].tolist())))
-        out.append(row)
+            keyed[(t, s)] = []
+            for j in joints:
+                if j in target - sensor:
+                    keyed[(t, s)].append((("target", t), _picker(sorted(target - sensor))))
+                elif j in sensor - target:
+                    keyed[(t, s)].append((("sensor", s), _picker(sorted(sensor - target))))
+                else:
+                    keyed[(t, s)].append((None, _picker([])))
+        row = q[c]
+        out.append([(("configuration", c) if who is None else who, pick(row)) for who, pick in keyed[(t, s)]])
     return out
+
+
+def _picker(side: list[int]) -> Callable[[list[float]], tuple]:
+    """The readings of `side` from a configuration's list of readings, as a tuple."""
+    if len(side) > 1:
+        return itemgetter(*side)
+    if side:
+        return lambda row, j=side[0]: (row[j],)
+    return lambda row: ()
 
 
 def _components(n: int, links) -> np.ndarray:
