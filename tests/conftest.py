@@ -3,7 +3,8 @@
 Profiles (`rn`, `nao`, `motoman`), a store and a desk are the module's: a module's tests may share what one of
 them changed (a desk's sessions, say), another module starts from a fresh one. `client` is an in-process desk
 (create_app in a TestClient); a module that needs it otherwise (no samples, another clock) overrides
-`desk_options`. `sample_copy` copies sample sessions where a test may change or break them.
+`desk_options`. `desk_data` is a data directory for a `calib serve`, as a desk's first start leaves it.
+`sample_copy` copies sample sessions where a test may change or break them.
 
 `chromium` is a headless chromium a module's browser tests share; `chromium_2d` another for the tests that look
 at the rest of the page: its pages load the desk without the 3-D view's client (chromium draws WebGL in software,
@@ -113,11 +114,35 @@ def desk_options() -> dict[str, Any]:
     return {}
 
 
+@pytest.fixture(scope="session")
+def first_start(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A data directory as a desk's first start leaves it (the built-in robots recorded, the sample sessions
+    imported), made once per test process: `desk_data` and `client` start from copies (importing the samples took
+    each desk 0.6 s of CPU). The tests of that import start from an empty one."""
+    folder = tmp_path_factory.mktemp("first-start") / "data"
+    app = create_app(folder)
+    with TestClient(app):
+        pass
+    app.state.desk.store.close()
+    return folder
+
+
+@pytest.fixture
+def desk_data(tmp_path: Path, first_start: Path) -> Path:
+    """The test's data directory for a desk (`calib serve --data-dir`): a copy of `first_start`."""
+    return Path(shutil.copytree(first_start, tmp_path / "data"))
+
+
 @pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory, desk_options: dict[str, Any]) -> Iterator[TestClient]:
+def client(
+    tmp_path_factory: pytest.TempPathFactory, first_start: Path, desk_options: dict[str, Any]
+) -> Iterator[TestClient]:
     """The module's in-process desk: the sample sessions and simulated robots at 50 times their speed, unless
     `desk_options` says otherwise; started once for the module's tests, stopped after them."""
-    app = create_app(tmp_path_factory.mktemp("desk"), **{"time_scale": 50.0, **desk_options})
+    data_dir = tmp_path_factory.mktemp("desk") / "data"
+    if not {"sample_dir", "config"} & set(desk_options):  # the built-in robots and their samples, as first started
+        shutil.copytree(first_start, data_dir)
+    app = create_app(data_dir, **{"time_scale": 50.0, **desk_options})
     with TestClient(app) as c:
         yield c
 

@@ -13,8 +13,8 @@ playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
 
-def test_the_openapi_page_renders_offline(tmp_path: Path) -> None:
-    with served(tmp_path / "data") as server:
+def test_the_openapi_page_renders_offline(desk_data: Path) -> None:
+    with served(desk_data) as server:
         paths = server.get("/openapi.json").json()["paths"]
         operations = sum(len(methods) for methods in paths.values())
         assert server.get("/redoc").status_code == 404  # ReDoc would load a CDN script: off

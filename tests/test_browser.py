@@ -40,13 +40,13 @@ def close_notices(page) -> None:
         page.wait_for_timeout(400)  # the notice slides out
 
 
-def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> None:
+def test_calibrate_review_and_apply_in_the_browser(chromium, desk_data: Path) -> None:
     """The operator's path: calibrate, review, apply. The review reads at a glance: rings for measurements with
     the new calibration's green dot visible inside them (3-D and 2-D), new-minus-old per frame with better/worse,
     stepping in the list's order, a scene that keeps its size while the rest loads, a zoomable 2-D view, distinct
     words for the solver's start and the old calibration; after the apply the panel and the header agree and the
     history says what the apply was."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         page = chromium.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
@@ -184,11 +184,11 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, tmp_path: Path) -> 
         assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == other
 
 
-def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(chromium_2d, tmp_path: Path) -> None:
+def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(chromium_2d, desk_data: Path) -> None:
     """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in mm, a camera in px); a
     one-sensor session shows no sensor choice. A daily calibration from the nominal model stops at the solver's
     iteration limit: the page says so (job line, toast, warning) and applying it asks the operator first."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         page = chromium_2d.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
@@ -241,10 +241,10 @@ def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(ch
         assert server.get("/api/robot/calibration", params={"robot": "robonaut-a"}).json()["id"] == before
 
 
-def test_a_frame_whose_detection_failed_shows_as_not_found(chromium_2d, tmp_path: Path) -> None:
+def test_a_frame_whose_detection_failed_shows_as_not_found(chromium_2d, desk_data: Path) -> None:
     """Robonaut day 1's frames 3, 18 and 29 found no sphere (`measured: [null]`): selecting one raises no
     error in the page, both halves of the 2-D split view show that frame and say it was not found."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         page = chromium_2d.new_page(viewport={"width": 1500, "height": 1000})
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))
@@ -273,8 +273,8 @@ def test_a_frame_whose_detection_failed_shows_as_not_found(chromium_2d, tmp_path
         shot(page, "4d-not-found")
 
 
-def test_observe_and_replay_in_the_browser(chromium, tmp_path: Path) -> None:
-    with served(tmp_path / "data", sim_speed=10.0) as server:
+def test_observe_and_replay_in_the_browser(chromium, desk_data: Path) -> None:
+    with served(desk_data, sim_speed=10.0) as server:
         # A new capture session; Observe: watch live, capture one frame on a click.
         page, sid = new_nao_session(chromium, server.url, "browser session")
         page.locator("#observe-on").check()
@@ -515,12 +515,12 @@ def test_the_scene_follows_a_robot_change_in_the_browser(chromium) -> None:
 
 def test_joint_sliders_send_the_whole_configuration_within_the_margin_and_revert_on_a_refusal(
     chromium_2d,
-    tmp_path: Path,
+    desk_data: Path,
 ) -> None:
     """A second slider moved while the first joint still moves: both joints arrive (each slider sends the whole
     configuration the sliders show, not the others' mid-motion readings); the sliders end at the limits less
     the driver's margin; a refused move puts the sliders back to the robot's readings with the server's reason."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         page = chromium_2d.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)

@@ -56,12 +56,12 @@ def camera_error(calibration: Calibration, q_rad: np.ndarray) -> tuple[float, fl
     return float(np.linalg.norm(t1 - t2, axis=1).max()), float(np.degrees(turn.max()))
 
 
-def test_observe_replay_calibrate_review_and_apply_the_hand_eye_sample(chromium_2d, tmp_path: Path) -> None:
+def test_observe_replay_calibrate_review_and_apply_the_hand_eye_sample(chromium_2d, desk_data: Path) -> None:
     """No pose given anywhere: Observe finds the board in the wrist camera's live image; a replay plans around
     where the arm stands and every planned configuration is measured; handeye, then offsets with a held-out
     share reach the finder's floor and put the camera where the simulator's truth has it; Review's 2-D view
     shows the rings and dots; Apply makes it the robot's calibration."""
-    with served(tmp_path / "data", sim_speed=20.0) as server:
+    with served(desk_data, sim_speed=20.0) as server:
         assert "arm-handeye" in {s["id"] for s in server.get("/api/sessions").json()}  # the sample, loaded at start
         page, sid = new_session(chromium_2d, server.url, "arm-handeye", "hand-eye in the browser")
 

@@ -23,8 +23,10 @@ def shot(page, name: str) -> None:
         page.screenshot(path=str(Path(SHOTS) / f"{name}.png"))
 
 
-def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_screen(chromium_2d, tmp_path) -> None:
-    with served(tmp_path / "data") as server:
+def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_screen(
+    chromium_2d, desk_data: Path
+) -> None:
+    with served(desk_data) as server:
         older = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.0)
         newer = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.3)
         listed = [c["id"] for c in server.get("/api/sessions/robonaut-a-day1/calibrations").json()]
@@ -67,10 +69,10 @@ def _far_move(server, robot: str, share: float = 0.6) -> dict[str, float]:
     return goal
 
 
-def test_each_tab_follows_its_own_robot(chromium_2d, tmp_path) -> None:
+def test_each_tab_follows_its_own_robot(chromium_2d, desk_data: Path) -> None:
     """Tab A drives NAO, tab B then connects Robonaut (the desk's last connected robot): NAO moved meanwhile shows
     moving in tab A, with its capture disabled until it stands still again; tab B says Robonaut is still."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         a, _ = new_nao_session(chromium_2d, server.url, "tab A")
         b = ready_page(chromium_2d, server.url)
         b.select_option("#robot-select", "robonaut-a")
@@ -110,10 +112,10 @@ def test_each_tab_follows_its_own_robot(chromium_2d, tmp_path) -> None:
         assert server.get("/api/robot", params={"robot": "robonaut-a"}).json()["joints"] == before
 
 
-def test_a_reload_mid_replay_gives_back_its_controls(chromium_2d, tmp_path) -> None:
+def test_a_reload_mid_replay_gives_back_its_controls(chromium_2d, desk_data: Path) -> None:
     """A replay started on the page, then the page reloaded: it comes back on the replay's session and step, with
     Pause, Resume and Abort acting on the running job and Start disabled; aborted, Start is offered again."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         page, sid = new_nao_session(chromium_2d, server.url, "reloaded")
         page.click("#tabs button[data-tab='replay']")
         page.check("input[name=replay-source][value=count]")
@@ -177,7 +179,7 @@ RANDOM_ACTIONS = 30
 SELECTS = ("#robot-select", "#review-old", "#review-new", "#mode", "#base", "#magnify")
 
 
-def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium_2d, tmp_path) -> None:
+def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium_2d, desk_data: Path) -> None:
     """Thirty seeded random clicks and choices in two tabs (robot changes while Observe runs, forms sent empty,
     replays started and stopped): no uncaught error in either page, no console error but the 4xx answers the page
     says in its toast, and no answer of the server 5xx. Counted, not timed: on a loaded machine a click waits for
@@ -187,7 +189,7 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium_2d, t
 
     rng = random.Random(25)
     problems: list[str] = []
-    with served(tmp_path / "data", sim_speed=10.0) as server:
+    with served(desk_data, sim_speed=10.0) as server:
         tabs = [ready_page(chromium_2d, server.url) for _ in range(2)]
         for k, page in enumerate(tabs):
             page.on("pageerror", lambda e, k=k: problems.append(f"tab {k}: page error {e}"))
@@ -227,12 +229,12 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium_2d, t
     assert actions >= RANDOM_ACTIONS * 3 // 4, (actions, missed)  # a control disabled or gone meanwhile: rare
 
 
-def test_noise_is_not_coloured_as_change(chromium_2d, tmp_path) -> None:
+def test_noise_is_not_coloured_as_change(chromium_2d, desk_data: Path) -> None:
     """NAO's sample calibrated twice (everything, and 70 % of its frames): the two differ on every frame by what
     their own uncertainty explains, so the frame list says "same" on (nearly) every frame and colours the rest as
     the server judged them, and says what the band is; against the nominal model (no covariance: the new
     calibration's band only, as the page says) every frame is better."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         whole = calibrated(server, "nao", mode="full", holdout=0.0)
         part = calibrated(server, "nao", mode="full", holdout=0.3)
         page = ready_page(chromium_2d, server.url, 1600, 1000)
@@ -267,11 +269,11 @@ def test_noise_is_not_coloured_as_change(chromium_2d, tmp_path) -> None:
                 shot(page, "review-5-better")
 
 
-def test_a_wall_of_warnings_is_a_line_per_kind(chromium_2d, tmp_path) -> None:
+def test_a_wall_of_warnings_is_a_line_per_kind(chromium_2d, desk_data: Path) -> None:
     """TALOS (FIGAROH's data) added to the desk and calibrated in `origins` mode: its 61 findings are two lines, the
     weak parameters before the held ones, each naming its parameters, every finding listed when opened."""
     figaroh = Path(__file__).resolve().parents[1] / "sample_sessions" / "figaroh"
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         added = server.post("/api/robots", data={"name": "talos", "profile": str(figaroh / "talos.yaml")})
         assert added.status_code == 201, added.text
         csv = (figaroh / "talos_left_arm_02_10_contact.csv").read_bytes()
@@ -308,11 +310,11 @@ def _figure(page, column: str) -> str:
     return page.text_content(f"#summary tr[data-figure='mean'] td[data-col='{column}']")
 
 
-def test_figures_follow_an_apply_and_the_session_shown(chromium_2d, tmp_path) -> None:
+def test_figures_follow_an_apply_and_the_session_shown(chromium_2d, desk_data: Path) -> None:
     """A calibration made on the page, reviewed against the robot's active one (the nominal model) and applied: the
     review's old side is then the applied calibration (its figures the new side's); another session opened shows
     no job line or cost curve of this one's calibration."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         page = ready_page(chromium_2d, server.url, 1600, 1000)
         page.on("dialog", lambda d: d.accept())
         page.click("li[data-session='nao']")
@@ -349,10 +351,10 @@ def test_figures_follow_an_apply_and_the_session_shown(chromium_2d, tmp_path) ->
         shot(page, "review-6-other-session")
 
 
-def test_captured_frames_show_their_errors_and_place_at_once(chromium_2d, tmp_path) -> None:
+def test_captured_frames_show_their_errors_and_place_at_once(chromium_2d, desk_data: Path) -> None:
     """A frame captured by hand and selected, then frames auto-captured while the robot wanders: each joins the
     list with its error (no "—" until clicked), and the label counts them all."""
-    with served(tmp_path / "data", sim_speed=10.0) as server:
+    with served(desk_data, sim_speed=10.0) as server:
         page, sid = new_nao_session(chromium_2d, server.url, "auto")
         page.wait_for_selector("#capture:enabled", timeout=30_000)
         page.click("#capture")

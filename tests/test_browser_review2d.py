@@ -8,7 +8,9 @@ Set CALIB_SCREENSHOTS=/some/folder to keep a screenshot of each.
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from browser import Server, calibrated, ready_page, served, shot, split_pixel
@@ -33,9 +35,9 @@ SELECTED_IN_VIEW = (
 
 
 @pytest.fixture(scope="module")
-def desk(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, dict[str, str]]]:
+def desk(tmp_path_factory: pytest.TempPathFactory, first_start: Path) -> Iterator[tuple[Server, dict[str, str]]]:
     """A desk with the NAO and Motoman samples calibrated (everything, no frame held out): the calibrations' ids."""
-    with served(tmp_path_factory.mktemp("desk") / "data") as server:
+    with served(shutil.copytree(first_start, tmp_path_factory.mktemp("desk") / "data")) as server:
         cals = {sid: calibrated(server, sid, mode="full", holdout=0.0) for sid in ("nao", "motoman-left-cube")}
         yield server, cals
 

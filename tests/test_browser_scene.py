@@ -116,12 +116,12 @@ def _still(scene) -> list[float]:
 
 
 @pytest.mark.subprocess
-def test_the_page_keeps_the_camera_frames_it_and_magnifies(chromium, tmp_path: Path) -> None:
+def test_the_page_keeps_the_camera_frames_it_and_magnifies(chromium, desk_data: Path) -> None:
     """On the desk's page, a Robonaut session and its calibration: stepping frames leaves the 3-D camera where it
     was; "3-D residuals x10" draws the residual lines ten times as long and says so over the view and on the
     copies' labels; "Frame it" moves the camera onto the marks with a narrowed field of view; the marks are
     drawn over the bodies (the scene page's own script)."""
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         calibrated(server, "robonaut-a-day1", mode="full", holdout=0.0)
         page = open_page(chromium.new_context(viewport={"width": 1500, "height": 1000}), server.url)
         open_session(page, "robonaut-a-day1")

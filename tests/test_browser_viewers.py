@@ -101,12 +101,12 @@ def step(page) -> None:
     )
 
 
-def test_tabs_and_contexts_review_their_own_sessions(chromium, tmp_path: Path) -> None:
+def test_tabs_and_contexts_review_their_own_sessions(chromium, desk_data: Path) -> None:
     """Robonaut's first day and NAO in two tabs of one browser context, Robonaut's later day in another context:
     stepping through frames in one page moves its table, label, marks and scene, and nothing in the others. The
     scene is the page's own origin (viser listens on loopback only); a closed tab's viewer goes."""
     links = {"robonaut-a-day1": "shoulder_roll", "nao": "HeadYaw", "robonaut-a-day2": "shoulder_roll"}
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         one, two = (chromium.new_context(viewport={"width": 1300, "height": 900}) for _ in range(2))
         sockets: list[str] = []
         pages = {}
@@ -171,14 +171,14 @@ def _address_off_loopback() -> str | None:
     return None if address.startswith("127.") else address
 
 
-def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(chromium, tmp_path: Path) -> None:
+def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(chromium, desk_data: Path) -> None:
     """Served on every address and opened by this machine's network address: the page with the token shows its
     scene, which can only have come through the API's port (viser's is not reachable there); the scene's page
     and websocket without the token are refused."""
     address = _address_off_loopback()
     if address is None:
         pytest.skip("this machine has no address off loopback")
-    with served(tmp_path / "data", host="0.0.0.0") as server:
+    with served(desk_data, host="0.0.0.0") as server:
         assert server.token
         port = urlsplit(server.url).port
         url = f"http://{address}:{port}"
@@ -224,17 +224,17 @@ def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(chromi
         assert asked == ["prompt"]
 
 
-def test_after_a_server_restart_the_page_shows_its_review_again(chromium, tmp_path: Path) -> None:
+def test_after_a_server_restart_the_page_shows_its_review_again(chromium, desk_data: Path) -> None:
     """The iframe's viser client does not reconnect by itself: the page sees the new server instance, reloads its
     scene and loads its review (at its frame) into its new viewer."""
     number = free_port()
-    with served(tmp_path / "data", port=number) as server:
+    with served(desk_data, port=number) as server:
         page = open_page(chromium.new_context(viewport={"width": 1300, "height": 900}), server.url)
         open_session(page, "nao")
         step(page)
         frame = page.get_attribute("#frames tr.selected", "data-frame")
         shown = scene_frame(page).evaluate(SCENE)
-    with served(tmp_path / "data", port=number) as server:
+    with served(desk_data, port=number) as server:
         deadline = time.monotonic() + 60
         while True:
             viewers = {v["id"]: v for v in server.get("/api/viewers").json()}

@@ -119,10 +119,10 @@ def test_a_dry_run_jobs_result_is_the_dry_run_and_the_replay_after_it_drives_tha
 
 @pytest.mark.browser
 @pytest.mark.subprocess
-def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(chromium_2d, tmp_path: Path) -> None:
+def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(chromium_2d, desk_data: Path) -> None:
     from browser import nao_replay_tab, served
 
-    with served(tmp_path / "data", sim_speed=20.0) as server:
+    with served(desk_data, sim_speed=20.0) as server:
         page, _ = nao_replay_tab(chromium_2d, server.url, "dry run in the browser")
         page.check("input[name=replay-source][value=count]")
         asked: list[dict] = []

@@ -319,7 +319,7 @@ MESHES = """() => Object.fromEntries(Object.entries(window.__viserSceneTree.getS
 
 @pytest.mark.browser
 @pytest.mark.subprocess
-def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(tmp_path: Path) -> None:
+def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(tmp_path: Path, desk_data: Path) -> None:
     """The page's "Add a robot" with a profile, its URDF and a zip of its meshes; a session imported for it:
     the review's scene in the browser holds the STL mesh (its own vertices, not a stand-in) and no warning."""
     sync_api = pytest.importorskip("playwright.sync_api")
@@ -331,7 +331,7 @@ def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(tmp_path: 
     csv = tmp_path / "day1.csv"
     csv.write_bytes(to_csv(model, SimulatedRobot.from_profile(model, seed=2).simulate(4).data).encode())
     upper = trimesh.load(root / "meshes" / "upper.stl", force="mesh")
-    with served(tmp_path / "data") as server, sync_api.sync_playwright() as pw:
+    with served(desk_data) as server, sync_api.sync_playwright() as pw:
         browser = launch(pw)
         page = ready_page(browser, server.url)
         page.click("#add-robot-toggle")

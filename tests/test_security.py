@@ -393,7 +393,7 @@ def test_no_page_of_another_site_can_frame_the_desk(local: TestClient) -> None:
 
 @pytest.mark.browser
 @pytest.mark.subprocess
-def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(tmp_path: Path) -> None:
+def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(tmp_path: Path, desk_data: Path) -> None:
     """Clickjacking: a page on another origin frames the desk to have a click start the scripted wander. In a
     real browser the frame stays empty, while the same page frames one of its own pages; the desk's own page
     still shows its scene in its iframe."""
@@ -403,7 +403,7 @@ def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(tmp_path: Pa
     from browser import free_port, launch, ready_page, served, wait_for_scene
     from playwright.sync_api import sync_playwright
 
-    with served(tmp_path / "data") as server:
+    with served(desk_data) as server:
         site = tmp_path / "site"
         site.mkdir()
         (site / "own.html").write_text("<p id=own>the attacker's own page</p>")
