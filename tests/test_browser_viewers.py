@@ -198,7 +198,7 @@ def test_off_loopback_the_scene_comes_through_the_api_port_with_the_token(chromi
             subprotocols=[PROTOCOL],
             additional_headers={"Authorization": f"Bearer {server.token}"},
             proxy=None,
-            max_queue=None,  # every message kept: with 16 unread, the close waited out its 10-s timeout
+            max_queue=None,  # every message kept: with 16 unread the connection stops reading (test_scene.py)
         ) as ws:
             assert ws.subprotocol == PROTOCOL
             ws.send(camera_message())

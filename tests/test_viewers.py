@@ -176,7 +176,7 @@ def test_concurrent_scene_connections_each_become_their_own_viser_client(client:
         ready.wait()
         with websockets.sync.client.connect(
             f"ws://127.0.0.1:{desk.viser_port_number}", subprotocols=[PROTOCOL], proxy=None, max_queue=None
-        ) as ws:  # every message kept: with 16 unread, viser's reply to the close waited out its 10-s timeout
+        ) as ws:  # every message kept: with 16 unread the connection stops reading (tests/test_scene.py)
             ws.send(camera_message(999))
             done.wait(30)
 
