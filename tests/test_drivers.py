@@ -177,6 +177,22 @@ def test_settled_needs_the_robot_still_for_the_time_asked(rn, clock) -> None:
         assert d.settled(0.3)
 
 
+def test_a_stop_ends_a_settle_wait_without_the_clock_moving(rn, clock) -> None:
+    """A replay waiting for the robot to settle when STOP comes (its job cancelled, then the robot stopped) asks
+    again at once, not at its next poll: on a clock that stands still it would wait for ever."""
+    with SimulatedDriver(rn, seed=3, time_scale=2.0, start_rad=_q(rn), clock=clock) as d:
+        assert move(d, clock, _q(rn, wrist_yaw=1.0))
+        cancelled = threading.Event()
+        result: list[bool] = []
+        waiter = threading.Thread(target=lambda: result.append(d.wait_settled(10.0, 60.0, cancelled.is_set)))
+        waiter.start()
+        clock.until_waiting(2)  # the poller and the settle wait
+        cancelled.set()
+        d.stop()
+        waiter.join(timeout=30)
+        assert not waiter.is_alive() and result == [False]
+
+
 def test_a_move_that_does_not_arrive_times_out_on_the_clock(rn, clock) -> None:
     """A stalled move (an injected fault) is given up when its duration and the slack have passed on the driver's
     clock: the robot is stopped and the move reported, as a RobotFault."""

@@ -239,7 +239,7 @@ class Driver:
         self._cal_id: str | None = None
         self._believed = profile.nominal()
         self._target = first_target(profile) if target is None else target
-        self._closing = threading.Event()
+        self._wake = threading.Event()  # set by a stop or a close: the settle wait under way looks again at once
         transport.start(self, clock)
 
     # --- the stream of readings (Feed) ----------------------------------------------------------------------
@@ -329,13 +329,15 @@ class Driver:
         settled within timeout_s."""
         deadline = self.clock.now() + timeout_s
         while not self.settled(for_s):
+            with self._lock:
+                wake = self._wake  # before should_stop: a stop after it (a cancel comes first) sets this one
             if should_stop is not None and should_stop():
                 return False
             with self._lock:
                 self._check_link()
             if self.clock.now() > deadline:
                 raise RobotFault(f"{self.profile.name} did not settle within {timeout_s:g} s")
-            self.clock.wait(self._closing, POLL_S)
+            self.clock.wait(wake, POLL_S)
         return True
 
     # --- seeing ---------------------------------------------------------------------------------------------
@@ -454,7 +456,7 @@ class Driver:
         move.done.set()
 
     def stop(self) -> None:
-        """Halt at once (any thread): a move under way ends, not arrived."""
+        """Halt at once (any thread): a move under way ends, not arrived; a settle wait asks its should_stop again."""
         with self._lock:
             early = self._move
         if early is not None:
@@ -468,6 +470,8 @@ class Driver:
                 self.transport.halt()
             with self._lock:
                 self._stopped, self._rest_at = True, self.clock.now()
+                wake, self._wake = self._wake, threading.Event()
+            wake.set()
 
     # --- life -----------------------------------------------------------------------------------------------
     def close(self) -> None:
@@ -478,7 +482,7 @@ class Driver:
             self.stop()
         with self._lock:
             self._closed = True
-        self._closing.set()
+            self._wake.set()
         self.transport.close()
 
     def __enter__(self) -> Driver:

@@ -371,7 +371,7 @@ class SimulatedDriver(Driver):
     def wander(self, on: bool) -> None:
         """Start or stop a scripted wander through random visible configurations, with pauses: the robot
         driven by someone else. Stopping it stops the robot."""
-        if self._closing.is_set():
+        if self._closed:
             return
         if on:
             self.transport.wander(True)
