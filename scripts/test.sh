@@ -28,8 +28,12 @@ ensure_venv '.[test,ros2,naoqi]'
 .venv/bin/ruff format --check calib_core app tests benchmarks
 .venv/bin/ruff check calib_core app tests benchmarks
 WORKERS=(-n "${TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder)  # modules longest first: tests/conftest.py
+# The plugins by name, not by their packages' entry points: for those pytest rewrites the assertions of every module
+# of hypothesis and schemathesis, in each of its processes in a new environment (3 s of each one's start, as CI has).
+export PYTEST_DISABLE_PLUGIN_AUTOLOAD=1
+PLUGINS=(-p xdist.plugin -p _hypothesis_pytestplugin -p schemathesis.pytest.plugin)
 if $FAST; then
-    .venv/bin/python -m pytest -q "${WORKERS[@]}" -m "not slow and not browser and not subprocess" "$@"
+    .venv/bin/python -m pytest -q "${PLUGINS[@]}" "${WORKERS[@]}" -m "not slow and not browser and not subprocess" "$@"
 else
-    .venv/bin/python -m pytest -q "${WORKERS[@]}" --durations=25 "$@"
+    .venv/bin/python -m pytest -q "${PLUGINS[@]}" "${WORKERS[@]}" --durations=25 "$@"
 fi

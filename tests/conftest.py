@@ -6,10 +6,10 @@ them changed (a desk's sessions, say), another module starts from a fresh one. `
 `desk_options`. `desk_data` is a data directory for a `calib serve`, as a desk's first start leaves it.
 `sample_copy` copies sample sessions where a test may change or break them.
 
-`chromium` is a headless chromium a module's browser tests share; `chromium_2d` another for the tests that look
-at the rest of the page: its pages load the desk without the 3-D view's client (chromium draws WebGL in software,
-about a third of such a test's time) and it has no GPU process (compositing a page through Mesa's GL cost a second
-of CPU a test), but it is `chromium` when CALIB_SCREENSHOTS asks for screenshots.
+`chromium` is a headless chromium the browser tests of a test process share; `chromium_2d` another for the tests
+that look at the rest of the page: its pages load the desk without the 3-D view's client (chromium draws WebGL in
+software, about a third of such a test's time) and it has no GPU process (compositing a page through Mesa's GL cost
+a second of CPU a test), but it is `chromium` when CALIB_SCREENSHOTS asks for screenshots.
 
 Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where Debian's chromium is missing),
 `subprocess` (starts `calib`, `calib serve` or another program, beyond a desk's own job workers) and `slow`;
@@ -18,9 +18,11 @@ Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where D
 
 from __future__ import annotations
 
+import asyncio
 import os
 import shutil
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -155,38 +157,70 @@ def viser_server() -> Iterator[viser.ViserServer]:
     server.stop()
 
 
-@pytest.fixture(scope="module")
-def _playwright() -> Iterator[Any]:
+class _Playwright:
+    """Playwright's sync API for the whole session (each start of its driver and of a chromium costs about a second
+    of CPU; the browser tests are in a dozen modules). Between its calls the API marks its event loop as running in
+    this thread (playwright/_impl/_greenlets.py), where a later test's asyncio.run would then refuse to start: the
+    mark is there while a test uses a browser (`use`), and taken off after it (`leave`)."""
+
+    def __init__(self, api: Any) -> None:
+        self.api = api
+        self.loop = asyncio.get_running_loop()  # the mark, as the API left it
+
+    def use(self) -> Any:
+        asyncio._set_running_loop(self.loop)
+        return self.api
+
+    def leave(self) -> None:
+        asyncio._set_running_loop(None)
+
+
+@pytest.fixture(scope="session")
+def _playwright() -> Iterator[_Playwright]:
     sync_api = pytest.importorskip("playwright.sync_api")  # imported by the browser tests only
-    with sync_api.sync_playwright() as pw:
+    with sync_api.sync_playwright() as api:
+        pw = _Playwright(api)
+        pw.leave()
         yield pw
+        pw.use()
 
 
-@pytest.fixture(scope="module")
-def _chromium_process(_playwright: Any) -> Iterator[Browser]:
-    browser = launch(_playwright)
+def _launched(playwright: _Playwright, *, webgl: bool) -> Iterator[Browser]:
+    browser = launch(playwright.use(), webgl=webgl)
+    playwright.leave()
     yield browser
+    playwright.use()
     browser.close()
+    playwright.leave()
 
 
-@pytest.fixture(scope="module")
-def _chromium_2d_process(_playwright: Any) -> Iterator[Browser]:
-    browser = launch(_playwright, webgl=False)
-    yield browser
-    browser.close()
+@pytest.fixture(scope="session")
+def _chromium_process(_playwright: _Playwright) -> Iterator[Browser]:
+    yield from _launched(_playwright, webgl=True)
 
 
-def _close_contexts(browser: Browser) -> None:
-    for context in browser.contexts:
-        context.close()
+@pytest.fixture(scope="session")
+def _chromium_2d_process(_playwright: _Playwright) -> Iterator[Browser]:
+    yield from _launched(_playwright, webgl=False)
+
+
+@contextmanager
+def _in_use(playwright: _Playwright, browser: Browser) -> Iterator[Browser]:
+    """The browser for one test: the contexts and pages it opened are closed after it."""
+    playwright.use()
+    try:
+        yield browser
+        for context in browser.contexts:
+            context.close()
+    finally:
+        playwright.leave()
 
 
 @pytest.fixture
-def chromium(_chromium_process: Browser) -> Iterator[Browser]:
-    """Headless chromium, one per module (a start costs a second or two); the contexts and pages a test opened
-    are closed after it."""
-    yield _chromium_process
-    _close_contexts(_chromium_process)
+def chromium(_playwright: _Playwright, _chromium_process: Browser) -> Iterator[Browser]:
+    """Headless chromium, one per test process (a start costs a second or two)."""
+    with _in_use(_playwright, _chromium_process) as browser:
+        yield browser
 
 
 class WithoutScene:
@@ -210,5 +244,5 @@ def chromium_2d(request: pytest.FixtureRequest) -> Iterator[Browser | WithoutSce
     screenshots = bool(os.environ.get("CALIB_SCREENSHOTS"))
     # Without screenshots, a chromium of its own without a GPU process: its pages draw no 3-D view.
     browser = request.getfixturevalue("_chromium_process" if screenshots else "_chromium_2d_process")
-    yield browser if screenshots else WithoutScene(browser)
-    _close_contexts(browser)
+    with _in_use(request.getfixturevalue("_playwright"), browser):
+        yield browser if screenshots else WithoutScene(browser)
