@@ -150,11 +150,14 @@ def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(chromium_2d
         assert len(asked) == 1, asked
         assert page.is_enabled("#dry-run") and page.is_enabled("#replay-start")
 
-        # Abort, then Esc, cancel a dry run while it plans.
+        # Abort, then Esc, cancel a dry run while it plans (drawing 6000 candidate stances for 2000 configurations
+        # takes seconds; it used to wait for the choosing after them).
         page.fill("#replay-count", "2000")
         for how in ("abort", "escape"):
             page.click("#dry-run")
-            page.wait_for_function("document.querySelector('#replay-state').textContent.includes('chosen')")
+            page.wait_for_function(
+                "document.querySelector('#replay-state').textContent.includes('planning the configurations')"
+            )
             assert page.is_disabled("#dry-run") and page.is_disabled("#replay-start")
             assert page.is_disabled("#replay-pause") and page.is_enabled("#replay-abort")  # nothing to pause
             if how == "abort":
