@@ -139,11 +139,15 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, desk_data: Path) ->
         page.wait_for_function("document.querySelector('#zoom-level').textContent !== 'zoom 1.0x'")
         page.select_option("#magnify", "10")
 
-        # 3-D: the paper's colours, the new calibration's green dot visible in the one-frame view.
-        page.wait_for_timeout(1500)
-        png = page.locator("#scene").screenshot()
-        for name, rgb in PAPER_COLOURS.items():
-            assert colour_pixels(png, rgb) > 20, f"no {name} marks in the 3-D view"
+        # 3-D: the paper's colours, the new calibration's green dot visible in the one-frame view (looked at until
+        # the scene has drawn them).
+        deadline = time.monotonic() + 30
+        while True:
+            png = page.locator("#scene").screenshot()
+            missing = [name for name, rgb in PAPER_COLOURS.items() if colour_pixels(png, rgb) <= 20]
+            if not missing:
+                break
+            assert time.monotonic() < deadline, f"no {', '.join(missing)} marks in the 3-D view"
         shot(page, "4-review")
 
         # Meanwhile another calibration is applied through the API, so the history gets a row to re-apply.
