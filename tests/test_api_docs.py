@@ -7,13 +7,12 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 import pytest
-from browser import launch, served
+from browser import served
 
-playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
 
-def test_the_openapi_page_renders_offline(desk_data: Path) -> None:
+def test_the_openapi_page_renders_offline(chromium_2d, desk_data: Path) -> None:
     with served(desk_data) as server:
         paths = server.get("/openapi.json").json()["paths"]
         operations = sum(len(methods) for methods in paths.values())
@@ -27,13 +26,10 @@ def test_the_openapi_page_renders_offline(desk_data: Path) -> None:
                 refused.append(route.request.url)
                 route.abort()
 
-        with playwright_api.sync_playwright() as p:
-            browser = launch(p, webgl=False)
-            page = browser.new_page()
-            page.route("**/*", offline)
-            page.goto(f"{server.url}/docs")
-            page.locator(".opblock").first.wait_for(timeout=30_000)
-            assert page.locator(".opblock").count() == operations
-            assert page.locator(".opblock-summary-path", has_text="/api/health").count() >= 1
-            browser.close()
+        page = chromium_2d.new_page()
+        page.route("**/*", offline)
+        page.goto(f"{server.url}/docs")
+        page.locator(".opblock").first.wait_for(timeout=30_000)
+        assert page.locator(".opblock").count() == operations
+        assert page.locator(".opblock-summary-path", has_text="/api/health").count() >= 1
         assert refused == []  # nothing was even asked of the internet

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import trimesh
-from browser import launch, ready_page, served
+from browser import ready_page, served
 from fastapi.testclient import TestClient
 from PIL import Image
 from test_robot_look import meshed_arm
@@ -319,10 +319,11 @@ MESHES = """() => Object.fromEntries(Object.entries(window.__viserSceneTree.getS
 
 @pytest.mark.browser
 @pytest.mark.subprocess
-def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(tmp_path: Path, desk_data: Path) -> None:
+def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(
+    chromium, tmp_path: Path, desk_data: Path
+) -> None:
     """The page's "Add a robot" with a profile, its URDF and a zip of its meshes; a session imported for it:
     the review's scene in the browser holds the STL mesh (its own vertices, not a stand-in) and no warning."""
-    sync_api = pytest.importorskip("playwright.sync_api")
     profile = meshed_arm(tmp_path)
     root = profile.parent
     meshes = tmp_path / "meshes.zip"
@@ -331,9 +332,8 @@ def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(tmp_path: 
     csv = tmp_path / "day1.csv"
     csv.write_bytes(to_csv(model, SimulatedRobot.from_profile(model, seed=2).simulate(4).data).encode())
     upper = trimesh.load(root / "meshes" / "upper.stl", force="mesh")
-    with served(desk_data) as server, sync_api.sync_playwright() as pw:
-        browser = launch(pw)
-        page = ready_page(browser, server.url)
+    with served(desk_data) as server:
+        page = ready_page(chromium, server.url)
         page.click("#add-robot-toggle")
         page.fill("#add-robot input[name=name]", "meshed")
         page.set_input_files("#add-robot input[name=profile_file]", str(profile))
@@ -355,4 +355,3 @@ def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(tmp_path: 
         upper_link = {k: n for k, n in shown.items() if k.split("/")[-2] == "upper"}
         assert list(upper_link.values()) == [3 * len(upper.vertices)], shown
         assert page.text_content("#review-warnings") == ""  # every mesh found: nothing drawn with simple shapes
-        browser.close()

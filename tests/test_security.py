@@ -393,15 +393,14 @@ def test_no_page_of_another_site_can_frame_the_desk(local: TestClient) -> None:
 
 @pytest.mark.browser
 @pytest.mark.subprocess
-def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(tmp_path: Path, desk_data: Path) -> None:
+def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(chromium, tmp_path: Path, desk_data: Path) -> None:
     """Clickjacking: a page on another origin frames the desk to have a click start the scripted wander. In a
     real browser the frame stays empty, while the same page frames one of its own pages; the desk's own page
     still shows its scene in its iframe."""
     from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
     from threading import Thread
 
-    from browser import free_port, launch, ready_page, served, wait_for_scene
-    from playwright.sync_api import sync_playwright
+    from browser import free_port, ready_page, served, wait_for_scene
 
     with served(desk_data) as server:
         site = tmp_path / "site"
@@ -414,18 +413,15 @@ def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(tmp_path: Pa
         other = ThreadingHTTPServer(("127.0.0.1", free_port()), handler)
         Thread(target=other.serve_forever, daemon=True).start()
         try:
-            with sync_playwright() as pw:
-                browser = launch(pw)
-                page = browser.new_page()
-                page.goto(f"http://127.0.0.1:{other.server_address[1]}/attack.html")
-                own = page.frame_locator("#own").locator("#own")
-                own.wait_for(timeout=30_000)  # a frame the browser lets in shows its page
-                page.wait_for_load_state("load")  # every frame has loaded, or failed to
-                desk = page.query_selector("#desk").content_frame()
-                assert desk is not None and desk.url.startswith("chrome-error"), desk and desk.url  # refused
-                assert desk.query_selector("#robot-select") is None
-                # The desk's own page still frames its scene.
-                wait_for_scene(ready_page(browser, server.url))
-                browser.close()
+            page = chromium.new_page()
+            page.goto(f"http://127.0.0.1:{other.server_address[1]}/attack.html")
+            own = page.frame_locator("#own").locator("#own")
+            own.wait_for(timeout=30_000)  # a frame the browser lets in shows its page
+            page.wait_for_load_state("load")  # every frame has loaded, or failed to
+            desk = page.query_selector("#desk").content_frame()
+            assert desk is not None and desk.url.startswith("chrome-error"), desk and desk.url  # refused
+            assert desk.query_selector("#robot-select") is None
+            # The desk's own page still frames its scene.
+            wait_for_scene(ready_page(chromium, server.url))
         finally:
             other.shutdown()
