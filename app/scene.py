@@ -159,7 +159,8 @@ def configure(server: viser.ViserServer) -> None:
     default lights without shadows: their shadows (three cascades) draw the scene three more times per frame,
     which a software-rendered browser pays for in the latency of every change (a frame step's marks wait for
     the frame that shows them). A hemisphere light instead of viser's environment map: prefiltering the map's
-    image cost such a browser 1.2 s of CPU at every scene it opened, for much the same look."""
+    image cost such a browser 1.2-1.9 s of CPU at every scene it opened (benchmarks/scene_open.py), for much
+    the same look."""
     server.gui.configure_theme(show_share_button=False)
     server.gui.main_panel.minimize()
     server.scene.configure_default_lights(cast_shadow=False)
