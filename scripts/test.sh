@@ -31,6 +31,9 @@ WORKERS=(-n "${TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder)  # modu
 # The plugins by name, not by their packages' entry points: for those pytest rewrites the assertions of every module
 # of hypothesis and schemathesis, in each of its processes in a new environment (3 s of each one's start, as CI has).
 export PYTEST_DISABLE_PLUGIN_AUTOLOAD=1
+# One BLAS thread a process: the workers and the processes they start already share the cores, and a second thread
+# spins more CPU than it saves (the fast lane 70 -> 66 s of CPU; a plan, benchmarks/README.md).
+export OPENBLAS_NUM_THREADS=1
 PLUGINS=(-p xdist.plugin -p _hypothesis_pytestplugin -p schemathesis.pytest.plugin)
 if $FAST; then
     .venv/bin/python -m pytest -q "${PLUGINS[@]}" "${WORKERS[@]}" -m "not slow and not browser and not subprocess" "$@"
