@@ -275,3 +275,18 @@ def test_each_configurations_information_is_its_rows_weighed_by_their_whole_cova
         C = noise[np.ix_(mine, mine)] + Jq[mine] @ Jq[mine].T
         want = J[mine].T @ np.linalg.solve(C, J[mine])
         np.testing.assert_allclose(B[c].T @ B[c], want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4])
+def test_a_candidates_gain_solves_as_lapack_does(k: int) -> None:
+    """trace(S^-1 T) by the adjugate up to 3 x 3 (the planner's gain per candidate) against LAPACK's solve, on
+    symmetric positive definite S as the planner makes them (I + L C L^T), far from and near singular."""
+    from calib_core.estimation.planning import _trace_solve
+
+    rng = np.random.default_rng(k)
+    X = rng.normal(size=(500, k, 7)) * np.logspace(-4, 2, 500)[:, None, None]
+    S = np.eye(k) + X @ X.transpose(0, 2, 1)
+    T = rng.normal(size=(500, k, k))
+    T = T + T.transpose(0, 2, 1)
+    expected = np.trace(np.linalg.solve(S, T), axis1=1, axis2=2)
+    np.testing.assert_allclose(_trace_solve(S, T), expected, rtol=1e-9, atol=1e-12)
