@@ -229,6 +229,7 @@ def replay(
     existing = {f.index for f in store.sessions.frames(session_id)} if indices is not None else set()
     counts: Counter[FrameStatus] = Counter()
     k = 0
+    ctx.on_cancel(partial(driver.stop, wait_s=0.0))  # a wait on the robot ends with the cancel
     try:
         for k, row in enumerate(plan):
             ctx.checkpoint()
@@ -254,6 +255,8 @@ def replay(
             )
     except (RobotFault, StoreWriteError) as exc:
         driver.stop()
+        if ctx.cancelled:  # the robot call the cancel let go of
+            raise Cancelled("cancelled") from None
         done = sum(counts.values())
         hint = " (start the replay again with resume to go on)" if indices is None else ""
         raise InputError(
@@ -305,6 +308,7 @@ def capture_until(
     counts: Counter[FrameStatus] = Counter()
     error = report(0, **_tally(counts))
     k = 0
+    ctx.on_cancel(partial(driver.stop, wait_s=0.0))  # a wait on the robot ends with the cancel
     try:
         while k < until.max and not error <= until.error:
             ctx.checkpoint()
@@ -330,6 +334,8 @@ def capture_until(
             )
     except (RobotFault, StoreWriteError) as exc:
         driver.stop()
+        if ctx.cancelled:  # the robot call the cancel let go of
+            raise Cancelled("cancelled") from None
         raise InputError(f"capture stopped after {k} configurations: {exc}; the frames before it are kept") from exc
     except BaseException:
         driver.stop()

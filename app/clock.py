@@ -34,6 +34,11 @@ class Clock(Protocol):
     def wait(self, event: threading.Event, timeout_s: float) -> bool:
         """Until `event` is set (True) or `timeout_s` of this clock's seconds have passed (False)."""
 
+    def wait_call(self, event: threading.Event, timeout_s: float) -> bool:
+        """`wait` for work under way on another thread (a call to a robot, app/drivers/calls.py): the same wait,
+        but a ManualClock does not count its waiter among the threads waiting for time, since the thread doing
+        the work is the one to count."""
+
     def wait_condition(self, cond: threading.Condition, timeout_s: float | None) -> None:
         """Called holding `cond`, like `cond.wait`: returns once `cond` is notified or `timeout_s` of this clock
         has passed (None: no timeout), or spuriously; `wait_for` loops."""
@@ -61,6 +66,8 @@ class SystemClock:
 
     def wait(self, event: threading.Event, timeout_s: float) -> bool:
         return event.wait(max(0.0, timeout_s))
+
+    wait_call = wait
 
     def wait_condition(self, cond: threading.Condition, timeout_s: float | None) -> None:
         cond.wait(timeout_s)
@@ -98,6 +105,7 @@ class _Waiter:
     deadline: float | None
     thread: str
     event: threading.Event | None = None  # an event waiter's: once set, the thread is about to go on
+    counted: bool = True  # False: it waits for work under way elsewhere (wait_call), not for time
 
 
 class ManualClock:
@@ -140,9 +148,9 @@ class ManualClock:
             with cond:  # taken once the waiter is inside cond.wait: the notification cannot be missed
                 cond.notify_all()
 
-    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+    def wait(self, event: threading.Event, timeout_s: float, *, counted: bool = True) -> bool:
         with self._state:
-            waiter = _Waiter(None, self._now + timeout_s, threading.current_thread().name, event)
+            waiter = _Waiter(None, self._now + timeout_s, threading.current_thread().name, event, counted)
             self._waiters.add(waiter)
             self._state.notify_all()
             try:
@@ -154,6 +162,11 @@ class ManualClock:
             finally:
                 self._waiters.discard(waiter)
                 self._state.notify_all()
+
+    def wait_call(self, event: threading.Event, timeout_s: float) -> bool:
+        """`wait`, not counted by `waiting` and `until_waiting`: the thread doing the work waits on the clock itself
+        when it waits for time (a robot's transport between two images), or not at all (it computes)."""
+        return self.wait(event, timeout_s, counted=False)
 
     def wait_condition(self, cond: threading.Condition, timeout_s: float | None) -> None:
         with self._state:
@@ -190,7 +203,9 @@ class ManualClock:
 
     def _waiting(self) -> int:
         return sum(
-            (w.deadline is None or w.deadline > self._now) and not (w.event is not None and w.event.is_set())
+            w.counted
+            and (w.deadline is None or w.deadline > self._now)
+            and not (w.event is not None and w.event.is_set())
             for w in self._waiters
         )
 

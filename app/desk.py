@@ -90,7 +90,7 @@ class Desk:
         self.apply = ApplyService(self.store, self.robots)
         self.replay = ReplayService(self.store, self.robots, self.jobs)
         self.reviews = ReviewService(self.store, self.robots, self.connection, self.scrub)
-        self.drive = DriveService(self.store, self.robots, self.jobs, self.connection)
+        self.drive = DriveService(self.store, self.robots, self.jobs, self.connection, clock)
         self.robot_service = RobotService(
             self.robots, self.connection, loopback=self.loopback, max_unpacked_bytes=self.limits.unpacked_bytes
         )

@@ -296,6 +296,7 @@ def driver_look(profile_path: Path, q: np.ndarray, picture: np.ndarray, folder: 
     from app.ros2.link import Link
     from app.ros2.sim_node import Topics, connection_doc
     from calib_core import load_profile
+    from calib_core.units import length_factor
 
     profile = load_profile(profile_path)
     doc = connection_doc(str(profile_path), "charuco", profile, Topics("/charuco"))
@@ -304,10 +305,11 @@ def driver_look(profile_path: Path, q: np.ndarray, picture: np.ndarray, folder: 
     clock = ManualClock()
     driver = ros2_driver(profile, load_connection(folder / "charuco.yaml"), link, clock=clock)
     robot = driver.transport
+    to_m = np.array([length_factor(profile.length_unit, "m") if j.prismatic else 1.0 for j in profile.joints])
     try:
         t = link.now_s()
-        for k in range(3):  # the robot stands still at q: its settled joint states stamped t - 1 s
-            state = JointState(name=[j.name for j in profile.joints], position=[float(v) for v in q])
+        for k in range(3):  # the robot stands still at q: its settled joint states (metres) stamped t - 1 s
+            state = JointState(name=[j.name for j in profile.joints], position=list(map(float, q * to_m)))
             state.header.stamp.sec, state.header.stamp.nanosec = int(t - 1), k
             robot._on_joints(state)
         robot._on_info("cam")(CameraInfo(k=[600.0, 0, 320, 0, 600.0, 240, 0, 0, 1]))

@@ -90,7 +90,7 @@ def test_a_disconnect_mid_replay_keeps_the_frames_and_a_resume_finishes_the_plan
     sid = client.post("/api/sessions", json={"robot": "nao", "name": "disconnect"}).json()["id"]
     plan = {"count": 4, "seed": 1}
     q_plan = _plan_rad(client, sid, 4, 1)
-    driver.inject_fault("disconnect", after_moves=2)
+    driver.inject_fault("drop", after_moves=2)
     job = wait_job(client, client.post(f"/api/sessions/{sid}/replay", json=plan).json()["job"])
     assert job["state"] == "failed"
     assert job["error"] == (
@@ -138,7 +138,7 @@ def test_a_move_that_never_arrives_times_out_and_fails_the_replay(client: TestCl
     assert job["state"] == "failed" and elapsed_s < 10
     assert job["error"].startswith("replay stopped at configuration 2 of 2: nao did not arrive within ")
     assert job["error"].endswith(
-        "(not responding); the robot was stopped; the 1 frames before it are kept "
+        "(not responding); the robot was told to stop; the 1 frames before it are kept "
         "(start the replay again with resume to go on)"
     )
     assert [f["index"] for f in _frames(client, sid)] == [1]

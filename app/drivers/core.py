@@ -11,14 +11,23 @@ The core also runs the detectors on what the transport measured after the robot 
 A transport sends a move, halts, delivers joint readings (pushed as they come, or polled by a Poller) and
 measures (images or a point, stamped after the readings it is asked about); nothing else. Every wait, settle and
 timeout is measured on the driver's clock (app/clock.py), which a test can drive.
+
+The core never waits on the robot longer than a deadline: every call to the transport goes through the robot's
+`Calls` (calls.py), which say which call did not answer and how long they waited, and keep the calls in order (a
+halt never overtakes the move before it). A stop does not wait for the robot either: it releases a move being sent
+and a look, queues the halt, and answers whether the robot took it within `wait_s` (Halt). Readings are checked at
+the edge: one that is not a number, or beyond its joint's limit by more than `Motion.reading_slack`, is a fault
+that names the joint and ends the move under way; images are checked before a detector sees them.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -26,13 +35,17 @@ import numpy as np
 from calib_core import Calibration, FrameStatus, Profile, Sensor
 from calib_core.errors import InputError
 from calib_core.units import length_factor
-from calib_core.vision import Sighting, StereoHead, finder_for
+from calib_core.vision import MAX_IMAGE_PX, Sighting, StereoHead, finder_for
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, Look, RobotFault, RobotStatus, check_limits
+from .calls import Call, Calls, Interrupted, NotResponding
 
 POLL_S = 0.01  # how often a wait asks its caller whether to stop
 DEFAULT_SETTLE_S = 0.3  # the robot's time its readings stay still before a capture looks
+STOP_WAIT_S = 0.15  # how long a stop waits for the robot to take the halt before it answers "not confirmed"
+READING_SLACK_DEG = 5.0  # a reading may stray this far past its joint's limit (a prismatic joint's: READING_SLACK_M)
+READING_SLACK_M = 0.005
 
 
 @dataclass(frozen=True)
@@ -61,12 +74,15 @@ class Measurement:
 class Feed(Protocol):
     """Where a transport delivers joint readings (the driver)."""
 
+    calls: Calls  # the robot's calls with their deadlines: a Poller reads through them
+
     def on_joints(self, q: np.ndarray, stamp_s: float) -> None:
         """Readings (rad; a prismatic joint's in the length unit), stamped on the robot's clock."""
         ...
 
-    def on_lost(self, reason: str) -> None:
-        """The link is lost (a sentence); the next readings bring it back."""
+    def on_lost(self, reason: str, *, responding: bool = True) -> None:
+        """The link is lost (a sentence; `responding=False`: the robot does not answer a call); the next readings
+        bring it back."""
         ...
 
 
@@ -82,7 +98,7 @@ class Transport(Protocol):
         ...
 
     def halt(self) -> None:
-        """Stop and hold where the robot is, at once, from any thread; never raises for a lost link."""
+        """Stop and hold where the robot is, at once; RobotFault when the robot could not be told."""
         ...
 
     def measure(self, since_s: float, target: int) -> Measurement:
@@ -116,6 +132,10 @@ class Motion:
     min_duration_s: float = 0.0
     time_scale: float = 1.0  # the robot's clock runs this much faster than the driver's (a simulation)
     settle_s: float = DEFAULT_SETTLE_S  # a capture looks once the readings stayed still this long (robot's time)
+    call_timeout_s: float = 5.0  # a reading, a move sent, a halt, a close: the robot answers within this
+    measure_timeout_s: float = 30.0  # a measurement (the transport's own wait for an image included)
+    apply_timeout_s: float = 30.0  # a calibration put on the robot (deploy)
+    reading_slack: np.ndarray | None = None  # per joint: how far past its limit a reading may be (None: defaults)
 
 
 def per_joint(profile: Profile, deg: float, m: float) -> np.ndarray:
@@ -162,8 +182,10 @@ def not_found(profile: Profile, target: int, reason: str) -> Sighting:
 
 class Poller:
     """Joint readings for a transport that must ask for them (the simulated robot, NAOqi's getAngles): `read()`
-    every period_s of the clock in a thread of its own, the first at once. A read that raises RobotFault tells
-    the feed the link is lost, with its message, until a read succeeds again."""
+    every period_s of the clock in a thread of its own, the first at once, through the feed's calls (a read that
+    does not answer within its deadline: the robot is not responding; while it still hangs, the next polls say so
+    at once). A read that raises RobotFault tells the feed the link is lost, with its message, until a read
+    succeeds again."""
 
     def __init__(
         self, read: Callable[[], tuple[np.ndarray, float]], feed: Feed, clock: Clock, period_s: float, name: str
@@ -179,7 +201,9 @@ class Poller:
         """Read and deliver now (also a transport's way to report a change it made: a halt)."""
         with self._lock:
             try:
-                q, stamp_s = self._read()
+                q, stamp_s = self._feed.calls.run("readings", "joint readings", self._read, queue=False)
+            except NotResponding as exc:
+                self._feed.on_lost(str(exc), responding=False)
             except RobotFault as exc:
                 self._feed.on_lost(str(exc))
             else:
@@ -201,6 +225,38 @@ class _Move:
     duration_s: float
     done: threading.Event = field(default_factory=threading.Event)
     arrived: bool = False
+    fault: str = ""  # a reading that ended it (not a number, beyond a limit)
+
+
+@dataclass(frozen=True)
+class Halt:
+    """A stop as sent to one robot: `call` is the halt on the robot's command lane (None: nothing to tell, the
+    driver is closed), `before` the call it waits behind when it has not started."""
+
+    robot: str
+    call: Call | None
+    before: Call | None = None
+    queued_s: float = 0.0  # how long `before` had been under way when the stop came
+
+    @property
+    def confirmed(self) -> bool:
+        """The robot took the halt."""
+        return self.call is None or (self.call.finished.is_set() and self.call.error is None)
+
+    def sentence(self) -> str:
+        """What the operator is told of this robot's stop."""
+        if self.confirmed:
+            return f"{self.robot} stopped"
+        own = "If it moves, use its own emergency stop."
+        assert self.call is not None
+        if self.call.finished.is_set():
+            return f"{self.robot}: the stop failed ({self.call.error}). {own}"
+        if math.isnan(self.call.started) and self.before is not None:
+            return (
+                f"{self.robot} does not answer ({self.before.name} for {self.queued_s:.1f} s): the stop is queued "
+                f"behind it, not confirmed. {own}"
+            )
+        return f"{self.robot} does not answer: the stop was sent, not confirmed. {own}"
 
 
 class Driver:
@@ -240,16 +296,35 @@ class Driver:
         self._believed = profile.nominal()
         self._target = first_target(profile) if target is None else target
         self._wake = threading.Event()  # set by a stop or a close: the settle wait under way looks again at once
+        self._bad = ""  # the latest readings' fault (not a number, beyond a limit): nothing moves until good ones
+        self._halt: Call | None = None  # the latest halt sent
+        self._limits = profile.joint_limits()
+        self._slack = (
+            motion.reading_slack
+            if motion.reading_slack is not None
+            else per_joint(profile, READING_SLACK_DEG, READING_SLACK_M)
+        )
+        deadlines = {"readings": motion.call_timeout_s, "commands": motion.call_timeout_s}
+        deadlines |= {"measurements": motion.measure_timeout_s, "apply": motion.apply_timeout_s}
+        self.calls = Calls(profile.name, clock, deadlines | {"life": motion.call_timeout_s})
         transport.start(self, clock)
 
     # --- the stream of readings (Feed) ----------------------------------------------------------------------
     def on_joints(self, q: np.ndarray, stamp_s: float) -> None:
         q = np.asarray(q, dtype=float)
         now = self.clock.now()
+        bad = self._reading_fault(q)
         with self._lock:
             if self._closed:
                 return
-            self._lost = ""
+            self._lost, self._bad = "", bad
+            if bad:  # never the latest readings; the stillness starts again from the next good ones
+                self._ref, self._at = None, now
+                move, self._move = self._move, None
+                if move is not None:
+                    move.fault = bad
+                    move.done.set()
+                return
             if self._ref is None:
                 self._ref, self._still_since, self._rest_at = q, now, now
             elif np.any(np.abs(q - self._ref) > self.motion.still):
@@ -260,22 +335,47 @@ class Driver:
                 self._move, self._rest_at, move.arrived = None, now, True
                 move.done.set()
 
-    def on_lost(self, reason: str) -> None:
+    def on_lost(self, reason: str, *, responding: bool = True) -> None:
         with self._lock:
-            self._lost = reason
+            self._lost = reason if responding else f"not responding: {reason}"
             move, self._move = self._move, None
         if move is not None:
             move.done.set()
 
+    def _reading_fault(self, q: np.ndarray) -> str:
+        """Why readings cannot be the robot's pose (a sentence naming the joint), or ""."""
+        profile, name = self.profile, self.profile.name
+        if q.shape != (len(profile.joints),):
+            return f"{name} sent {q.size} joint readings, not its {len(profile.joints)} joints'"
+        lower, upper = self._limits
+        wrong = ~np.isfinite(q) | (q < lower - self._slack) | (q > upper + self._slack)
+        if not wrong.any():
+            return ""
+        k = int(np.flatnonzero(wrong)[0])
+        joint, value, unit = profile.joints[k].name, float(q[k]), profile.joint_display_unit(k)
+        if not math.isfinite(value):
+            return f"{name} reads {joint} {value} (not a number): a sensor fault; nothing moves until it reads again"
+        side, limit = ("lower", lower[k]) if value < lower[k] else ("upper", upper[k])
+        shown = [profile.joint_to_display(k, x) for x in (value, limit, self._slack[k])]
+        return (
+            f"{name} reads {joint} {shown[0]:.1f} {unit}, beyond its {side} limit {shown[1]:.1f} {unit} by more than "
+            f"the {shown[2]:g} {unit} a reading may stray: a sensor fault; nothing moves until it reads again"
+        )
+
     # --- state ----------------------------------------------------------------------------------------------
     def _connected(self, now: float) -> bool:
-        return not (self._closed or self._lost or self._q is None) and now - self._at <= self.motion.timeout_s
+        ok = not (self._closed or self._lost or self._bad or self._q is None)
+        return ok and now - self._at <= self.motion.timeout_s
 
     def _why_not(self, now: float) -> str:
         if self._closed:
             return "disconnected: the driver was closed"
+        if self._lost.startswith("not responding: "):
+            return self._lost
         if self._lost:
             return f"disconnected: {self._lost}"
+        if self._bad:
+            return f"faulty readings: {self._bad}"
         if self._q is None:
             return f"disconnected: no {self.transport.readings_from} yet"
         return f"disconnected: no {self.transport.readings_from} for {now - self._at:.1f} s"
@@ -293,9 +393,12 @@ class Driver:
         with self._lock:
             connected = self._connected(now)
             stirring = self._still_since > self._rest_at and self._at - self._still_since <= self.motion.still_window_s
-            moving = connected and (self._move is not None or stirring)
+            halting = self._halt is not None and not self._halt.finished.is_set()  # not yet taken by the robot
+            moving = connected and (self._move is not None or stirring or halting)
             if not connected:
                 message = self._why_not(now)
+            elif halting:
+                message = "stopping: the robot has not yet taken the stop"
             else:
                 message = "moving" if moving else "stopped" if self._stopped else "idle"
             q = self._q if self._q is not None else np.clip(0.0, *self.profile.joint_limits())
@@ -347,14 +450,16 @@ class Driver:
         with self._lock:
             q, since, target = self._check_link(), self._stamp, self._target
             p = (self._believed if believed is None else np.asarray(believed, float)).copy()
-        m = self.transport.measure(since, target)
+        measure = partial(self.transport.measure, since, target)
+        m = self.calls.run("measurements", "measure", measure, abortable=True)
         sighting = self._sight(q, target, p, m)
         return Look(q, sighting.target, [sighting, *m.sightings], m.images)
 
     def _sight(self, q: np.ndarray, target: int, p: np.ndarray, m: Measurement) -> Sighting:
         profile = self.profile
-        if m.missing:
-            return not_found(profile, target, m.missing)
+        missing = m.missing or _unusable(m.images)
+        if missing:
+            return not_found(profile, target, missing)
         sensor = profile.sensors[profile.data.sensor]
         if m.intrinsics_px is not None and sensor.intrinsics is not None:
             p[list(sensor.intrinsics)] = m.intrinsics_px
@@ -395,7 +500,9 @@ class Driver:
     def deploy(self, cal_id: str, cal: Calibration) -> str | None:
         """Put the calibration on the robot itself, if its transport can (RobotFault when that fails): what was
         done, a sentence; None for a robot that takes nothing."""
-        return self.transport.deploy(cal_id, cal) if isinstance(self.transport, Deploys) else None
+        if not isinstance(self.transport, Deploys):
+            return None
+        return self.calls.run("apply", "deploy", partial(self.transport.deploy, cal_id, cal))
 
     # --- moving ---------------------------------------------------------------------------------------------
     def check(self, q_rad: np.ndarray) -> None:
@@ -408,25 +515,34 @@ class Driver:
 
     def move_to(self, q_rad: np.ndarray, *, wait: bool = True, should_stop: Callable[[], bool] | None = None) -> bool:
         """Check, then move. True on arrival, False if stopped (or superseded by another move); without `wait`
-        True once the move is sent. RobotFault when the link is lost or the move does not arrive in time (the
-        robot is stopped)."""
+        True once the move is sent. RobotFault when the link is lost, the robot does not take the move within its
+        deadline, a reading goes wrong, or the move does not arrive in time (the robot is told to stop)."""
         goal = np.asarray(q_rad, dtype=float).copy()
         self.check(goal)
-        with self._command:
+        with self._command:  # the move and a stop reach the command lane in the order they were decided
             with self._lock:
                 start = self._check_link()
                 move = _Move(goal, self.clock.now(), self.duration_s(start, goal))
                 previous, self._move, self._stopped = self._move, move, False
             if previous is not None:
                 previous.done.set()
-            try:
-                self.transport.send(Command(start, goal, move.duration_s))
-            except RobotFault as exc:
-                self._forget(move)
-                raise RobotFault(f"{self.profile.name}: {exc}") from None
-            except BaseException:
-                self._forget(move)
-                raise
+            send = partial(self.transport.send, Command(start, goal, move.duration_s))
+            call = self.calls.submit("commands", "send", send, abortable=True)
+        try:
+            self.calls.wait("commands", call)
+        except Interrupted:  # a stop came while the move was being sent
+            self._forget(move)
+            return False
+        except NotResponding as exc:
+            self._forget(move)
+            self.stop()
+            raise RobotFault(f"{exc}; the robot was told to stop") from None
+        except RobotFault as exc:
+            self._forget(move)
+            raise RobotFault(f"{self.profile.name}: {exc}") from None
+        except BaseException:
+            self._forget(move)
+            raise
         if not wait:
             return True
         limit_s = move.duration_s + self.move_slack_s
@@ -442,8 +558,12 @@ class Driver:
             elif self.clock.now() - move.t0 > limit_s:
                 self.stop()
                 raise RobotFault(
-                    f"{self.profile.name} did not arrive within {limit_s:.1f} s (not responding); the robot was stopped"
+                    f"{self.profile.name} did not arrive within {limit_s:.1f} s (not responding); the robot was told "
+                    "to stop"
                 )
+        if move.fault:
+            self.stop()
+            raise RobotFault(f"{move.fault}; the robot was told to stop")
         with self._lock:
             if not move.arrived and self._lost:
                 self._check_link()
@@ -455,27 +575,41 @@ class Driver:
                 self._move = None
         move.done.set()
 
-    def stop(self) -> None:
-        """Halt at once (any thread): a move under way ends, not arrived; a settle wait asks its should_stop again."""
+    def stop(self, wait_s: float = STOP_WAIT_S) -> Halt:
+        """Halt at once, from any thread, never waiting on the robot past `wait_s` of the clock: a move under way
+        ends (not arrived), a move being sent and a look are let go of (and a move not yet sent is never sent), a
+        settle wait asks its should_stop again, and the halt goes to the robot behind the command before it. The
+        Halt says whether the robot took it within `wait_s`."""
         with self._lock:
-            early = self._move
-        if early is not None:
-            early.done.set()  # its waiter returns now, not after the halt
+            move, self._move = self._move, None
+            self._stopped, self._rest_at = True, self.clock.now()
+            wake, self._wake = self._wake, threading.Event()
+            closed = self._closed
+        if move is not None:
+            move.done.set()  # its waiter returns now, not after the halt
+        wake.set()
+        self.calls.interrupt()
+        if closed:
+            return Halt(self.profile.name, None)
         with self._command:
-            with self._lock:
-                move, self._move = self._move, None
-            if move is not None:
-                move.done.set()
-            if not self._closed:
-                self.transport.halt()
-            with self._lock:
-                self._stopped, self._rest_at = True, self.clock.now()
-                wake, self._wake = self._wake, threading.Event()
-            wake.set()
+            before = self.calls.busy("commands")
+            halt = self._halt
+            if halt is None or halt.finished.is_set() or not math.isnan(halt.started):
+                halt = self._halt = self.calls.submit("commands", "halt", self._halt_robot)
+        queued_s = 0.0 if before is None else self.clock.now() - before.started
+        self.clock.wait_call(halt.finished, wait_s)
+        return Halt(self.profile.name, halt, before if before is not halt else None, queued_s)
+
+    def _halt_robot(self) -> None:
+        """The halt, on the command lane: the readings up to where the robot halted are not motion."""
+        self.transport.halt()
+        with self._lock:
+            self._rest_at = self.clock.now()
 
     # --- life -----------------------------------------------------------------------------------------------
     def close(self) -> None:
-        """Stop a move under way, then let go of the robot; the driver then reports itself disconnected."""
+        """Stop a move under way, then let go of the robot (within the call deadline: a robot that does not
+        answer is let go of all the same); the driver then reports itself disconnected."""
         with self._lock:
             moving = self._move is not None
         if moving:
@@ -483,10 +617,28 @@ class Driver:
         with self._lock:
             self._closed = True
             self._wake.set()
-        self.transport.close()
+        self.calls.interrupt()
+        with contextlib.suppress(RobotFault):
+            self.calls.run("life", "close", self.transport.close)
 
     def __enter__(self) -> Driver:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _unusable(images: dict[str, Any]) -> str:
+    """Why a transport's images cannot go to a detector (not a grey uint8 array, or too large), or ""."""
+    for role, image in images.items():
+        if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
+            kind = f"a {image.dtype} array of shape {image.shape}" if isinstance(image, np.ndarray) else type(image)
+            return f"the {role} image is {kind}, not a grey image of 8-bit pixels"
+        height, width = image.shape
+        if height * width > MAX_IMAGE_PX:
+            return (
+                f"the {role} image is {width} x {height} px, more than the {MAX_IMAGE_PX / 1e6:.0f} MP a camera sends"
+            )
+        if min(height, width) == 0:
+            return f"the {role} image is empty ({width} x {height} px)"
+    return ""

@@ -5,8 +5,9 @@ Options (a connection file's fields, app/naoqi/connection.py; `calib serve --nao
 robot's NAOqi address, tcp://host:9559), `camera` (ALVideoDevice's index: 1, the lower camera, the paper's),
 and as extensions `color_space` (what the camera is asked for: 0 grey, 9 YUV 4:2:2, 11 RGB, 13 BGR), `fps`,
 `margin_deg`, `tolerance_deg` (a move has arrived when every reading is this close), `still_deg` (readings that
-change less stand still), `timeout_s` (no readings for this long: disconnected) and `measurement_wait_s` (how
-long a look waits for an image exposed after the settled readings).
+change less stand still), `timeout_s` (no readings for this long: disconnected), `measurement_wait_s` (how
+long a look waits for an image exposed after the settled readings) and `call_timeout_s` (how long any call to
+NAOqi may take before the robot is not responding: the core's deadlines, calls.py).
 
 The robot may be away when the desk starts and may go away at any time: the link is opened on the first reading
 and opened again (at most every RETRY_S) after NAOqi stopped answering; meanwhile the robot is disconnected with
@@ -33,6 +34,7 @@ from calib_core.io import NAOQI_COLOR_SPACES, estimated_offsets_deg, naoqi_image
 
 from ..clock import Clock
 from . import RobotFault
+from .calls import calling
 from .core import DEFAULT_SETTLE_S, Command, Driver, Feed, Measurement, Motion, Poller, per_joint
 from .registry import DriverContext
 
@@ -47,8 +49,9 @@ OPTIONS: dict[str, Any] = {
     "timeout_s": 1.0,
     "measurement_wait_s": 5.0,
     "settle_s": DEFAULT_SETTLE_S,
+    "call_timeout_s": 2.0,
 }
-NUMBERS = ("margin_deg", "tolerance_deg", "still_deg", "timeout_s", "measurement_wait_s", "settle_s")
+NUMBERS = ("margin_deg", "tolerance_deg", "still_deg", "timeout_s", "measurement_wait_s", "settle_s", "call_timeout_s")
 RATE_HZ = 50.0  # joint readings asked for this often
 RETRY_S = 1.0  # a robot that does not answer is asked again this often
 STILL_WINDOW_S = 0.15
@@ -97,6 +100,9 @@ def create(profile: Profile, options: Mapping[str, Any], context: DriverContext)
         still_window_s=STILL_WINDOW_S,
         timeout_s=options["timeout_s"],
         settle_s=options["settle_s"],
+        call_timeout_s=options["call_timeout_s"],
+        measure_timeout_s=options["measurement_wait_s"] + options["call_timeout_s"],
+        apply_timeout_s=options["call_timeout_s"],
     )
     return Driver(profile, NaoqiTransport(profile, options), motion, clock=context.clock)
 
@@ -158,13 +164,16 @@ class NaoqiTransport:
     def _open(self) -> _Link:
         from ..naoqi import open_session
 
+        calling(f"the connection to {self.url}")
         session = open_session(self.url)
         try:
             motion = session.service("ALMotion")
             video = session.service("ALVideoDevice")
             preferences = session.service("ALPreferenceManager")
+            calling("ALMotion.getLimits")
             max_speed = np.array([float(motion.getLimits(name)[0][2]) for name in self.names])
             o = self.options
+            calling("ALVideoDevice.subscribeCamera")
             camera = video.subscribeCamera(SUBSCRIBER, o["camera"], RESOLUTION_VGA, o["color_space"], o["fps"])
         except (RuntimeError, AttributeError) as exc:  # a missing service or method: AttributeError
             session.close()
@@ -181,13 +190,30 @@ class NaoqiTransport:
                 _close_quietly(link.session)
         return RobotFault(self._why)
 
-    def read(self) -> tuple[np.ndarray, float]:
-        link = self._connected()
+    def _call(self, link: _Link, service: str, method: str, *args: Any, **kwargs: Any) -> Any:
+        """`service.method(*args)` on the robot, named for the core's deadline; RobotFault naming the call when the
+        robot does not offer it, or saying the link is lost."""
+        calling(f"{service}.{method}")
+        proxy = {"ALMotion": link.motion, "ALVideoDevice": link.video, "ALPreferenceManager": link.preferences}
         try:
-            q = link.motion.getAngles(self.names, True)  # the sensors' readings, rad
+            fn = getattr(proxy[service], method)
+        except AttributeError:
+            raise RobotFault(
+                f"{service} at {self.url} offers no {method}, which the desk uses (docs/naoqi.md lists the calls): "
+                "a NAOqi it cannot drive; nothing was done"
+            ) from None
+        try:
+            return fn(*args, **kwargs)
         except RuntimeError as exc:
             raise self._lost(link, exc) from None
-        return np.array(q, float), self.clock.now()
+
+    def read(self) -> tuple[np.ndarray, float]:
+        link = self._connected()
+        q = self._call(link, "ALMotion", "getAngles", self.names, True)  # the sensors' readings, rad
+        try:
+            return np.array(q, float).reshape(len(self.names)), self.clock.now()
+        except (TypeError, ValueError):
+            raise RobotFault(f"ALMotion.getAngles answered {str(q)[:80]!r}, not one angle a joint") from None
 
     # --- moving -----------------------------------------------------------------------------------------
     def send(self, command: Command) -> None:
@@ -195,20 +221,17 @@ class NaoqiTransport:
         command.duration_s and keeps every moving joint within its velocity limit; asynchronous, so that a stop
         can end it."""
         link = self._connected()
-        try:
-            link.motion.setStiffnesses(self.names, 1.0)  # a NAO without stiffness does not move
-            stiffness = np.array(link.motion.getStiffnesses(self.names), float)
-            off = [name for name, s in zip(self.names, stiffness, strict=True) if s < STIFF]
-            if off:
-                raise RobotFault(
-                    f"the stiffness of {', '.join(off)} stays off after setStiffnesses (a hot joint, or the robot "
-                    "resting?); nothing was moved"
-                )
-            fraction = self.speed_fraction(command, link.max_speed)
-            goal = [float(v) for v in command.goal]
-            link.motion.angleInterpolationWithSpeed(self.names, goal, fraction, _async=True)
-        except RuntimeError as exc:
-            raise self._lost(link, exc) from None
+        self._call(link, "ALMotion", "setStiffnesses", self.names, 1.0)  # a NAO without stiffness does not move
+        stiffness = np.array(self._call(link, "ALMotion", "getStiffnesses", self.names), float)
+        off = [name for name, s in zip(self.names, stiffness, strict=True) if s < STIFF]
+        if off:
+            raise RobotFault(
+                f"the stiffness of {', '.join(off)} stays off after setStiffnesses (a hot joint, or the robot "
+                "resting?); nothing was moved"
+            )
+        fraction = self.speed_fraction(command, link.max_speed)
+        goal = [float(v) for v in command.goal]
+        self._call(link, "ALMotion", "angleInterpolationWithSpeed", self.names, goal, fraction, _async=True)
 
     def speed_fraction(self, command: Command, max_speed: np.ndarray) -> float:
         """NAOqi's fraction of the joints' maximum speed: the one that takes command.duration_s when all joints
@@ -224,12 +247,13 @@ class NaoqiTransport:
         return min(1.0, cap, max(needed, 0.01))
 
     def halt(self) -> None:
+        """killTasksUsingResources: the joints hold where they are. RobotFault when NAOqi cannot be told (a robot
+        that does not answer is not moving by the desk's command either, but the operator is told)."""
         with self._lock:
-            link = self._link
+            link, why = self._link, self._why
         if link is None:
-            return  # a robot that does not answer is not moving by our command either
-        with contextlib.suppress(RuntimeError):
-            link.motion.killTasksUsingResources(self.names)  # the joints hold where they are
+            raise RobotFault(why)
+        self._call(link, "ALMotion", "killTasksUsingResources", self.names)
 
     # --- seeing -----------------------------------------------------------------------------------------
     def measure(self, since_s: float, target: int) -> Measurement:
@@ -246,9 +270,12 @@ class NaoqiTransport:
         first = math.nan
         while True:
             try:
-                remote = link.video.getImageRemote(link.camera)
-            except RuntimeError as exc:
-                return Measurement(missing=str(self._lost(link, exc)))
+                remote = self._call(link, "ALVideoDevice", "getImageRemote", link.camera)
+            except RobotFault as exc:
+                return Measurement(missing=str(exc))
+            size = self._size(remote)
+            if size:
+                return Measurement(missing=size)
             try:
                 image, stamp = naoqi_image(remote) if remote else (None, math.nan)
             except ValueError as exc:
@@ -258,7 +285,7 @@ class NaoqiTransport:
                 if math.isnan(first):
                     first = stamp
                 elif stamp > first and stamp + self._offset_s > since_s:
-                    return self._checked(image)
+                    return Measurement(images={"image": image})
             if self.clock.now() >= deadline:
                 return Measurement(
                     missing=f"no image from camera {self.options['camera']} exposed after the robot settled "
@@ -266,15 +293,19 @@ class NaoqiTransport:
                 )
             self.clock.wait(self._closing, 1.0 / self.options["fps"])
 
-    def _checked(self, image: np.ndarray) -> Measurement:
+    def _size(self, remote: Any) -> str:
+        """Why an image of the size getImageRemote says is not the profile's camera's (read before its bytes are
+        decoded: a damaged header may claim any size), or ""."""
+        if not remote:
+            return ""
         sensor = self.profile.sensors[self.profile.data.sensor]
         width, height = sensor.image_size_px()
-        if image.shape != (height, width):
-            return Measurement(
-                missing=f"camera {self.options['camera']} sends {image.shape[1]} x {image.shape[0]} px images; "
-                f"the profile's {sensor.name} is {width} x {height} px"
+        if (remote[0], remote[1]) != (width, height):
+            return (
+                f"camera {self.options['camera']} sends {remote[0]} x {remote[1]} px images; the profile's "
+                f"{sensor.name} is {width} x {height} px"
             )
-        return Measurement(images={"image": image})
+        return ""
 
     # --- calibration ------------------------------------------------------------------------------------
     def deploy(self, cal_id: str, cal: Calibration) -> str:
@@ -285,12 +316,9 @@ class NaoqiTransport:
             raise RobotFault(f"apply: {cal_id} estimated no joint offsets; nothing to store on the robot")
         try:
             link = self._connected()
+            self._call(link, "ALPreferenceManager", "setValue", *PREFERENCES, json.dumps(offsets))
         except RobotFault as exc:
             raise RobotFault(f"apply: {exc}; nothing applied") from None
-        try:
-            link.preferences.setValue(*PREFERENCES, json.dumps(offsets))
-        except RuntimeError as exc:
-            raise RobotFault(f"apply: {self._lost(link, exc)}; nothing applied") from None
         return f"stored {len(offsets)} joint offsets in ALPreferenceManager {PREFERENCES[0]}/{PREFERENCES[1]}"
 
     # --- life -------------------------------------------------------------------------------------------
@@ -300,8 +328,8 @@ class NaoqiTransport:
         with self._lock:
             link, self._link = self._link, None
         if link is not None:
-            with contextlib.suppress(RuntimeError):
-                link.video.unsubscribe(link.camera)
+            with contextlib.suppress(RobotFault):
+                self._call(link, "ALVideoDevice", "unsubscribe", link.camera)
             _close_quietly(link.session)
 
 

@@ -40,6 +40,7 @@ from calib_core.vision import StereoHead
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import RobotFault
+from .calls import calling
 from .core import Command, Driver, Feed, Measurement, Motion, per_joint
 from .registry import DriverContext
 
@@ -47,6 +48,7 @@ DURATION_FACTOR = 1.05  # time_from_start this much longer than the fastest the 
 MIN_DURATION_S = 0.1
 STILL_WINDOW_S = 0.15  # joint states changed within this: moving
 MATCH_WAIT_S = 3.0  # how long a move waits for the controller to subscribe to the commands
+CALL_SLACK_S = 2.0  # a call's deadline beyond the waits it makes itself (a match, a measurement, a service)
 _STEREO_KEEP = 4  # the latest images of each side kept for pairing by stamp
 
 
@@ -95,6 +97,9 @@ def ros2_driver(
         duration_factor=DURATION_FACTOR,
         min_duration_s=MIN_DURATION_S,
         settle_s=o["settle_s"],
+        call_timeout_s=MATCH_WAIT_S + CALL_SLACK_S,
+        measure_timeout_s=o["measurement_wait_s"] + CALL_SLACK_S,
+        apply_timeout_s=2 * o["apply_timeout_s"] + CALL_SLACK_S,  # the service found, then its answer
     )
     return Driver(profile, Ros2Transport(profile, conn, link, files), motion, clock=clock)
 
@@ -225,12 +230,14 @@ class Ros2Transport:
     # --- moving ---------------------------------------------------------------------------------------
     def send(self, command: Command) -> None:
         """One JointTrajectory, once the controller subscribes (reliable delivery needs a matched reader)."""
+        calling(f"the controller on {self.conn.command}")
         if self._command.get_subscription_count() == 0 and not self.clock.wait(self.controller, MATCH_WAIT_S):
             raise RobotFault(f"nothing subscribes to {self.conn.command} (is the controller running?)")
         self._command.publish(self._trajectory(command.goal, command.duration_s))
 
     def halt(self) -> None:
         """The empty trajectory: the controller stops and holds where it is (never a jump)."""
+        calling(f"the controller on {self.conn.command}")
         msg = self._trajectory_type()
         msg.joint_names = [j.name for j in self.profile.joints]
         if not self._closing.is_set():
@@ -257,6 +264,7 @@ class Ros2Transport:
         sensor = self.profile.sensors[self.profile.data.sensor]
         m = next(m for m in self.conn.measurements if m.sensor == sensor.name)
         topic = m.topic if m.kind != "stereo" else f"{m.topic} and {m.right}"
+        calling(f"a measurement on {topic}")
         wait_s = self.conn.options["measurement_wait_s"]
         deadline = self.clock.now() + wait_s
         r = self._readings[sensor.name]
@@ -347,6 +355,7 @@ class Ros2Transport:
 
         timeout_s = self.conn.options["apply_timeout_s"]
         node, parameter = self.conn.apply_node, self.conn.apply_parameter
+        calling(f"{node}/set_parameters")
         client = self._set_parameters
         assert client is not None
         if not client.wait_for_service(timeout_sec=timeout_s):

@@ -24,6 +24,7 @@ from calib_core.vision import Sampler, Visibility, found_targets
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, LimitError, RobotFault, RobotStatus, check_limits
 from .core import Command, Driver, Feed, Measurement, Motion, Poller, reads_points, travel_s
+from .faults import Fault, FaultSwitch, parse_fault
 from .registry import DriverContext
 
 MOVE_SLACK_S = 5.0  # seconds a move may overrun its planned duration before the robot counts as not responding
@@ -128,8 +129,7 @@ class SimulatedTransport:
         self._q = np.zeros(len(profile.joints))  # true joint angles when no move is under way
         self._move: _Move | None = None
         self._link_lost = False
-        self._operator_moves = 0
-        self._fault: tuple[str, int] | None = None  # (kind, the operator move it strikes)
+        self.faults = FaultSwitch(profile.joint_names)  # what it is told to do wrong (the fault harness)
         self.aim: Callable[[int], None] = lambda target: None  # the driver's set_target: where the wander looks
         self._wander_stop: threading.Event | None = None
         self._wander_thread: threading.Thread | None = None
@@ -170,26 +170,30 @@ class SimulatedTransport:
         self._poller = Poller(self._read, feed, clock, 1.0 / self.rate_hz, f"motion-{self.profile.name}")
 
     def _read(self) -> tuple[np.ndarray, float]:
+        self.faults.answer(self.clock.wait)
         with self._lock:
             now = self.clock.now()
             q = self._advance(now)
             if self._link_lost:
                 raise RobotFault(LOST)
-            return self.sim.readings(q), now
+            return self.faults.reading(self.sim.readings(q)), now
 
     def send(self, command: Command) -> None:
         """The operator's (or a replay's) move: it ends a wander."""
+        self.faults.answer(self.clock.wait)
         with self._lock:
             self._end_wander()
             if self._link_lost:
                 raise RobotFault(LOST)
+            fault = self.faults.moved()
+            if fault is not None and fault.kind == "refuse":
+                raise RobotFault("the robot refused the move (its motors are off); nothing was moved")
             move = self._begin(command.goal, "operator", command.duration_s)
-            self._operator_moves += 1
-            if self._fault is not None and self._fault[1] == self._operator_moves:
-                move.stalled, move.drops_link = self._fault[0] == "stall", self._fault[0] == "disconnect"
-                self._fault = None
+            if fault is not None:
+                move.stalled, move.drops_link = fault.kind == "stall", fault.kind == "drop"
 
     def halt(self) -> None:
+        self.faults.answer(self.clock.wait)
         with self._lock:
             self._end_wander()
             self._advance(self.clock.now())
@@ -198,6 +202,7 @@ class SimulatedTransport:
 
     def measure(self, since_s: float, target: int) -> Measurement:
         """Rendered (or read) now: after any readings; the other sensors (`also_read`) read at the same pose."""
+        self.faults.answer(self.clock.wait)
         with self._lock:
             q = self._advance(self.clock.now()).copy()
         with self._render_lock:
@@ -206,6 +211,7 @@ class SimulatedTransport:
                 measured = self.sim.measure(q[None], np.array([target])).data.measured[0]
                 return Measurement(point=measured, detail={"sensor": "read directly"}, sightings=others)
             images, head = self.sim.render(q, target)
+        images = {role: self.faults.image(image) for role, image in images.items()}
         return Measurement(images=images, head=head, sightings=others)
 
     def _seen_by(self, q: np.ndarray, sensor: int) -> list[int]:
@@ -249,10 +255,6 @@ class SimulatedTransport:
                 target=self._wander, args=(stop,), name=f"wander-{self.profile.name}", daemon=True
             )
             self._wander_thread.start()
-
-    def inject_fault(self, kind: str, after_moves: int) -> None:
-        with self._lock:
-            self._fault = (kind, self._operator_moves + after_moves + 1)
 
     def reconnect(self) -> None:
         with self._lock:
@@ -378,13 +380,14 @@ class SimulatedDriver(Driver):
         elif self.transport.wandering:
             self.stop()
 
-    def inject_fault(self, kind: str, *, after_moves: int = 0) -> None:
-        """Make a later move fail as a real robot's can. The move after the next `after_moves` operator moves:
-        "disconnect" loses the link halfway (the robot halts and reports itself disconnected until
-        reconnect()); "stall" never arrives (a jammed joint, a lost command), so move_to times out."""
-        if kind not in ("disconnect", "stall") or after_moves < 0:
-            raise ValueError(f"unknown fault '{kind}' or negative after_moves")
-        self.transport.inject_fault(kind, after_moves)
+    def inject_fault(self, fault: str | Fault | None, *, after_moves: int = 0) -> None:
+        """Make the robot fail as a real one can (faults.py: `hang`, `slow:0.5`, `nan:elbow_pitch`, ...), from its
+        move after the next `after_moves` operator moves; None clears it. `drop` loses the link halfway through
+        that move (the robot halts and reports itself disconnected until reconnect()); `stall` never arrives, so
+        move_to times out."""
+        if after_moves < 0:
+            raise ValueError("negative after_moves")
+        self.transport.faults.arm(parse_fault(fault) if isinstance(fault, str) else fault, after_moves)
 
     def reconnect(self) -> None:
         """The link is back (after an injected disconnect)."""

@@ -73,6 +73,15 @@ class JobContext:
         """Blocks while the job is paused; raises Cancelled once it is cancelled."""
         self._runner._checkpoint(self._job)
 
+    def on_cancel(self, fn: Callable[[], object]) -> None:
+        """Call fn (at once, on the cancelling thread) when the job is cancelled, or now if it is: a job waiting on a
+        robot is let go of then (a replay stops its robot), not at its next checkpoint."""
+        with self._job.hold:
+            if not self._job.cancel_requested:
+                self._job.cancel_hooks.append(fn)
+                return
+        fn()
+
     def unless_paused(self, fn: Callable[[], T]) -> T | None:
         """fn() unless the job is paused or cancelled (None then): a pause answered before it comes finds fn not
         run, and one asked while fn runs is answered once it has (what a replay keeps, its frames, never
@@ -106,6 +115,7 @@ class _Job:
     kill_reason: str | None = None  # set when the runner kills the worker on purpose
     timer: Timer | None = None  # the running process job's time limit (or cancel grace)
     hold: threading.Lock = field(default_factory=threading.Lock)  # a pause waits for a step unless_paused runs
+    cancel_hooks: list[Callable[[], object]] = field(default_factory=list)  # JobContext.on_cancel's
 
 
 class JobRunner:
@@ -246,6 +256,10 @@ class JobRunner:
             if job.process and job.snap.state == JobState.RUNNING:
                 self._arm(job)
             self._changed.notify_all()  # a paused job wakes to see it
+        with job.hold:
+            hooks, job.cancel_hooks = job.cancel_hooks, []
+        for hook in hooks:
+            hook()
         if preparing or (job.process and self._pool.cancel(job_id)):  # not yet in a worker
             self._finish(job, JobState.CANCELLED)
 

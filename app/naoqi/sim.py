@@ -10,7 +10,9 @@ without it does not move. Its hidden truth is the profile's simulation (calib_co
 `seed`, drifted for a later `day`), as `calib sim-ros2`'s.
 
 CalibSim is the simulation's own service (no NAOqi's): the moves it was asked for, for the tests to check
-against the limits.
+against the limits, and the fault harness (app/drivers/faults.py): `fault(text, after_moves)` makes the robot
+hang, answer slowly, drop the connection mid-move, stall, read NaN or beyond a limit, send a malformed or a huge
+image, or keep its stiffness off, until `fault("", 0)` clears it.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import numpy as np
 from calib_core import Profile
 from calib_core.sim import SimulatedRobot
 
+from ..drivers.faults import HUGE_PX, FaultSwitch, parse_fault
 from ..sim_view import home, render_in_view
 from . import require
 
@@ -64,6 +67,8 @@ class SimNao:
         self.commands: list[list[Any]] = []  # [from, to, fraction] per move asked for
         self.rendered: tuple[np.ndarray, np.ndarray] | None = None  # (q, grey)
         self.exposure: tuple[float, np.ndarray] | None = None  # (monotonic s, grey) the latest image
+        self.faults = FaultSwitch(self.names)
+        self.drop: Any = lambda: None  # ends the connection (serve sets it: the session's close)
 
     def index(self, names: Sequence[str]) -> list[int]:
         unknown = [n for n in names if n not in self.names]
@@ -98,13 +103,18 @@ class SimNao:
         if len(angles) != len(k) or not 0 < fraction <= 1:
             raise RuntimeError("ALMotion: one angle a joint and a speed fraction in (0, 1]")
         now = time.monotonic()
+        fault = self.faults.moved()
         with self.lock:
             start = self.position(now)
             goal = start.copy()
             goal[k] = np.clip(np.asarray(angles, float), self.lo[k], self.hi[k])  # ALMotion clamps to its limits
             self.commands.append([start.tolist(), [float(a) for a in angles], float(fraction)])
             goal = np.where(self.stiffness >= 0.5, goal, start)  # a joint without stiffness does not move
+            if fault is not None and fault.kind == "stall":
+                goal = start  # it never gets there
             duration = float(np.max(np.abs(goal - start) / (fraction * self.max_speed))) / self.speed
+            if fault is not None and fault.kind == "drop":  # halfway, the connection is gone
+                threading.Timer(max(duration, 0.1) / 2, self.drop).start()
             if self.move is not None:
                 self.move[4].set()
             done = threading.Event()
@@ -141,7 +151,12 @@ class SimNao:
         if latest is None:
             return None
         grey = latest[1]
+        fault = self.faults.now("malformed_image", "huge_image")
+        if fault is not None and fault.kind == "huge_image":
+            grey = np.zeros(HUGE_PX[::-1], np.uint8)
         data = _encoded(grey, space)
+        if fault is not None and fault.kind == "malformed_image":
+            data = data[: len(data) // 3]  # fewer bytes than its size says
         stamp = time.time() - (now - latest[0])  # the robot's clock: seconds since the epoch
         seconds = math.floor(stamp)
         return [grey.shape[1], grey.shape[0], LAYERS[space], space, seconds, round((stamp - seconds) * 1e6), data]
@@ -162,33 +177,41 @@ def services(nao: SimNao) -> dict[str, Any]:
     """The robot's services by name, ready to register on a libqi session."""
     qi = require()
 
+    answer = nao.faults.answer  # every call: hang or slow when told
+
     @qi.multiThreaded()
     class ALMotion:
         def getAngles(self, names: list[str], useSensors: bool) -> list[float]:
+            answer()
             k = nao.index(names)
             with nao.lock:
                 q = nao.position(time.monotonic())
-            return [float(v) for v in nao.sim.readings(q)[k]]
+            return [float(v) for v in nao.faults.reading(nao.sim.readings(q))[k]]
 
         def getLimits(self, name: str) -> list[list[float]]:
             (k,) = nao.index([name])
             return [[float(nao.lo[k]), float(nao.hi[k]), float(nao.max_speed[k]), 1.0]]
 
         def setStiffnesses(self, names: Any, stiffnesses: Any) -> None:
+            answer()
             names = [names] if isinstance(names, str) else names
             k = nao.index(names)
+            refuses = nao.refuses[k] | (nao.faults.now("refuse") is not None)
             with nao.lock:
-                nao.stiffness[k] = np.where(nao.refuses[k], 0.0, np.broadcast_to(stiffnesses, len(k)))
+                nao.stiffness[k] = np.where(refuses, 0.0, np.broadcast_to(stiffnesses, len(k)))
 
         def getStiffnesses(self, names: list[str]) -> list[float]:
+            answer()
             k = nao.index(names)
             with nao.lock:
                 return [float(v) for v in nao.stiffness[k]]
 
         def angleInterpolationWithSpeed(self, names: list[str], angles: list[float], fraction: float) -> None:
+            answer()
             nao.interpolate(names, angles, fraction)
 
         def killTasksUsingResources(self, names: list[str]) -> None:
+            answer()
             nao.index(names)
             nao.kill()
 
@@ -209,6 +232,7 @@ def services(nao: SimNao) -> dict[str, Any]:
             return handle
 
         def getImageRemote(self, handle: str) -> list[Any] | None:
+            answer()
             with self._lock:
                 space, fps = self._handles[handle]
             return nao.image(space, fps)
@@ -233,6 +257,10 @@ def services(nao: SimNao) -> dict[str, Any]:
             with nao.lock:
                 return list(nao.commands)
 
+        def fault(self, text: str, after_moves: int) -> None:
+            """The fault harness: `text` as faults.py writes it ("" clears it), after `after_moves` moves."""
+            nao.faults.arm(parse_fault(text) if text else None, after_moves)
+
     return {
         "ALMotion": ALMotion(),
         "ALVideoDevice": ALVideoDevice(),
@@ -249,4 +277,5 @@ def serve(nao: SimNao, url: str) -> Any:
     session.listenStandalone(url)
     for name, service in services(nao).items():
         session.registerService(name, service)
+    nao.drop = session.close
     return session

@@ -13,6 +13,12 @@ time_from_start (divided by `speed`, a parameter that may be set while it runs);
 and holds. A trajectory naming an
 unknown joint or a point beyond a joint limit is refused whole (logged), as a controller refuses it.
 
+The fault harness (app/drivers/faults.py): the parameter `fault` (text as faults.py writes it, "" clears it;
+`fault_after_moves` trajectories before it strikes, set first) makes the robot hang (no joint states, no images,
+no motion: its motion and sensor callbacks block, its parameters still answer), answer slowly, go silent halfway
+through the next move (drop, until cleared), stall, read NaN or beyond a limit, send a malformed or a huge image,
+or refuse every trajectory.
+
 Its hidden truth is the profile's simulation (calib_core.sim.SimulatedRobot with `seed`; `day` > 1 drifts the
 joint offsets as the desk's simulated robots and `calib simulate --day` do): the desk that calibrates it should
 find those parameters.
@@ -37,6 +43,7 @@ from calib_core.units import length_factor
 from calib_core.vision import StereoHead, found_targets
 
 from ..drivers.core import DEFAULT_SETTLE_S
+from ..drivers.faults import HUGE_PX, FaultSwitch, parse_fault
 from ..sim_view import home, render_in_view
 from . import require
 
@@ -181,6 +188,8 @@ class SimNode:
         self._q = home(profile, self.sim)
         self._plan: list[tuple[float, np.ndarray]] | None = None  # (s after start, q) from where it stood
         self._t0 = 0.0
+        self.faults = FaultSwitch([j.name for j in profile.joints])
+        self._silent_at = np.inf  # monotonic s from which it publishes nothing (a drop halfway through a move)
         self.link = Link(
             "robot_state_publisher",
             threads=3,  # the parameter services, the motion, the sensor: a stalled one stops neither other
@@ -190,6 +199,8 @@ class SimNode:
         node = self.link.node
         node.declare_parameter("robot_description", urdf)
         node.declare_parameter("speed", self.speed)  # the trajectories' timing divided by this, from the next one
+        node.declare_parameter("fault", "")  # the fault harness: what the robot does wrong ("" nothing)
+        node.declare_parameter("fault_after_moves", 0)
         self._description = node.create_publisher(String, topics.description, LATCHED_QOS)
         self._joints = node.create_publisher(JointState, topics.joint_states, 10)
         self._string, self._joint_state = String, JointState
@@ -204,6 +215,11 @@ class SimNode:
             for p in params:
                 if p.name == "speed" and not (isinstance(p.value, float) and 0 < p.value <= 100):
                     return SetParametersResult(successful=False, reason="speed: a number in (0, 100]")
+                if p.name == "fault":
+                    try:
+                        parse_fault(p.value) if p.value else None
+                    except (InputError, AttributeError) as exc:
+                        return SetParametersResult(successful=False, reason=str(exc))
                 if p.name != "robot_description":
                     continue
                 if self.stall_apply:  # accepted, never answered while the node lives (a hung robot_state_publisher)
@@ -222,6 +238,10 @@ class SimNode:
                     self._description.publish(String(data=p.value))
                 elif p.name == "speed":
                     self.speed = float(p.value)
+                elif p.name == "fault":
+                    after = int(node.get_parameter("fault_after_moves").value)
+                    self._silent_at = np.inf
+                    self.faults.arm(parse_fault(p.value) if p.value else None, after)
 
         node.add_on_set_parameters_callback(check_parameters)
         node.add_post_set_parameters_callback(republish)
@@ -247,11 +267,17 @@ class SimNode:
     # --- commands ---------------------------------------------------------------------------------------
     def _on_trajectory(self, msg: Any) -> None:
         names = [j.name for j in self.profile.joints]
+        self.faults.answer()
+        if self._silent():
+            return
         with self._lock:
             q = self._position(time.monotonic())
             if not msg.points:  # stop and hold
                 self._q, self._plan = q, None
                 return
+            fault = self.faults.moved()
+            if fault is not None and fault.kind == "refuse":
+                return self._refuse("the controller is told to refuse every trajectory (fault harness)")
             unknown = [n for n in msg.joint_names if n not in names]
             if unknown:
                 return self._refuse(f"unknown joint(s) {', '.join(unknown)}")
@@ -268,7 +294,11 @@ class SimNode:
                 if t < plan[-1][0]:
                     return self._refuse("time_from_start goes back")
                 plan.append((t, goal))
+            if fault is not None and fault.kind == "stall":
+                plan = [(0.0, q), (plan[-1][0], q)]  # it never gets there
             self._q, self._plan, self._t0 = q, plan, time.monotonic()
+            if fault is not None and fault.kind == "drop":
+                self._silent_at = self._t0 + plan[-1][0] / 2
 
     def _refuse(self, why: str) -> None:
         self.link.node.get_logger().error(f"trajectory refused: {why}")
@@ -285,7 +315,19 @@ class SimNode:
         return self._plan[-1][1].copy()
 
     # --- publishing -------------------------------------------------------------------------------------
+    def _silent(self) -> bool:
+        """Dropped: it publishes and takes nothing (halted where it was) until the fault is cleared."""
+        now = time.monotonic()
+        if now < self._silent_at:
+            return False
+        with self._lock:
+            self._q, self._plan = self._position(min(now, self._silent_at)), None
+        return True
+
     def _tick(self) -> None:
+        self.faults.answer()
+        if self._silent():
+            return
         now = time.monotonic()
         with self._lock:
             q = self._position(now)
@@ -294,7 +336,7 @@ class SimNode:
         msg = self._joint_state()
         msg.header.stamp = self.link.node.get_clock().now().to_msg()
         msg.name = [j.name for j in self.profile.joints]
-        msg.position = [float(v) for v in self.sim.readings(q) * self._scale]
+        msg.position = [float(v) for v in self.faults.reading(self.sim.readings(q)) * self._scale]
         self._joints.publish(msg)
 
     def _true_q(self) -> np.ndarray:
@@ -314,6 +356,9 @@ class SimNode:
     def _publish_images(self) -> None:
         """What the camera (the stereo head) sees, rendered while the robot stands still (a moving robot's images
         would be blurred, and no capture takes them); a stereo pair's two images and infos stamped alike."""
+        self.faults.answer()
+        if self._silent():
+            return
         stamp = self.link.node.get_clock().now().to_msg()
         with self._lock:
             if self._plan is not None:
@@ -325,12 +370,17 @@ class SimNode:
         fx, fy, cx, cy = (float(self.sim.true_params[i]) for i in sensor.intrinsics or ())
         # The right camera of a rectified pair: P[0,3] = -fx * baseline (m), as a ROS stereo driver says it.
         shifts = [0.0] if self.kind == "image" else [0.0, -fx * self._baseline_m()]
+        fault = self.faults.now("malformed_image", "huge_image")
         for image, shift, images, infos in zip(self._rendered[1], shifts, self._images, self._infos, strict=True):
+            if fault is not None and fault.kind == "huge_image":
+                image = np.zeros(HUGE_PX[::-1], np.uint8)
             msg = self._image_type()
             msg.header.stamp, msg.header.frame_id = stamp, self._frame
             msg.height, msg.width = image.shape[:2]
             msg.encoding, msg.step = "mono8", image.shape[1]
             msg.data = image.tobytes()
+            if fault is not None and fault.kind == "malformed_image":
+                msg.data = msg.data[: len(msg.data) // 3]  # fewer bytes than its size says
             info = self._info_type()
             info.header = msg.header
             info.height, info.width = msg.height, msg.width
@@ -344,4 +394,5 @@ class SimNode:
 
     def close(self) -> None:
         self._closing.set()
+        self.faults.arm(None)  # a hung callback ends
         self.link.close()

@@ -147,12 +147,30 @@ def move(drive: DriveDep, connection: ConnectionDep, body: MoveRequest) -> Robot
     return robot_state(connection, drive.move(body.robot, body.joints))
 
 
+class RobotStop(BaseModel):
+    """One robot's answer to STOP."""
+
+    robot: str
+    confirmed: bool  # the robot took the halt within the answer's time
+    message: str  # "nao-3 stopped", or what it did not do and what to do ("use its own emergency stop")
+
+
+class StopAnswer(RobotState):
+    """The connected robot's state after STOP, and every robot's answer."""
+
+    stops: list[RobotStop]
+
+
 @router.post("/robot/stop")
-def stop(drive: DriveDep, connection: ConnectionDep) -> RobotState | None:
-    """Halt every robot and every motion job (replays, and the dry runs that plan them) at once; the connected
-    robot's state (None: no robot to drive)."""
-    drive.stop_all()
-    return None if connection.connected is None else robot_state(connection, None)
+def stop(drive: DriveDep, connection: ConnectionDep) -> StopAnswer | None:
+    """Halt every robot and every motion job (replays, and the dry runs that plan them) at once, never waiting on
+    a robot: within about 150 ms, the connected robot's state and whether each robot took the stop (`stops`; one
+    that did not answer says so: use its own emergency stop). None: no robot to drive."""
+    outcomes = drive.stop_all()
+    if connection.connected is None:
+        return None
+    stops = [RobotStop(robot=o.robot, confirmed=o.confirmed, message=o.message) for o in outcomes]
+    return StopAnswer(**robot_state(connection, None).model_dump(), stops=stops)
 
 
 class WanderRequest(BaseModel):

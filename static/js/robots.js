@@ -49,10 +49,14 @@ async function addRobot(e) {
   toast(`Robot ${robot.name} (${robot.model}) is on the desk.`, "info");
 }
 
+// STOP answers within about 150 ms whatever the robots do: a robot that did not take the stop is named, with
+// what to do (its own emergency stop), instead of "Stopped."
 async function stopAll() {
   $("#wander").checked = false;
-  await act(() => api("POST", "/robot/stop"));
-  toast("Stopped.", "info");
+  const answer = await act(() => api("POST", "/robot/stop"));
+  const unconfirmed = (answer?.stops || []).filter((s) => !s.confirmed).map((s) => s.message);
+  if (unconfirmed.length) toast(unconfirmed.join(" "), "error");
+  else if (answer !== null) toast("Stopped.", "info");
 }
 
 export function wireRobots() {
