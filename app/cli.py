@@ -275,6 +275,8 @@ def _parser() -> argparse.ArgumentParser:
     r2.add_argument(
         "--stall-apply", action="store_true", help="never answer a new robot_description while running (tests)"
     )
+    r2.add_argument("--fault", help="what it does wrong (the fault harness: hang, slow:S, drop, nan:JOINT, ...)")
+    r2.add_argument("--fault-after", type=int, default=0, metavar="N", help="the fault strikes after N trajectories")
     nq = sub.add_parser("sim-naoqi", help="the simulated NAO served over libqi (the naoqi extra), until interrupted")
     nq.add_argument("--robot", default="nao", help="the built-in nao (default) or a NAO profile file")
     nq.add_argument("--url", default="tcp://127.0.0.1:9559", help="where it listens (default tcp://127.0.0.1:9559)")
@@ -291,6 +293,11 @@ def _parser() -> argparse.ArgumentParser:
         help="a joint whose stiffness stays off (tests)",
     )
     nq.add_argument("--image-size", metavar="WxH", help="serve images of this size whatever is asked (tests)")
+    nq.add_argument(
+        "--lacks", action="append", default=[], metavar="SERVICE.METHOD", help="a call it does not offer (tests)"
+    )
+    nq.add_argument("--fault", help="what it does wrong (the fault harness: hang, slow:S, drop, nan:JOINT, ...)")
+    nq.add_argument("--fault-after", type=int, default=0, metavar="N", help="the fault strikes after N moves")
     return p
 
 
@@ -872,6 +879,7 @@ def _sim_naoqi(args: argparse.Namespace) -> int:
     from .naoqi import require
 
     require()
+    from .drivers.faults import parse_fault
     from .naoqi.sim import SimNao, serve
 
     if not 0.1 <= args.speed <= 100 or not 1 <= args.day <= 1000:
@@ -889,8 +897,16 @@ def _sim_naoqi(args: argparse.Namespace) -> int:
     if unknown:
         raise InputError(f"--stiffness-off {unknown[0]}: no such joint of {profile.name}")
     nao = SimNao(
-        profile, seed=args.seed, day=args.day, speed=args.speed, stiffness_off=args.stiffness_off, image_size=size
+        profile,
+        seed=args.seed,
+        day=args.day,
+        speed=args.speed,
+        stiffness_off=args.stiffness_off,
+        image_size=size,
+        lacks=args.lacks,
     )
+    if args.fault:
+        nao.faults.arm(parse_fault(args.fault, "--fault"), args.fault_after)
     try:
         session = serve(nao, args.url)
     except RuntimeError as exc:
@@ -910,6 +926,7 @@ def _sim_ros2(args: argparse.Namespace) -> int:
     from .ros2 import require
 
     require()
+    from .drivers.faults import parse_fault
     from .ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
 
     if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000 or not 1 <= args.day <= 1000:
@@ -918,6 +935,7 @@ def _sim_ros2(args: argparse.Namespace) -> int:
     if namespace and (not namespace.startswith("/") or not namespace[1:].replace("_", "").replace("/", "").isalnum()):
         raise InputError(f"--namespace {args.namespace!r}: expected a ROS 2 namespace like /nao")
     topics = Topics(namespace)
+    fault = parse_fault(args.fault, "--fault") if args.fault else None
     profile, urdf = load_sim_profile(args.robot, None if args.urdf is None else Path(args.urdf))
     node = SimNode(
         profile,
@@ -930,6 +948,7 @@ def _sim_ros2(args: argparse.Namespace) -> int:
         stall_apply=args.stall_apply,
         topics=topics,
     )
+    node.faults.arm(fault, args.fault_after)
     if args.connection_out:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
         doc = connection_doc(ref, args.name or profile.name, profile, topics, args.speed)

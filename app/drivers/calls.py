@@ -10,7 +10,9 @@ the calls after it in order: a halt never overtakes the move sent before it. A t
 it is making (`calling("ALMotion.getAngles")`) so that the sentence says which one did not answer.
 
 A stop releases at once the callers of the calls marked `abortable` (a move being sent, a look): they get
-Interrupted, and such a call not yet started is never made.
+Interrupted, such a call not yet started is never made, and one under way makes no further remote call
+(`calling` raises). The halt itself waits its turn behind the call under way: were it sent beside a move that
+hangs, the move could still reach the robot after it.
 """
 
 from __future__ import annotations
@@ -41,10 +43,15 @@ class Interrupted(RobotFault):
 
 def calling(what: str) -> None:
     """Name the remote call the transport is making now ("ALMotion.getAngles"): the sentence a robot that does not
-    answer it gets. Outside a lane (a transport used on its own) it does nothing."""
+    answer it gets. A call a stop has interrupted goes no further (Interrupted): a move sent in several remote calls
+    whose first hung never makes its last once it answers. Outside a lane (a transport used on its own) it does
+    nothing."""
     call = getattr(_here, "call", None)
-    if call is not None:
-        call.doing = what
+    if call is None:
+        return
+    if call.interrupted:
+        raise Interrupted(f"{call.name} was stopped before {what}")
+    call.doing = what
 
 
 @dataclass(eq=False)

@@ -226,6 +226,7 @@ class _Move:
     done: threading.Event = field(default_factory=threading.Event)
     arrived: bool = False
     fault: str = ""  # a reading that ended it (not a number, beyond a limit)
+    lost: str = ""  # the link lost, or the robot not answering, that ended it
 
 
 @dataclass(frozen=True)
@@ -339,6 +340,8 @@ class Driver:
         with self._lock:
             self._lost = reason if responding else f"not responding: {reason}"
             move, self._move = self._move, None
+            if move is not None:  # it ends with this sentence, whatever the polls after it say
+                move.lost = reason if not responding else f"{self.profile.name} disconnected: {reason}"
         if move is not None:
             move.done.set()
 
@@ -384,6 +387,8 @@ class Driver:
         """The latest readings; RobotFault when disconnected (lock held)."""
         now = self.clock.now()
         if not self._connected(now):
+            if self._lost.startswith("not responding: ") or (self._bad and not self._lost):
+                raise RobotFault(self._lost.removeprefix("not responding: ") or self._bad)  # it names the robot
             raise RobotFault(f"{self.profile.name} {self._why_not(now)}")
         assert self._q is not None
         return self._q.copy()
@@ -452,14 +457,16 @@ class Driver:
             p = (self._believed if believed is None else np.asarray(believed, float)).copy()
         measure = partial(self.transport.measure, since, target)
         m = self.calls.run("measurements", "measure", measure, abortable=True)
+        unusable = _unusable(m.images)
+        if unusable:  # neither searched nor kept
+            m = Measurement(missing=m.missing or unusable, sightings=m.sightings)
         sighting = self._sight(q, target, p, m)
         return Look(q, sighting.target, [sighting, *m.sightings], m.images)
 
     def _sight(self, q: np.ndarray, target: int, p: np.ndarray, m: Measurement) -> Sighting:
         profile = self.profile
-        missing = m.missing or _unusable(m.images)
-        if missing:
-            return not_found(profile, target, missing)
+        if m.missing:
+            return not_found(profile, target, m.missing)
         sensor = profile.sensors[profile.data.sensor]
         if m.intrinsics_px is not None and sensor.intrinsics is not None:
             p[list(sensor.intrinsics)] = m.intrinsics_px
@@ -564,9 +571,8 @@ class Driver:
         if move.fault:
             self.stop()
             raise RobotFault(f"{move.fault}; the robot was told to stop")
-        with self._lock:
-            if not move.arrived and self._lost:
-                self._check_link()
+        if move.lost:
+            raise RobotFault(move.lost)
         return move.arrived
 
     def _forget(self, move: _Move) -> None:
@@ -594,7 +600,7 @@ class Driver:
         with self._command:
             before = self.calls.busy("commands")
             halt = self._halt
-            if halt is None or halt.finished.is_set() or not math.isnan(halt.started):
+            if halt is None or halt.finished.is_set():  # one not yet taken is this stop too
                 halt = self._halt = self.calls.submit("commands", "halt", self._halt_robot)
         queued_s = 0.0 if before is None else self.clock.now() - before.started
         self.clock.wait_call(halt.finished, wait_s)
@@ -631,14 +637,13 @@ class Driver:
 def _unusable(images: dict[str, Any]) -> str:
     """Why a transport's images cannot go to a detector (not a grey uint8 array, or too large), or ""."""
     for role, image in images.items():
+        name = "the image" if role == "image" else f"the {role} image"
         if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
             kind = f"a {image.dtype} array of shape {image.shape}" if isinstance(image, np.ndarray) else type(image)
-            return f"the {role} image is {kind}, not a grey image of 8-bit pixels"
+            return f"{name} is {kind}, not a grey image of 8-bit pixels"
         height, width = image.shape
         if height * width > MAX_IMAGE_PX:
-            return (
-                f"the {role} image is {width} x {height} px, more than the {MAX_IMAGE_PX / 1e6:.0f} MP a camera sends"
-            )
+            return f"{name} is {width} x {height} px, more than the {MAX_IMAGE_PX / 1e6:.0f} MP a camera sends"
         if min(height, width) == 0:
-            return f"the {role} image is empty ({width} x {height} px)"
+            return f"{name} is empty ({width} x {height} px)"
     return ""

@@ -117,9 +117,8 @@ class FaultSwitch:
         return fault if fault.kind in ("drop", "stall", "refuse") else None
 
     def answer(self, wait: Callable[[threading.Event, float], bool] | None = None) -> None:
-        """Where a call to the robot is answered: blocks while `hang` lasts (in real time: a robot that hangs keeps
-        no clock of the desk's), waits `delay_s` for `slow` (`wait`: the robot's clock's event wait, default real
-        time)."""
+        """Where a call to the robot is answered: blocks while `hang` lasts (on no clock: a robot that hangs waits
+        for nobody's time), waits `delay_s` for `slow` (`wait`: the robot's clock's event wait, default real time)."""
         fault = self.now("hang", "slow")
         if fault is None:
             return

@@ -49,6 +49,7 @@ class SimNao:
         speed: float = 1.0,
         stiffness_off: Sequence[str] = (),
         image_size: tuple[int, int] | None = None,
+        lacks: Sequence[str] = (),
     ) -> None:
         self.profile = profile
         self.sim = SimulatedRobot.from_profile(profile, seed=seed).on_day(day)
@@ -57,6 +58,7 @@ class SimNao:
         self.lo, self.hi = profile.joint_limits()
         self.max_speed = np.array([j.velocity for j in profile.joints])
         self.image_size = image_size  # served whatever is asked (a camera set up otherwise)
+        self.lacks = set(lacks)  # "Service.method" calls it does not offer (an older or a trimmed NAOqi)
         self.refuses = np.isin(self.names, list(stiffness_off))  # joints whose stiffness stays off
         self.lock = threading.Lock()
         self.q = home(profile, self.sim)
@@ -68,6 +70,7 @@ class SimNao:
         self.rendered: tuple[np.ndarray, np.ndarray] | None = None  # (q, grey)
         self.exposure: tuple[float, np.ndarray] | None = None  # (monotonic s, grey) the latest image
         self.faults = FaultSwitch(self.names)
+        self.move_fault: Any = None  # what the fault harness does to the move under way (set as the desk stiffens)
         self.drop: Any = lambda: None  # ends the connection (serve sets it: the session's close)
 
     def index(self, names: Sequence[str]) -> list[int]:
@@ -103,7 +106,7 @@ class SimNao:
         if len(angles) != len(k) or not 0 < fraction <= 1:
             raise RuntimeError("ALMotion: one angle a joint and a speed fraction in (0, 1]")
         now = time.monotonic()
-        fault = self.faults.moved()
+        fault, self.move_fault = self.move_fault, None
         with self.lock:
             start = self.position(now)
             goal = start.copy()
@@ -196,6 +199,7 @@ def services(nao: SimNao) -> dict[str, Any]:
             answer()
             names = [names] if isinstance(names, str) else names
             k = nao.index(names)
+            nao.move_fault = nao.faults.moved()  # a move begins: the desk stiffens the joints first
             refuses = nao.refuses[k] | (nao.faults.now("refuse") is not None)
             with nao.lock:
                 nao.stiffness[k] = np.where(refuses, 0.0, np.broadcast_to(stiffnesses, len(k)))
@@ -261,12 +265,14 @@ def services(nao: SimNao) -> dict[str, Any]:
             """The fault harness: `text` as faults.py writes it ("" clears it), after `after_moves` moves."""
             nao.faults.arm(parse_fault(text) if text else None, after_moves)
 
-    return {
-        "ALMotion": ALMotion(),
-        "ALVideoDevice": ALVideoDevice(),
-        "ALPreferenceManager": ALPreferenceManager(),
-        "CalibSim": CalibSim(),
-    }
+    offered = {}
+    for cls in (ALMotion, ALVideoDevice, ALPreferenceManager, CalibSim):
+        lacking = {call.partition(".")[2] for call in nao.lacks if call.startswith(f"{cls.__name__}.")}
+        if lacking:  # the same service without those methods
+            kept = {k: v for k, v in vars(cls).items() if k == "__init__" or not k.startswith("__")}
+            cls = qi.multiThreaded()(type(cls.__name__, (), {k: v for k, v in kept.items() if k not in lacking}))
+        offered[cls.__name__] = cls()
+    return offered
 
 
 def serve(nao: SimNao, url: str) -> Any:
