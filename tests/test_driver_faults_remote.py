@@ -15,8 +15,10 @@ import re
 import time
 from collections.abc import Iterator
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
+import yaml
 from browser import free_port
 from desk_jobs import wait_job
 from fastapi.testclient import TestClient
@@ -93,8 +95,8 @@ NAOQI = {
     r"5 deg a reading may stray: a sensor fault; nothing moves until it reads again(; the robot was told to stop)?",
     "malformed_image": None,
     "huge_image": None,
-    "refuse": r"nao-3: the stiffness of LHipYawPitch, LHipRoll, .*, HeadYaw, HeadPitch stays off after setStiffnesses \(a hot "
-    r"joint, or the robot resting\?\); nothing was moved",
+    "refuse": r"nao-3: the stiffness of LHipYawPitch, LHipRoll, .*, HeadYaw, HeadPitch stays off after "
+    r"setStiffnesses \(a hot joint, or the robot resting\?\); nothing was moved",
 }
 NAOQI_IMAGES = {
     "malformed_image": r"camera 1: .*",
@@ -178,3 +180,102 @@ def test_a_naoqi_without_a_call_the_desk_uses_says_which(client: TestClient, nao
     finally:
         client.delete("/api/robots/nao-4")
         session.close()
+
+
+# --- a robot node on a ROS 2 graph ---------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def nao_ros(client: TestClient, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
+    """The simulated NAO as a ROS 2 node here (8 times as fast, under /naof), on the desk as nao-ros, on a graph of
+    this run's own."""
+    pytest.importorskip("rclpy", reason="the ROS 2 faults need the ros2 extra (pip install -e '.[ros2]')")
+    from ros2_graph import graph_env
+
+    from app.ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
+
+    with pytest.MonkeyPatch.context() as mp:
+        for key, value in graph_env().items():
+            mp.setenv(key, value)
+        profile, urdf = load_sim_profile("nao", None)
+        node = SimNode(profile, urdf, speed=8, rate_hz=50, topics=Topics("/naof"))
+        try:
+            doc = connection_doc("nao", "nao-ros", profile, Topics("/naof"), 8)
+            connection = tmp_path_factory.mktemp("ros2-faults") / "nao-ros.yaml"
+            connection.write_text(yaml.safe_dump({**doc, "timeout_s": 0.5, "measurement_wait_s": 2.0}))
+            options = json.dumps({"connection": str(connection)})
+            r = client.post(
+                "/api/robots", data={"name": "nao-ros", "profile": "nao", "driver": "ros2", "driver_options": options}
+            )
+            assert r.status_code == 201, r.text
+            _until(lambda: _robot(client, "nao-ros")["connected"], "nao-ros connected")
+            yield node
+        finally:
+            node.close()
+
+
+def _set_fault(node: Any, fault: str, after_moves: int = 0) -> None:
+    """Through the node's parameters, as `ros2 param set` would."""
+    from rclpy.parameter import Parameter
+
+    node.link.node.set_parameters([Parameter("fault_after_moves", value=after_moves), Parameter("fault", value=fault)])
+
+
+SILENT = r"nao-ros disconnected: no joint states on /naof/joint_states for \d+\.\d s"
+ROS2 = {
+    "hang": SILENT,
+    "slow:0.05": None,
+    "drop": SILENT,
+    "stall": r"nao-ros did not arrive within \d+\.\d s \(not responding\); the robot was told to stop",
+    "nan:LKneePitch": r"nao-ros reads LKneePitch nan \(not a number\): a sensor fault; nothing moves until it reads "
+    r"again(; the robot was told to stop)?",
+    "beyond:LKneePitch:3.0": r"nao-ros reads LKneePitch 171\.9 deg, beyond its upper limit 121\.0 deg by more than "
+    r"the 5 deg a reading may stray: a sensor fault; nothing moves until it reads again(; the robot was told to stop)?",
+    "malformed_image": None,
+    "huge_image": None,
+    "refuse": r"nao-ros did not arrive within \d+\.\d s \(not responding\); the robot was told to stop",
+}
+ROS2_IMAGES = {
+    "malformed_image": r"/naof/lower_camera/image_raw: .*",
+    "huge_image": r"/naof/lower_camera/image_raw: images of 6000 x 5000 px, but the camera of robot 'nao-ros' \(its "
+    r"intrinsics\) has 640 x 480 px",
+}
+
+
+@pytest.mark.parametrize("fault", list(ROS2))
+def test_a_ros2_robot_that_fails_mid_replay_is_named_and_stop_answers_at_once(
+    client: TestClient, nao_ros: Any, fault: str
+) -> None:
+    driver = client.app.state.desk.robots.driver("nao-ros")
+    driver.move_slack_s = 0.5 if fault in ("stall", "refuse") else 5.0
+    _set_fault(nao_ros, fault, after_moves=1)
+    try:
+        sid, job = _replay(client, "nao-ros", fault)
+        frames = _frames(client, sid)
+        if ROS2[fault] is None:
+            assert job["state"] == "done", job["error"]
+            assert len(frames) == 3 and frames[0]["status"] == "measured"
+            if fault in ROS2_IMAGES:
+                assert all(f["status"] == "not found" for f in frames[1:]), frames
+                assert all(re.fullmatch(ROS2_IMAGES[fault], f["reason"]) for f in frames[1:]), frames
+        else:
+            assert job["state"] == "failed", job
+            error = job["error"]
+            assert error.startswith("replay stopped at configuration 2 of 3: ") and error.endswith(KEPT), error
+            message = error.removeprefix("replay stopped at configuration 2 of 3: ").removesuffix(KEPT)
+            assert re.fullmatch(ROS2[fault], message), error
+            assert [f["index"] for f in frames] == [1] and frames[0]["status"] == "measured"
+        stop = _stop(client, "nao-ros")
+        if fault in ("hang", "drop"):  # the empty trajectory went out; a silent robot is not taken to have it
+            assert not stop["confirmed"], stop
+            assert re.fullmatch(
+                r"nao-ros: the stop failed \(the empty trajectory went out on /naof/joint_trajectory_controller/"
+                r"joint_trajectory, but no joint states came on /naof/joint_states for \d+\.\d s: the robot may not "
+                r"have it\)\. If it moves, use its own emergency stop\.",
+                stop["message"],
+            ), stop
+        else:
+            assert stop == {"robot": "nao-ros", "confirmed": True, "message": "nao-ros stopped"}
+    finally:
+        _set_fault(nao_ros, "")
+        driver.move_slack_s = 5.0
+    _until(lambda: _robot(client, "nao-ros")["connected"], f"nao-ros back after {fault}")
+    assert _stop(client, "nao-ros")["confirmed"]

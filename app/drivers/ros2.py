@@ -134,6 +134,7 @@ class Ros2Transport:
         self._fresh = threading.Event()  # a measurement came
         self._closing = threading.Event()
         self.controller = threading.Event()  # something subscribes to the commands
+        self._joints_at = -math.inf  # when joint states last came, the clock's s
         self._readings = {m.sensor: _Reading() for m in conn.measurements}
         self._set_parameters = None
 
@@ -182,6 +183,7 @@ class Ros2Transport:
             self.feed.on_lost(f"the joint states on {self.conn.joint_states} lack {', '.join(missing)}")
             return
         q = np.array([msg.position[index[j.name]] for j in self.profile.joints]) * self._scale
+        self._joints_at = self.clock.now()
         self.feed.on_joints(q, _stamp_s(msg.header.stamp))
 
     def _on_point(self, sensor: str) -> Callable[[Any], None]:
@@ -236,12 +238,19 @@ class Ros2Transport:
         self._command.publish(self._trajectory(command.goal, command.duration_s))
 
     def halt(self) -> None:
-        """The empty trajectory: the controller stops and holds where it is (never a jump)."""
+        """The empty trajectory: the controller stops and holds where it is (never a jump). A topic says nothing of
+        its delivery: a robot whose joint states stopped coming is not taken to have heard it (RobotFault)."""
         calling(f"the controller on {self.conn.command}")
         msg = self._trajectory_type()
         msg.joint_names = [j.name for j in self.profile.joints]
         if not self._closing.is_set():
             self._command.publish(msg)
+        silent_s = self.clock.now() - self._joints_at
+        if silent_s > self.conn.options["timeout_s"]:
+            raise RobotFault(
+                f"the empty trajectory went out on {self.conn.command}, but no joint states came on "
+                f"{self.conn.joint_states} for {silent_s:.1f} s: the robot may not have it"
+            )
 
     def _trajectory(self, goal: np.ndarray, duration_s: float) -> Any:
         from builtin_interfaces.msg import Duration

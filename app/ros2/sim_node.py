@@ -15,7 +15,8 @@ unknown joint or a point beyond a joint limit is refused whole (logged), as a co
 
 The fault harness (app/drivers/faults.py): the parameter `fault` (text as faults.py writes it, "" clears it;
 `fault_after_moves` trajectories before it strikes, set first) makes the robot hang (no joint states, no images,
-no motion: its motion and sensor callbacks block, its parameters still answer), answer slowly, go silent halfway
+no motion: its motion and sensor callbacks block, its parameters still answer), answer slowly (its trajectories
+and images come late), go silent halfway
 through the next move (drop, until cleared), stall, read NaN or beyond a limit, send a malformed or a huge image,
 or refuse every trajectory.
 
@@ -325,7 +326,8 @@ class SimNode:
         return True
 
     def _tick(self) -> None:
-        self.faults.answer()
+        if self.faults.now("hang"):  # slow: its commands and images come late, its joint states at their rate
+            self.faults.answer()
         if self._silent():
             return
         now = time.monotonic()
