@@ -906,7 +906,7 @@ def _sim_naoqi(args: argparse.Namespace) -> int:
         lacks=args.lacks,
     )
     if args.fault:
-        nao.faults.arm(parse_fault(args.fault, "--fault"), args.fault_after)
+        nao.faults.arm(parse_fault(args.fault, "--fault"), args.fault_after, "--fault")
     try:
         session = serve(nao, args.url)
     except RuntimeError as exc:
@@ -947,8 +947,9 @@ def _sim_ros2(args: argparse.Namespace) -> int:
         refuse_apply=args.refuse_apply,
         stall_apply=args.stall_apply,
         topics=topics,
+        fault=fault,
+        fault_after=args.fault_after,
     )
-    node.faults.arm(fault, args.fault_after)
     if args.connection_out:
         ref = args.robot if args.robot in BUILTIN_PROFILES else str(Path(args.robot).resolve())
         doc = connection_doc(ref, args.name or profile.name, profile, topics, args.speed)

@@ -56,6 +56,7 @@ def test_a_call_past_its_deadline_names_the_robot_the_call_and_the_wait_and_the_
     send = calls.submit("commands", "send", lambda: robot.call("send", remote="ALMotion.setStiffnesses"))
     halt = calls.submit("commands", "halt", lambda: robot.call("halt", "halted"))
     thread, out = _in_thread(lambda: calls.wait("commands", send))
+    assert robot.called.wait(5)  # the send has reached the robot (and named its remote call)
     clock.until_thread_waits("caller")
     assert clock.waiting() == 0  # a caller waits for work under way, not for time: a test's run() does not count it
     clock.advance(1.9)

@@ -91,7 +91,11 @@ def test_a_robot_that_hangs_mid_replay_ends_it_naming_the_call_and_stop_answers_
         )
         assert [(f.index, f.status) for f in store.sessions.frames(sid)] == [(1, "measured")]
         status = d.status()
-        assert not status.connected and status.message.startswith("not responding: nao has not answered joint ")
+        assert not status.connected and re.fullmatch(
+            r"not responding: nao (did not answer joint readings within 5 s|has not answered joint readings for "
+            r"\d+\.\d s)",
+            status.message,
+        ), status
         answered = []
         stopper = threading.Thread(target=lambda: answered.append(d.stop()), name="stop")
         stopper.start()
@@ -151,3 +155,31 @@ def test_a_simulated_robot_that_fails_mid_replay_says_how_and_keeps_the_frames_b
         d.inject_fault(None)
         clock.advance(1.0)  # a call that answers slowly ends
         d.close()
+
+
+def test_a_fault_is_written_as_text_and_a_wrong_one_is_named() -> None:
+    from app.drivers.faults import Fault, FaultSwitch, parse_fault
+    from calib_core import InputError
+
+    assert parse_fault("slow:0.5") == Fault("slow", delay_s=0.5)
+    assert parse_fault("beyond:LKneePitch:2.5") == Fault("beyond", "LKneePitch", 2.5)
+    assert parse_fault("nan") == Fault("nan")
+    for text, said in (
+        ("bogus", r"^--fault: unknown fault 'bogus' \(known: hang, slow, drop"),
+        ("slow", r"^--fault: expected slow:SECONDS$"),
+        ("nan:LKneePitch:x", r"^--fault: expected nan\[:JOINT\]\[:VALUE\]$"),
+        ("hang:3", r"^--fault: the fault 'hang' takes no value$"),
+    ):
+        with pytest.raises(InputError, match=said):
+            parse_fault(text, "--fault")
+    switch = FaultSwitch(["a", "b"])
+    with pytest.raises(InputError, match="no joint c"):
+        switch.arm(Fault("nan", "c"))
+    switch.arm(Fault("stall"), after_moves=2)  # two moves pass, the third stalls, the fourth does not
+    assert [switch.moved() for _ in range(4)] == [None, None, Fault("stall"), None]
+    switch.arm(Fault("nan", "b"), after_moves=1)
+    assert np.isfinite(switch.reading(np.zeros(2))).all() and switch.moved() is None
+    switch.moved()  # it strikes from the second move on, until cleared
+    assert np.isnan(switch.reading(np.zeros(2))[1]) and np.isnan(switch.reading(np.zeros(2))[1])
+    switch.arm(None)
+    assert np.isfinite(switch.reading(np.zeros(2))).all()

@@ -14,15 +14,17 @@ import json
 import re
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 import pytest
 import yaml
-from browser import free_port
+from browser import free_port, served, shot
 from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 
+from app.drivers.faults import parse_fault
 from calib_core import load_profile
 
 qi = pytest.importorskip("qi", reason="the NAOqi faults need the naoqi extra (pip install -e '.[naoqi]')")
@@ -108,7 +110,6 @@ NAOQI_IMAGES = {
 def test_a_nao_over_naoqi_that_fails_mid_replay_is_named_and_stop_answers_at_once(
     client: TestClient, nao3: SimpleNamespace, fault: str
 ) -> None:
-    from app.drivers.faults import parse_fault
     from app.naoqi.sim import serve
 
     driver = client.app.state.desk.robots.driver("nao-3")
@@ -148,8 +149,8 @@ def test_a_nao_over_naoqi_that_fails_mid_replay_is_named_and_stop_answers_at_onc
     finally:
         nao3.nao.faults.arm(None)
         driver.move_slack_s = 5.0
-    if fault == "drop":
-        nao3.sessions.append(serve(nao3.nao, nao3.url))  # the robot back at its address
+        if fault == "drop":
+            nao3.sessions.append(serve(nao3.nao, nao3.url))  # the robot back at its address
     _until(lambda: _robot(client, "nao-3")["connected"], f"nao-3 back after {fault}")
     assert _stop(client, "nao-3")["confirmed"]
 
@@ -279,3 +280,48 @@ def test_a_ros2_robot_that_fails_mid_replay_is_named_and_stop_answers_at_once(
         driver.move_slack_s = 5.0
     _until(lambda: _robot(client, "nao-ros")["connected"], f"nao-ros back after {fault}")
     assert _stop(client, "nao-ros")["confirmed"]
+
+
+# --- the page ------------------------------------------------------------------------------------------------------
+@pytest.mark.browser
+@pytest.mark.subprocess
+def test_stop_on_the_page_with_a_hung_nao_says_which_robot_did_not_take_it(chromium_2d, desk_data: Path) -> None:
+    """A NAO over NAOqi whose every call hangs: the page's pill says it is not responding (its title the whole
+    sentence); STOP, clicked twice and pressed as Esc, answers at once each time, and the toast names the robot that
+    did not take it and what to do; nothing on the page is left waiting."""
+    from app.naoqi.sim import SimNao, serve
+
+    url = f"tcp://127.0.0.1:{free_port()}"
+    nao = SimNao(load_profile("nao"), speed=8)
+    session = serve(nao, url)
+    conn = desk_data.parent / "nao-3.yaml"
+    conn.write_text(yaml.safe_dump({"robot": "nao-3", "profile": "nao", "url": url, "camera": 1}), encoding="utf-8")
+    try:
+        with served(desk_data, extra=("--naoqi", str(conn))) as server:
+            page = chromium_2d.new_page(viewport={"width": 1500, "height": 1000})
+            page.goto(server.url)
+            page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+            page.select_option("#robot-select", "nao-3")
+            page.wait_for_function("document.querySelector('#robot-state').textContent === 'nao-3: still'")
+            page.click("#stop")
+            page.wait_for_function("document.querySelector('#toast').textContent === 'Stopped.'")
+            nao.faults.arm(parse_fault("hang"))
+            page.wait_for_function("document.querySelector('#robot-state').textContent === 'nao-3: not responding'")
+            title = page.get_attribute("#robot-state", "title")
+            assert title is not None and title.startswith("not responding: nao-3 ")
+            said = "nao-3 does not answer: the stop was sent, not confirmed. If it moves, use its own emergency stop."
+            for press in ("dblclick", "Escape"):
+                page.evaluate("document.querySelector('#toast').textContent = ''")
+                t0 = time.monotonic()
+                page.dblclick("#stop") if press == "dblclick" else page.keyboard.press("Escape")
+                page.wait_for_function("s => document.querySelector('#toast').textContent === s", arg=said)
+                assert time.monotonic() - t0 < STOP_BOUND_S
+                assert page.locator("#toast").get_attribute("class") == "error"
+            shot(page, "stop-not-confirmed")
+            nao.faults.arm(None)
+            page.wait_for_function("document.querySelector('#robot-state').textContent === 'nao-3: still'")
+            page.click("#stop")
+            page.wait_for_function("document.querySelector('#toast').textContent === 'Stopped.'")
+    finally:
+        nao.faults.arm(None)
+        session.close()

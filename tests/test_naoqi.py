@@ -120,6 +120,14 @@ def test_without_the_extra_serve_naoqi_says_to_install_it(tmp_path, monkeypatch,
 
 
 @needs_qi
+def test_sim_naoqi_names_a_fault_or_a_joint_it_does_not_know(capsys):
+    assert main(["sim-naoqi", "--url", f"tcp://127.0.0.1:{free_port()}", "--fault", "jam"]) == 2
+    assert "--fault: unknown fault 'jam' (known: hang, slow, drop, stall, nan, beyond" in capsys.readouterr().err
+    assert main(["sim-naoqi", "--url", f"tcp://127.0.0.1:{free_port()}", "--fault", "nan:Knee"]) == 2
+    assert "--fault: no joint Knee (joints: LHipYawPitch, LHipRoll" in capsys.readouterr().err
+
+
+@needs_qi
 def test_a_bad_connection_file_names_its_field(tmp_path):
     from app.naoqi.connection import load_connection
 

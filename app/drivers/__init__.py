@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from calib_core.errors import InputError
 from calib_core.model import Profile
 from calib_core.units import length_factor
 from calib_core.vision import Sighting
+
+if TYPE_CHECKING:
+    from .core import Halt
 
 DEFAULT_MARGIN_DEG = 1.0  # a revolute joint's safety margin
 DEFAULT_MARGIN_M = 0.001  # a prismatic joint's
@@ -60,8 +63,8 @@ def _shown(value: float, unit: str) -> str:
 
 
 class RobotFault(RuntimeError):
-    """The robot failed, not the operator: its link was lost, or a move did not arrive in time. The
-    robot is stopped; what was captured before stays."""
+    """The robot failed, not the operator: its link was lost, it did not answer a call within its deadline, a reading
+    went wrong, or a move did not arrive in time. The robot is told to stop; what was captured before stays."""
 
 
 def check_limits(profile: Profile, q: np.ndarray, margin_rad: float, margin_m: float = DEFAULT_MARGIN_M) -> None:
@@ -140,8 +143,9 @@ class RobotDriver(Protocol):
         arrival, False if stopped; without `wait` True once the move has started."""
         ...
 
-    def stop(self) -> None:
-        """Halt motion at once (from any thread)."""
+    def stop(self, wait_s: float = ...) -> Halt:
+        """Halt motion at once (from any thread), never waiting on the robot longer than `wait_s`: the Halt says
+        whether it took the stop by then (core.Driver.stop)."""
         ...
 
     def settled(self, for_s: float | None = None) -> bool:

@@ -379,6 +379,9 @@ class Driver:
             return f"disconnected: {self._lost}"
         if self._bad:
             return f"faulty readings: {self._bad}"
+        hung = self.calls.busy("readings")
+        if hung is not None and self._q is not None:  # the readings stopped because the robot does not answer
+            return f"not responding: {self.profile.name} has not answered {hung.name} for {now - hung.started:.1f} s"
         if self._q is None:
             return f"disconnected: no {self.transport.readings_from} yet"
         return f"disconnected: no {self.transport.readings_from} for {now - self._at:.1f} s"
@@ -387,9 +390,10 @@ class Driver:
         """The latest readings; RobotFault when disconnected (lock held)."""
         now = self.clock.now()
         if not self._connected(now):
-            if self._lost.startswith("not responding: ") or (self._bad and not self._lost):
-                raise RobotFault(self._lost.removeprefix("not responding: ") or self._bad)  # it names the robot
-            raise RobotFault(f"{self.profile.name} {self._why_not(now)}")
+            why = self._why_not(now)
+            if why.startswith("not responding: ") or (self._bad and not self._lost):
+                raise RobotFault(why.removeprefix("not responding: ").removeprefix("faulty readings: "))  # names it
+            raise RobotFault(f"{self.profile.name} {why}")
         assert self._q is not None
         return self._q.copy()
 

@@ -80,13 +80,13 @@ class FaultSwitch:
         self._cleared = threading.Event()
         self._cleared.set()
 
-    def arm(self, fault: Fault | None, after_moves: int = 0) -> None:
+    def arm(self, fault: Fault | None, after_moves: int = 0, where: str = "fault") -> None:
         """Have `fault` strike now (`after_moves` 0), or from the move after the robot's next `after_moves` moves
-        (None: clear it)."""
+        (None: clear it); InputError naming `where` for a joint the robot does not have."""
         if fault is not None and fault.joint is not None and fault.joint not in self.names:
-            raise InputError(f"fault: no joint {fault.joint} (joints: {', '.join(self.names)})")
+            raise InputError(f"{where}: no joint {fault.joint} (joints: {', '.join(self.names)})")
         if after_moves < 0:
-            raise InputError("fault: after_moves must not be negative")
+            raise InputError(f"{where}: the moves before it must not be negative")
         with self._lock:
             self._fault, self._moves_left, self._active = fault, after_moves, after_moves == 0
             if fault is None:

@@ -7,7 +7,8 @@
 
 Extensions (optional, with their defaults): the naoqi driver's other options (app/drivers/naoqi.py):
 `color_space: 9`, `fps: 15`, `margin_deg: 1.0`, `tolerance_deg: 0.5`, `still_deg: 0.05`, `timeout_s: 1.0`,
-`measurement_wait_s: 5.0`, `settle_s: 0.3` (a capture looks once the readings stayed still this long; `calib
+`measurement_wait_s: 5.0`, `call_timeout_s: 2.0` (a call to NAOqi not answered within this: the robot is not
+responding), `settle_s: 0.3` (a capture looks once the readings stayed still this long; `calib
 sim-naoqi --speed N` writes 0.3 / N, its NAO settling N times as fast).
 """
 

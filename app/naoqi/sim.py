@@ -116,8 +116,9 @@ class SimNao:
             if fault is not None and fault.kind == "stall":
                 goal = start  # it never gets there
             duration = float(np.max(np.abs(goal - start) / (fraction * self.max_speed))) / self.speed
-            if fault is not None and fault.kind == "drop":  # halfway, the connection is gone
-                threading.Timer(max(duration, 0.1) / 2, self.drop).start()
+            if fault is not None and fault.kind == "drop":  # halfway, it halts and the connection is gone
+                goal, duration = (start + goal) / 2, duration / 2
+                threading.Timer(duration, self.drop).start()
             if self.move is not None:
                 self.move[4].set()
             done = threading.Event()

@@ -44,7 +44,7 @@ from calib_core.units import length_factor
 from calib_core.vision import StereoHead, found_targets
 
 from ..drivers.core import DEFAULT_SETTLE_S
-from ..drivers.faults import HUGE_PX, FaultSwitch, parse_fault
+from ..drivers.faults import HUGE_PX, Fault, FaultSwitch, parse_fault
 from ..sim_view import home, render_in_view
 from . import require
 
@@ -156,6 +156,8 @@ class SimNode:
         refuse_apply: bool = False,
         stall_apply: bool = False,
         topics: Topics = Topics(),
+        fault: Fault | None = None,
+        fault_after: int = 0,
     ) -> None:
         require()
         from geometry_msgs.msg import PointStamped
@@ -190,6 +192,7 @@ class SimNode:
         self._plan: list[tuple[float, np.ndarray]] | None = None  # (s after start, q) from where it stood
         self._t0 = 0.0
         self.faults = FaultSwitch([j.name for j in profile.joints])
+        self.faults.arm(fault, fault_after, "--fault")  # before it is on the graph: a wrong one is said at once
         self._silent_at = np.inf  # monotonic s from which it publishes nothing (a drop halfway through a move)
         self.link = Link(
             "robot_state_publisher",

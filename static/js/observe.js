@@ -59,6 +59,14 @@ function slidersToReadings(all = false) {
 // This tab's robot's state, streamed while it has a driver (another tab's robot has its own stream there);
 // opened again for the robot the tab turns to. The page's pill, readings and motion controls follow it.
 let stream = null;
+
+// Why a robot is not connected, in a word the pill has room for (its title holds the driver's sentence).
+function notConnected(message) {
+  if (message.startsWith("not responding")) return "not responding";
+  if (message.startsWith("faulty readings")) return "faulty readings";
+  return "disconnected";
+}
+
 export function robotEvents() {
   if (stream) stream.close();
   stream = null;
@@ -73,7 +81,8 @@ export function robotEvents() {
     if (r.robot !== state.robot) return;
     // Ten times a second: the page is written only where something changed (a repaint of an unchanged page
     // costs a software-rendered browser as much as a changed one, and slows the 3-D view of every tab).
-    setText($("#robot-state"), `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : "disconnected"}`);
+    setText($("#robot-state"), `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : notConnected(r.message)}`);
+    if ($("#robot-state").title !== r.message) $("#robot-state").title = r.message;  // the whole sentence
     $("#robot-state").classList.toggle("moving", r.moving);
     if (Boolean(state.moving) !== r.moving) {
       state.moving = r.moving;
