@@ -18,6 +18,7 @@ from manual_jobs import manual_runner, wait
 
 from app.capture import dry_run, replay
 from app.clock import ManualClock
+from app.drivers import RobotFault
 from app.drivers.simulated import SimulatedDriver
 from app.jobs.runner import JobRunner
 from app.jobs.snapshot import JobState
@@ -183,3 +184,25 @@ def test_a_fault_is_written_as_text_and_a_wrong_one_is_named() -> None:
     assert np.isnan(switch.reading(np.zeros(2))[1]) and np.isnan(switch.reading(np.zeros(2))[1])
     switch.arm(None)
     assert np.isfinite(switch.reading(np.zeros(2))).all()
+
+
+def test_a_reading_a_hair_past_its_limit_is_taken_and_one_far_past_it_is_a_fault(nao) -> None:
+    """Encoders of a real robot read a little past a limit: within the 5 deg a reading may stray it is the robot's
+    pose; past that, nothing moves and the status names the joint, the value and the limit."""
+    clock = ManualClock()
+    with SimulatedDriver(nao, seed=3, clock=clock) as d:
+        k = nao.joint_names.index("LKneePitch")
+        upper = nao.joints[k].upper
+        d.inject_fault(f"beyond:LKneePitch:{upper + math.radians(4.5)}")
+        clock.run(lambda: d.read_joints()[k] > upper, threads=1)
+        assert d.status().connected
+        d.inject_fault(f"beyond:LKneePitch:{upper + math.radians(5.5)}")
+        clock.run(lambda: not d.status().connected, threads=1)
+        assert d.status().message == (
+            "faulty readings: nao reads LKneePitch 126.5 deg, beyond its upper limit 121.0 deg by more than the 5 deg "
+            "a reading may stray: a sensor fault; nothing moves until it reads again"
+        )
+        with pytest.raises(RobotFault, match=r"^nao reads LKneePitch 126\.5 deg"):
+            d.move_to(d.true_joints_rad())
+        d.inject_fault(None)
+        clock.run(lambda: d.status().connected, threads=1)
