@@ -85,6 +85,24 @@ def _frames(client: TestClient, sid: str) -> list[dict]:
     return client.get(f"/api/sessions/{sid}").json()["frames"]
 
 
+def _replay_told(client: TestClient, robot: str, fault: str, sentence: str | None, reason: str | None) -> None:
+    """A replay of 3 configurations whose second meets the fault: it ends failed with `sentence` (a pattern),
+    keeping the first frame, or (None) done, each frame after the first not found with `reason` when given."""
+    sid, job = _replay(client, robot, fault)
+    frames = _frames(client, sid)
+    if sentence is None:
+        assert job["state"] == "done", job["error"]
+        assert len(frames) == 3 and frames[0]["status"] == "measured"
+        if reason is not None:
+            assert all(f["status"] == "not found" and re.fullmatch(reason, f["reason"]) for f in frames[1:]), frames
+        return
+    assert job["state"] == "failed", job
+    error = job["error"]
+    assert error.startswith("replay stopped at configuration 2 of 3: ") and error.endswith(KEPT), error
+    assert re.fullmatch(sentence, error.removeprefix("replay stopped at configuration 2 of 3: ").removesuffix(KEPT))
+    assert [f["index"] for f in frames] == [1] and frames[0]["status"] == "measured"
+
+
 NAOQI = {
     "hang": r"nao-3 (did not answer ALMotion\.\w+ within 0\.5 s(; the robot was told to stop)?|has not answered "
     r"ALMotion\.\w+ for \d+\.\d s)",
@@ -116,21 +134,7 @@ def test_a_nao_over_naoqi_that_fails_mid_replay_is_named_and_stop_answers_at_onc
     driver.move_slack_s = 0.5 if fault == "stall" else 5.0
     nao3.nao.faults.arm(parse_fault(fault), after_moves=1)
     try:
-        sid, job = _replay(client, "nao-3", fault)
-        frames = _frames(client, sid)
-        if NAOQI[fault] is None:
-            assert job["state"] == "done", job
-            assert len(frames) == 3 and frames[0]["status"] == "measured"
-            if fault in NAOQI_IMAGES:
-                assert all(f["status"] == "not found" for f in frames[1:]), frames
-                assert all(re.fullmatch(NAOQI_IMAGES[fault], f["reason"]) for f in frames[1:]), frames
-        else:
-            assert job["state"] == "failed", job
-            error = job["error"]
-            assert error.startswith("replay stopped at configuration 2 of 3: ") and error.endswith(KEPT), error
-            message = error.removeprefix("replay stopped at configuration 2 of 3: ").removesuffix(KEPT)
-            assert re.fullmatch(NAOQI[fault], message), error
-            assert [f["index"] for f in frames] == [1] and frames[0]["status"] == "measured"
+        _replay_told(client, "nao-3", fault, NAOQI[fault], NAOQI_IMAGES.get(fault))
         stop = _stop(client, "nao-3")
         if fault == "hang":
             assert not stop["confirmed"]  # sent, or queued behind the hung call of a move (it may come after it)
@@ -249,21 +253,7 @@ def test_a_ros2_robot_that_fails_mid_replay_is_named_and_stop_answers_at_once(
     driver.move_slack_s = 0.5 if fault in ("stall", "refuse") else 5.0
     _set_fault(nao_ros, fault, after_moves=1)
     try:
-        sid, job = _replay(client, "nao-ros", fault)
-        frames = _frames(client, sid)
-        if ROS2[fault] is None:
-            assert job["state"] == "done", job["error"]
-            assert len(frames) == 3 and frames[0]["status"] == "measured"
-            if fault in ROS2_IMAGES:
-                assert all(f["status"] == "not found" for f in frames[1:]), frames
-                assert all(re.fullmatch(ROS2_IMAGES[fault], f["reason"]) for f in frames[1:]), frames
-        else:
-            assert job["state"] == "failed", job
-            error = job["error"]
-            assert error.startswith("replay stopped at configuration 2 of 3: ") and error.endswith(KEPT), error
-            message = error.removeprefix("replay stopped at configuration 2 of 3: ").removesuffix(KEPT)
-            assert re.fullmatch(ROS2[fault], message), error
-            assert [f["index"] for f in frames] == [1] and frames[0]["status"] == "measured"
+        _replay_told(client, "nao-ros", fault, ROS2[fault], ROS2_IMAGES.get(fault))
         stop = _stop(client, "nao-ros")
         if fault in ("hang", "drop"):  # the empty trajectory went out; a silent robot is not taken to have it
             assert not stop["confirmed"], stop
