@@ -211,7 +211,7 @@ class Calibration:
             lines.append(f"  {name}: before {sf['before']}; after {sf['after']}{held}")
         s = self.solver
         outcome = s.status.value if s.converged else f"DID NOT CONVERGE: {s.status.value}"
-        above = [t for t in s.noise_tests if t.rejected]
+        above = [t for t in s.noise_tests if t.warns]
         if above:
             worst = max(above, key=lambda t: t.factor)
             outcome += f"; residuals {worst.factor:.3g} times the noise '{worst.sensor}' declares"

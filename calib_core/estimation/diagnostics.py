@@ -129,14 +129,27 @@ def _frames(frames: Iterable[int]) -> str:
 
 
 def _noise_excess(profile: Profile, mode: Mode, modes: Sequence[Mode], fit: Fit) -> list[Diagnostic]:
-    """A sensor whose residuals a chi-square test finds clearly above its declared noise. On a real robot
-    that is usual (model error adds to the noise) and the estimate may still be right, so a warning that
-    says how far above and what a user can do (the profile's mode that estimates more, when it has one); far
-    above (FAR_ABOVE_NOISE), it may also be a wrong minimum or data in another unit."""
+    """A sensor whose residuals a chi-square test finds above its declared noise. With thousands of rows the
+    test rejects any model of a real robot, so its words follow the size of the excess: within NOISE_WARNING
+    (reports.py) times the declared noise, a line of the report that says how much (the estimate fits as well as
+    a real robot allows); above it, a warning that says how far above and what a user can do (the profile's mode
+    that estimates more, when it has one); far above (FAR_ABOVE_NOISE), it may also be a wrong minimum or data in
+    another unit."""
     out = []
     richer = _richer_mode(profile, mode, modes)
     for test in fit.noise_tests:
         if not test.rejected:
+            continue
+        if not test.warns:
+            out.append(
+                Diagnostic(
+                    Severity.INFO,
+                    "noise-scatter",
+                    f"the data scatter {test.factor:.2g} times what '{test.sensor}' declares ({test.describe()}): "
+                    "within a fifth of it, as a real robot's close model leaves them; the standard deviations use "
+                    "the actual scatter",
+                )
+            )
             continue
         if test.factor > FAR_ABOVE_NOISE:
             tried = f"{fit.starts} starts were tried" if fit.starts > 1 else "only the start values were tried"

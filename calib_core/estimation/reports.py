@@ -113,6 +113,12 @@ def group_diagnostics(diagnostics: list[Diagnostic]) -> list[DiagnosticGroup]:
     return out
 
 
+# Residuals within this many times a sensor's declared noise are said, not warned of: a chi-square test of thousands
+# of rows rejects any real robot's model at 1.1 (the NAO's full calibration on its board corners), and a warning on
+# every calibration teaches people to ignore warnings.
+NOISE_WARNING = 1.2
+
+
 @dataclass(frozen=True)
 class NoiseTest:
     """One sensor's residuals against its declared noise (calib_core.estimation.noise_test)."""
@@ -127,6 +133,11 @@ class NoiseTest:
     @property
     def rejected(self) -> bool:
         return self.p_value < self.level
+
+    @property
+    def warns(self) -> bool:
+        """Rejected by more than a real robot's close model leaves (NOISE_WARNING): worth a warning, not a line."""
+        return self.rejected and self.factor > NOISE_WARNING
 
     def describe(self) -> str:
         """The test in words, for a message."""

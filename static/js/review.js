@@ -124,6 +124,10 @@ async function renderParameters() {
     w.append(el("details", { class: "warning", "data-code": g.code },
       el("summary", {}, `⚠ ${g.title}`), el("ul", {}, ...g.messages.map((m) => el("li", {}, m)))));
   }
+  // The noise test within a fifth of the declared noise: a line, in the words `calib solve` prints.
+  for (const g of cal.diagnostic_groups.filter((g) => g.code === "noise-scatter")) {
+    w.append(el("p", { "data-code": g.code }, g.title));
+  }
   if (cal.outliers.length) {
     const shown = (o) => {
       const [u, factor] = displayUnit(o.unit);
