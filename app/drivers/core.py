@@ -598,10 +598,11 @@ class Driver:
         if move is not None:
             move.done.set()  # its waiter returns now, not after the halt
         wake.set()
-        self.calls.interrupt()
         if closed:
+            self.calls.interrupt()
             return Halt(self.profile.name, None)
-        with self._command:
+        with self._command:  # no move is sent between letting go of the one being sent and queueing the halt
+            self.calls.interrupt()
             before = self.calls.busy("commands")
             halt = self._halt
             if halt is None or halt.finished.is_set():  # one not yet taken is this stop too
