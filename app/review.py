@@ -34,7 +34,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from calib_core import Dataset, FrameStatus, Profile
-from calib_core.estimation import Covariance, figures, frame_band
+from calib_core.estimation import Covariance, figures, frame_band, local_points
 from calib_core.io import to_urdf
 from calib_core.model import forward, to_sensor
 from calib_core.sensors import Sensor
@@ -315,8 +315,10 @@ def _observations(
     profile: Profile, indices: np.ndarray, targets: np.ndarray, joints: np.ndarray, data: Dataset | None, sensor: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every frame's observed points: the dataset's for measured frames (their joint readings fill
-    the frame's), the whole target, unmeasured (NaN), for the others, so a frame whose detector
-    found nothing still shows where its target was predicted. Returns (row, target, point, measured)."""
+    the frame's; a row that names only a board's vertex or a marker gets that point, as the solver reads it, and
+    a calibrated point stays NaN for each side to fill), the whole target, unmeasured (NaN), for the others, so a
+    frame whose detector found nothing still shows where its target was predicted. Returns (row, target, point,
+    measured)."""
     dim = profile.sensors[sensor].dim
     row_of = {int(i): r for r, i in enumerate(indices)}
     rows, target, point, measured = [], [], [], []
@@ -327,7 +329,12 @@ def _observations(
         obs_rows = cfg_row[data.cfg[keep]]
         rows.append(obs_rows)
         target.append(data.target[keep])
-        point.append(data.point[keep])
+        points = data.point.copy()
+        for t in np.unique(data.target).tolist():
+            if profile.targets[t].point_params is None:
+                obs = np.flatnonzero(data.target == t)
+                points[obs] = local_points(profile, data, obs, t, profile.nominal())
+        point.append(points[keep])
         measured.append(data.measured[keep, :dim])
         seen[obs_rows] = True
         for c, r in enumerate(cfg_row):

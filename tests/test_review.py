@@ -350,3 +350,24 @@ def test_a_calibration_against_a_wrong_one_is_better_on_most_frames() -> None:
     # Without any covariance there is no band and no verdict.
     bare = Review.build(profile, measured_frames(sim.data), sim.data, wrong, here.params(profile))
     assert {r["verdict"] for r in bare.table()} == {None} and bare.summary()["band"]["median"] is None
+
+
+def test_a_handeye_session_whose_rows_name_only_the_boards_corners_is_reviewed_with_numbers(client) -> None:
+    """The hand-eye sample's rows name each ChArUco corner by its id, not its position (as the solver reads them):
+    the review of its calibration has an error for every frame on both sides (it read none, "no error to show",
+    when it took only the rows' own points), the nominal side through the camera's and board's poses registered
+    on the session's frames, and its marks in the image."""
+    from desk_jobs import wait_job
+
+    job = wait_job(
+        client, client.post("/api/sessions/arm-handeye/calibrations", json={"mode": "offsets"}).json()["job"]
+    )
+    review = client.post("/api/review/table", json={"session": "arm-handeye", "old": None, "new": job["result"]}).json()
+    rows, summary = review["table"], review["summary"]
+    assert len(rows) == summary["frames"] == summary["measured"] == 24
+    assert all(r["err_old"] is not None and r["err_new"] is not None for r in rows)
+    assert summary["new"]["mean"] < 0.2 < 1.0 < summary["old"]["mean"]  # px: the offsets fitted, the nominal's not
+    built, _ = client.app.state.desk.reviews.build("arm-handeye", None, job["result"])
+    marks = built.marks(1)
+    seen = [k for k, uv in enumerate(marks["measured"]) if uv is not None]
+    assert seen and all(marks["old"][k] is not None and marks["new"][k] is not None for k in seen)

@@ -27,7 +27,7 @@ __getattr__ = lazy_exports(
             "predict_accuracy",
         ),
         "plan_seed": ("around_seed", "needs_seed", "seeded_model"),
-        "problem": ("Problem",),
+        "problem": ("Problem", "local_points"),
         "registration": ("register", "registration_params"),
         "reports": (
             "Correlation",
@@ -72,6 +72,7 @@ __all__ = [
     "figures",
     "fit_parameters",
     "frame_band",
+    "local_points",
     "needs_seed",
     "plan",
     "predict_accuracy",
@@ -96,7 +97,7 @@ if TYPE_CHECKING:
         plan,
         predict_accuracy,
     )
-    from .problem import Problem
+    from .problem import Problem, local_points
     from .registration import register, registration_params
     from .reports import (
         Correlation,
