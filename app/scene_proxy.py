@@ -4,7 +4,8 @@ The viser server is bound to 127.0.0.1 only; browsers reach it through FastAPI, 
 the API (app/security.py guards `/scene` like `/api`, the websocket included):
 
 - `GET /scene/<viewer>/` answers viser's prebuilt client page (the `index.html` of the installed package's
-  `client/build/`) with static/viser_marks.js inlined (the review's marks drawn over the bodies). viser's
+  `client/build/`) with static/viser_marks.js inlined (the review's marks drawn over the bodies) and
+  static/viser_notice.js (viser's notice of software WebGL hidden; the desk's page says it under the view). viser's
   client makes its websocket URL from the page's address without the query, so the iframe's websocket comes to
   `/scene/<viewer>`: the path names the viewer (app/viewers.py).
 - `/scene/<viewer>` (websocket) opens a websocket to the viser server offering the browser's `viser-v<version>`
@@ -49,14 +50,18 @@ log = logging.getLogger("calib.scene")
 
 @cache
 def client_page() -> bytes:
-    """viser's prebuilt client (one HTML file with everything inlined, shipped in the viser package) and the
-    script that draws the review's marks over the robot's bodies (static/viser_marks.js)."""
+    """viser's prebuilt client (one HTML file with everything inlined, shipped in the viser package), the script
+    that draws the review's marks over the robot's bodies (static/viser_marks.js) and the one that hides viser's
+    notice of software WebGL (static/viser_notice.js)."""
     page = importlib.resources.files("viser").joinpath("client", "build", "index.html").read_bytes()
-    marks = (STATIC_DIR / "viser_marks.js").read_bytes()
+    scripts = b"".join(
+        b"<script>\n" + (STATIC_DIR / name).read_bytes() + b"</script>\n"
+        for name in ("viser_marks.js", "viser_notice.js")
+    )
     head, body_end, tail = page.rpartition(b"</body>")
     if not body_end:
-        raise RuntimeError("viser's client page has no </body>: the marks' script has no place")
-    return head + b"<script>\n" + marks + b"</script>\n" + body_end + tail
+        raise RuntimeError("viser's client page has no </body>: the desk's scripts have no place")
+    return head + scripts + body_end + tail
 
 
 class ViserClients:

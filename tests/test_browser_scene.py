@@ -128,6 +128,10 @@ def test_the_page_keeps_the_camera_frames_it_and_magnifies(chromium, desk_data: 
         scene = scene_frame(page)
         scene.wait_for_function("() => !!window.__viserSceneTree.getState()['/review/new/base/frame/lines']")
         scene.wait_for_function(OVER, timeout=30_000)
+        # Drawn in software here: viser's notice of it is hidden in the view, the page says it in a line.
+        page.wait_for_selector("#scene-software:not([hidden])")
+        notice = "[...document.querySelectorAll('[class*=Notification-title]')].filter(t => t.offsetParent !== null)"
+        assert scene.evaluate(f"() => {notice}.map(t => t.textContent)") == []
         before = _still(scene)
         step(page)
         step(page)

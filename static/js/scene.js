@@ -21,6 +21,10 @@ async function magnify() {
 
 export function wireScene() {
   $("#frame-marks").addEventListener("click", () => act(() => api("POST", "/review/frame-marks")));
+  // viser's own notice of software WebGL covers part of the view: the scene hides it and tells us (viser_notice.js).
+  window.addEventListener("message", (e) => {
+    if (e.origin === window.location.origin && e.data && e.data.scene === "software-webgl") $("#scene-software").hidden = false;
+  });
   $("#scene-magnify-select").addEventListener("change", () => act(magnify));
 }
 
