@@ -147,3 +147,35 @@ def test_observe_replay_calibrate_review_and_apply_the_hand_eye_sample(chromium_
         page.wait_for_function(f"document.querySelector('#active-cal').dataset.id === {new_id!r}")
         assert server.get("/api/robot/calibration", params={"robot": "arm-handeye"}).json()["id"] == new_id
         shot(page, "5-apply")
+
+
+def test_the_sample_in_its_default_mode_shows_its_warning_and_calibrates_again_in_the_mode_it_names(
+    chromium_2d, desk_data: Path
+) -> None:
+    """The hand-eye sample's joints carry offsets that the default mode `handeye` (the camera's and the board's poses
+    only) cannot fit: the Calibrate panel shows the calibration's warning where its result is (it showed "done ·
+    iteration 0" and nothing else) with a button for the mode the warning names; one click calibrates in mode
+    'offsets', which fits to the noise and has no such warning."""
+    from browser import ready_page
+
+    with served(desk_data) as server:
+        page = ready_page(chromium_2d, server.url)
+        page.click("#sessions li[data-session='arm-handeye']")
+        page.wait_for_selector("#sessions li.selected[data-session='arm-handeye']")
+        page.click("#tabs button[data-tab='calibrate']")
+        assert page.input_value("#mode") == "handeye"
+        page.click("#calibrate-start")
+        page.wait_for_selector("#job-warnings p[data-code='noise-excess']", state="attached", timeout=60_000)
+        said = page.text_content("#job-warnings p[data-code='noise-excess']")
+        assert said.startswith("⚠ the residuals of 'cam' are ") and "mode 'offsets' also estimates" in said
+        page.wait_for_function("document.querySelector('#toast').textContent.includes('done with 1 warning')")
+        page.click("#tabs button[data-tab='calibrate']")
+        page.click("#calibrate-richer")
+        two = "document.querySelectorAll('#calibrations li').length === 2"
+        page.wait_for_function(f"{two} && !document.querySelector('#calibrate-richer')", timeout=60_000)
+        cals = server.get("/api/sessions/arm-handeye/calibrations").json()
+        assert [c["mode"] for c in cals] == ["offsets", "handeye"]
+        latest = server.get(f"/api/calibrations/{cals[0]['id']}").json()
+        assert "noise-excess" not in {d["code"] for d in latest["diagnostics"]}
+        assert latest["figures"]["after"]["mean"] < 0.2  # px: the floor of the finder
+        assert page.locator("#job-warnings p[data-code='noise-excess']").count() == 0

@@ -136,7 +136,7 @@ def _noise_excess(profile: Profile, mode: Mode, modes: Sequence[Mode], fit: Fit)
     that estimates more, when it has one); far above (FAR_ABOVE_NOISE), it may also be a wrong minimum or data in
     another unit."""
     out = []
-    richer = _richer_mode(profile, mode, modes)
+    richer_mode, richer = _richer_mode(profile, mode, modes)
     for test in fit.noise_tests:
         if not test.rejected:
             continue
@@ -173,22 +173,24 @@ def _noise_excess(profile: Profile, mode: Mode, modes: Sequence[Mode], fit: Fit)
                 "noise-excess",
                 f"the residuals of '{test.sensor}' are {test.factor:.3g} times the noise it declares "
                 f"({test.describe()}): {why}",
+                mode=richer_mode,
             )
         )
     return out
 
 
-def _richer_mode(profile: Profile, mode: Mode, modes: Sequence[Mode], shown: int = 6) -> str:
-    """The smallest of `modes` that estimates all `mode` does and more, for the same sensors, as a clause
-    naming what it adds ("mode 'offsets' also estimates shoulder_lift, ..."); "" when there is none."""
+def _richer_mode(profile: Profile, mode: Mode, modes: Sequence[Mode], shown: int = 6) -> tuple[str | None, str]:
+    """The smallest of `modes` that estimates all `mode` does and more, for the same sensors: its name, and a
+    clause naming what it adds ("mode 'offsets' also estimates shoulder_lift, ..."); (None, "") when there is
+    none."""
     mine = set(mode.free)
     richer = [m for m in modes if mine < set(m.free) and m.sensors == mode.sensors]
     if not richer:
-        return ""
+        return None, ""
     best = min(richer, key=lambda m: (len(m.free), m.name))
     extra = [profile.label(i) for i in best.free if i not in mine]
     names = ", ".join(extra[:shown]) + (f" and {len(extra) - shown} more" if len(extra) > shown else "")
-    return f"mode '{best.name}' also estimates {names}"
+    return best.name, f"mode '{best.name}' also estimates {names}"
 
 
 def _registration_misfit(

@@ -26,6 +26,7 @@ class Diagnostic:
     code: str
     message: str
     parameters: tuple[str, ...] = ()
+    mode: str | None = None  # a mode of the profile that may fit what this one cannot (noise-excess), for a program
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -33,12 +34,15 @@ class Diagnostic:
             "code": self.code,
             "message": self.message,
             "parameters": list(self.parameters),
+            "mode": self.mode,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Diagnostic:
+        parameters = tuple(str(p) for p in d.get("parameters", []))
+        mode = d.get("mode")
         return cls(
-            Severity(d["severity"]), str(d["code"]), str(d["message"]), tuple(str(p) for p in d.get("parameters", []))
+            Severity(d["severity"]), str(d["code"]), str(d["message"]), parameters, None if mode is None else str(mode)
         )
 
 

@@ -42,6 +42,7 @@ async function startCalibration() {
   const base = baseValue === "active" ? (await api("GET", `/robot/calibration?robot=${state.session.robot}`)).id : baseValue || null;
   const body = { mode: $("#mode").value, base, holdout: +$("#holdout").value };
   const sid = state.session.id;
+  $("#job-warnings").replaceChildren();
   const { job } = await api("POST", `/sessions/${sid}/calibrations`, body);
   state.job = { id: job, live: true, session: sid };
   jobControls();
@@ -59,17 +60,38 @@ async function startCalibration() {
   if (done.state === "done" && shown()) {
     const converged = done.detail.converged !== false;
     if (!converged) $("#job-state").textContent = `done, but the solver did not converge (${done.detail.solver_status})`;
+    const warned = await showOutcome(done.result);
     await loadCalibrations();
     await loadReview("active", done.result);
     showTab("review");
-    if (converged) toast("Calibration done: review it, then apply.", "info");
-    else toast(`The calibration did not converge (${done.detail.solver_status}): read the warnings before applying.`, "error");
+    if (!converged) toast(`The calibration did not converge (${done.detail.solver_status}): read the warnings before applying.`, "error");
+    else if (warned) toast(`Calibration done with ${warned} warning${warned > 1 ? "s" : ""} (Calibrate and Review list them): read them before applying.`, "error");
+    else toast("Calibration done: review it, then apply.", "info");
   }
+}
+
+// A calibration's warnings where its result is shown, and the richer mode its noise test names (residuals well
+// above the sensor's noise: the mode cannot model what the data hold) one click away. The warnings' count.
+async function showOutcome(calId) {
+  const cal = await api("GET", `/calibrations/${calId}`);
+  const warnings = cal.diagnostic_groups.filter((g) => g.severity === "warning" && g.code !== "not-converged");
+  const box = $("#job-warnings");
+  box.replaceChildren(...warnings.map((g) => el("p", { class: "warning", "data-code": g.code }, `⚠ ${g.title}`)));
+  const richer = cal.diagnostics.find((d) => d.code === "noise-excess" && d.mode && d.mode !== cal.mode);
+  if (richer && [...$("#mode").options].some((o) => o.value === richer.mode)) {
+    const again = () => act(async () => {
+      $("#mode").value = richer.mode;
+      await startCalibration();
+    });
+    box.append(el("button", { id: "calibrate-richer", onclick: again }, `Calibrate again in mode '${richer.mode}'`));
+  }
+  return warnings.length;
 }
 
 // The job line and cost curve say nothing of another session's calibration.
 export function clearJob() {
   $("#job-state").textContent = "";
+  $("#job-warnings").replaceChildren();
   $("#job-progress").value = 0;
   // A new canvas: under load Chromium sometimes kept showing a cleared canvas's old curve (read back too).
   const curve = $("#cost-curve");
