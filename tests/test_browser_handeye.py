@@ -162,8 +162,10 @@ def test_the_sample_in_its_default_mode_shows_its_warning_and_calibrates_again_i
         page = ready_page(chromium_2d, server.url)
         page.click("#sessions li[data-session='arm-handeye']")
         page.wait_for_selector("#sessions li.selected[data-session='arm-handeye']")
+        page.wait_for_selector("#frames th", state="attached")  # the session loaded: a tab clicked now stays
         page.click("#tabs button[data-tab='calibrate']")
-        assert page.input_value("#mode") == "handeye"
+        page.wait_for_selector("#tab-calibrate:not([hidden])")
+        page.wait_for_function("document.querySelector('#mode').value === 'handeye'")  # the profile's first mode
         page.click("#calibrate-start")
         page.wait_for_selector("#job-warnings p[data-code='noise-excess']", state="attached", timeout=60_000)
         said = page.text_content("#job-warnings p[data-code='noise-excess']")
