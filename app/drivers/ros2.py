@@ -247,9 +247,10 @@ class Ros2Transport:
             self._command.publish(msg)
         silent_s = self.clock.now() - self._joints_at
         if silent_s > self.conn.options["timeout_s"]:
+            since = "yet" if math.isinf(silent_s) else f"for {silent_s:.1f} s"
             raise RobotFault(
                 f"the empty trajectory went out on {self.conn.command}, but no joint states came on "
-                f"{self.conn.joint_states} for {silent_s:.1f} s: the robot may not have it"
+                f"{self.conn.joint_states} {since}: the robot may not have it"
             )
 
     def _trajectory(self, goal: np.ndarray, duration_s: float) -> Any:

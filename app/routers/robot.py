@@ -164,8 +164,9 @@ class StopAnswer(RobotState):
 @router.post("/robot/stop")
 def stop(drive: DriveDep, connection: ConnectionDep) -> StopAnswer | None:
     """Halt every robot and every motion job (replays, and the dry runs that plan them) at once, never waiting on
-    a robot: within about 150 ms, the connected robot's state and whether each robot took the stop (`stops`; one
-    that did not answer says so: use its own emergency stop). None: no robot to drive."""
+    a robot: within 200 ms (it waits 150 ms for the robots to take the halt), the connected robot's state and
+    whether each robot took the stop (`stops`; one that did not answer says so: use its own emergency stop). None:
+    no robot to drive."""
     outcomes = drive.stop_all()
     if connection.connected is None:
         return None
