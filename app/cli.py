@@ -20,6 +20,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -39,14 +40,23 @@ from calib_core import (
 )
 from calib_core.dataset import Dataset
 from calib_core.estimation import check_share, register, registration_params
-from calib_core.io import FrameRecord, measurement_values, plan_csv, readings_beyond_limits, select_rows, write_session
+from calib_core.io import (
+    FrameRecord,
+    measurement_values,
+    parse_measured,
+    plan_csv,
+    readings_beyond_limits,
+    select_rows,
+    write_session,
+)
 from calib_core.model import BUILTIN_PROFILES, Profile
+from calib_core.sim import Law, measured_on
 from calib_core.units import length_factor
 
 from .limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
 
 if TYPE_CHECKING:
-    from calib_core import SimulatedRobot
+    from calib_core.sim import ImageSimulation
 
     from .desk_config import DeskConfig
 
@@ -178,6 +188,28 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--name", help="the session's name (with --session)")
     sim.add_argument("--keep-images", type=int, help="with --session: keep the images of the first N frames")
     sim.add_argument("--calibration", help="with --session: the calibration the robot runs with (seeds the detectors)")
+    sim.add_argument(
+        "--days",
+        type=int,
+        help="a run of days: --out and --session name a folder that gets one dataset (day-01.csv ...) or one "
+        "session folder (day-01/ ...) per day, and days.json saying when each was measured and its truth; the "
+        "robot moves only as --drift and --shift say",
+    )
+    sim.add_argument(
+        "--drift",
+        action="append",
+        default=[],
+        metavar="PARAMETER:RATE",
+        help="with --days: the parameter moves RATE a day (deg, the profile's length unit), e.g. LKneePitch:0.05",
+    )
+    sim.add_argument(
+        "--shift",
+        action="append",
+        default=[],
+        metavar="PARAMETER:CHANGE",
+        help="the true robot's parameter off its profile's truth by CHANGE (deg, length unit), e.g. LTransX:2",
+    )
+    sim.add_argument("--start", help="with --days: the first day, ISO 8601 (default: the last day is today)")
 
     ds = sub.add_parser("detect-sphere", help="find the calibration sphere's centre in a depth map (BallFinder)")
     ds.add_argument("--depth", required=True, help="float32 depth in metres (.npy), 0 or NaN for no data")
@@ -520,17 +552,31 @@ def _simulate(args: argparse.Namespace) -> int:
         raise InputError("--outliers must be in [0, 0.5)")
     if args.session and args.outliers:
         raise InputError("--outliers applies to --out; with --session the detectors make their own failures")
+    law = Law(_changes(args.drift, "--drift"), _changes(args.shift, "--shift")).check(profile)
+    if args.days is None and (law.drift_per_day or args.start):
+        raise InputError(f"{'--drift' if law.drift_per_day else '--start'} needs --days (a run of days)")
     believed = _load_calibration(args.calibration, profile).params(profile) if args.calibration else None
+    if args.days is not None:
+        return _simulate_days(args, profile, law, believed)
     _check_writable(args.out or args.session, session=args.session is not None)
     perfect = _perfect_simulation(profile, args.day, images=args.session is not None)
     for note in perfect.values():
         print(f"calib simulate: note: {note}", file=sys.stderr)
     from calib_core import SimulatedRobot  # the simulator, its finders and OpenCV: only for the commands using them
 
-    robot = SimulatedRobot.from_profile(profile, seed=args.seed).on_day(args.day)
+    truth = law.truth(profile, profile.true_params(), 1)
+    robot = SimulatedRobot.from_profile(profile, seed=args.seed, truth=truth).on_day(args.day)
     start = time.perf_counter()
     if args.session:
-        return _simulate_session(args, profile, robot, believed, start)
+        sim = robot.simulate_images(args.configurations, believed)
+        day = f"day {args.day}" if args.day > 1 else "first day"
+        _write_simulated_session(args, profile, sim, Path(args.session), args.name, day)
+        missed = len(sim.captures) - sim.data.n_configurations
+        print(
+            f"{len(sim.captures)} configurations rendered, {sim.data.n_configurations} measured, {missed} not "
+            f"found, in {time.perf_counter() - start:.1f} s: {args.session}"
+        )
+        return 0
     sim = robot.simulate(args.configurations, outlier_rate=args.outliers, outlier_size=_gross_error(profile))
     _save(args.out, lambda: write_atomic(Path(args.out), to_csv(profile, sim.data)))
     if args.truth:
@@ -547,6 +593,87 @@ def _simulate(args: argparse.Namespace) -> int:
         + (f" ({', '.join(perfect)}: see the notes)" if perfect else "")
     )
     return 0
+
+
+def _changes(items: list[str], option: str) -> dict[str, float]:
+    """--drift / --shift PARAMETER:VALUE options as parameter -> value."""
+    out = {}
+    for item in items:
+        name, sep, value = item.rpartition(":")
+        try:
+            if not sep or not name:
+                raise ValueError
+            out[name] = float(value)
+        except ValueError:
+            raise InputError(f"{option} {item!r}: expected PARAMETER:NUMBER (e.g. LKneePitch:0.05)") from None
+    return out
+
+
+def _simulate_days(args: argparse.Namespace, profile: Profile, law: Law, believed: np.ndarray | None) -> int:
+    """--days: a folder of one dataset (or session folder) a day, the robot moving by `law`, and days.json."""
+    if not 1 <= args.days <= 366:
+        raise InputError(f"--days {args.days}: give 1 to 366 days")
+    if args.day != 1:
+        raise InputError("--day and --days: give one (--days numbers its days 1, 2, ...)")
+    if args.truth:
+        raise InputError("--truth: with --days each day's truth is in the folder's days.json")
+    folder = Path(args.out or args.session)
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        raise InputError("exists and is not an empty folder; give a new folder name", file=str(folder))
+    _check_writable(str(folder / "days.json") if folder.is_dir() else str(folder))
+    first = parse_measured(args.start, "--start") if args.start else _days_before_today(args.days - 1)
+    from calib_core import SimulatedRobot
+
+    started = time.perf_counter()
+    folder.mkdir(exist_ok=True)
+    days = []
+    for day in range(1, args.days + 1):
+        truth = law.truth(profile, profile.true_params(), day)
+        robot = SimulatedRobot.from_profile(profile, seed=1000 * args.seed + day, truth=truth)
+        when = measured_on(first, day)
+        name = f"day-{day:02d}"
+        if args.session:
+            sim = robot.simulate_images(args.configurations, believed)
+            label = f"day {day} of {args.days}, measured {when:%Y-%m-%d}"
+            _write_simulated_session(
+                args, profile, sim, folder / name, f"{args.name or folder.name} {name}", label, when
+            )
+            data = name
+        else:
+            sim = robot.simulate(args.configurations, outlier_rate=args.outliers, outlier_size=_gross_error(profile))
+            data = f"{name}.csv"
+            _save(str(folder / data), lambda sim=sim, data=data: write_atomic(folder / data, to_csv(profile, sim.data)))
+        days.append(
+            {
+                "day": day,
+                "measured": when.isoformat(),
+                "data": data,
+                "configurations": sim.data.n_configurations,
+                "truth": profile.params_to_display(sim.true_params),
+            }
+        )
+    index = {
+        "robot": profile.name,
+        "seed": args.seed,
+        "drift_per_day": law.drift_per_day,
+        "shift": law.shift,
+        "days": days,
+    }
+    _save(str(folder / "days.json"), lambda: write_atomic(folder / "days.json", json.dumps(index, indent=1) + "\n"))
+    moves = ", ".join(
+        [f"{n} {v:+g} a day" for n, v in law.drift_per_day.items()] + [f"{n} {v:+g}" for n, v in law.shift.items()]
+    )
+    print(
+        f"{args.days} days from {first:%Y-%m-%d} ({moves or 'nothing moves'}) in "
+        f"{time.perf_counter() - started:.1f} s: {folder}"
+    )
+    return 0
+
+
+def _days_before_today(days: int) -> datetime:
+    """09:00 UTC `days` days before today."""
+    today = datetime.now(UTC).replace(hour=9, minute=0, second=0, microsecond=0)
+    return today - timedelta(days=days)
 
 
 def _perfect_simulation(profile: Profile, day: int, *, images: bool) -> dict[str, str]:
@@ -574,10 +701,15 @@ def _perfect_simulation(profile: Profile, day: int, *, images: bool) -> dict[str
     return notes
 
 
-def _simulate_session(
-    args: argparse.Namespace, profile: Profile, robot: SimulatedRobot, believed: np.ndarray | None, start: float
-) -> int:
-    sim = robot.simulate_images(args.configurations, believed)
+def _write_simulated_session(
+    args: argparse.Namespace,
+    profile: Profile,
+    sim: ImageSimulation,
+    folder: Path,
+    name: str | None,
+    day: str,
+    measured: datetime | None = None,
+) -> None:
     keep = len(sim.captures) if args.keep_images is None else args.keep_images
     frames = [
         FrameRecord(
@@ -591,32 +723,26 @@ def _simulate_session(
         for c in sim.captures
     ]
     images = {c.frame: c.images for c in sim.captures[:keep]}
-    day = f"day {args.day}" if args.day > 1 else "first day"
     description = (
         f"Simulated {profile.title}, {day} (seed {args.seed}): {len(frames)} configurations rendered and seen "
         f"through the detectors; {sim.data.n_configurations} measured."
     )
     made_by = shlex.join(["calib", *sys.argv[1:]]) if sys.argv[0].endswith("calib") else "calib simulate --session"
     _save(
-        args.session,
+        str(folder),
         lambda: write_session(
-            args.session,
+            folder,
             profile,
-            name=args.name or Path(args.session).name,
+            name=name or folder.name,
             description=description,
             made_by=made_by,
             data=sim.data,
             frames=frames,
             images=images,
             truth=sim.true_params,
+            measured=measured,
         ),
     )
-    missed = len(frames) - sim.data.n_configurations
-    print(
-        f"{len(frames)} configurations rendered, {sim.data.n_configurations} measured, {missed} not found, "
-        f"in {time.perf_counter() - start:.1f} s: {args.session}"
-    )
-    return 0
 
 
 def _detect_sphere(args: argparse.Namespace) -> int:

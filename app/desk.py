@@ -31,6 +31,7 @@ from .services.apply import ApplyService
 from .services.calibration import CalibrationService
 from .services.connection import Connection
 from .services.drive import DriveService
+from .services.history import HistoryService
 from .services.replay import ReplayService
 from .services.review import ReviewService
 from .services.robots import RobotService
@@ -88,6 +89,7 @@ class Desk:
         self.viser.on_client_connect(self.viewers.client_ready)
         self.calibration = CalibrationService(self.store, self.jobs, max_rows=self.limits.rows)
         self.apply = ApplyService(self.store, self.robots)
+        self.history = HistoryService(self.store, self.robots)
         self.replay = ReplayService(self.store, self.robots, self.jobs)
         self.reviews = ReviewService(self.store, self.robots, self.connection, self.scrub)
         self.drive = DriveService(self.store, self.robots, self.jobs, self.connection, clock)

@@ -12,13 +12,14 @@ import math
 import shutil
 import tempfile
 from collections.abc import Collection
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from calib_core import FrameStatus, InputError, Profile, parse_dataset
-from calib_core.io import read_session, readings_beyond_limits, session_robot
+from calib_core.io import parse_measured, read_session, readings_beyond_limits, session_robot
 
 from .errors import TooLarge
 from .store import NewFrame, Observations, Store
@@ -94,7 +95,15 @@ def import_session_folder(
         (staging / "images").mkdir(exist_ok=True)
         fsync_dir(staging / "images")
         store.sessions.add_whole(
-            sid, s.robot, s.name, description=s.description, source=source, truth=s.truth, frames=frames, staged=staging
+            sid,
+            s.robot,
+            s.name,
+            description=s.description,
+            source=source,
+            truth=s.truth,
+            frames=frames,
+            staged=staging,
+            measured=s.measured,
         )
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -122,9 +131,21 @@ def csv_text(raw: bytes, filename: str, max_rows: int) -> str:
     return text
 
 
-def import_csv(store: Store, robot: str, name: str, text: str, filename: str) -> Imported:
-    """A session from a CSV in the robot's pinned format; InputError (naming line and column) leaves
-    nothing behind, since the rows are inserted only once the whole file has been read."""
+def measured_time(text: str | None) -> datetime | None:
+    """An import's `measured` field: ISO 8601, not in the future (InputError naming the field); None: not given."""
+    if text is None or not text.strip():
+        return None
+    when = parse_measured(text)
+    if when > datetime.now(UTC) + timedelta(hours=1):
+        raise InputError(f"measured: {text!r} is in the future")
+    return when
+
+
+def import_csv(
+    store: Store, robot: str, name: str, text: str, filename: str, measured: datetime | None = None
+) -> Imported:
+    """A session from a CSV in the robot's pinned format, measured at `measured` (None: now); InputError (naming
+    line and column) leaves nothing behind, since the rows are inserted only once the whole file has been read."""
     profile = store.sessions.profile(robot)
     data = parse_dataset(profile, text, filename)
     sid = store.sessions.new_id(None)
@@ -133,7 +154,14 @@ def import_csv(store: Store, robot: str, name: str, text: str, filename: str) ->
     for fid, q, obs in zip(data.frame_ids, joints, Observations.each(data), strict=True):
         frames.append(NewFrame(int(fid), q, int(obs.target[0]), FrameStatus.MEASURED, "", {}, {}, obs))
     store.sessions.add_whole(
-        sid, robot, name, description=f"imported from {filename}", source="import", truth=None, frames=frames
+        sid,
+        robot,
+        name,
+        description=f"imported from {filename}",
+        source="import",
+        truth=None,
+        frames=frames,
+        measured=measured,
     )
     return Imported(sid, readings_beyond_limits(profile, data))
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from . import calibrations, jobs, review, robot, robots, sessions
+from . import calibrations, history, jobs, review, robot, robots, sessions
 
 # Every 4xx answer is one sentence naming what is wrong (app/server.py's handlers), also for the event streams
 # (JSON, not an event), so the schema is given with its media type.
@@ -24,5 +24,5 @@ PROBLEM = {
     },
 }
 api = APIRouter(prefix="/api", responses={"4XX": PROBLEM})
-for module in (robots, sessions, jobs, calibrations, robot, review):
+for module in (robots, sessions, jobs, calibrations, robot, history, review):
     api.include_router(module.router)

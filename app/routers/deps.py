@@ -22,6 +22,7 @@ from ..services.apply import ApplyService
 from ..services.calibration import CalibrationService
 from ..services.connection import Connection
 from ..services.drive import DriveService
+from ..services.history import HistoryService
 from ..services.replay import ReplayService
 from ..services.review import ReviewService
 from ..services.robots import RobotService
@@ -77,6 +78,7 @@ CalibrationDep = Annotated[CalibrationService, Depends(_part("calibration"))]
 ApplyDep = Annotated[ApplyService, Depends(_part("apply"))]
 ReplayDep = Annotated[ReplayService, Depends(_part("replay"))]
 ReviewDep = Annotated[ReviewService, Depends(_part("reviews"))]
+HistoryDep = Annotated[HistoryService, Depends(_part("history"))]
 ViewerDep = Annotated[Viewer, Depends(get_viewer)]
 FrameIndex = Annotated[int, PathParam(ge=FRAME_MIN, le=FRAME_MAX, description="a frame number")]
 

@@ -12,7 +12,7 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
 from ..capture import Until
-from ..importers import csv_text, import_csv
+from ..importers import csv_text, import_csv, measured_time
 from ..services.replay import ReplayPlan
 from ..validation import ID, IMAGE_NAME
 from .deps import (
@@ -137,14 +137,17 @@ async def import_session(
     robot: Annotated[str, Form()],
     name: Annotated[str, Form(min_length=1, max_length=200)],
     data: Annotated[UploadFile, File()],
+    measured: Annotated[str | None, Form(max_length=64)] = None,
 ) -> ImportedOut:
-    """A session from a CSV in the robot's pinned format; a mistake answers 422 naming line and column, a file
-    beyond the desk's limits (its size, its rows) 413 naming the limit."""
+    """A session from a CSV in the robot's pinned format, `measured` when its data were (ISO 8601, a date or a
+    time; default now: a robot's history reads its calibrations in this order); a mistake answers 422 naming line
+    and column (or the field), a file beyond the desk's limits (its size, its rows) 413 naming the limit."""
+    when = measured_time(measured)
     raw = await read_upload(limits, data)
     robots.get(robot)
     filename = Path(data.filename or "data.csv").name
     text = csv_text(raw, filename, limits.rows)
-    imported = await asyncio.to_thread(import_csv, store, robot, name, text, filename)
+    imported = await asyncio.to_thread(import_csv, store, robot, name, text, filename, when)
     return ImportedOut(id=imported.id, notes=imported.notes)
 
 

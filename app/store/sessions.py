@@ -16,6 +16,7 @@ import shutil
 import sqlite3
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -179,6 +180,16 @@ class SessionRepository:
     def exists(self, session_id: str) -> bool:
         return self.db.exists("sessions", session_id)
 
+    def measured(self, session_ids: list[str]) -> dict[str, datetime]:
+        """When each session's data were measured: its first frame's capture (sessions without a frame left
+        out)."""
+        marks = ",".join("?" * len(session_ids))
+        rows = self.db.all(
+            f"SELECT session_id, MIN(captured) AS t FROM frames WHERE session_id IN ({marks}) GROUP BY session_id",
+            list(session_ids),
+        )
+        return {r["session_id"]: datetime.fromisoformat(r["t"]) for r in rows}
+
     def delete(self, session_id: str) -> None:
         """Rows first (one transaction), then the images; its calibrations stay, without a session."""
         with self.db.tx() as db:
@@ -209,9 +220,11 @@ class SessionRepository:
         truth: dict[str, float] | None,
         frames: list[NewFrame],
         staged: Path | None = None,
+        measured: datetime | None = None,
     ) -> None:
         """A whole session in one transaction. `staged`: a folder beside the sessions holding its images,
-        renamed into place under the lock before the rows go in (and back, should they fail)."""
+        renamed into place under the lock before the rows go in (and back, should they fail). `measured`: when
+        its frames were captured (None: now)."""
         with self.db.lock:
             final = self.folder(session_id)
             if final.exists() or self.exists(session_id):
@@ -221,7 +234,7 @@ class SessionRepository:
             try:
                 if staged is not None:
                     fsync_dir(final.parent)
-                captured = now()
+                captured = now() if measured is None else measured.astimezone(UTC).isoformat(timespec="milliseconds")
                 with self.db.tx() as db:
                     _insert_session(db, session_id, robot, name, description, source, truth)
                     for f in frames:

@@ -15,6 +15,17 @@ __getattr__ = lazy_exports(
         "calibrate": ("METHODS", "check_can_fit", "fit_parameters"),
         "calibration": ("Calibration", "Covariance", "Outlier", "ParameterEstimate"),
         "change": ("frame_band",),
+        "drift": (
+            "DRIFT_LEVEL",
+            "MOVED_SHOWN",
+            "Drift",
+            "Epoch",
+            "Team",
+            "Trend",
+            "compare_epochs",
+            "compare_team",
+            "find_drift",
+        ),
         "evaluation": ("Evaluation", "evaluate"),
         "planning": (
             "AccuracyPrediction",
@@ -43,7 +54,9 @@ __getattr__ = lazy_exports(
     },
 )
 __all__ = [
+    "DRIFT_LEVEL",
     "METHODS",
+    "MOVED_SHOWN",
     "AccuracyPrediction",
     "Around",
     "Calibration",
@@ -51,6 +64,8 @@ __all__ = [
     "Covariance",
     "Diagnostic",
     "DiagnosticGroup",
+    "Drift",
+    "Epoch",
     "Evaluation",
     "Figures",
     "HeldParameter",
@@ -64,12 +79,17 @@ __all__ = [
     "SequentialPlan",
     "Severity",
     "SolverReport",
+    "Team",
+    "Trend",
     "around_seed",
     "candidates",
     "check_can_fit",
     "check_share",
+    "compare_epochs",
+    "compare_team",
     "evaluate",
     "figures",
+    "find_drift",
     "fit_parameters",
     "frame_band",
     "local_points",
@@ -85,6 +105,17 @@ if TYPE_CHECKING:
     from .calibrate import METHODS, check_can_fit, fit_parameters
     from .calibration import Calibration, Covariance, Outlier, ParameterEstimate
     from .change import frame_band
+    from .drift import (
+        DRIFT_LEVEL,
+        MOVED_SHOWN,
+        Drift,
+        Epoch,
+        Team,
+        Trend,
+        compare_epochs,
+        compare_team,
+        find_drift,
+    )
     from .evaluation import Evaluation, evaluate
     from .plan_seed import around_seed, needs_seed, seeded_model
     from .planning import (

@@ -24,7 +24,7 @@ __getattr__ = lazy_exports(
         ),
         "ctu_motoman": ("camera_dataset",),
         "export": ("bhuman_joint_calibration", "calibrated_urdf", "estimated_offsets_deg", "offsets_yaml"),
-        "session": ("FrameRecord", "csv_sensors", "read_session", "session_robot", "write_session"),
+        "session": ("FrameRecord", "csv_sensors", "parse_measured", "read_session", "session_robot", "write_session"),
         "urdf_export": ("BODY", "to_urdf"),
     },
 )
@@ -43,6 +43,7 @@ __all__ = [
     "naoqi_image",
     "offsets_yaml",
     "parse_dataset",
+    "parse_measured",
     "plan_csv",
     "read_dataset",
     "read_session",
@@ -68,5 +69,5 @@ if TYPE_CHECKING:
     )
     from .ctu_motoman import camera_dataset
     from .export import bhuman_joint_calibration, calibrated_urdf, estimated_offsets_deg, offsets_yaml
-    from .session import FrameRecord, csv_sensors, read_session, session_robot, write_session
+    from .session import FrameRecord, csv_sensors, parse_measured, read_session, session_robot, write_session
     from .urdf_export import BODY, to_urdf

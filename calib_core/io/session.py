@@ -1,7 +1,8 @@
 """Session folders: a capture session on disk, the form the sample sessions ship in.
 
-    <folder>/session.json   robot, name, description, how it was made, one record per frame
-                            (joint readings in deg, status "measured" / "not found" and why, images)
+    <folder>/session.json   robot, name, description, how it was made, when it was measured (optional,
+                            ISO 8601), one record per frame (joint readings in deg, status "measured" /
+                            "not found" and why, images)
     <folder>/data.csv       the measured observations in the robot's pinned CSV format
     <folder>/truth.json     (simulated sessions) the hidden true parameters, display units
     <folder>/images/        camera images (JPEG; the detections were made before compression), where kept
@@ -17,6 +18,7 @@ import math
 import shutil
 import tempfile
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +56,21 @@ class SessionFolder:
     frames: list[FrameRecord]
     data: Dataset
     truth: dict[str, float] | None
+    measured: datetime | None = None  # when its data were measured (None: not said)
+
+
+def parse_measured(text: object, field: str = "measured") -> datetime:
+    """When data were measured, from ISO 8601 (a date, or a date and time; UTC unless it says its zone);
+    InputError naming `field` otherwise."""
+    try:
+        if not isinstance(text, str):
+            raise ValueError
+        when = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise InputError(
+            f"{field}: {text!r} is not a date or time in ISO 8601 (2026-11-02 or 2026-11-02T09:30:00Z)"
+        ) from None
+    return when.replace(tzinfo=UTC) if when.tzinfo is None else when.astimezone(UTC)
 
 
 def write_session(
@@ -67,6 +84,7 @@ def write_session(
     frames: list[FrameRecord],
     images: dict[int, dict[str, np.ndarray]] | None = None,
     truth: np.ndarray | None = None,
+    measured: datetime | None = None,
 ) -> None:
     """Write a session folder whole: it is built beside the target and moved into place, so a
     crash leaves the old folder or the new one, never half of one."""
@@ -94,6 +112,7 @@ def write_session(
             "name": name,
             "description": description,
             "made_by": made_by,
+            **({"measured": measured.isoformat()} if measured is not None else {}),
             "data": "data.csv" if pinned else "observations.csv",
             "data_format": "profile" if pinned else "observations",
             "truth": "truth.json" if truth is not None else None,
@@ -133,6 +152,7 @@ def read_session(folder: str | Path, profile: Profile | None = None) -> SessionF
             truth = json.loads((folder / _text(meta, "truth")).read_text(encoding="utf-8"))
             if not isinstance(truth, dict) or not all(_finite(v) for v in truth.values()):
                 raise InputError(f"{meta['truth']}: expected parameter names with finite numbers")
+        measured = parse_measured(meta["measured"]) if meta.get("measured") is not None else None
         return SessionFolder(
             folder,
             profile.name,
@@ -142,6 +162,7 @@ def read_session(folder: str | Path, profile: Profile | None = None) -> SessionF
             frames,
             data,
             truth,
+            measured,
         )
     except InputError as exc:
         if exc.file:  # the data file's own error (line, column)

@@ -11,10 +11,12 @@ from .._lazy import lazy_exports
 __getattr__ = lazy_exports(
     __name__,
     {
-        "simulator": ("SimulatedRobot", "Simulation"),
+        "days": ("Law", "measured_on"),
+        "simulator": ("ImageSimulation", "SimulatedRobot", "Simulation"),
     },
 )
-__all__ = ["SimulatedRobot", "Simulation"]
+__all__ = ["ImageSimulation", "Law", "SimulatedRobot", "Simulation", "measured_on"]
 
 if TYPE_CHECKING:
-    from .simulator import SimulatedRobot, Simulation
+    from .days import Law, measured_on
+    from .simulator import ImageSimulation, SimulatedRobot, Simulation
