@@ -9,6 +9,7 @@ import { wireCalibrate } from "./js/calibrate.js";
 import { showDrivable } from "./js/controls.js";
 import { toast } from "./js/dom.js";
 import { wireFrames } from "./js/frames.js";
+import { wireHistory } from "./js/history.js";
 import { buildJoints, robotEvents, wireObserve } from "./js/observe.js";
 import { followRunning, wireReplay } from "./js/replay.js";
 import { wireReview } from "./js/review.js";
@@ -61,6 +62,7 @@ function wire() {
   wireSplit();
   wireScene();
   wireApply();
+  wireHistory();
 }
 
 // Once the page has painted what it shows now (two animation frames), or after 250 ms (a tab in the background

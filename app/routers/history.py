@@ -6,11 +6,11 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Depends, Query
 from fastapi.responses import PlainTextResponse
 from pydantic import BaseModel
 
-from calib_core.estimation import DRIFT_LEVEL, MOVED_SHOWN, Trend
+from calib_core.estimation import DRIFT_LEVEL, MOVED_SHOWN
 
 from .deps import ConnectionDep, HistoryDep, RobotsDep
 
@@ -78,31 +78,19 @@ class DriftOut(BaseModel):
     notes: list[str]
 
 
-def _trend(t: Trend) -> TrendOut:
-    return TrendOut(
-        parameter=t.parameter,
-        unit=t.unit,
-        rate_per_day=t.rate_per_day,
-        sd=t.sd,
-        days=t.days,
-        calibrations=t.epochs,
-        steady=t.steady,
-        sentence=t.sentence,
-    )
+def _robot(connection: ConnectionDep, robots: RobotsDep, robot: str | None = None) -> str:
+    """The robot asked for (`robot`; none: the connected one), by its name on the desk."""
+    return robots.get(connection.robot_name(robot)).name
+
+
+RobotName = Annotated[str, Depends(_robot)]
 
 
 @router.get("/robot/drift")
-def robot_drift(
-    history: HistoryDep,
-    connection: ConnectionDep,
-    robots: RobotsDep,
-    robot: str | None = None,
-    level: Level = DRIFT_LEVEL,
-) -> DriftOut:
+def robot_drift(history: HistoryDep, name: RobotName, level: Level = DRIFT_LEVEL) -> DriftOut:
     """The robot's applied calibrations read together (`robot`; none: the connected one): each change from one to
     the next tested against both calibrations' covariances (flagged with the parameters that moved), steady
     trends with their rate a day, and every parameter's series, most moved first."""
-    name = robots.get(connection.robot_name(robot)).name
     drift, notes = history.drift(name, level)
     named = {m.parameter for s in drift.steps for m in s.moved} | {t.parameter for t in drift.trends}
     return DriftOut(
@@ -110,21 +98,8 @@ def robot_drift(
         level=level,
         calibrations=drift.epochs,
         compared=drift.compared,
-        steps=[
-            StepOut(
-                before=s.before,
-                after=s.after,
-                days=s.days,
-                parameters=s.parameters,
-                chi2=s.chi2,
-                p=s.p,
-                flagged=s.flagged,
-                moved=[MovedOut(parameter=m.parameter, unit=m.unit, change=m.change, sd=m.sd, z=m.z) for m in s.moved],
-                sentence=s.sentence,
-            )
-            for s in drift.steps
-        ],
-        trends=[_trend(t) for t in drift.trends],
+        steps=[StepOut.model_validate(s, from_attributes=True) for s in drift.steps],
+        trends=[TrendOut.model_validate(t, from_attributes=True) for t in drift.trends],
         series=[
             SeriesOut(
                 parameter=s.parameter,
@@ -142,7 +117,7 @@ def robot_drift(
                     )
                     for p in s.points
                 ],
-                trend=None if s.trend is None else _trend(s.trend),
+                trend=None if s.trend is None else TrendOut.model_validate(s.trend, from_attributes=True),
             )
             for s in drift.series
         ],
@@ -151,12 +126,9 @@ def robot_drift(
 
 
 @router.get("/robot/drift.csv", response_class=PlainTextResponse, responses={200: {"content": {"text/csv": {}}}})
-def robot_drift_csv(
-    history: HistoryDep, connection: ConnectionDep, robots: RobotsDep, robot: str | None = None
-) -> PlainTextResponse:
+def robot_drift_csv(history: HistoryDep, name: RobotName) -> PlainTextResponse:
     """Every parameter's value at each applied calibration, a row each (calibration, measured, mode, parameter,
     unit, value, sd, held, held_sd)."""
-    name = robots.get(connection.robot_name(robot)).name
     return PlainTextResponse(
         history.series_csv(name),
         media_type="text/csv",
@@ -207,16 +179,10 @@ class TeamOut(BaseModel):
 
 
 @router.get("/team")
-def team(
-    history: HistoryDep,
-    connection: ConnectionDep,
-    robots: RobotsDep,
-    robot: str | None = None,
-    level: Level = DRIFT_LEVEL,
-) -> TeamOut:
+def team(history: HistoryDep, robots: RobotsDep, name: RobotName, level: Level = DRIFT_LEVEL) -> TeamOut:
     """The robots of one model as `robot`'s (none: the connected one) side by side: which calibration each runs
     and how old it is, each parameter across them, and the robot far from the others, named."""
-    model = robots.get(connection.robot_name(robot)).model
+    model = robots.get(name).model
     result, members = history.team(model, level)
     now = datetime.now(UTC)
     return TeamOut(
@@ -235,26 +201,6 @@ def team(
             )
             for m in members
         ],
-        parameters=[
-            ColumnOut(
-                parameter=c.parameter,
-                unit=c.unit,
-                robots=[StandingOut(robot=s.robot, value=s.value, sd=s.sd, z=s.z) for s in c.robots],
-                odd=c.odd,
-            )
-            for c in result.parameters
-        ],
-        odd=[
-            OddOut(
-                robot=o.robot,
-                parameter=o.parameter,
-                unit=o.unit,
-                value=o.value,
-                others_mean=o.others_mean,
-                others_spread=o.others_spread,
-                z=o.z,
-                sentence=o.sentence,
-            )
-            for o in result.odd
-        ],
+        parameters=[ColumnOut.model_validate(c, from_attributes=True) for c in result.parameters],
+        odd=[OddOut.model_validate(o, from_attributes=True) for o in result.odd],
     )

@@ -202,7 +202,7 @@ class Trend:
     rate_per_day: float
     sd: float
     days: float  # from the first epoch to the last
-    epochs: int
+    calibrations: int
     steady: bool  # the rest of the history is noise (else it jumps as well)
 
     @property
@@ -214,7 +214,7 @@ class Trend:
         tail = "" if self.steady else " (with jumps besides: see the changes)"
         return (
             f"{self.parameter}: {self.rate_per_day:+.3g} {self.unit} a day over {self.days:.3g} days "
-            f"({self.epochs} calibrations; +/- {self.sd:.2g}){tail}"
+            f"({self.calibrations} calibrations; +/- {self.sd:.2g}){tail}"
         )
 
 

@@ -97,6 +97,7 @@ export async function refreshActive(asked = null) {
         if (r) await applied(r);
       }) }, "re-apply"))));
   }
+  document.dispatchEvent(new CustomEvent("desk:active"));  // the History panel reads it again if open
 }
 
 export function wireApply() {

@@ -1,4 +1,4 @@
-// The five steps' tabs: one shown at a time.
+// The six steps' tabs: one shown at a time.
 
 export function showTab(name) {
   for (const b of document.querySelectorAll("#tabs button")) b.classList.toggle("active", b.dataset.tab === name);
