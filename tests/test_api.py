@@ -341,9 +341,11 @@ def test_exports_are_what_drivers_read(client: TestClient, day1_full: dict, tmp_
 def test_the_robot_moves_within_limits_and_stops(client: TestClient) -> None:
     client.post("/api/robot/connect", json={"robot": "robonaut-a"})
     start = client.get("/api/robot").json()["joints"]
-    goal = {"elbow_pitch": start["elbow_pitch"] + 20.0 if start["elbow_pitch"] < 60 else start["elbow_pitch"] - 20}
-    assert client.post("/api/robot/move", json={"joints": goal}).status_code == 202
-    assert client.get("/api/robot").json()["moving"]
+    # To the far side (100 deg or more at 50 times 30 deg/s: 67 ms or more), and read from the move's own answer:
+    # a 20-deg move was over before a second request came, once, on a loaded machine.
+    goal = {"elbow_pitch": 100.0 if start["elbow_pitch"] < 0 else -100.0}
+    moved = client.post("/api/robot/move", json={"joints": goal})
+    assert moved.status_code == 202 and moved.json()["moving"]
     client.post("/api/robot/stop")
     stopped = client.get("/api/robot").json()
     assert not stopped["moving"]
