@@ -75,6 +75,9 @@ def test_the_history_names_the_drifting_knee_and_the_odd_nao(chromium_2d, tmp_pa
         assert page.locator("#team tr.odd").get_attribute("data-robot") == "nao-4"
         assert "nao-4: LTransX" in page.inner_text("#team-odd")
         assert "nominal model" in page.inner_text("#team tr[data-robot='nao-5']")
+        first = page.locator("#team-parameters tr[data-parameter]").first  # each parameter across robots
+        assert first.get_attribute("data-parameter") == "LTransX"
+        assert first.locator("td.odd").count() == 1 and page.locator("#team-parameters th").count() == 5
         shot(page, "history-nao-1")
         page.check("#drift-all")
         page.wait_for_function("document.querySelectorAll('#drift-plots svg.drift-plot').length === 21")

@@ -146,6 +146,19 @@ function renderTeam(t, robot) {
       : `No robot is far from the others (${compared} compared, each parameter against the others' spread).`));
   }
   $("#team-odd").replaceChildren(...lines);
+  // Each parameter across the robots compared, the most off first (every one with "every parameter").
+  const cols = t.parameters.length ? t.parameters[0].robots.map((s) => s.robot) : [];
+  const rows = $("#drift-all").checked ? t.parameters : t.parameters.slice(0, 6);
+  $("#team-parameters").replaceChildren(...(rows.length ? [
+    el("tr", {}, el("th", {}, "parameter"), ...cols.map((r) => el("th", {}, r))),
+    ...rows.map((c) => el("tr", { "data-parameter": c.parameter }, el("td", {}, `${c.parameter} (${c.unit})`),
+      ...cols.map((r) => {
+        const s = c.robots.find((x) => x.robot === r);
+        if (!s) return el("td", {}, "—");
+        return el("td", { class: c.odd === r ? "odd" : "", title: `${fmt(s.value, 4)} ± ${fmt(s.sd, 3)} ${c.unit}: `
+          + `${fmt(s.z, 1)} sd from the others' mean` }, fmt(s.value, 3));
+      }))),
+  ] : []));
 }
 
 export function wireHistory() {
