@@ -63,7 +63,8 @@ def test_a_knee_that_moves_alone_is_named_though_its_own_sd_hides_the_move(nao_f
         step = compare_epochs(_draw(nao_fit, rng, 0), _draw(nao_fit, rng, 1, {"LKneePitch": 0.1}))
         if step.flagged:
             named.append([m.parameter for m in step.moved])
-            assert abs(step.moved[0].change - 0.1) < 4 * step.moved[0].sd
+            if named[-1] == ["LKneePitch"]:
+                assert abs(step.moved[0].change - 0.1) < 4 * step.moved[0].sd
     assert len(named) >= 45
     assert sum(n == ["LKneePitch"] for n in named) >= 0.9 * len(named)
 

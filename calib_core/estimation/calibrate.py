@@ -252,7 +252,7 @@ def fit_parameters(
     # readings' rounding in each observation's covariance, where the fit eliminated it).
     plain, r_plain = problem, r
     if problem.readings is not None:
-        plain = Problem(profile, data, [], problem.params(x))
+        plain = Problem(profile, data, [], problem.params(x), probes=problem.probes)
         plain.included = problem.included
         r_plain = plain.residuals(np.zeros(0))
     sigmas = {
@@ -301,7 +301,11 @@ class _Passes:
         self.history.extend(res.cost_history)
         self.last = res
 
-    def run(self, x0: np.ndarray, loss: Robust | None, start: tuple | None = None) -> np.ndarray:
+    def run(
+        self, x0: np.ndarray, loss: Robust | None, start: tuple | None = None, near: bool = False, rough: bool = False
+    ) -> np.ndarray:
+        """One solve from x0; `near`: x0 is the solution of the problem weighed a little differently; `rough`: a
+        refit from the solution follows (the readings' scales), so it stops short of the last digits."""
         done = self.iterations
 
         def tick(it: int, cost: float) -> None:
@@ -309,7 +313,9 @@ class _Passes:
                 self.progress(done + it, cost)
 
         # The robust pass only has to sort inliers from outliers (IRLS converges linearly), so it
-        # stops early; the least-squares passes converge quadratically to full precision.
+        # stops early; the least-squares passes converge quadratically to full precision, but for a refit from the
+        # solution of the problem weighed a little differently: it stops once the next step would gain less than
+        # 1e-6 of the cost (its estimate within 0.06 sd of the optimum at most), usually after one step.
         self.absorb(
             levenberg_marquardt(
                 self.problem.residuals_jacobian,
@@ -317,11 +323,12 @@ class _Passes:
                 fun=self.problem.residuals,
                 initial=start,
                 robust=loss,
-                ftol=1e-6 if loss else 1e-10,
+                ftol=1e-6 if loss or near else 1e-5 if rough else 1e-10,
                 progress=tick,
                 should_stop=self.should_stop,
                 lower=self.lower,
                 upper=self.upper,
+                damping=NEAR_DAMPING if near else 1e-3,
             )
         )
         return self.last.x
@@ -330,7 +337,7 @@ class _Passes:
         """`poses`: the free poses nobody measured (`unknown_poses`), turned when the first solution stays
         far above the noise, when the other closed-form starts of a camera's registration are tried too."""
         problem = self.problem
-        x = self.run(problem.x0, None, initial)
+        x = self.run(problem.x0, None, initial, rough=problem.readings is not None)
         if far_above_noise(problem, problem.residuals(x)):
             starts = turned_starts(problem, problem.x0, poses, self.should_stop) + closed_form_starts(problem)
             if starts:
@@ -382,20 +389,33 @@ class _Passes:
         block_of_group = np.zeros(group_of_obs.max() + 1, int)
         block_of_group[group_of_obs] = block_of_obs
         free_share = len(problem.free) / max(problem.n_data_rows, 1)
+        problem.relinearise_readings(x)
         for _ in range(SCALE_PASSES):
-            problem.relinearise_readings(x)
-            r = problem.residuals(x)[: problem.n_data_rows]
-            leverage = problem.readings.leverage(problem.n_data_rows)
-            used = problem.included[obs_of_row]
-            total = np.bincount(group_of_row, r**2)
-            dof = np.bincount(group_of_row, used * (1.0 - leverage - free_share))
-            pooled = np.bincount(block_of_group, total) / np.maximum(np.bincount(block_of_group, dof), 1e-9)
-            own = (total + SCALE_PRIOR_DOF * pooled[block_of_group]) / (np.maximum(dof, 0.0) + SCALE_PRIOR_DOF)
-            ratio = np.sqrt(np.where(dof >= FRAME_SCALE_DOF, own, pooled[block_of_group]))
-            problem.obs_scale = np.maximum(problem.obs_scale * ratio[group_of_obs], MIN_SCALE)
-            x = self.run(x, None)
-            if np.max(np.abs(np.log(ratio))) < SCALE_SETTLED:
-                break
+            # The scales settle at this x first (the predictions do not change with them: only the whitening and
+            # the elimination are computed again), then the fit at them; a pass whose scales settled at once ends.
+            # Each update moves a scale about two thirds of the way (the shrinkage and the elimination pull it
+            # back): from the second update on, the rest of the way is taken too (Aitken's extrapolation).
+            before, updated = None, False
+            for _ in range(SCALE_UPDATES):
+                r = problem.residuals(x)[: problem.n_data_rows]
+                leverage = problem.readings.leverage(problem.n_data_rows)
+                used = problem.included[obs_of_row]
+                total = np.bincount(group_of_row, r**2)
+                dof = np.bincount(group_of_row, used * (1.0 - leverage - free_share))
+                pooled = np.bincount(block_of_group, total) / np.maximum(np.bincount(block_of_group, dof), 1e-9)
+                own = (total + SCALE_PRIOR_DOF * pooled[block_of_group]) / (np.maximum(dof, 0.0) + SCALE_PRIOR_DOF)
+                step = 0.5 * np.log(np.where(dof >= FRAME_SCALE_DOF, own, pooled[block_of_group]))
+                if np.max(np.abs(step)) < SCALE_SETTLED:
+                    break
+                updated, move = True, step
+                if before is not None:
+                    shrink = np.clip(np.divide(step, before, out=np.zeros_like(step), where=before != 0), 0.0, 0.8)
+                    move = step / (1.0 - shrink)
+                before = step
+                problem.obs_scale = np.maximum(problem.obs_scale * np.exp(move)[group_of_obs], MIN_SCALE)
+            if not updated:
+                break  # settled at this fit: it is the fit at its scales
+            x = self.run(x, None, near=True)
         return x
 
     def best_start(self, starts: list[Start]) -> np.ndarray:
@@ -412,6 +432,8 @@ class _Passes:
 
 
 SCALE_PASSES = 6  # refits at most while the observations' scales settle against the readings' rounding
+SCALE_UPDATES = 12  # updates of the scales at one fit at most
+NEAR_DAMPING = 1e-7  # the first step's damping from a nearby solution: nearly Gauss-Newton
 SCALE_SETTLED = 0.02  # a scale that changed less than 2% has settled
 SCALE_PRIOR_DOF = 20.0  # a configuration's own scatter weighs as this many rows more of its sensor's pooled one
 # A configuration's observations of a sensor get a scale of their own only with this many degrees of freedom (a

@@ -71,11 +71,13 @@ class Problem:
         prior_mean: np.ndarray | None = None,
         noise_model: bool | Sequence[np.ndarray | float] = True,
         readings: bool = False,
+        probes: dict[tuple[int, ...], Problem] | None = None,
     ) -> None:
         """`noise_model`: True to weigh by the sensors' noise models, False for none, or the
         `weights` of an earlier Problem on the same data (they depend on the data only). `readings`: with a
         noise model, the rounding of readings that several observations share as errors in the variables
-        (`ReadingErrors`: its rows follow the priors'), the weights then the sensors' noise alone."""
+        (`ReadingErrors`: its rows follow the priors'), the weights then the sensors' noise alone. `probes`: the
+        `probes` of an earlier Problem on the same data, shared (`_offset_jacobian`)."""
         self.profile = profile
         self.data = data
         self.free = list(free)
@@ -113,6 +115,9 @@ class Problem:
         # Each observation's scatter relative to its sensor's (estimated where a configuration's observations
         # show it: `_Passes.reading_scales`); its whitened residual is divided by it and its block's scale.
         self.obs_scale = np.ones(data.n_observations)
+        self._last_prediction: tuple[bytes, np.ndarray] | None = None  # (p's bytes, predictions): see `_predicted`
+        self._last_jacobian: tuple[bytes, np.ndarray] | None = None  # (p's bytes, the data rows' unweighted Jacobian)
+        self.probes: dict[tuple[int, ...], Problem] = {} if probes is None else probes  # see `_offset_jacobian`
         self._q = np.nan_to_num(data.joints)  # joints a row does not need do not matter
         self.readings: ReadingErrors | None = None
         if readings and noise_model is not False:
@@ -174,9 +179,13 @@ class Problem:
         return out
 
     def _offset_jacobian(self, params: list[int], p: np.ndarray) -> np.ndarray:
-        """The data rows' unweighted Jacobian with respect to the parameters `params` (joint offsets) at p."""
-        probe = Problem(self.profile, self.data, params, p, noise_model=False)
-        return probe.residuals_jacobian(probe.x0)[1][: probe.n_data_rows]
+        """The data rows' unweighted Jacobian with respect to the parameters `params` (joint offsets) at p (the
+        problem that computes it made once, then moved to each p)."""
+        probe = self.probes.get(tuple(params))
+        if probe is None:
+            probe = self.probes[tuple(params)] = Problem(self.profile, self.data, params, p, noise_model=False)
+        probe.p_fixed = p - probe.A @ p[probe.free]
+        return probe.residuals_jacobian(p[probe.free])[1][: probe.n_data_rows]
 
     def relinearise_readings(self, x: np.ndarray) -> None:
         """The readings' corrections (`ReadingErrors`) linearised at the parameters x."""
@@ -194,11 +203,10 @@ class Problem:
         steps = {k: v for k, v in steps.items() if v > 0}
         if not steps:
             return None
-        probe = Problem(self.profile, self.data, list(steps), p, noise_model=False)
-        _, J = probe.residuals_jacobian(probe.x0)
+        J = self._offset_jacobian(list(steps), p)
         scale = np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
         out = {}
-        for b in probe.blocks:
+        for b in self.blocks:
             Jq = J[b.rows].reshape(-1, b.dim, len(steps)) * scale
             out[b.index] = Jq @ Jq.transpose(0, 2, 1)
         return out
@@ -226,8 +234,7 @@ class Problem:
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         p = self.params(x)
-        pred, _ = self._evaluate(p, jacobian=False)
-        r = self._whitened(pred)
+        r = self._whitened(self._predicted(p))
         if self.readings is None:
             return self._with_priors(r, p)
         self._prepare_readings()
@@ -236,8 +243,14 @@ class Problem:
 
     def residuals_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = self.params(x)
-        pred, J = self._evaluate(p, jacobian=True)
-        assert J is not None
+        key = p.tobytes()
+        if self._last_jacobian is not None and self._last_jacobian[0] == key:
+            J = self._last_jacobian[1]  # the same parameters weighed anew (the scales settling): no kinematics
+            pred = self._predicted(p)
+        else:
+            pred, J = self._evaluate(p, jacobian=True)
+            assert J is not None
+            self._last_prediction, self._last_jacobian = (key, pred), (key, J)
         r = self._whitened(pred)
         J = self._weighed(J)
         extra = J_extra = None
@@ -255,6 +268,14 @@ class Problem:
         if extra is not None and J_extra is not None:
             r, J = np.concatenate([r, extra]), np.vstack([J, J_extra])
         return r, J
+
+    def _predicted(self, p: np.ndarray) -> np.ndarray:
+        """The predictions at p, those of the last evaluation if at the same p: the residuals at one fit under
+        other weights (the scales settling) need no kinematics again."""
+        key = p.tobytes()
+        if self._last_prediction is None or self._last_prediction[0] != key:
+            self._last_prediction = (key, self._evaluate(p, jacobian=False)[0])
+        return self._last_prediction[1]
 
     def _weighed(self, J: np.ndarray) -> np.ndarray:
         """Data rows of an unweighted Jacobian (any number of columns) weighed as the residuals are: by each
@@ -354,12 +375,13 @@ class Problem:
                 H = np.concatenate([G @ skew, G], axis=2)  # d(pred)/d(w, v): w x P = -[P]x w
                 if dh_drot is not None:  # w turns the target frame by Rs^T w about the sensor's axes
                     H[:, :, :3] += dh_drot @ Rs_T
+                # The twists taken to the free parameters first, per configuration (K ops -> F free, K >> F).
+                xi_free = xi @ g.B_ops  # (N, 6, F)
                 if g.per_cfg:  # observations come in equal runs per configuration: one product each
                     c = g.per_cfg
-                    dpred = (H.reshape(-1, c * dim, 6) @ xi[g.cfgs]).reshape(len(P), dim, -1)
+                    Jg += (H.reshape(-1, c * dim, 6) @ xi_free[g.cfgs]).reshape(len(P), dim, -1)
                 else:
-                    dpred = H @ xi[self.data.cfg[g.obs]]
-                Jg += dpred @ g.B_ops
+                    Jg += H @ xi_free[self.data.cfg[g.obs]]
             if g.B_point is not None:
                 Jg += (G @ Rt) @ g.B_point
             if len(g.block.B_direct):

@@ -89,9 +89,15 @@ class ReadingErrors:
         for (k, _), cfgs in variables.items():
             members.setdefault(group[cfgs[0]], []).append((k, cfgs))
         clusters = []
+        rows_of = np.argsort(group[row_cfg], kind="stable")
+        bounds = np.searchsorted(group[row_cfg][rows_of], np.arange(group.max() + 2))
         for g, vs in members.items():
-            rows = np.flatnonzero(group[row_cfg] == g)
-            mask = np.stack([np.isin(row_cfg[rows], cfgs) for _, cfgs in vs], axis=1)
+            rows = rows_of[bounds[g] : bounds[g + 1]]
+            mask = np.zeros((len(rows), len(vs)), bool)
+            for j, (_, cfgs) in enumerate(vs):
+                reads = np.zeros(data.n_configurations, bool)
+                reads[cfgs] = True
+                mask[:, j] = reads[row_cfg[rows]]
             std = np.array([steps[params[k]][1] / np.sqrt(12.0) for k, _ in vs])
             clusters.append(_Cluster(rows, np.array([k for k, _ in vs]), mask, std))
         return cls(clusters, params, Jq)

@@ -113,11 +113,14 @@ def levenberg_marquardt(
     should_stop: Callable[[], bool] | None = None,
     lower: np.ndarray | None = None,
     upper: np.ndarray | None = None,
+    damping: float = 1e-3,
 ) -> SolveResult:
     """Minimise 0.5 |r(x)|^2 (or the robust cost) by Levenberg-Marquardt with Marquardt scaling,
     within the box [lower, upper] when given: a variable at a bound that the gradient pushes
     outward leaves the step's system, and every step is projected into the box. `fun`: the
-    residuals alone (cheaper than with the Jacobian), for the trials after a rejected step."""
+    residuals alone (cheaper than with the Jacobian), for the trials after a rejected step. `damping`: the first
+    step's (relative to the Hessian's diagonal); a start at a nearby solution (the same problem weighed anew)
+    takes nearly Gauss-Newton steps at once."""
     start = time.perf_counter()
     lo = np.full(len(x0), -np.inf) if lower is None else np.asarray(lower, float)
     hi = np.full(len(x0), np.inf) if upper is None else np.asarray(upper, float)
@@ -130,7 +133,7 @@ def levenberg_marquardt(
     evaluations = 1
     cost = cost_of(r)
     history = [cost]
-    lam = 1e-3
+    lam = damping
     nu = 2.0
     status = SolveStatus.MAX_ITERATIONS
     iteration = 0
