@@ -206,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
             version = out["opencv"]
             for c, solved in zip(cases, out["cases"], strict=True):
                 for method, r in solved.items():
+                    if r["X"] is None:  # failed outright (handeye_opencv.py keeps OpenCV's reason)
+                        continue
                     p = opencv_params(profile, np.array(r["X"]), np.array(r["Z"]))
                     results[(c, method)] = judged(profile, data[c][1], p, r["seconds"], True)
     methods = [f"desk {m}" for m in DESK_MODES] + (list(OPENCV_METHODS) if opencv else [])

@@ -3,7 +3,8 @@
 
 Reads an npz (`object_points` (K, 3) of the board in its frame, `camera_matrix` (3, 3), per case k `corners_k`
 (N, K, 2) px, `gripper_k` (N, 4, 4) the flange's pose in the robot's base by the believed kinematics, and
-`eye_in_hand_k`), writes a JSON list, per case {method: {"X": 4x4, "Z": 4x4, "seconds": s}}: eye-in-hand X is
+`eye_in_hand_k`), writes a JSON list, per case {method: {"X": 4x4, "Z": 4x4, "seconds": s}} (X and Z null with the
+`error` OpenCV raised when a method fails outright): eye-in-hand X is
 the camera in the flange and Z the board in the base; eye-to-hand X is the camera in the base and Z the board in
 the flange. Each board pose per image is cv2.solvePnP's on the corners (no distortion, as the camera has none);
 `seconds` is those PnPs' time plus the method's.
@@ -68,13 +69,17 @@ def solve_case(object_points: np.ndarray, K: np.ndarray, corners: np.ndarray, G:
     out = {}
     for name in HAND_EYE:
         t0 = time.perf_counter()
-        R, t = cv2.calibrateHandEye(
-            moving[:, :3, :3],
-            moving[:, :3, 3],
-            C[:, :3, :3],
-            C[:, :3, 3],
-            method=getattr(cv2, f"CALIB_HAND_EYE_{name}"),
-        )
+        try:
+            R, t = cv2.calibrateHandEye(
+                moving[:, :3, :3],
+                moving[:, :3, 3],
+                C[:, :3, :3],
+                C[:, :3, 3],
+                method=getattr(cv2, f"CALIB_HAND_EYE_{name}"),
+            )
+        except cv2.error as exc:  # a method that fails outright on these poses says why
+            out[name] = {"X": None, "Z": None, "error": str(exc.err), "seconds": pnp_s + time.perf_counter() - t0}
+            continue
         X = pose(R, t)
         Z = mean_pose(moving @ X @ C)  # the board where each image puts it, averaged
         out[name] = {"X": X.tolist(), "Z": Z.tolist(), "seconds": pnp_s + time.perf_counter() - t0}
@@ -82,13 +87,17 @@ def solve_case(object_points: np.ndarray, K: np.ndarray, corners: np.ndarray, G:
     B = inverse(G) if in_hand else G
     for name in ROBOT_WORLD:
         t0 = time.perf_counter()
-        R_bw, t_bw, R_gc, t_gc = cv2.calibrateRobotWorldHandEye(
-            C[:, :3, :3],
-            C[:, :3, 3],
-            B[:, :3, :3],
-            B[:, :3, 3],
-            method=getattr(cv2, f"CALIB_ROBOT_WORLD_HAND_EYE_{name}"),
-        )
+        try:
+            R_bw, t_bw, R_gc, t_gc = cv2.calibrateRobotWorldHandEye(
+                C[:, :3, :3],
+                C[:, :3, 3],
+                B[:, :3, :3],
+                B[:, :3, 3],
+                method=getattr(cv2, f"CALIB_ROBOT_WORLD_HAND_EYE_{name}"),
+            )
+        except cv2.error as exc:
+            out[name] = {"X": None, "Z": None, "error": str(exc.err), "seconds": pnp_s + time.perf_counter() - t0}
+            continue
         X, Z = inverse(pose(R_gc, t_gc)), inverse(pose(R_bw, t_bw))
         out[name] = {"X": X.tolist(), "Z": Z.tolist(), "seconds": pnp_s + time.perf_counter() - t0}
     return out

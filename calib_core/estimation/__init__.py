@@ -27,6 +27,7 @@ __getattr__ = lazy_exports(
             "find_drift",
         ),
         "evaluation": ("Evaluation", "evaluate"),
+        "flange_handeye": ("FlangeCalibration", "View", "calibrate_flange", "find_views"),
         "planning": (
             "AccuracyPrediction",
             "Around",
@@ -68,6 +69,7 @@ __all__ = [
     "Epoch",
     "Evaluation",
     "Figures",
+    "FlangeCalibration",
     "HeldParameter",
     "IdentifiabilityReport",
     "NoiseTest",
@@ -81,7 +83,9 @@ __all__ = [
     "SolverReport",
     "Team",
     "Trend",
+    "View",
     "around_seed",
+    "calibrate_flange",
     "candidates",
     "check_can_fit",
     "check_share",
@@ -90,6 +94,7 @@ __all__ = [
     "evaluate",
     "figures",
     "find_drift",
+    "find_views",
     "fit_parameters",
     "frame_band",
     "local_points",
@@ -117,6 +122,7 @@ if TYPE_CHECKING:
         find_drift,
     )
     from .evaluation import Evaluation, evaluate
+    from .flange_handeye import FlangeCalibration, View, calibrate_flange, find_views
     from .plan_seed import around_seed, needs_seed, seeded_model
     from .planning import (
         AccuracyPrediction,

@@ -24,6 +24,7 @@ __getattr__ = lazy_exports(
         ),
         "ctu_motoman": ("camera_dataset",),
         "export": ("bhuman_joint_calibration", "calibrated_urdf", "estimated_offsets_deg", "offsets_yaml"),
+        "flange_poses": ("BoardSpec", "Camera", "parse_board", "read_camera", "read_flange_poses"),
         "session": ("FrameRecord", "csv_sensors", "parse_measured", "read_session", "session_robot", "write_session"),
         "urdf_export": ("BODY", "to_urdf"),
     },
@@ -31,6 +32,8 @@ __getattr__ = lazy_exports(
 __all__ = [
     "BODY",
     "NAOQI_COLOR_SPACES",
+    "BoardSpec",
+    "Camera",
     "FrameRecord",
     "bhuman_joint_calibration",
     "calibrated_urdf",
@@ -42,10 +45,13 @@ __all__ = [
     "measurement_values",
     "naoqi_image",
     "offsets_yaml",
+    "parse_board",
     "parse_dataset",
     "parse_measured",
     "plan_csv",
+    "read_camera",
     "read_dataset",
+    "read_flange_poses",
     "read_session",
     "readings_beyond_limits",
     "select_rows",
@@ -69,5 +75,6 @@ if TYPE_CHECKING:
     )
     from .ctu_motoman import camera_dataset
     from .export import bhuman_joint_calibration, calibrated_urdf, estimated_offsets_deg, offsets_yaml
+    from .flange_poses import BoardSpec, Camera, parse_board, read_camera, read_flange_poses
     from .session import FrameRecord, csv_sensors, parse_measured, read_session, session_robot, write_session
     from .urdf_export import BODY, to_urdf

@@ -233,7 +233,11 @@ def too_large(width: int, height: int) -> str:
 
 
 def detect_board(
-    image: np.ndarray, cols: int = 6, rows: int = 4, predicted: np.ndarray | None = None
+    image: np.ndarray,
+    cols: int = 6,
+    rows: int = 4,
+    predicted: np.ndarray | None = None,
+    max_residual_px: float = GRID_RESIDUAL_PX,
 ) -> BoardDetection:
     """The cols x rows inner corners of a checkerboard in a grey (or BGR) uint8 image, sub-pixel, row-major.
 
@@ -249,7 +253,8 @@ def detect_board(
 
     Other rejections: "not found"; "partial" when only a fragment of the grid (3 x 3 corners or more)
     was found, as for a half-hidden board or one too foreshortened to resolve; "inconsistent" when the
-    refined corners stray more than GRID_RESIDUAL_PX (RMS) from a flat board's homography.
+    refined corners stray more than `max_residual_px` (RMS; GRID_RESIDUAL_PX, the simulated cameras' limit) from
+    a flat board's homography.
     """
     if cols < 3 or rows < 3:
         raise ValueError("OpenCV's chessboard detectors need at least 3 x 3 inner corners")
@@ -266,7 +271,7 @@ def detect_board(
         if grid is None:
             continue
         corners, residual = _refine(cv2.GaussianBlur(grey, (0, 0), REFINE_BLUR_PX), grid, cols, rows)
-        if residual <= GRID_RESIDUAL_PX:
+        if residual <= max_residual_px:
             detection = identify(corners, cols, rows, predicted)
             detection.residual_px = residual
             return detection

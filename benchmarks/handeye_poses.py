@@ -1,0 +1,115 @@
+"""`calib handeye` against OpenCV's closed forms on real images and reported flange poses (issue 35): leave
+each image out, fit the rest, predict the held-out image's corners from its reported flange pose, and take the RMS
+pixel distance to the corners found in it. Also a plain reprojection bundle adjustment of the same two poses (the
+reported flange poses taken as exact), and the desk's with the camera's intrinsics free.
+
+    python3 -m venv .venv-cv4 && .venv-cv4/bin/pip install "opencv-python-headless<5" numpy
+    .venv/bin/python benchmarks/handeye_poses.py sample_sessions/handeye-visp [--cv4-python .venv-cv4/bin/python]
+
+The folder holds what `calib handeye` takes: images/, poses.csv, camera.yaml and board.txt (the --board value),
+and setup.txt if not eye-in-hand. OpenCV 5's Python package has no calibrateHandEye: OpenCV 4's methods run in an
+environment of their own (benchmarks/handeye_opencv.py, on the corners with the lens distortion undone).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calib_core.estimation import calibrate_flange, find_views
+from calib_core.estimation.flange_handeye import _Model, _start
+from calib_core.estimation.handeye import inverse, pose
+from calib_core.io import parse_board, read_camera, read_flange_poses
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("folder", type=Path)
+    ap.add_argument("--cv4-python", type=Path, default=ROOT / ".venv-cv4" / "bin" / "python")
+    args = ap.parse_args()
+    folder: Path = args.folder
+    board = parse_board((folder / "board.txt").read_text().strip())
+    setup = (folder / "setup.txt").read_text().strip() if (folder / "setup.txt").exists() else "eye-in-hand"
+    camera = read_camera(folder / "camera.yaml")
+    names = sorted(p.name for p in (folder / "images").iterdir())
+    poses = read_flange_poses(folder / "poses.csv", names)
+    images = {n: cv2.imread(str(folder / "images" / n), cv2.IMREAD_GRAYSCALE) for n in names}
+    views = find_views(images, board, camera)
+    found = [n for n in names if views[n].corners is not None and n in poses]
+    spec = (folder / "board.txt").read_text().strip()
+    print(f"{folder}: {len(names)} images, the board found in {len(found)}; {setup}; {spec}")
+    calibrate_flange(views, poses, camera, board, setup)  # settles each chessboard's corner order once, for all
+    points = board.points()
+    errors: dict[str, list[float]] = {}
+    started = time.perf_counter()
+    opencv = _opencv(args.cv4_python, views, poses, found, points, camera, setup)
+    failed: dict[str, str] = {}
+    for k, held in enumerate(found):
+        train = [n for n in found if n != held]
+        for method, got in opencv[k].items():
+            if got.get("X") is None:
+                failed[f"OpenCV {method}"] = got.get("error", "")
+                continue
+            X, Z = np.array(got["X"]), np.array(got["Z"])
+            if np.all(np.isfinite(X)) and np.all(np.isfinite(Z)):
+                error = _heldout_px(views[held], poses[held], X, Z, points, camera, setup)
+                errors.setdefault(f"OpenCV {method}", []).append(error)
+        theta, _ = _start(setup, [views[n] for n in train], [poses[n] for n in train], points, camera, board)
+        plain = _Model(setup, [views[n] for n in train], [poses[n] for n in train], points, camera, False)
+        plain.errors = False
+        theta = plain.solve(theta)
+        X, Z = pose(_rot(theta[0:3]), theta[3:6]), pose(_rot(theta[6:9]), theta[9:12])
+        errors.setdefault("plain bundle adjustment", []).append(
+            _heldout_px(views[held], poses[held], X, Z, points, camera, setup)
+        )
+        for label, free in (("calib handeye", False), ("calib handeye --intrinsics free", True)):
+            cal = calibrate_flange(views, poses, camera, board, setup, heldout={held}, intrinsics_free=free)
+            errors.setdefault(label, []).append(cal.heldout_rms_px)
+    print(f"leave one out over {len(found)} images ({time.perf_counter() - started:.0f} s): held-out corner RMS, px")
+    print(f"{'method':34s} {'mean':>8s} {'median':>8s} {'max':>8s}")
+    for label, e in sorted(errors.items(), key=lambda kv: statistics.mean(kv[1])):
+        fails = f"  (failed outright on {len(found) - len(e)} of the {len(found)})" if len(e) < len(found) else ""
+        print(f"{label:34s} {statistics.mean(e):8.3f} {statistics.median(e):8.3f} {max(e):8.3f}{fails}")
+    for label, why in failed.items():
+        if label not in errors:
+            print(f"{label:34s} failed outright on every split: {why}")
+
+
+def _opencv(python: Path, views, poses, found, points, camera, setup) -> list[dict]:
+    """OpenCV 4's methods on each leave-one-out training set (benchmarks/handeye_opencv.py): per held-out image
+    {method: {"X", "Z"}}; the corners with the lens distortion undone, as that script's pinhole takes them."""
+    from handeye import run_opencv  # benchmarks/handeye.py: the OpenCV 4 environment's runner
+
+    inputs = {"object_points": points, "camera_matrix": camera.matrix}
+    for k, held in enumerate(found):
+        train = [n for n in found if n != held]
+        corners = [
+            cv2.undistortPoints(views[n].corners[:, None], camera.matrix, camera.distortion, P=camera.matrix)[:, 0]
+            for n in train
+        ]
+        inputs[f"corners_{k}"] = np.array(corners)
+        inputs[f"gripper_{k}"] = np.array([poses[n] for n in train])
+        inputs[f"eye_in_hand_{k}"] = np.array(setup == "eye-in-hand")
+    return run_opencv(python, inputs)["cases"]
+
+
+def _heldout_px(view, F, X, Z, points, camera, setup) -> float:
+    A = F if setup == "eye-in-hand" else inverse(F)
+    C = inverse(X) @ inverse(A) @ Z
+    uv, _ = cv2.projectPoints(points[view.ids], cv2.Rodrigues(C[:3, :3])[0], C[:3, 3], camera.matrix, camera.distortion)
+    return float(np.sqrt(np.mean(np.sum((uv.reshape(-1, 2) - view.corners) ** 2, axis=1))))
+
+
+def _rot(r: np.ndarray) -> np.ndarray:
+    return cv2.Rodrigues(np.asarray(r, float))[0]
+
+
+if __name__ == "__main__":
+    main()
