@@ -24,16 +24,31 @@ X_TRUE = pose(Rotation.from_euler("xyz", [2, -3, 91], degrees=True).as_matrix(),
 Z_TRUE = pose(Rotation.from_euler("xyz", [179, 1, 20], degrees=True).as_matrix(), [0.55, 0.12, 0.02])
 
 
-def _render(C: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The board (its frame: origin at the first inner corner, x along a row) seen at pose C in the camera."""
+def _chessboard() -> tuple[np.ndarray, np.ndarray]:
+    """The chessboard's texture and the map of its px to the board's frame (origin at the first inner corner)."""
     px = 40  # a square's texture px
     tex = np.full(((ROWS + 3) * px, (COLS + 3) * px), 255, np.uint8)
     for r in range(ROWS + 1):
         for c in range(COLS + 1):
             if (r + c) % 2 == 0:
                 tex[(r + 1) * px : (r + 2) * px, (c + 1) * px : (c + 2) * px] = 0
-    # Texture px -> board metres: the first inner corner is at texture px (2 px, 2 px) of squares.
-    A = np.array([[SQUARE_M / px, 0, -2 * SQUARE_M], [0, SQUARE_M / px, -2 * SQUARE_M], [0, 0, 1]])
+    return tex, np.array([[SQUARE_M / px, 0, -2 * SQUARE_M], [0, SQUARE_M / px, -2 * SQUARE_M], [0, 0, 1]])
+
+
+def _charuco(cols: int, rows: int, square_m: float, marker_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's ChArUco board (DICT_4X4_50) as a texture and the map of its px to the board's frame."""
+    px, margin = 60, 30
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    board = cv2.aruco.CharucoBoard((cols, rows), square_m, marker_m, dictionary)
+    tex = board.generateImage((cols * px + 2 * margin, rows * px + 2 * margin), marginSize=margin)
+    s = square_m / px
+    return tex, np.array([[s, 0, -margin * s], [0, s, -margin * s], [0, 0, 1]])
+
+
+def _render(C: np.ndarray, rng: np.random.Generator, board: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The board (`board`: its texture and the map of its px to its frame; default the chessboard) seen at pose C
+    in the camera, through the lens."""
+    tex, A = board or _chessboard()
     # Undistorted rendering, then distortion applied by remapping every image pixel through the lens model.
     H = K @ np.column_stack([C[:3, 0], C[:3, 1], C[:3, 3]]) @ A
     ideal = cv2.warpPerspective(tex, H, SIZE, flags=cv2.INTER_AREA, borderValue=200)
@@ -55,7 +70,9 @@ def _views(n: int, rng: np.random.Generator) -> list[np.ndarray]:
     return out
 
 
-def write_case(folder: Path, setup: str = "eye-in-hand", n: int = 12, seed: int = 0) -> dict[str, np.ndarray]:
+def write_case(
+    folder: Path, setup: str = "eye-in-hand", n: int = 12, seed: int = 0, board: tuple | None = None
+) -> dict[str, np.ndarray]:
     """Images, poses.csv (rotation vectors, m), camera.yaml (ROS); the flange poses as reported (0.1 mm, 0.02 deg
     off the truth). Returns the true flange poses by image."""
     rng = np.random.default_rng(seed)
@@ -66,7 +83,7 @@ def write_case(folder: Path, setup: str = "eye-in-hand", n: int = 12, seed: int 
         # eye-in-hand: F X C = Z; eye-to-hand (X the camera in the base, Z the board in the flange): X C = F Z.
         F = Z_TRUE @ inverse(C) @ inverse(X_TRUE) if setup == "eye-in-hand" else X_TRUE @ C @ inverse(Z_TRUE)
         truth[name] = F
-        cv2.imwrite(str(folder / "images" / name), _render(C, rng))
+        cv2.imwrite(str(folder / "images" / name), _render(C, rng, board))
         reported = Rotation.from_rotvec(rng.normal(0, np.radians(0.02), 3)).as_matrix() @ F[:3, :3]
         r = Rotation.from_matrix(reported).as_rotvec()
         t = F[:3, 3] + rng.normal(0, 1e-4, 3)
@@ -174,6 +191,20 @@ def test_eye_to_hand(tmp_path: Path) -> None:
     out = json.loads((tmp_path / "cal.json").read_text())
     X = np.array(out["camera_in_base"]["matrix"])
     assert "board_in_flange" in out and np.linalg.norm(X[:3, 3] / 1000 - X_TRUE[:3, 3]) < 1.5e-3
+
+
+@pytest.mark.slow
+def test_a_charuco_board(tmp_path: Path) -> None:
+    """OpenCV's ChArUco board (7 x 5 squares of 30 mm, 22 mm markers): its corners by their ids, its frame as
+    OpenCV's CharucoBoard has it."""
+    write_case(tmp_path, n=10, seed=4, board=_charuco(7, 5, 0.03, 0.022))
+    args = ["handeye", "--poses", str(tmp_path / "poses.csv"), "--images", str(tmp_path / "images"), "--camera",
+            str(tmp_path / "camera.yaml"), "--board", "charuco:7x5:30:22:4X4_50", "--setup", "eye-in-hand", "--out",
+            str(tmp_path / "cal.json")]  # fmt: skip
+    assert calib(args) == 0
+    out = json.loads((tmp_path / "cal.json").read_text())
+    X = np.array(out["camera_in_flange"]["matrix"])
+    assert np.linalg.norm(X[:3, 3] / 1000 - X_TRUE[:3, 3]) < 1.5e-3 and angle_deg(X, X_TRUE) < 0.3
 
 
 @pytest.mark.parametrize(

@@ -45,9 +45,13 @@ class BoardSpec:
     dictionary: str = ""
 
     def points(self) -> np.ndarray:
-        """The board's inner corners (K, 3) in its frame, m, in the detector's order (row by row)."""
-        cols, rows = (self.cols, self.rows) if self.kind == "chessboard" else (self.cols - 1, self.rows - 1)
-        c, r = np.meshgrid(np.arange(cols), np.arange(rows))
+        """The board's inner corners (K, 3) in its frame, m, in the detector's order (row by row): a chessboard's
+        origin at its first inner corner, a ChArUco board's at its outer corner as OpenCV's CharucoBoard has it
+        (its first inner corner one square in), the ids its detector gives."""
+        if self.kind == "chessboard":
+            c, r = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
+        else:
+            c, r = np.meshgrid(np.arange(1, self.cols), np.arange(1, self.rows))
         return np.stack([c.ravel(), r.ravel(), np.zeros(c.size)], axis=1) * self.square_m
 
 
