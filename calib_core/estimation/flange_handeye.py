@@ -9,10 +9,12 @@ board in the flange). Both read A_i X = Z B_i with B_i = C_i^-1 and A_i = F_i or
 Then the reprojection bundle adjustment: X and Z (with `intrinsics_free` also the camera's fx, fy, cx, cy, k1, k2,
 p1, p2, k3, started at its file) minimise the corners' pixel distances over the images used, by the desk's
 Levenberg-Marquardt with exact derivatives: the pinhole's, chained through the poses' rotation vectors (their
-right Jacobians). Standard deviations from the Gauss-Newton covariance scaled by the residuals' own scatter.
+right Jacobians). A controller's pose is not exact: each image's reported flange pose has an error of its own,
+fitted with a standard deviation that, like the corners', the data give (variance components), so that the
+corners are not asked to absorb it and the standard deviations (Gauss-Newton, at those weights) stay honest.
 
-A chessboard's corners come in an order fixed only up to a half turn: each image's is the one the first
-closed-form solution predicts best, before the solution is made again.
+A chessboard's corners come in an order fixed only up to a half turn: each image's is the one the poses agree
+with (`_consistent_orders`), before anything is fitted.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..io.flange_poses import BoardSpec, Camera
+from ..io.flange_poses import BoardSpec, Camera, natural_key
 from ..sensors.pinhole import Pinhole
 from .handeye import hand_eye_candidates, inverse, pose
 from .solver import levenberg_marquardt
@@ -277,12 +279,13 @@ def calibrate_flange(
     heldout: set[str] | None = None,
     intrinsics_free: bool = False,
 ) -> FlangeCalibration:
-    """X and Z from the images with a board found and a pose, less `heldout` (never fitted, their error given)."""
+    """X and Z from the images with a board found and a pose, less `heldout` (never fitted, their error given).
+    A chessboard view's corners are put in the order the poses agree with, in place."""
     if setup not in SETUPS:
         raise InputError(f"--setup {setup!r}: expected eye-in-hand or eye-to-hand")
     heldout = heldout or set()
     points = board.points()
-    names = sorted(views, key=lambda n: _natural(n))
+    names = sorted(views, key=natural_key)
     used = [n for n in names if views[n].corners is not None and n in poses and n not in heldout]
     if len(used) < MIN_IMAGES:
         raise InputError(
@@ -408,12 +411,6 @@ def _pose_std(cov: np.ndarray, r: np.ndarray) -> np.ndarray:
     Jr = _right_jacobian(r)
     rot = Jr @ cov[:3, :3] @ Jr.T
     return np.sqrt(np.maximum(np.concatenate([np.diag(cov[3:, 3:]), np.diag(rot)]), 0.0))
-
-
-def _natural(name: str) -> list:
-    from ..io.flange_poses import natural_key
-
-    return natural_key(name)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
