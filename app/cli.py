@@ -162,14 +162,18 @@ def _parser() -> argparse.ArgumentParser:
     so.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
 
     ex = sub.add_parser("export", help="what a driver takes: the calibrated URDF or the joint offsets (YAML)")
-    ex.add_argument("--robot", required=True, help="built-in profile or a profile YAML file")
-    ex.add_argument("--calibration", required=True, help="calibration JSON (from solve)")
+    ex.add_argument("--robot", help="built-in profile or a profile YAML file (not for a calib handeye output)")
+    ex.add_argument("--calibration", required=True, help="calibration JSON (from solve, or from handeye)")
     ex.add_argument(
         "--format",
         required=True,
-        choices=["urdf", "yaml", "bhuman"],
-        help="urdf: corrected joint origins; yaml: offsets; bhuman: a NAO's jointCalibration.cfg (B-Human's form)",
+        choices=["urdf", "yaml", "bhuman", "ros2-static-tf", "urdf-joint", "easy-handeye"],
+        help="urdf: corrected joint origins; yaml: offsets; bhuman: a NAO's jointCalibration.cfg (B-Human's form); "
+        "of a calib handeye output: ros2-static-tf (a launch file publishing the camera on /tf_static), urdf-joint "
+        "(a fixed joint to paste), easy-handeye (its calibration YAML)",
     )
+    ex.add_argument("--parent", help="handeye: the camera's parent frame (default tool0 eye-in-hand, base_link)")
+    ex.add_argument("--child", default="camera_optical_frame", help="handeye: the camera's (optical) frame")
     ex.add_argument("--out", required=True, help="the file to write")
 
     sim = sub.add_parser("simulate", help="write a dataset measured on the simulated robot")
@@ -550,8 +554,12 @@ def _self_observe(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from calib_core.io import bhuman_joint_calibration, calibrated_urdf, offsets_yaml
+    from calib_core.io import HANDEYE_FORMATS, bhuman_joint_calibration, calibrated_urdf, offsets_yaml
 
+    if args.format in HANDEYE_FORMATS:
+        return _export_handeye(args)
+    if args.robot is None:
+        raise InputError(f"--format {args.format} needs --robot (the profile the calibration is of)")
     profile = _load_robot(args)
     cal = _load_calibration(args.calibration, profile)
     _check_writable(args.out)
@@ -563,6 +571,19 @@ def _export(args: argparse.Namespace) -> int:
     text = write(profile, cal)
     _save(args.out, lambda: write_atomic(Path(args.out), text))
     print(f"{what}: {args.out}")
+    return 0
+
+
+def _export_handeye(args: argparse.Namespace) -> int:
+    """A calib handeye output's camera pose where a ROS robot takes it (calib_core/io/handeye_export.py)."""
+    from calib_core.io import export_handeye, read_handeye
+
+    setup, T = read_handeye(args.calibration)
+    parent = args.parent or ("tool0" if setup == "eye-in-hand" else "base_link")
+    text = export_handeye(setup, T, args.format, parent, args.child)
+    _check_writable(args.out)
+    _save(args.out, lambda: write_atomic(Path(args.out), text))
+    print(f"the camera {args.child} in {parent} as {args.format}: {args.out}")
     return 0
 
 

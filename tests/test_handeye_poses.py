@@ -6,6 +6,7 @@ rendered the images; each kind of bad input a sentence naming the file, the line
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -285,3 +286,43 @@ def test_real_images_and_reported_poses_of_visp(tmp_path: Path, capsys) -> None:
     args[2] = str(tmp_path / "inverted.csv")
     assert calib(args) == 0
     assert "check that they are the flange in the base" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_result_exports_where_ros_takes_it(eye_in_hand: Path) -> None:
+    """`calib export` of a calib handeye output: a ROS 2 launch file publishing the camera on /tf_static, a URDF
+    joint (read back by yourdfpy inside a robot's URDF), easy_handeye's YAML: each gives back the camera's pose."""
+    import io
+
+    import yaml
+    import yourdfpy
+
+    assert run(eye_in_hand) == 0
+    X = np.array(json.loads((eye_in_hand / "cal.json").read_text())["camera_in_flange"]["matrix"])
+    X[:3, 3] /= 1000.0
+    got = {}
+    for fmt in ("ros2-static-tf", "urdf-joint", "easy-handeye"):
+        out = eye_in_hand / f"camera.{fmt}"
+        assert calib(["export", "--calibration", str(eye_in_hand / "cal.json"), "--format", fmt, "--parent", "tool0",
+                      "--out", str(out)]) == 0  # fmt: skip
+        got[fmt] = out.read_text()
+    launch = got["ros2-static-tf"]
+    compile(launch, "camera.launch.py", "exec")  # a Python launch file
+    values = dict(re.findall(r'"--(x|y|z|qx|qy|qz|qw)", "([-0-9.e]+)"', launch))
+    assert '"--frame-id", "tool0", "--child-frame-id", "camera_optical_frame"' in launch
+    T = pose(Rotation.from_quat([float(values[k]) for k in ("qx", "qy", "qz", "qw")]).as_matrix(),
+             [float(values[k]) for k in "xyz"])  # fmt: skip
+    assert np.allclose(T, X, atol=1e-9)
+    urdf = f'<robot name="arm"><link name="tool0"/><link name="camera_optical_frame"/>{got["urdf-joint"]}</robot>'
+    robot = yourdfpy.URDF.load(io.StringIO(urdf), build_scene_graph=True, load_meshes=False)
+    assert np.allclose(robot.get_transform("camera_optical_frame", "tool0"), X, atol=1e-9)
+    t = yaml.safe_load(got["easy-handeye"])
+    assert t["parameters"]["eye_on_hand"] is True and t["parameters"]["robot_effector_frame"] == "tool0"
+    q = t["transformation"]
+    T = pose(Rotation.from_quat([q["qx"], q["qy"], q["qz"], q["qw"]]).as_matrix(), [q["x"], q["y"], q["z"]])
+    assert np.allclose(T, X, atol=1e-9)
+    # A frame name that is not one, or a solve calibration's format asked without its robot: said, exit 2.
+    assert calib(["export", "--calibration", str(eye_in_hand / "cal.json"), "--format", "urdf-joint", "--child",
+                  "camera frame", "--out", str(eye_in_hand / "x")]) == 2  # fmt: skip
+    assert calib(["export", "--calibration", str(eye_in_hand / "cal.json"), "--format", "yaml",
+                  "--out", str(eye_in_hand / "x")]) == 2  # fmt: skip

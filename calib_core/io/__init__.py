@@ -25,12 +25,14 @@ __getattr__ = lazy_exports(
         "ctu_motoman": ("camera_dataset",),
         "export": ("bhuman_joint_calibration", "calibrated_urdf", "estimated_offsets_deg", "offsets_yaml"),
         "flange_poses": ("BoardSpec", "Camera", "parse_board", "read_camera", "read_flange_poses"),
+        "handeye_export": ("HANDEYE_FORMATS", "export_handeye", "read_handeye"),
         "session": ("FrameRecord", "csv_sensors", "parse_measured", "read_session", "session_robot", "write_session"),
         "urdf_export": ("BODY", "to_urdf"),
     },
 )
 __all__ = [
     "BODY",
+    "HANDEYE_FORMATS",
     "NAOQI_COLOR_SPACES",
     "BoardSpec",
     "Camera",
@@ -40,6 +42,7 @@ __all__ = [
     "camera_dataset",
     "csv_sensors",
     "estimated_offsets_deg",
+    "export_handeye",
     "grey_image",
     "import_bag",
     "measurement_values",
@@ -52,6 +55,7 @@ __all__ = [
     "read_camera",
     "read_dataset",
     "read_flange_poses",
+    "read_handeye",
     "read_session",
     "readings_beyond_limits",
     "select_rows",
@@ -76,5 +80,6 @@ if TYPE_CHECKING:
     from .ctu_motoman import camera_dataset
     from .export import bhuman_joint_calibration, calibrated_urdf, estimated_offsets_deg, offsets_yaml
     from .flange_poses import BoardSpec, Camera, parse_board, read_camera, read_flange_poses
+    from .handeye_export import HANDEYE_FORMATS, export_handeye, read_handeye
     from .session import FrameRecord, csv_sensors, parse_measured, read_session, session_robot, write_session
     from .urdf_export import BODY, to_urdf
