@@ -252,7 +252,9 @@ def fit_parameters(
     # readings' rounding in each observation's covariance, where the fit eliminated it).
     plain, r_plain = problem, r
     if problem.readings is not None:
-        plain = Problem(profile, data, [], problem.params(x), probes=problem.probes)
+        # The noise test weighs the readings' rounding as the fit's corrections do: their Jacobian at the first fit.
+        Jq = problem.readings.Jq
+        plain = Problem(profile, data, [], problem.params(x), probes=problem.probes, rounding_jacobian=Jq)
         plain.included = problem.included
         r_plain = plain.residuals(np.zeros(0))
     sigmas = {

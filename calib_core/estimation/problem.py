@@ -72,12 +72,15 @@ class Problem:
         noise_model: bool | Sequence[np.ndarray | float] = True,
         readings: bool = False,
         probes: dict[tuple[int, ...], Problem] | None = None,
+        rounding_jacobian: np.ndarray | None = None,
     ) -> None:
         """`noise_model`: True to weigh by the sensors' noise models, False for none, or the
         `weights` of an earlier Problem on the same data (they depend on the data only). `readings`: with a
         noise model, the rounding of readings that several observations share as errors in the variables
         (`ReadingErrors`: its rows follow the priors'), the weights then the sensors' noise alone. `probes`: the
-        `probes` of an earlier Problem on the same data, shared (`_offset_jacobian`)."""
+        `probes` of an earlier Problem on the same data, shared (`_offset_jacobian`). `rounding_jacobian`: the quantised
+        joints' offsets' Jacobian to weigh the readings' rounding with (`_reading_covariance`), taken near p already
+        (a fit's `readings.Jq`), instead of at p."""
         self.profile = profile
         self.data = data
         self.free = list(free)
@@ -126,7 +129,7 @@ class Problem:
                 profile, data, row_cfg, lambda params: self._offset_jacobian(params, p_base)
             )
         if noise_model is True:
-            extra = None if self.readings is not None else self._reading_covariance(p_base)
+            extra = None if self.readings is not None else self._reading_covariance(p_base, rounding_jacobian)
             for b in self.blocks:
                 measured = data.measured[b.obs, : b.dim]
                 b.W = b.sensor.whitening(p_base, measured, None if extra is None else extra[b.index])
@@ -192,7 +195,7 @@ class Problem:
         if self.readings is not None:
             self.readings.relinearise(self._offset_jacobian(self.readings.params, self.params(x)))
 
-    def _reading_covariance(self, p: np.ndarray) -> dict[int, np.ndarray] | None:
+    def _reading_covariance(self, p: np.ndarray, J: np.ndarray | None = None) -> dict[int, np.ndarray] | None:
         """Per sensor, (n, dim, dim): what rounding each joint reading to its encoder step adds to a
         measurement.
 
@@ -203,7 +206,8 @@ class Problem:
         steps = {k: v for k, v in steps.items() if v > 0}
         if not steps:
             return None
-        J = self._offset_jacobian(list(steps), p)
+        if J is None or J.shape[1] != len(steps):
+            J = self._offset_jacobian(list(steps), p)
         scale = np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
         out = {}
         for b in self.blocks:

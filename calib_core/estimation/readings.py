@@ -76,8 +76,9 @@ class ReadingErrors:
         params = list(steps)
         Jq = offset_jacobian(params)
         keys = _keys(profile, data, [steps[i][0] for i in params])
-        moved = np.zeros((data.n_configurations, len(params)), bool)
-        np.logical_or.at(moved, row_cfg, Jq != 0)
+        moved = np.stack(
+            [np.bincount(row_cfg, weights=column != 0, minlength=data.n_configurations) > 0 for column in Jq.T], axis=1
+        )
         variables: dict[tuple, list[int]] = {}
         for c, k in zip(*(a.tolist() for a in np.nonzero(moved)), strict=True):
             variables.setdefault((k, keys[c][k]), []).append(c)
@@ -85,19 +86,19 @@ class ReadingErrors:
         if all(len(cfgs) == 1 and obs_of_cfg[cfgs[0]] == 1 for cfgs in variables.values()):
             return None  # every reading's rounding is one observation's (a moved configuration has one at least)
         group = _components(data.n_configurations, variables.values())
+        label = group.tolist()  # Python ints: looked up once per correction
         members: dict[int, list[tuple[int, list[int]]]] = {}
         for (k, _), cfgs in variables.items():
-            members.setdefault(group[cfgs[0]], []).append((k, cfgs))
+            members.setdefault(label[cfgs[0]], []).append((k, cfgs))
         clusters = []
         rows_of = np.argsort(group[row_cfg], kind="stable")
         bounds = np.searchsorted(group[row_cfg][rows_of], np.arange(group.max() + 2))
         for g, vs in members.items():
             rows = rows_of[bounds[g] : bounds[g + 1]]
-            mask = np.zeros((len(rows), len(vs)), bool)
+            reads = np.zeros((data.n_configurations, len(vs)), bool)  # the configurations each correction moves
             for j, (_, cfgs) in enumerate(vs):
-                reads = np.zeros(data.n_configurations, bool)
-                reads[cfgs] = True
-                mask[:, j] = reads[row_cfg[rows]]
+                reads[cfgs, j] = True
+            mask = reads[row_cfg[rows]]
             std = np.array([steps[params[k]][1] / np.sqrt(12.0) for k, _ in vs])
             clusters.append(_Cluster(rows, np.array([k for k, _ in vs]), mask, std))
         return cls(clusters, params, Jq)
@@ -187,7 +188,7 @@ def _picker(side: list[int]) -> Callable[[list[float]], tuple]:
 
 def _components(n: int, links) -> np.ndarray:
     """Connected components of n items joined by the item lists in `links`: a label per item."""
-    parent = np.arange(n)
+    parent = list(range(n))
 
     def root(i: int) -> int:
         while parent[i] != i:
