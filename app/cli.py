@@ -256,8 +256,15 @@ def _parser() -> argparse.ArgumentParser:
         "import-bag", help="a session folder from a ROS 1 or ROS 2 bag: still poses, images, detections"
     )
     ib.add_argument("bag", help="the ROS 1 .bag file, or the ROS 2 bag folder (or its .db3 / .mcap file)")
-    ib.add_argument("--robot", required=True, help="built-in profile (robonaut-a, nao) or a profile YAML file")
+    ib.add_argument("--robot", help="built-in profile (robonaut-a, nao) or a profile YAML file (not with --tf)")
     ib.add_argument("--out", required=True, help="the session folder to write (a new one, or an earlier session)")
+    ib.add_argument(
+        "--tf",
+        metavar="BASE:TOOL",
+        help="instead: the flange from /tf (the TOOL frame in the BASE frame) for a robot whose joint states were "
+        "not recorded; --out gets what calib handeye takes (images/, poses.csv, camera.yaml from camera info)",
+    )
+    ib.add_argument("--still-mm-s", type=float, help="with --tf: still, the tool at most this fast, mm/s (default 1)")
     ib.add_argument("--joint-topic", default="/joint_states", help="sensor_msgs/JointState topic (/joint_states)")
     ib.add_argument(
         "--image-topic",
@@ -839,6 +846,33 @@ def _detect_board(args: argparse.Namespace) -> int:
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
+def _import_bag_tf(args: argparse.Namespace) -> int:
+    """import-bag --tf: a calib handeye folder from /tf and an image topic."""
+    from calib_core.io import handeye_folder_from_bag
+
+    base, sep, tool = args.tf.partition(":")
+    if not sep or not base or not tool:
+        raise InputError(f"--tf {args.tf!r}: expected BASE:TOOL, the frames' names (e.g. base_link:tool0)")
+    if args.robot is not None:
+        raise InputError("--robot and --tf: give one (--tf reads the flange's pose, not a robot's joints)")
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise InputError("exists and is not an empty folder; give a new folder name", file=args.out)
+    still = {
+        k: v
+        for k, v in (("still_mm_s", args.still_mm_s), ("still_deg_s", args.still_deg_s), ("still_s", args.still_s))
+        if v is not None
+    }
+    topic = args.image_topic[0] if args.image_topic else None
+    done = handeye_folder_from_bag(args.bag, out, base.strip(), tool.strip(), topic, **still)
+    camera = "camera.yaml from its camera info" if done.camera else "no camera info: give calib handeye your --camera"
+    print(
+        f"{done.still} still moments of {tool} in {base}, {done.images} images from {done.image_topic} with their "
+        f"poses; {camera}: {out}"
+    )
+    return 0
+
+
 def _handeye(args: argparse.Namespace) -> int:
     """specs handeye-poses.md: images, flange poses, the camera and the board; no pose guessed anywhere."""
     import cv2
@@ -892,6 +926,10 @@ def _handeye(args: argparse.Namespace) -> int:
 
 
 def _import_bag(args: argparse.Namespace) -> int:
+    if args.tf is not None:
+        return _import_bag_tf(args)
+    if args.robot is None:
+        raise InputError("--robot: the robot whose joint states the bag recorded (or --tf BASE:TOOL without them)")
     from calib_core.io import import_bag  # rosbags loads only for this subcommand
 
     profile = _load_robot(args)

@@ -326,3 +326,113 @@ def test_the_result_exports_where_ros_takes_it(eye_in_hand: Path) -> None:
                   "camera frame", "--out", str(eye_in_hand / "x")]) == 2  # fmt: skip
     assert calib(["export", "--calibration", str(eye_in_hand / "cal.json"), "--format", "yaml",
                   "--out", str(eye_in_hand / "x")]) == 2  # fmt: skip
+
+
+def _write_tf_bag(path: Path, n_still: int = 8, seed: int = 6) -> None:
+    """A ROS 2 bag of a robot that publishes its flange on /tf (base_link -> link1 moving, link1 -> tool0 on
+    /tf_static), not its joint states: still for 1 s at each of `n_still` poses, 0.5 s moves between, the wrist
+    camera's images at 4 Hz (mono8) and its camera info. The camera sees the chessboard as in write_case."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    ty = store.types
+    rng = np.random.default_rng(seed)
+    link1_tool = pose(Rotation.from_euler("xyz", [0, 0, 30], degrees=True).as_matrix(), [0.0, 0.0, 0.1])
+    flanges = [Z_TRUE @ inverse(C) @ inverse(X_TRUE) for C in _views(n_still, rng)]
+
+    def stamp(t: float):
+        ns = 1_700_000_000_000_000_000 + round(t * 1e9)
+        return ty["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), ns
+
+    def transform(T: np.ndarray, parent: str, child: str, t: float):
+        q = Rotation.from_matrix(T[:3, :3]).as_quat()
+        st, _ = stamp(t)
+        return ty["geometry_msgs/msg/TransformStamped"](
+            header=ty["std_msgs/msg/Header"](stamp=st, frame_id=parent),
+            child_frame_id=child,
+            transform=ty["geometry_msgs/msg/Transform"](
+                translation=ty["geometry_msgs/msg/Vector3"](x=T[0, 3], y=T[1, 3], z=T[2, 3]),
+                rotation=ty["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+            ),
+        )
+
+    def flange_at(t: float) -> np.ndarray:
+        k, phase = divmod(t, 1.5)
+        k = int(k)
+        if phase <= 1.0 or k + 1 >= len(flanges):
+            return flanges[min(k, len(flanges) - 1)]
+        s = (phase - 1.0) / 0.5  # moving to the next pose
+        a, b = flanges[k], flanges[k + 1]
+        R = Rotation.from_matrix(a[:3, :3]) * Rotation.from_rotvec(
+            s * Rotation.from_matrix(a[:3, :3].T @ b[:3, :3]).as_rotvec()
+        )
+        return pose(R.as_matrix(), (1 - s) * a[:3, 3] + s * b[:3, 3])
+
+    messages = []
+    TF = ty["tf2_msgs/msg/TFMessage"]
+    messages.append((stamp(0.0)[1], "/tf_static", TF, TF(transforms=[transform(link1_tool, "link1", "tool0", 0.0)])))
+    end = 1.5 * n_still - 0.5
+    for k in range(int(end * 50) + 1):  # /tf at 50 Hz: base_link -> link1
+        t = k / 50
+        link1 = flange_at(t) @ inverse(link1_tool)
+        messages.append((stamp(t)[1], "/tf", TF, TF(transforms=[transform(link1, "base_link", "link1", t)])))
+    Image = ty["sensor_msgs/msg/Image"]
+    last = None
+    for k in range(int(end * 4) + 1):  # images at 4 Hz; those taken moving are not used (a copy of the last)
+        t = k / 4
+        phase = t % 1.5
+        if last is None or phase <= 1.0:
+            F = flange_at(t)
+            last = _render(inverse(X_TRUE) @ inverse(F) @ Z_TRUE, rng)
+        st, ns = stamp(t)
+        header = ty["std_msgs/msg/Header"](stamp=st, frame_id="camera_optical_frame")
+        msg = Image(
+            header=header,
+            height=SIZE[1],
+            width=SIZE[0],
+            encoding="mono8",
+            is_bigendian=0,
+            step=SIZE[0],
+            data=last.ravel(),
+        )
+        messages.append((ns + 20_000_000, "/camera/image_raw", Image, msg))
+    Info = ty["sensor_msgs/msg/CameraInfo"]
+    st, ns = stamp(0.0)
+    info = Info(
+        header=ty["std_msgs/msg/Header"](stamp=st, frame_id="camera_optical_frame"), height=SIZE[1], width=SIZE[0],
+        distortion_model="plumb_bob", d=DIST.astype(np.float64), k=K.ravel(), r=np.eye(3).ravel(),
+        p=np.hstack([K, np.zeros((3, 1))]).ravel(), binning_x=0, binning_y=0,
+        roi=ty["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    )  # fmt: skip
+    messages.append((ns, "/camera/camera_info", Info, info))
+    messages.sort(key=lambda m: m[0])
+    with Writer(path, version=9) as writer:
+        conns = {}
+        for ns, topic, typ, msg in messages:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, typ.__msgtype__, typestore=store)
+            writer.write(conns[topic], ns, store.serialize_cdr(msg, typ.__msgtype__))
+
+
+@pytest.mark.slow
+def test_a_bag_with_the_flange_on_tf_becomes_a_calibration(tmp_path: Path, capsys) -> None:
+    """`calib import-bag --tf base_link:tool0`: the still moments of the tool (through a moving and a static
+    transform), an image of each with the pose then, camera.yaml from the camera info; `calib handeye` on them finds
+    the camera."""
+    _write_tf_bag(tmp_path / "bag")
+    out = tmp_path / "folder"
+    assert calib(["import-bag", str(tmp_path / "bag"), "--tf", "base_link:tool0", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "8 still moments of tool0 in base_link, 8 images from /camera/image_raw" in said, said
+    assert (out / "camera.yaml").exists() and len(list((out / "images").iterdir())) == 8
+    assert calib(["handeye", "--poses", str(out / "poses.csv"), "--images", str(out / "images"), "--camera",
+                  str(out / "camera.yaml"), "--board", "chessboard:9x6:18", "--setup", "eye-in-hand", "--out",
+                  str(tmp_path / "cal.json")]) == 0  # fmt: skip
+    X = np.array(json.loads((tmp_path / "cal.json").read_text())["camera_in_flange"]["matrix"])
+    assert np.linalg.norm(X[:3, 3] / 1000 - X_TRUE[:3, 3]) < 1.0e-3 and angle_deg(X, X_TRUE) < 0.2
+    # Frames with no chain between them, and a --tf without its colon: said, exit 2.
+    assert calib(["import-bag", str(tmp_path / "bag"), "--tf", "base_link:camera", "--out", str(tmp_path / "x")]) == 2
+    assert "no chain of transforms from 'base_link' to 'camera'" in capsys.readouterr().err
+    assert calib(["import-bag", str(tmp_path / "bag"), "--tf", "base_link", "--out", str(tmp_path / "y")]) == 2
+    assert "expected BASE:TOOL" in capsys.readouterr().err

@@ -12,6 +12,7 @@ __getattr__ = lazy_exports(
     __name__,
     {
         "bag_import": ("import_bag",),
+        "bag_tf": ("handeye_folder_from_bag",),
         "camera_images": ("NAOQI_COLOR_SPACES", "grey_image", "naoqi_image"),
         "csv_format": (
             "measurement_values",
@@ -44,6 +45,7 @@ __all__ = [
     "estimated_offsets_deg",
     "export_handeye",
     "grey_image",
+    "handeye_folder_from_bag",
     "import_bag",
     "measurement_values",
     "naoqi_image",
@@ -67,6 +69,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from .bag_import import import_bag
+    from .bag_tf import handeye_folder_from_bag
     from .camera_images import NAOQI_COLOR_SPACES, grey_image, naoqi_image
     from .csv_format import (
         measurement_values,
