@@ -181,3 +181,36 @@ def test_a_solver_report_without_noise_tests_still_loads() -> None:
         del d["solver"][key]
     back = type(cal).from_dict(d)
     assert back.solver.fits_noise is None and back.solver.starts == 1
+
+
+def _arm_within_a_fifth(offset_share: float, noise: float, seed: int):
+    """The hand-eye sample's arm fitted in mode handeye (no joint offsets), 30% held out: its joints
+    carry `offset_share` of the sample's true offsets, its pixels `noise` times the declared noise."""
+    profile = load_profile("arm-handeye")
+    truth, nominal = profile.true_params(), profile.nominal()
+    joints = [profile.param(j.name) for j in profile.joints]
+    truth[joints] = nominal[joints] + offset_share * (truth[joints] - nominal[joints])
+    robot = SimulatedRobot.from_profile(profile, seed=seed, truth=truth)
+    robot.pixel_noise *= noise
+    return calibrate(profile, robot.simulate(None).data, "handeye", holdout=0.3)
+
+
+@pytest.mark.slow
+def test_a_fit_within_a_fifth_of_the_noise_warns_only_where_a_richer_mode_predicts_held_out_data_better() -> None:
+    """Issue 37: within 1.2 times the declared noise the test's verdict is a line of the report, and a warning only
+    where the profile's richer mode, fitted on the same training data, predicts the held-out data better. Joint
+    offsets the mode cannot fit (5% of the sample's): the test rejects at 1.08 times the noise, and mode 'offsets'
+    is named with its figures, one click away (Diagnostic.mode). Pixels 1.15 times noisier than declared and no
+    offsets: the test rejects as much, but nothing predicts better, and the noise warns of nothing."""
+    cal = _arm_within_a_fifth(0.05, 1.0, 3)
+    test = cal.solver.noise_tests[0]
+    assert test.rejected and not test.warns
+    richer = [d for d in cal.diagnostics if d.code == "richer-predicts"]
+    assert len(richer) == 1 and richer[0].severity.value == "warning" and richer[0].mode == "offsets"
+    assert re.search(r"mode 'offsets' predicts the held-out data better: [0-9.]+ against [0-9.]+ px", richer[0].message)
+    assert "noise-scatter" in [d.code for d in cal.diagnostics]
+    for seed in (10, 11):
+        cal = _arm_within_a_fifth(0.0, 1.15, seed)
+        assert cal.solver.noise_tests[0].rejected and not cal.solver.noise_tests[0].warns
+        codes = [d.code for d in cal.diagnostics]
+        assert "noise-scatter" in codes and "richer-predicts" not in codes and "noise-excess" not in codes, codes

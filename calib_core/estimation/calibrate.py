@@ -32,14 +32,14 @@ from ..errors import InputError
 from ..model.profile import Mode, Profile
 from .calibration import Calibration, Covariance, Outlier, parameter_estimate
 from .chi_square import upper_quantile
-from .diagnostics import diagnose
+from .diagnostics import diagnose, richer_mode
 from .fit import Fit
 from .identifiability import find_dependencies, identifiability_report, minimal_set, report
 from .noise_test import noise_tests, sensor_scatter
 from .outliers import OutlierVerdict, inliers, pooled_robust_sigma, problem_outliers, robust_sigma, sort_outliers
 from .problem import Problem
 from .registration import register, registration_params
-from .reports import SolverReport
+from .reports import Diagnostic, Severity, SolverReport
 from .solver import Robust, SolveResult, levenberg_marquardt, nelder_mead
 from .starts import SOLVED_STARTS, Start, closed_form_starts, far_above_noise, turned_starts, unknown_poses
 from .validation import Figures, check_share, holdout_split, kfold_splits, sensor_figures
@@ -112,7 +112,61 @@ def calibrate(
         )
         solver.folds, solver.cv_seconds = folds, time.perf_counter() - start
     frames = {"train": [int(f) for f in train.frame_ids], "holdout": [int(data.frame_ids[i]) for i in test_idx]}
-    return _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
+    cal = _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
+    if len(test_idx) and any(t.rejected and not t.warns for t in fit.noise_tests):
+        better = _richer_predicts(profile, train, data.select(test_idx), m, fit, base, method, robust, should_stop)
+        if better is not None:
+            cal.diagnostics.append(better)
+    return cal
+
+
+def _richer_predicts(
+    profile: Profile,
+    train: Dataset,
+    test: Dataset,
+    mode: Mode,
+    fit: Fit,
+    base: Calibration | None,
+    method: str,
+    robust: bool,
+    should_stop: Callable[[], bool] | None,
+) -> Diagnostic | None:
+    """A fit within a fifth of its sensors' noise is a line in the report, not a warning (noise-scatter), unless the
+    profile's next richer mode, fitted on the same training data, predicts the held-out data better: by more than
+    RICHER_MARGIN of their mean error and two standard errors of the difference over the held-out configurations."""
+    name, clause = richer_mode(profile, mode, [observed_mode(profile, train, m) for m in profile.modes.values()])
+    units = {profile.sensors[s].unit for s in np.unique(test.sensor)}
+    if name is None or len(units) != 1 or test.n_configurations < 3:
+        return None
+    rich = observed_mode(profile, train, profile.mode(name))
+    richer_fit = fit_parameters(
+        profile, train, rich, start_values(profile, train, rich, base), method=method, robust=robust,
+        should_stop=should_stop,
+    )  # fmt: skip
+    now, then = _configuration_errors(profile, test, fit.p), _configuration_errors(profile, test, richer_fit.p)
+    gain = now - then
+    se = float(np.std(gain, ddof=1) / np.sqrt(len(gain)))
+    if not (gain.mean() > 2 * se and gain.mean() > RICHER_MARGIN * now.mean()):
+        return None
+    unit = units.pop()
+    return Diagnostic(
+        Severity.WARNING,
+        "richer-predicts",
+        f"mode '{name}' predicts the held-out data better: {then.mean():.3g} against {now.mean():.3g} {unit} mean "
+        f"error ({100 * gain.mean() / now.mean():.0f}% less, {gain.mean() / se:.1f} standard errors over "
+        f"{len(gain)} held-out configurations), though this fit is within a fifth of the declared noise; {clause}",
+        mode=name,
+    )
+
+
+def _configuration_errors(profile: Profile, data: Dataset, p: np.ndarray) -> np.ndarray:
+    """Each configuration's mean distance between measured and predicted, the sensors' unit."""
+    problem = Problem(profile, data, [], p, noise_model=False)
+    r = problem.raw_residuals(np.zeros(0))
+    error = np.zeros(data.n_observations)
+    for b in problem.blocks:
+        error[b.obs] = np.linalg.norm(r[b.rows].reshape(-1, b.dim), axis=1)
+    return np.bincount(data.cfg, weights=error) / np.maximum(np.bincount(data.cfg), 1)
 
 
 def check_can_fit(profile: Profile, data: Dataset, mode: str, base: Calibration | None = None) -> None:
@@ -433,6 +487,7 @@ class _Passes:
         return best.x
 
 
+RICHER_MARGIN = 0.02  # a richer mode's held-out error this much lower (and beyond 2 standard errors) is a warning
 SCALE_PASSES = 6  # refits at most while the observations' scales settle against the readings' rounding
 SCALE_UPDATES = 12  # updates of the scales at one fit at most
 NEAR_DAMPING = 1e-7  # the first step's damping from a nearby solution: nearly Gauss-Newton

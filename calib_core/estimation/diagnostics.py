@@ -37,7 +37,7 @@ def diagnose(
     nuisance: frozenset[int],
     modes: Sequence[Mode] = (),
 ) -> list[Diagnostic]:
-    """`mode` and `modes` (the profile's others, for `_richer_mode`): as these data observe them
+    """`mode` and `modes` (the profile's others, for `richer_mode`): as these data observe them
     (`calibrate.observed_mode`: the parameters of the other arm of a two-armed robot left out)."""
 
     def warn(code: str, message: str, parameters: Iterable[str] = ()) -> Diagnostic:
@@ -136,7 +136,7 @@ def _noise_excess(profile: Profile, mode: Mode, modes: Sequence[Mode], fit: Fit)
     that estimates more, when it has one); far above (FAR_ABOVE_NOISE), it may also be a wrong minimum or data in
     another unit."""
     out = []
-    richer_mode, richer = _richer_mode(profile, mode, modes)
+    richer_name, richer = richer_mode(profile, mode, modes)
     for test in fit.noise_tests:
         if not test.rejected:
             continue
@@ -173,13 +173,13 @@ def _noise_excess(profile: Profile, mode: Mode, modes: Sequence[Mode], fit: Fit)
                 "noise-excess",
                 f"the residuals of '{test.sensor}' are {test.factor:.3g} times the noise it declares "
                 f"({test.describe()}): {why}",
-                mode=richer_mode,
+                mode=richer_name,
             )
         )
     return out
 
 
-def _richer_mode(profile: Profile, mode: Mode, modes: Sequence[Mode], shown: int = 6) -> tuple[str | None, str]:
+def richer_mode(profile: Profile, mode: Mode, modes: Sequence[Mode], shown: int = 6) -> tuple[str | None, str]:
     """The smallest of `modes` that estimates all `mode` does and more, for the same sensors: its name, and a
     clause naming what it adds ("mode 'offsets' also estimates shoulder_lift, ..."); (None, "") when there is
     none."""
