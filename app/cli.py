@@ -264,7 +264,6 @@ def _parser() -> argparse.ArgumentParser:
         help="instead: the flange from /tf (the TOOL frame in the BASE frame) for a robot whose joint states were "
         "not recorded; --out gets what calib handeye takes (images/, poses.csv, camera.yaml from camera info)",
     )
-    ib.add_argument("--still-mm-s", type=float, help="with --tf: still, the tool at most this fast, mm/s (default 1)")
     ib.add_argument("--joint-topic", default="/joint_states", help="sensor_msgs/JointState topic (/joint_states)")
     ib.add_argument(
         "--image-topic",
@@ -272,7 +271,12 @@ def _parser() -> argparse.ArgumentParser:
         help="an image topic (Image or CompressedImage); twice for a stereo head, left then right "
         "(default: the bag's only image topic; for a stereo head those naming left and right)",
     )
-    ib.add_argument("--still-deg-s", type=float, help="still: every joint at most this fast, deg/s (default 1)")
+    ib.add_argument(
+        "--still-deg-s",
+        type=float,
+        help="still: every joint (with --tf: the tool) at most this fast, deg/s (default 1; 0.5)",
+    )
+    ib.add_argument("--still-mm-s", type=float, help="with --tf: still, the tool at most this fast, mm/s (default 1)")
     ib.add_argument("--still-s", type=float, help="still for at least this long, s (default 0.5)")
     ib.add_argument("--name", help="the session's name (default: the folder's name)")
     ib.add_argument("--calibration", help="the calibration the robot ran with (seeds the detectors; default nominal)")
