@@ -45,9 +45,10 @@ function renderDrift(d) {
     return;
   }
   const flagged = d.steps.filter((s) => s.flagged);
+  const times = d.series.flatMap((s) => s.points.map((p) => p.measured)).sort();
+  const span = times.length ? `, measured from ${day(times[0])} to ${day(times.at(-1))}` : "";
   const lines = [
-    el("p", {}, `${n} calibrations applied, measured from ${day(d.series[0].points[0].measured)} to `
-      + `${day(d.series[0].points.at(-1).measured)}; each change tested against both calibrations' uncertainty `
+    el("p", {}, `${n} calibrations applied${span}; each change tested against both calibrations' uncertainty `
       + `(a history where nothing moved shows a flag ${fmt(100 * d.level, 0)}% of the time).`),
   ];
   for (const t of d.trends) lines.push(el("p", { class: "trend" }, el("b", {}, "Drifts: "), t.sentence));
