@@ -22,8 +22,7 @@ import cv2
 import numpy as np
 
 from calib_core.estimation import calibrate_flange, find_views
-from calib_core.estimation.flange_handeye import _Model, _start
-from calib_core.estimation.handeye import inverse, pose
+from calib_core.estimation.handeye import inverse
 from calib_core.io import parse_board, read_camera, read_flange_poses
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -52,7 +51,6 @@ def main() -> None:
     opencv = _opencv(args.cv4_python, views, poses, found, points, camera, setup)
     failed: dict[str, str] = {}
     for k, held in enumerate(found):
-        train = [n for n in found if n != held]
         for method, got in opencv[k].items():
             if got.get("X") is None:
                 failed[f"OpenCV {method}"] = got.get("error", "")
@@ -61,14 +59,8 @@ def main() -> None:
             if np.all(np.isfinite(X)) and np.all(np.isfinite(Z)):
                 error = _heldout_px(views[held], poses[held], X, Z, points, camera, setup)
                 errors.setdefault(f"OpenCV {method}", []).append(error)
-        theta, _ = _start(setup, [views[n] for n in train], [poses[n] for n in train], points, camera, board)
-        plain = _Model(setup, [views[n] for n in train], [poses[n] for n in train], points, camera, False)
-        plain.errors = False
-        theta = plain.solve(theta)
-        X, Z = pose(_rot(theta[0:3]), theta[3:6]), pose(_rot(theta[6:9]), theta[9:12])
-        errors.setdefault("plain bundle adjustment", []).append(
-            _heldout_px(views[held], poses[held], X, Z, points, camera, setup)
-        )
+        plain = calibrate_flange(views, poses, camera, board, setup, heldout={held}, pose_errors=False)
+        errors.setdefault("plain bundle adjustment", []).append(plain.heldout_rms_px)
         for label, free in (("calib handeye", False), ("calib handeye --intrinsics free", True)):
             cal = calibrate_flange(views, poses, camera, board, setup, heldout={held}, intrinsics_free=free)
             errors.setdefault(label, []).append(cal.heldout_rms_px)
@@ -105,10 +97,6 @@ def _heldout_px(view, F, X, Z, points, camera, setup) -> float:
     C = inverse(X) @ inverse(A) @ Z
     uv, _ = cv2.projectPoints(points[view.ids], cv2.Rodrigues(C[:3, :3])[0], C[:3, 3], camera.matrix, camera.distortion)
     return float(np.sqrt(np.mean(np.sum((uv.reshape(-1, 2) - view.corners) ** 2, axis=1))))
-
-
-def _rot(r: np.ndarray) -> np.ndarray:
-    return cv2.Rodrigues(np.asarray(r, float))[0]
 
 
 if __name__ == "__main__":

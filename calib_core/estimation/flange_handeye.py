@@ -278,9 +278,11 @@ def calibrate_flange(
     *,
     heldout: set[str] | None = None,
     intrinsics_free: bool = False,
+    pose_errors: bool = True,
 ) -> FlangeCalibration:
     """X and Z from the images with a board found and a pose, less `heldout` (never fitted, their error given).
-    A chessboard view's corners are put in the order the poses agree with, in place."""
+    A chessboard view's corners are put in the order the poses agree with, in place. `pose_errors=False`: the
+    reported poses taken as exact (a plain reprojection bundle adjustment, the benchmark's baseline)."""
     if setup not in SETUPS:
         raise InputError(f"--setup {setup!r}: expected eye-in-hand or eye-to-hand")
     heldout = heldout or set()
@@ -295,10 +297,13 @@ def calibrate_flange(
     fit = [views[n] for n in used]
     theta, start = _start(setup, fit, [poses[n] for n in used], points, camera, board)
     model = _Model(setup, fit, [poses[n] for n in used], points, camera, intrinsics_free)
-    theta = np.concatenate([theta, _intr(camera) if intrinsics_free else [], np.zeros(6 * len(fit))])
+    model.errors = pose_errors
+    theta = np.concatenate([theta, _intr(camera) if intrinsics_free else [], np.zeros(6 * len(fit) * pose_errors)])
     theta = model.settle_noise(theta)
     r, J = model.residuals_jacobian(theta)
     cov = np.linalg.pinv(J.T @ J)  # the weights are the noise the data show (variance components)
+    if not pose_errors:  # the corners' weight as declared: scaled by their actual scatter
+        cov *= float(r @ r) / max(len(r) - len(theta), 1)
     X, Z = pose(_rot(theta[0:3]), theta[3:6]), pose(_rot(theta[6:9]), theta[9:12])
     X_std, Z_std = _pose_std(cov[:6, :6], theta[0:3]), _pose_std(cov[6:12, 6:12], theta[6:9])
     intr = model.intrinsics(theta)
@@ -314,7 +319,7 @@ def calibrate_flange(
         else:
             # A fitted image with its pose's error fitted; a held-out one at the pose as reported.
             k = used.index(n) if n in used else None
-            error = None if k is None else theta[model.n_pose + 6 * k : model.n_pose + 6 * k + 6]
+            error = None if k is None or not pose_errors else theta[model.n_pose + 6 * k : model.n_pose + 6 * k + 6]
             pred = model.image_rows(v, poses[n], theta, error, jacobian=False)[0]
             turned = board.kind == "chessboard" and k is None  # an image not fitted: its corners in the fit's order
             if turned and np.sum((pred - v.corners[::-1]) ** 2) < np.sum((pred - v.corners) ** 2):
@@ -337,7 +342,9 @@ def calibrate_flange(
         math.sqrt(float(corners @ corners) / (len(corners) / 2)),
         model.iterations,
         start,
-        {"corner_px": model.sigma_px, "flange_mm": 1000 * model.sigma_m, "flange_deg": math.degrees(model.sigma_rad)},
+        {"corner_px": model.sigma_px, "flange_mm": 1000 * model.sigma_m, "flange_deg": math.degrees(model.sigma_rad)}
+        if pose_errors
+        else {"corner_px": math.sqrt(float(r @ r) / max(len(r) - len(theta), 1)) * model.sigma_px},
     )
 
 
