@@ -22,7 +22,6 @@ from calib_core.errors import Cancelled
 from calib_core.estimation import planning
 from calib_core.estimation.planning import (
     JOINT_MARGIN_DEG,
-    Selection,
     SequentialPlan,
     candidates,
     design,
@@ -30,6 +29,7 @@ from calib_core.estimation.planning import (
     within_margin,
     workspace,
 )
+from calib_core.estimation.selection import Selection, trace_solve
 from calib_core.vision.visibility import MIN_SPHERE_SHARE, Visibility
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,6 +98,29 @@ def test_woodbury_updates_match_the_criterion_recomputed(rn, rn_pool) -> None:
         after = np.linalg.inv(d.start() + d.information(np.array(sel.chosen)))
         assert sel.value(after) == pytest.approx(sel.value(), rel=1e-7)
         assert sel.value() <= before + 1e-12
+
+
+def test_gains_kept_by_low_rank_updates_match_them_computed_afresh(rn, rn_pool) -> None:
+    """Each candidate's gain, kept up to date through greedy choices from a regularised start (C falls a
+    millionfold), an exchange and a pool that grew, is the gain computed from the covariance afresh."""
+    q, t = rn_pool
+    d = design(rn, "full", rn.nominal(), q[:150], t[:150])
+
+    def afresh(sel: Selection) -> np.ndarray:
+        C = np.linalg.inv(d.start() + d.information(np.array(sel.chosen, int)))
+        B = d.L @ C
+        S = np.eye(d.L.shape[1]) + B @ d.L.transpose(0, 2, 1)
+        return np.trace(np.linalg.solve(S, B @ d.A @ B.transpose(0, 2, 1)), axis1=1, axis2=2)
+
+    sel = Selection(d, "task")
+    for _ in range(40):
+        sel.add(sel.best())
+        np.testing.assert_allclose(sel.gains(), afresh(sel), rtol=1e-6, atol=1e-9 * afresh(sel).max())
+    swaps = sel.exchange(1)
+    d.extend(q[150:200], t[150:200])
+    sel.add(sel.best())
+    np.testing.assert_allclose(sel.gains(), afresh(sel), rtol=1e-6, atol=1e-9 * afresh(sel).max())
+    assert len(sel.gains()) == 200 and swaps >= 0
 
 
 def test_refinement_candidates_carry_the_information_the_design_gives_them(rn, rn_pool) -> None:
@@ -281,12 +304,10 @@ def test_each_configurations_information_is_its_rows_weighed_by_their_whole_cova
 def test_a_candidates_gain_solves_as_lapack_does(k: int) -> None:
     """trace(S^-1 T) by the adjugate up to 3 x 3 (the planner's gain per candidate) against LAPACK's solve, on
     symmetric positive definite S as the planner makes them (I + L C L^T), far from and near singular."""
-    from calib_core.estimation.planning import _trace_solve
-
     rng = np.random.default_rng(k)
     X = rng.normal(size=(500, k, 7)) * np.logspace(-4, 2, 500)[:, None, None]
     S = np.eye(k) + X @ X.transpose(0, 2, 1)
     T = rng.normal(size=(500, k, k))
     T = T + T.transpose(0, 2, 1)
     expected = np.trace(np.linalg.solve(S, T), axis1=1, axis2=2)
-    np.testing.assert_allclose(_trace_solve(S, T), expected, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(trace_solve(S.transpose(1, 2, 0), T.transpose(1, 2, 0)), expected, rtol=1e-9, atol=1e-12)

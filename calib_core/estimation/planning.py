@@ -41,7 +41,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -58,6 +58,7 @@ from .calibrate import observed_mode
 from .identifiability import find_dependencies, minimal_set
 from .problem import Problem
 from .registration import registration_params
+from .selection import Selection, inverse
 
 Criterion = Literal["task", "offsets", "d", "random"]
 CRITERIA: tuple[str, ...] = ("task", "offsets", "d", "random")
@@ -68,7 +69,7 @@ JOINT_MARGIN_M = 0.001  # kept clear of every prismatic joint's limits (the driv
 # model error of a few cm (a robot never calibrated) moves what the sensor sees. A finder may ask for more
 # (`plan_margins`: a stereo head's sphere).
 VIEW_MARGIN_PX = 40.0
-CHECK_BATCH = 16  # candidates checked for visibility at once (the check is vectorised)
+CHECK_BATCH = 32  # candidates checked for visibility at once (the check is vectorised)
 # Candidate configurations drawn (uniform sampling; the costly visibility check is lazy and batched): the
 # predicted error of a 32-configuration Robonaut plan falls 5% from 6000 to 16000.
 CANDIDATES = 16000
@@ -269,7 +270,7 @@ class Design:
         if len(eig) and eig[0] <= UNDETERMINED * max(eig[-1], 1e-300):
             per_obs, std = np.full(len(self.G), np.inf), np.full(len(self.free), np.inf)
         else:
-            C = _inverse(M)
+            C = inverse(M)
             per_obs = _expected_errors(self.G, C)
             std = np.sqrt(np.maximum(np.diag(C), 0.0))
         prof = self.profile
@@ -286,13 +287,6 @@ class Design:
             params,
             [prof.parameters[i].name for i in self.held],
         )
-
-
-def _inverse(M: np.ndarray) -> np.ndarray:
-    try:
-        return np.linalg.inv(M)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(M)
 
 
 @dataclass(frozen=True)
@@ -576,99 +570,6 @@ def _workspace_jacobians(
     return np.concatenate(parts), blocks[0].sensor.unit
 
 
-class Selection:
-    """Configurations chosen from a design one at a time, with the covariance kept up to date."""
-
-    def __init__(
-        self,
-        d: Design,
-        criterion: Criterion = "task",
-        chosen: Sequence[int] | None = None,
-        admissible: Callable[[np.ndarray], np.ndarray] | None = None,
-    ) -> None:
-        """`admissible`: a last check of candidates (indices) before one is chosen (the costly visibility
-        check), whether each may be (bool array)."""
-        self.d = d
-        self.criterion = criterion
-        self.admissible = admissible
-        self.M = d.start()
-        self.extra = np.zeros_like(self.M)  # information of configurations outside the pool (measured frames)
-        self.chosen: list[int] = []
-        self.C = _inverse(self.M)
-        for c in [] if chosen is None else chosen:
-            self.add(int(c))
-
-    def value(self, C: np.ndarray | None = None) -> float:
-        """The criterion (smaller is better): trace(C A), or -log det M (D-optimal) as log det C."""
-        C = self.C if C is None else C
-        if self.criterion == "d":
-            return float(np.linalg.slogdet(C)[1])
-        return float(np.trace(C @ self.d.A))
-
-    def gains(self, C: np.ndarray | None = None) -> np.ndarray:
-        """How much adding each candidate lowers the criterion (N,)."""
-        C = self.C if C is None else C
-        L = self.d.L
-        N, k, n = L.shape
-        # The products with C and A as single (N k, n) x (n, n) ones: a stack of small products costs more.
-        B = (L.reshape(-1, n) @ C).reshape(N, k, n)
-        S = B @ L.transpose(0, 2, 1)
-        S[:, np.arange(k), np.arange(k)] += 1.0
-        if self.criterion == "d":
-            return np.linalg.slogdet(S)[1]
-        T = (B.reshape(-1, n) @ self.d.A).reshape(N, k, n) @ B.transpose(0, 2, 1)
-        return _trace_solve(S, T)
-
-    def add(self, c: int) -> None:
-        self.C = _rank_update(self.C, self.d.L[c], +1)
-        self.chosen.append(c)
-
-    def add_information(self, L: np.ndarray) -> None:
-        """A configuration from outside the pool (a frame measured already): its information factor."""
-        self.C = _rank_update(self.C, L, +1)
-        self.extra += L.T @ L
-
-    def best(self, C: np.ndarray | None = None) -> int:
-        """The admissible candidate not chosen yet that lowers the criterion most (-1: none is left)."""
-        g = self.gains(C)
-        g[self.chosen] = -np.inf
-        order = np.argsort(-g)
-        order = order[np.isfinite(g[order])]
-        for i in range(0, len(order), CHECK_BATCH):
-            part = order[i : i + CHECK_BATCH]
-            ok = part if self.admissible is None else part[self.admissible(part)]
-            if len(ok):
-                return int(ok[0])
-        return -1
-
-    def exchange(self, passes: int = EXCHANGE_PASSES, step: Callable[[int], None] | None = None) -> int:
-        """Fedorov exchange: swap a chosen configuration for a candidate while the criterion falls.
-        Returns the number of swaps. `step(k)`: called before the k-th (0-based, over all passes) chosen
-        configuration is reconsidered."""
-        swaps = 0
-        for p in range(passes):
-            improved = False
-            for pos in range(len(self.chosen)):
-                if step is not None:
-                    step(p * len(self.chosen) + pos)
-                c = self.chosen[pos]
-                C_without = _rank_update(self.C, self.d.L[c], -1)
-                j = self.best(C_without)
-                if j < 0 or j == c:
-                    continue
-                before = self.value()
-                C_with = _rank_update(C_without, self.d.L[j], +1)
-                if self.value(C_with) < before - 1e-9 * abs(before):
-                    self.C, self.chosen[pos] = C_with, j
-                    swaps += 1
-                    improved = True
-            if not improved:
-                break
-        # Afresh: many up- and downdates of a nearly singular C (fewer configurations than parameters) drift.
-        self.C = _inverse(self.d.start() + self.d.information(np.array(self.chosen, int)) + self.extra)
-        return swaps
-
-
 def plan_margins(profile: Profile) -> tuple[float, float, float]:
     """What a plan's configurations keep clear with the base model: px from the image border, the share
     of a stereo head's sphere outline the arm must leave free, and deg below a board's obliquity limit; more
@@ -708,32 +609,21 @@ class CandidateView:
             self.known[new] = self.view.sees(self.q[new], self.targets[new])
         return self.known[cs] == 1
 
-
-def _trace_solve(S: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """trace(S^-1 T) of each pair of a batch (N, k, k), S symmetric positive definite. Up to 3 x 3 (a point's
-    rows, Robonaut's 16,000 candidates) by the adjugate: a batched LAPACK solve of so small matrices costs more."""
-    k = S.shape[1]
-    if k == 1:
-        return T[:, 0, 0] / S[:, 0, 0]
-    if k == 2:
-        a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-        return (d * T[:, 0, 0] - b * (T[:, 0, 1] + T[:, 1, 0]) + a * T[:, 1, 1]) / (a * d - b * b)
-    if k == 3:
-        s00, s01, s02, s11, s12, s22 = (S[:, i, j] for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
-        c00, c11, c22 = s11 * s22 - s12 * s12, s00 * s22 - s02 * s02, s00 * s11 - s01 * s01
-        c01, c02, c12 = s02 * s12 - s01 * s22, s01 * s12 - s02 * s11, s01 * s02 - s00 * s12
-        det = s00 * c00 + s01 * c01 + s02 * c02
-        off = c01 * (T[:, 0, 1] + T[:, 1, 0]) + c02 * (T[:, 0, 2] + T[:, 2, 0]) + c12 * (T[:, 1, 2] + T[:, 2, 1])
-        return (c00 * T[:, 0, 0] + c11 * T[:, 1, 1] + c22 * T[:, 2, 2] + off) / det
-    return np.trace(np.linalg.solve(S, T), axis1=1, axis2=2)
-
-
-def _rank_update(C: np.ndarray, L: np.ndarray, sign: int) -> np.ndarray:
-    """(C^-1 + sign L^T L)^-1 by Woodbury: adding (+1) or removing (-1) a configuration's information."""
-    B = L @ C
-    S = sign * np.eye(len(L)) + B @ L.T
-    out = C - B.T @ np.linalg.solve(S, B)
-    return (out + out.T) / 2
+    def first(self, cs: np.ndarray) -> int:
+        """The position in cs (indices, best first) of the first candidate visible, -1 if none is. Those not
+        checked yet are checked CHECK_BATCH at a time in cs's order, the next ones too: a check's cost is mostly
+        its call's (3 ms, 70 us a candidate), and an exchange asks again about nearly the same best candidates."""
+        at = 0
+        while True:
+            known = self.known[cs[at:]]
+            ahead = np.flatnonzero(known != 0)
+            if not len(ahead):
+                return -1
+            at += int(ahead[0])
+            if known[ahead[0]] == 1:
+                return at
+            new = cs[at:][known[ahead[0] :] < 0][:CHECK_BATCH]
+            self.known[new] = self.view.sees(self.q[new], self.targets[new])
 
 
 def plan(
@@ -808,7 +698,7 @@ def plan(
         sel = Selection(d, "task", list(itertools.islice((c for c in order if admissible(np.array([c]))[0]), n)))
         pace("choosing", n)
     else:
-        sel = Selection(d, criterion, admissible=admissible)
+        sel = Selection(d, criterion, admissible=admissible.first)
         for k in range(n):
             c = sel.best()
             if c < 0:
@@ -817,7 +707,7 @@ def plan(
             history.append(_mean_error(d, sel.C))
             pace("choosing", k + 1)
         if exchange:
-            sel.exchange(step=lambda k: pace("exchanging", k))
+            sel.exchange(EXCHANGE_PASSES, step=lambda k: pace("exchanging", k))
             if refine:
                 _refine(profile, d, admissible, sel, margin_deg, seed, pace, around)
     if len(sel.chosen) < n:
@@ -943,13 +833,18 @@ class SequentialPlan:
         visible = CandidateView(profile, p, q, targets)
         self.rejected: set[int] = set()
 
-        def ok(cs: np.ndarray) -> np.ndarray:
-            fine = visible(cs) & np.array([c not in self.rejected for c in cs], bool)
-            if admissible is not None:
-                fine[fine] = [admissible(q[c]) for c in cs[fine]]
-            return fine
+        def first(cs: np.ndarray) -> int:
+            free = np.flatnonzero([c not in self.rejected for c in cs.tolist()])
+            while len(free):
+                at = visible.first(cs[free])
+                if at < 0:
+                    return -1
+                if admissible is None or admissible(q[cs[free[at]]]):
+                    return int(free[at])
+                free = free[at + 1 :]
+            return -1
 
-        self.selection = Selection(self.design, "task", admissible=ok)
+        self.selection = Selection(self.design, "task", admissible=first)
         self.n = 0
         if q_done is not None and len(q_done):
             for L in self.design.factors(np.asarray(q_done, float), np.asarray(targets_done, int)):

@@ -527,6 +527,9 @@ def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHe
     ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
     visible = np.zeros((n, 2))
     box = np.full((n, 4), np.nan)
+    starts = np.stack([a for a, *_ in body.links])  # (links, N, 3)
+    spans = np.stack([b - a for a, b, *_ in body.links])
+    r_links = np.array([r for _, _, r, *_ in body.links])[:, None]  # (links, 1)
     for cam, origin in enumerate((np.zeros(3), np.array([head.baseline_m, 0.0, 0.0]))):
         c = body.centre - origin
         dist = np.linalg.norm(c, axis=1)
@@ -552,12 +555,13 @@ def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHe
         hit = rays * ((b - np.sqrt(disc_)) / rr)[..., None]  # relative to the camera
         # Every point of a ray's segment lies within the sphere's radius of the segment camera -> centre: a link
         # farther than its own radius plus that from this segment hides no ray, and is not tested ray by ray.
+        # All links at once (a sees of a few candidates costs its numpy calls, not its arithmetic).
+        near_link, near_cfg = np.nonzero(_segment_distance(np.zeros(3), c, starts - origin, spans) < r_links + radius)
         clear = np.ones(rays.shape[:2], bool)
-        for a, b_end, r_link, _, _ in body.links:
-            near = np.flatnonzero(_segment_distance(np.zeros(3), c, a - origin, b_end - a) < r_link + radius)
-            if near.size:
-                gap = _segment_distance(np.zeros(3), hit[near], (a[near] - origin)[:, None], (b_end - a)[near, None])
-                clear[near] &= gap >= r_link
+        if near_link.size:
+            start, span = starts[near_link, near_cfg] - origin, spans[near_link, near_cfg]
+            gap = _segment_distance(np.zeros(3), hit[near_cfg], start[:, None], span[:, None])
+            np.logical_and.at(clear, near_cfg, gap >= r_links[near_link])
         visible[:, cam] = np.where(ahead & background_behind, clear.mean(axis=1), 0.0)
     centre = body.centre
     with np.errstate(divide="ignore", invalid="ignore"):
