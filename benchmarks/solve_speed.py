@@ -13,14 +13,14 @@ difference between the checkouts in standard deviations.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from checkouts import checkouts, run_in
+
 ROBOTS = (("nao", "full"), ("robonaut-a", "full"))
 
 MEASURE = """
@@ -39,31 +39,13 @@ print(json.dumps({"times": times, "values": {p.name: [p.value, p.std] for p in c
 """
 
 
-def measure(tree: Path, robot: str, mode: str, data: Path, runs: int) -> dict:
-    done = subprocess.run(
-        [sys.executable, "-c", MEASURE, robot, mode, str(data), str(runs)],
-        cwd=tree,
-        env={"PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return json.loads(done.stdout)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=15)
     ap.add_argument("--against", help="an earlier commit to measure beside this checkout")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        trees = {"this checkout": ROOT}
-        if args.against:
-            old = Path(tmp) / "against"
-            old.mkdir()
-            archive = subprocess.run(["git", "archive", args.against], cwd=ROOT, capture_output=True, check=True)
-            subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
-            trees[args.against] = old
+        trees = checkouts(args.against, Path(tmp))
         for robot, mode in ROBOTS:
             data = Path(tmp) / f"{robot}.csv"
             subprocess.run(
@@ -74,7 +56,7 @@ def main() -> None:
             results: dict[str, dict] = {name: {"times": []} for name in trees}
             for _ in range(3):  # alternating thirds: both checkouts under the same load
                 for name, tree in trees.items():
-                    got = measure(tree, robot, mode, data, max(args.runs // 3, 1))
+                    got = run_in(tree, MEASURE, robot, mode, str(data), str(max(args.runs // 3, 1)))
                     results[name]["times"] += got["times"]
                     results[name].update(values=got["values"], iterations=got["iterations"])
             for name, r in results.items():

@@ -29,9 +29,10 @@ passes that swap a chosen configuration for a candidate while the criterion fall
 sparse where the best configurations lie (near the sensor, at the edge of what it sees), so a plan from
 drawn candidates then draws more about the configurations it chose (REFINE_DEG on every joint) and
 exchanges again: a local refinement, about 8% off the predicted error of a 32-configuration Robonaut plan.
-A plan of a few hundred configurations takes tens of seconds: `plan` reports where it is after each step
-(`progress`: each configuration chosen, each one reconsidered by an exchange) and stops when its caller
-asks (`should_stop`, checked at each step: it raises Cancelled).
+The choosing and exchanging is selection.py's. A plan of a few hundred configurations takes seconds
+(benchmarks/plan_speed.py): `plan` reports where it is after each step (`progress`: each configuration chosen,
+each one reconsidered by an exchange) and stops when its caller asks (`should_stop`, checked at each step: it
+raises Cancelled).
 The workspace the error is averaged over is not the plan's candidates (which keep wider margins) but
 configurations the sensor sees with the usual margin, the kind a held-out check draws (`workspace`).
 """
@@ -589,16 +590,21 @@ def plan_margins(profile: Profile) -> tuple[float, float, float]:
 
 class CandidateView:
     """Whether the base model predicts candidates visible with a plan's margins (`plan_margins`),
-    occlusion by the robot's body included; checked when first asked and remembered."""
+    occlusion by the robot's body included; checked when first asked and remembered. `in_view`: the candidates
+    have their targets in view with those margins already (drawn by `candidates`, as `extend`'s are): only what
+    hides them is left to check."""
 
-    def __init__(self, profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray) -> None:
+    def __init__(
+        self, profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray, *, in_view: bool = False
+    ) -> None:
         margin_px, share, obliquity_deg = plan_margins(profile)
         self.view = Visibility(profile, p, margin_px=margin_px, sphere_share=share, obliquity_margin_deg=obliquity_deg)
         self.q, self.targets = q, targets
+        self.in_view = in_view
         self.known = np.full(len(q), -1, np.int8)  # -1: not checked yet, else 0/1
 
     def extend(self, q: np.ndarray, targets: np.ndarray) -> None:
-        """More candidates (as `Design.extend`), not checked yet."""
+        """More candidates (as `Design.extend`) in view with the plan's margins, not checked for what hides them."""
         self.q, self.targets = np.concatenate([self.q, q]), np.concatenate([self.targets, targets])
         self.known = np.concatenate([self.known, np.full(len(q), -1, np.int8)])
 
@@ -606,7 +612,7 @@ class CandidateView:
         """Whether each candidate (indices) is visible (bool array)."""
         new = cs[self.known[cs] < 0]
         if len(new):
-            self.known[new] = self.view.sees(self.q[new], self.targets[new])
+            self._check(new)
         return self.known[cs] == 1
 
     def first(self, cs: np.ndarray) -> int:
@@ -622,8 +628,11 @@ class CandidateView:
             at += int(ahead[0])
             if known[ahead[0]] == 1:
                 return at
-            new = cs[at:][known[ahead[0] :] < 0][:CHECK_BATCH]
-            self.known[new] = self.view.sees(self.q[new], self.targets[new])
+            self._check(cs[at:][known[ahead[0] :] < 0][:CHECK_BATCH])
+
+    def _check(self, cs: np.ndarray) -> None:
+        q, targets = self.q[cs], self.targets[cs]
+        self.known[cs] = self.view.clear(q, targets) if self.in_view else self.view.sees(q, targets)
 
 
 def plan(
@@ -691,7 +700,7 @@ def plan(
     if criterion == "offsets" and offsets_weights(profile, d.free).any():
         d.A = offsets_weights(profile, d.free)
     pace("drawing", 1)
-    admissible = CandidateView(profile, p, q, targets)
+    admissible = CandidateView(profile, p, q, targets, in_view=drawn)
     history: list[float] = []
     if criterion == "random":
         order = (int(c) for c in np.random.default_rng(seed).permutation(len(q)))
@@ -830,7 +839,7 @@ class SequentialPlan:
         ws = workspace(profile, p, seed, should_stop, around)
         pace("drawing")
         self.design = design(profile, mode, p, q, targets, workspace=ws, seed=seed)
-        visible = CandidateView(profile, p, q, targets)
+        visible = CandidateView(profile, p, q, targets, in_view=True)
         self.rejected: set[int] = set()
 
         def first(cs: np.ndarray) -> int:

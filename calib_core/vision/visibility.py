@@ -78,12 +78,22 @@ class Visibility:
         counts = np.array([n_points[t] for t in targets.tolist()], int)
         ok = self.points(q, targets, s)
         seen = np.all(ok | (np.arange(ok.shape[1])[None, :] >= counts[:, None]), axis=1)
-        if occlusion:
-            for t in set(targets[seen].tolist()):
-                finder = finder_for(prof, s, t)
-                if finder is not None:
-                    rows = np.flatnonzero(seen & (targets == t))
-                    seen[rows] = finder.clear(self, q[rows])
+        return self.clear(q, targets, s, among=seen) if occlusion else seen
+
+    def clear(
+        self, q: np.ndarray, targets: np.ndarray, sensor: int | None = None, *, among: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Whether nothing hides each configuration's target from the sensor's finder (N,) bool (a stereo head's
+        sphere clear of the arm), of configurations whose target is in view: `among` (bool), default all (those
+        that `sees(occlusion=False)` passed already)."""
+        s = self.profile.data.sensor if sensor is None else sensor
+        targets = np.asarray(targets, int)
+        seen = np.ones(len(targets), bool) if among is None else among.copy()
+        for t in set(targets[seen].tolist()):
+            finder = finder_for(self.profile, s, t)
+            if finder is not None:
+                rows = np.flatnonzero(seen & (targets == t))
+                seen[rows] = finder.clear(self, q[rows])
         return seen
 
     def too_small(self, q: np.ndarray, target: int) -> str:
