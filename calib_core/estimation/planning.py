@@ -406,14 +406,13 @@ def _dataset(profile: Profile, p: np.ndarray, q: np.ndarray, targets: np.ndarray
     """The observations of the data format's sensor that configurations q would give with model p,
     noise-free (their predictions): one per point of a grid target, else one per configuration."""
     s = profile.data.sensor
-    counts = np.array([1 if profile.targets[t].grid is None else len(profile.targets[t].grid) for t in targets])
+    gridded = np.array([t.grid is not None for t in profile.targets])
+    counts = np.array([1 if t.grid is None else len(t.grid) for t in profile.targets])[targets]
     x = sensor_points(profile, p, q, targets)
     k = np.arange(x.shape[1])
     keep = k[None, :] < counts[:, None]
     cfg = np.repeat(np.arange(len(q)), counts)
-    vertex = np.concatenate(
-        [np.arange(c) if profile.targets[t].grid is not None else [-1] for t, c in zip(targets, counts, strict=True)]
-    )
+    vertex = np.where(gridded[targets[cfg]], np.arange(len(cfg)) - np.repeat(np.cumsum(counts) - counts, counts), -1)
     point = np.full((len(cfg), 3), np.nan)
     for t in np.unique(targets):
         grid = profile.targets[t].grid
@@ -477,13 +476,12 @@ def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -
     for b in problem.blocks:
         rows = np.arange(b.rows.start, b.rows.stop).reshape(-1, b.dim)  # (n_obs, dim)
         L = np.linalg.cholesky(b.sensor.covariance(p, problem.data.measured[b.obs, : b.dim]))
-        Jd[rows] = np.linalg.solve(L, J[rows])
-        Ud[rows] = np.linalg.solve(L, U[rows])
+        Jd[rows], Ud[rows] = _lower_solve(L, J[rows]), _lower_solve(L, U[rows])
     Jc, Uc = np.zeros((N, r, n)), np.zeros((N, r, len(steps)))  # by configuration, zero-padded
     Jc[cfg, slot], Uc[cfg, slot] = Jd, Ud
     if r <= n:  # few rows (a sphere's 3): whitened whole by the Cholesky factor of I + U_d U_d^T
         cov = np.eye(r) + Uc @ Uc.transpose(0, 2, 1)
-        return np.linalg.solve(np.linalg.cholesky(cov), Jc)
+        return _lower_solve(np.linalg.cholesky(cov), Jc)
     info = Jc.transpose(0, 2, 1) @ Jc
     if steps:
         JtU = Jc.transpose(0, 2, 1) @ Uc
@@ -494,6 +492,15 @@ def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -
     # not below _compress's cut (1e-12 of the largest singular value, 1e-24 of the eigenvalue): made zero here.
     w = np.where(w > EIGEN_ROUND_OFF * w.max(axis=1, keepdims=True), w, 0.0)
     return np.sqrt(w)[:, :, None] * V.transpose(0, 2, 1)
+
+
+def _lower_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """L^-1 B of a batch, L (N, d, d) lower triangular, B (N, d, m): by forward substitution over the d rows,
+    each step over the whole batch (a batched LAPACK solve of 16,000 3 x 3 systems costs ten times more)."""
+    X = np.empty(np.broadcast_shapes(L.shape[:-1], B.shape[:-1]) + B.shape[-1:])
+    for i in range(L.shape[-1]):
+        X[..., i, :] = (B[..., i, :] - np.einsum("...j,...jm->...m", L[..., i, :i], X[..., :i, :])) / L[..., i, i, None]
+    return X
 
 
 def design(
