@@ -48,6 +48,7 @@ class ReadingErrors:
         self.params = params  # the quantised joints' offsets
         self.Jq = Jq  # (data rows, len(params)) unweighted d(error)/d(offset), at the model of `relinearise`
         self.n = sum(len(c.std) for c in clusters)  # corrections: one residual row each
+        self._groups = _groups(clusters)
         self._key: tuple | None = None
         self._Q: list[tuple[np.ndarray, np.ndarray]] = []
 
@@ -111,18 +112,21 @@ class ReadingErrors:
             return
         Jw = weigh(self.Jq)
         self._Q = []
-        for c in self.clusters:
-            M = np.vstack([Jw[c.rows][:, c.joints] * c.mask, np.diag(1.0 / c.std)])
-            Q = np.linalg.qr(M)[0]
-            self._Q.append((Q[: len(c.rows)], Q[len(c.rows) :]))
+        for g in self._groups:
+            B, m, v = g.mask.shape
+            prior = np.zeros((B, v, v))
+            prior[:, np.arange(v), np.arange(v)] = 1.0 / g.std
+            U = np.take_along_axis(Jw[g.rows], g.joints[:, None, :], axis=2) * g.mask
+            Q = np.linalg.qr(np.concatenate([U, prior], axis=1))[0]
+            self._Q.append((Q[:, :m], Q[:, m:]))
         self._key = key
 
     def leverage(self, n_rows: int) -> np.ndarray:
         """(n_rows,) each data row's share of the corrections' fit (the diagonal of Q Q^T on the data rows):
         what the elimination takes from its variance."""
         out = np.zeros(n_rows)
-        for c, (top, _) in zip(self.clusters, self._Q, strict=True):
-            out[c.rows] = np.sum(top**2, axis=1)
+        for g, (top, _) in zip(self._groups, self._Q, strict=True):
+            out[g.rows] = np.sum(top**2, axis=2)
         return out
 
     def project(self, r: np.ndarray, J: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -134,18 +138,45 @@ class ReadingErrors:
         if J is not None:
             J = J.copy()
             J_extra = np.zeros((self.n, J.shape[1]))
-        at = 0
-        for c, (top, bottom) in zip(self.clusters, self._Q, strict=True):
-            v = slice(at, at + len(c.std))
-            coef = top.T @ r[c.rows]
-            r[c.rows] -= top @ coef
-            extra[v] = -bottom @ coef
+        for g, (top, bottom) in zip(self._groups, self._Q, strict=True):
+            coef = np.einsum("bmv,bm->bv", top, r[g.rows])
+            r[g.rows] -= np.einsum("bmv,bv->bm", top, coef)
+            extra[g.extra] = -np.einsum("buv,bv->bu", bottom, coef)
             if J is not None and J_extra is not None:
-                C = top.T @ J[c.rows]
-                J[c.rows] -= top @ C
-                J_extra[v] = -bottom @ C
-            at = v.stop
+                C = top.transpose(0, 2, 1) @ J[g.rows]
+                J[g.rows] -= top @ C
+                J_extra[g.extra] = -(bottom @ C)
         return r, extra, (None if J is None else np.vstack([J, J_extra]))
+
+
+@dataclass
+class _Group:
+    """Clusters of the same shape stacked (B of them), eliminated together."""
+
+    rows: np.ndarray  # (B, m) data rows
+    joints: np.ndarray  # (B, v)
+    mask: np.ndarray  # (B, m, v)
+    std: np.ndarray  # (B, v)
+    extra: np.ndarray  # (B, v) the corrections' rows among `ReadingErrors.n`
+
+
+def _groups(clusters: list[_Cluster]) -> list[_Group]:
+    """The clusters stacked by shape (a NAO's stances are alike: one LAPACK call for all their QRs, one product for
+    all their projections, instead of a few small ones per stance)."""
+    starts = np.cumsum([0] + [len(c.std) for c in clusters])
+    by_shape: dict[tuple[int, int], list[int]] = {}
+    for i, c in enumerate(clusters):
+        by_shape.setdefault(c.mask.shape, []).append(i)
+    return [
+        _Group(
+            np.stack([clusters[i].rows for i in members]),
+            np.stack([clusters[i].joints for i in members]),
+            np.stack([clusters[i].mask for i in members]).astype(float),
+            np.stack([clusters[i].std for i in members]),
+            np.stack([np.arange(starts[i], starts[i + 1]) for i in members]),
+        )
+        for members in by_shape.values()
+    ]
 
 
 def _keys(profile: Profile, data: Dataset, joints: list[int]) -> list[list[tuple]]:
