@@ -2,10 +2,9 @@
 // header's active calibration.
 
 import { api } from "./api.js";
-import { calibrationName } from "./calibrate.js";
-import { $, act, displayUnit, el, fmt, toast } from "./dom.js";
+import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
 import { loadReview } from "./review.js";
-import { state } from "./state.js";
+import { emit, state } from "./state.js";
 
 let applying = false;  // an apply of this page is in flight
 
@@ -97,7 +96,7 @@ export async function refreshActive(asked = null) {
         if (r) await applied(r);
       }) }, "re-apply"))));
   }
-  document.dispatchEvent(new CustomEvent("desk:active"));  // the History panel reads it again if open
+  emit("active:shown");  // the History panel reads it again if open
 }
 
 export function wireApply() {

@@ -3,7 +3,7 @@
 import { api, follow } from "./api.js";
 import { axes, ticks } from "./charts.js";
 import { jobControls } from "./controls.js";
-import { $, act, displayUnit, el, fmt, toast } from "./dom.js";
+import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
 import { loadReview } from "./review.js";
 import { state } from "./state.js";
 import { showTab } from "./tabs.js";
@@ -32,9 +32,6 @@ const shown = (v, unit) => {
   const [u, factor] = displayUnit(unit);
   return `${fmt(v * factor)} ${u}`;
 };
-
-// A calibration as the page names it: its mode and when it was made.
-export const calibrationName = (c) => `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)}`;
 
 async function startCalibration() {
   if (!state.session) throw new Error("select a session first");

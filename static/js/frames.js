@@ -3,9 +3,9 @@
 
 import { api } from "./api.js";
 import { $, act, el, fmt, toast } from "./dom.js";
-import { loadReview, refreshFigures, unit } from "./review.js";
+import { loadReview, refreshFigures } from "./review.js";
 import { drawSplit } from "./split.js";
-import { DEBUG, state } from "./state.js";
+import { DEBUG, reviewUnit, state } from "./state.js";
 
 let reviewStale = false;  // frames captured since the review was loaded: the server's review lacks them
 
@@ -35,7 +35,7 @@ const signed = (v) => (v > 0 ? "+" : v < 0 ? "−" : "±") + fmt(Math.abs(v));
 // The frame list, sorted; stepping (◀ ▶|, the slider, play) follows its order.
 export function renderFrames() {
   const t = $("#frames");
-  const u = unit();
+  const u = reviewUnit();
   const cols = [["index", "frame"], ["status", "status"], ["err_old", `old ${u}`], ["err_new", `new ${u}`],
     ["change", `new−old ${u}`]];
   const withChange = state.review.table.map((r) => ({ ...r, change: change(r) }));
@@ -82,7 +82,7 @@ function renderFrameSummary(index) {
     box.replaceChildren();
     return;
   }
-  const u = unit();
+  const u = reviewUnit();
   const v = verdict(r);
   const title = el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`);
   if (r.err_old === null || r.err_old === undefined) {  // nothing measured: no error to give, only why

@@ -1,6 +1,7 @@
 // Step 2, Replay: drive the robot through a session's configurations or planned ones; the dry run first.
 
 import { api, follow } from "./api.js";
+import { replayControls } from "./controls.js";
 import { $, act, el, setText } from "./dom.js";
 import { showNewFrames } from "./frames.js";
 import { loadSessions } from "./sessions.js";
@@ -13,19 +14,6 @@ let replaySeed = null;  // the seed of the N new configurations a dry run checke
 export function fillReplaySources() {
   const mine = state.sessions.filter((s) => s.robot === state.robot);
   $("#replay-from").replaceChildren(...mine.map((s) => el("option", { value: s.id }, `${s.name} (${s.frames})`)));
-}
-
-// Pause while it runs, resume while paused, abort until it ends; no second replay or dry run meanwhile, none
-// without a session to replay into. A dry run's job moves nothing: abort it, there is nothing to pause.
-export function replayControls(job) {
-  state.replaySnap = job;
-  const live = Boolean(job) && ["queued", "running"].includes(job.state);
-  const pausable = live && job.kind !== "dry_run";
-  const drivable = state.robots[state.robot].drivable;
-  $("#replay-pause").disabled = !pausable || job.paused;
-  $("#replay-resume").disabled = !pausable || !job.paused;
-  $("#replay-abort").disabled = !live;
-  for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable || !state.session;
 }
 
 async function replay(dry) {

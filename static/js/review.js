@@ -7,9 +7,7 @@ import { axes, ticks } from "./charts.js";
 import { $, act, displayUnit, el, fmt } from "./dom.js";
 import { renderFrames, selectFrame } from "./frames.js";
 import { forgetMarks, showSplitFor } from "./split.js";
-import { state } from "./state.js";
-
-export const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
+import { reviewUnit, state } from "./state.js";
 
 // A review's table and summary (POST /review, /review/table) in the unit errors are shown in, in place.
 function inDisplayUnit(answer) {
@@ -86,7 +84,7 @@ function renderBand() {
   const whose = b.of.length === 2 ? "the old and the new calibration's" : `the ${b.of[0]} calibration's`;
   const other = b.of[0] === "new" ? "old" : "new";
   const without = b.of.length === 2 ? "" : ` (the ${other} calibration has none: the nominal model, or a file written before covariances were kept)`;
-  p.textContent = `better / worse: new−old beyond ${b.k}× the frame's band, same within it. The band: how far ${whose} own uncertainty moves the frame's predicted points (RMS over its points; median ${fmt(b.median)} ${unit()})${without}.`;
+  p.textContent = `better / worse: new−old beyond ${b.k}× the frame's band, same within it. The band: how far ${whose} own uncertainty moves the frame's predicted points (RMS over its points; median ${fmt(b.median)} ${reviewUnit()})${without}.`;
 }
 
 function renderSummary() {
@@ -169,7 +167,7 @@ function drawHistogram(canvas, hist) {
     });
   });
   const yt = ticks(0, top, 3).filter((v) => Number.isInteger(v)).map((v) => [v, String(v)]);
-  axes(ctx, box, ticks(lo, hi, 5).map((v) => [v, fmt(v, 2)]), yt, `error (${unit()})`, "observations");
+  axes(ctx, box, ticks(lo, hi, 5).map((v) => [v, fmt(v, 2)]), yt, `error (${reviewUnit()})`, "observations");
 }
 
 export function wireReview() {
