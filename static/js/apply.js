@@ -3,8 +3,7 @@
 
 import { api } from "./api.js";
 import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
-import { loadReview } from "./review.js";
-import { emit, state } from "./state.js";
+import { emit, on, state } from "./state.js";
 
 let applying = false;  // an apply of this page is in flight
 
@@ -53,8 +52,7 @@ async function applyNew() {
 
 async function applied(r) {
   await refreshActive();
-  // A review whose old side is the robot's active calibration shows the one just applied.
-  if (state.reviewAsked && state.reviewAsked[0] === "active") await loadReview(...state.reviewAsked, true);
+  await emit("calibration:applied");  // the Review shows it where its old side is the robot's active calibration
   const sent = r.deployed ? ` On the robot: ${r.deployed}.` : "";  // what the driver did with it (ROS 2, NAOqi)
   $("#apply-state").textContent = (r.recorded ? `Active: ${r.active} (previous: ${r.previous || "nominal model"})`
     : `Active: ${r.active} (it already was: sent to the robot again, history unchanged)`) + sent;
@@ -100,5 +98,6 @@ export async function refreshActive(asked = null) {
 }
 
 export function wireApply() {
+  on("calibration:chosen", renderApply);
   $("#apply").addEventListener("click", () => act(applyNew));
 }

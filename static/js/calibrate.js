@@ -4,8 +4,7 @@ import { api, follow } from "./api.js";
 import { axes, ticks } from "./charts.js";
 import { jobControls } from "./controls.js";
 import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
-import { loadReview } from "./review.js";
-import { state } from "./state.js";
+import { emit, state } from "./state.js";
 import { showTab } from "./tabs.js";
 
 // The session's calibrations, newest first as the API lists them: in this step's list and start-from choice, and
@@ -24,7 +23,7 @@ export async function loadCalibrations() {
     const after = c.figures && c.figures.after ? shown(c.figures.after.mean, c.figures.after.unit) : "";
     const label = `${calibrationName(c)} · ${after}`;
     for (const s of [base, oldSel, newSel]) s.append(el("option", { value: c.id }, label));
-    ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => loadReview("active", c.id)) }, label));
+    ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => emit("review:load", "active", c.id)) }, label));
   }
 }
 
@@ -59,7 +58,7 @@ async function startCalibration() {
     if (!converged) $("#job-state").textContent = `done, but the solver did not converge (${done.detail.solver_status})`;
     const warned = await showOutcome(done.result);
     await loadCalibrations();
-    await loadReview("active", done.result);
+    await emit("review:load", "active", done.result);
     showTab("review");
     if (!converged) toast(`The calibration did not converge (${done.detail.solver_status}): read the warnings before applying.`, "error");
     else if (warned) toast(`Calibration done with ${warned} warning${warned > 1 ? "s" : ""} (Calibrate and Review list them): read them before applying.`, "error");

@@ -6,10 +6,9 @@ import { clearJob, loadCalibrations } from "./calibrate.js";
 import { jobControls } from "./controls.js";
 import { $, act, checkForm, el, toast } from "./dom.js";
 import { fillReplaySources, setUntilUnit } from "./replay.js";
-import { loadReview } from "./review.js";
 import { connect } from "./robots.js";
 import { clearSplit } from "./split.js";
-import { state } from "./state.js";
+import { emit, state } from "./state.js";
 import { showTab } from "./tabs.js";
 
 // Newest first: a session just made or imported is at the top of the list.
@@ -43,7 +42,7 @@ async function openSession(id) {
   if (!state.job || state.job.session !== id) clearJob();
   jobControls();
   await loadCalibrations();
-  await loadReview("active", state.calibrations.length ? state.calibrations[0].id : "");
+  await emit("review:load", "active", state.calibrations.length ? state.calibrations[0].id : "");
 }
 
 export function closeSession() {
