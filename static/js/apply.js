@@ -8,7 +8,7 @@ import { emit, on, state } from "./state.js";
 let applying = false;  // an apply of this page is in flight
 
 // What Apply applies is the calibration under review, named as the Review shows it (its id in data-id).
-export function renderApply() {
+function renderApply() {
   const id = state.newCal;
   const c = state.calibrations.find((x) => x.id === id);
   $("#apply-what").textContent = id ? `${id}${c ? ` (${calibrationName(c)})` : ""}` : "— (run or pick a calibration)";
@@ -99,5 +99,6 @@ export async function refreshActive(asked = null) {
 
 export function wireApply() {
   on("calibration:chosen", renderApply);
+  on("robot:turned", () => refreshActive());
   $("#apply").addEventListener("click", () => act(applyNew));
 }

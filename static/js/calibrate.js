@@ -4,12 +4,24 @@ import { api, follow } from "./api.js";
 import { axes, ticks } from "./charts.js";
 import { jobControls } from "./controls.js";
 import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
-import { emit, state } from "./state.js";
+import { emit, on, state } from "./state.js";
 import { showTab } from "./tabs.js";
+
+// A session opened: its robot's modes (full where it has one), the job line of another session's calibration
+// cleared, the session's calibrations listed.
+async function sessionOpened(session) {
+  const robot = state.robots[session.robot];
+  const mode = $("#mode");
+  mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
+  mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
+  if (!state.job || state.job.session !== session.id) clearJob();
+  jobControls();
+  await loadCalibrations();
+}
 
 // The session's calibrations, newest first as the API lists them: in this step's list and start-from choice, and
 // the Review's choices.
-export async function loadCalibrations() {
+async function loadCalibrations() {
   state.calibrations = await api("GET", `/sessions/${state.session.id}/calibrations`);
   const base = $("#base");
   base.replaceChildren(el("option", { value: "" }, "nominal model"), el("option", { value: "active" }, "robot's active calibration"));
@@ -85,7 +97,7 @@ async function showOutcome(calId) {
 }
 
 // The job line and cost curve say nothing of another session's calibration.
-export function clearJob() {
+function clearJob() {
   $("#job-state").textContent = "";
   $("#job-warnings").replaceChildren();
   $("#job-progress").value = 0;
@@ -117,6 +129,11 @@ function drawCurve(canvas, ys) {
 }
 
 export function wireCalibrate() {
+  on("session:opened", sessionOpened);
+  on("session:closed", () => {
+    $("#calibrations").replaceChildren();
+    clearJob();
+  });
   $("#holdout").addEventListener("input", () => ($("#holdout-out").textContent = `${Math.round($("#holdout").value * 100)}%`));
   $("#calibrate-start").addEventListener("click", () => act(async () => {
     const button = $("#calibrate-start");

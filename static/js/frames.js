@@ -182,7 +182,7 @@ function togglePlay() {
 // the session, then their errors (the review's figures asked again, `review:refresh`, its scene untouched:
 // selecting a new frame loads the review again). Latest wins.
 let refreshing = null;
-export async function showNewFrames(sid) {
+async function showNewFrames(sid) {
   if (refreshing) {
     refreshing.again = true;
     return;
@@ -227,7 +227,17 @@ function refreshed() {
   renderFrameSummary(state.frame);
 }
 
+// No session: no frames, none selected.
+function clearFrames() {
+  $("#frames").replaceChildren();
+  $("#frame-summary").replaceChildren();
+  $("#frame-label").textContent = "frame —";
+  $("#frame-slider").max = 0;
+}
+
 export function wireFrames() {
+  on("frames:captured", showNewFrames);
+  on("session:closed", clearFrames);
   on("review:shown", listReview);
   on("review:refreshed", refreshed);
   on("frame:select", selectFrame);

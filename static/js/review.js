@@ -168,7 +168,15 @@ function drawHistogram(canvas, hist) {
   axes(ctx, box, ticks(lo, hi, 5).map((v) => [v, fmt(v, 2)]), yt, `error (${reviewUnit()})`, "observations");
 }
 
+// No session: no figures.
+function clearReview() {
+  for (const sel of ["#summary", "#parameters", "#warnings"]) $(sel).replaceChildren();
+  const histogram = $("#histogram");
+  histogram.getContext("2d").clearRect(0, 0, histogram.width, histogram.height);
+}
+
 export function wireReview() {
+  on("session:closed", clearReview);
   on("review:load", loadReview);
   on("review:refresh", refreshFigures);
   on("calibration:applied", reviewApplied);

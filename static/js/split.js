@@ -280,6 +280,7 @@ export function clearSplit() {
 export function wireSplit() {
   on("review:shown", showReview);
   on("frame:shown", drawSplit);
+  on("session:closed", clearSplit);
   $("#zoom-in").addEventListener("click", () => zoomOnMarks(2));
   $("#zoom-out").addEventListener("click", () => zoomOnMarks(0.5));
   $("#zoom-fit").addEventListener("click", () => {
