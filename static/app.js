@@ -10,6 +10,7 @@ import { showDrivable } from "./js/controls.js";
 import { toast } from "./js/dom.js";
 import { wireFrames } from "./js/frames.js";
 import { wireHistory } from "./js/history.js";
+import { wireLive } from "./js/live.js";
 import { buildJoints, robotEvents, wireObserve } from "./js/observe.js";
 import { followRunning, wireReplay } from "./js/replay.js";
 import { wireReview } from "./js/review.js";
@@ -55,6 +56,7 @@ function wire() {
   wireRobots();
   wireSessions();
   wireObserve();
+  wireLive();
   wireReplay();
   wireCalibrate();
   wireReview();

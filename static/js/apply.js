@@ -2,15 +2,13 @@
 // header's active calibration.
 
 import { api } from "./api.js";
-import { calibrationName } from "./calibrate.js";
-import { $, act, displayUnit, el, fmt, toast } from "./dom.js";
-import { loadReview } from "./review.js";
-import { state } from "./state.js";
+import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
+import { emit, on, state } from "./state.js";
 
 let applying = false;  // an apply of this page is in flight
 
 // What Apply applies is the calibration under review, named as the Review shows it (its id in data-id).
-export function renderApply() {
+function renderApply() {
   const id = state.newCal;
   const c = state.calibrations.find((x) => x.id === id);
   $("#apply-what").textContent = id ? `${id}${c ? ` (${calibrationName(c)})` : ""}` : "— (run or pick a calibration)";
@@ -54,8 +52,7 @@ async function applyNew() {
 
 async function applied(r) {
   await refreshActive();
-  // A review whose old side is the robot's active calibration shows the one just applied.
-  if (state.reviewAsked && state.reviewAsked[0] === "active") await loadReview(...state.reviewAsked, true);
+  await emit("calibration:applied");  // the Review shows it where its old side is the robot's active calibration
   const sent = r.deployed ? ` On the robot: ${r.deployed}.` : "";  // what the driver did with it (ROS 2, NAOqi)
   $("#apply-state").textContent = (r.recorded ? `Active: ${r.active} (previous: ${r.previous || "nominal model"})`
     : `Active: ${r.active} (it already was: sent to the robot again, history unchanged)`) + sent;
@@ -97,9 +94,11 @@ export async function refreshActive(asked = null) {
         if (r) await applied(r);
       }) }, "re-apply"))));
   }
-  document.dispatchEvent(new CustomEvent("desk:active"));  // the History panel reads it again if open
+  emit("active:shown");  // the History panel reads it again if open
 }
 
 export function wireApply() {
+  on("calibration:chosen", renderApply);
+  on("robot:turned", () => refreshActive());
   $("#apply").addEventListener("click", () => act(applyNew));
 }

@@ -3,14 +3,25 @@
 import { api, follow } from "./api.js";
 import { axes, ticks } from "./charts.js";
 import { jobControls } from "./controls.js";
-import { $, act, displayUnit, el, fmt, toast } from "./dom.js";
-import { loadReview } from "./review.js";
-import { state } from "./state.js";
+import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
+import { emit, on, state } from "./state.js";
 import { showTab } from "./tabs.js";
+
+// A session opened: its robot's modes (full where it has one), the job line of another session's calibration
+// cleared, the session's calibrations listed.
+async function sessionOpened(session) {
+  const robot = state.robots[session.robot];
+  const mode = $("#mode");
+  mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
+  mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
+  if (!state.job || state.job.session !== session.id) clearJob();
+  jobControls();
+  await loadCalibrations();
+}
 
 // The session's calibrations, newest first as the API lists them: in this step's list and start-from choice, and
 // the Review's choices.
-export async function loadCalibrations() {
+async function loadCalibrations() {
   state.calibrations = await api("GET", `/sessions/${state.session.id}/calibrations`);
   const base = $("#base");
   base.replaceChildren(el("option", { value: "" }, "nominal model"), el("option", { value: "active" }, "robot's active calibration"));
@@ -24,7 +35,7 @@ export async function loadCalibrations() {
     const after = c.figures && c.figures.after ? shown(c.figures.after.mean, c.figures.after.unit) : "";
     const label = `${calibrationName(c)} · ${after}`;
     for (const s of [base, oldSel, newSel]) s.append(el("option", { value: c.id }, label));
-    ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => loadReview("active", c.id)) }, label));
+    ul.append(el("li", { "data-calibration": c.id, onclick: () => act(() => emit("review:load", "active", c.id)) }, label));
   }
 }
 
@@ -32,9 +43,6 @@ const shown = (v, unit) => {
   const [u, factor] = displayUnit(unit);
   return `${fmt(v * factor)} ${u}`;
 };
-
-// A calibration as the page names it: its mode and when it was made.
-export const calibrationName = (c) => `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)}`;
 
 async function startCalibration() {
   if (!state.session) throw new Error("select a session first");
@@ -62,7 +70,7 @@ async function startCalibration() {
     if (!converged) $("#job-state").textContent = `done, but the solver did not converge (${done.detail.solver_status})`;
     const warned = await showOutcome(done.result);
     await loadCalibrations();
-    await loadReview("active", done.result);
+    await emit("review:load", "active", done.result);
     showTab("review");
     if (!converged) toast(`The calibration did not converge (${done.detail.solver_status}): read the warnings before applying.`, "error");
     else if (warned) toast(`Calibration done with ${warned} warning${warned > 1 ? "s" : ""} (Calibrate and Review list them): read them before applying.`, "error");
@@ -89,7 +97,7 @@ async function showOutcome(calId) {
 }
 
 // The job line and cost curve say nothing of another session's calibration.
-export function clearJob() {
+function clearJob() {
   $("#job-state").textContent = "";
   $("#job-warnings").replaceChildren();
   $("#job-progress").value = 0;
@@ -121,6 +129,11 @@ function drawCurve(canvas, ys) {
 }
 
 export function wireCalibrate() {
+  on("session:opened", sessionOpened);
+  on("session:closed", () => {
+    $("#calibrations").replaceChildren();
+    clearJob();
+  });
   $("#holdout").addEventListener("input", () => ($("#holdout-out").textContent = `${Math.round($("#holdout").value * 100)}%`));
   $("#calibrate-start").addEventListener("click", () => act(async () => {
     const button = $("#calibrate-start");

@@ -1,5 +1,5 @@
-// The page's small helpers: a selector, an element builder, text written only when it changes, figures
-// formatted, and the toast that says what went wrong.
+// The page's small helpers: a selector, an element builder, text written only when it changes, figures and
+// calibrations named, and the toast that says what went wrong.
 
 export const $ = (sel) => document.querySelector(sel);
 
@@ -13,6 +13,9 @@ export const fmt = (v, d = 3) => {
 // The unit errors are shown in and the factor to it: a length in metres reads better in millimetres (a tracker's
 // 0.0000716 m is 0.0716 mm); cm, mm and px as they are.
 export const displayUnit = (unit) => (unit === "m" ? ["mm", 1000] : [unit, 1]);
+
+// A calibration as the page names it (Calibrate's list, the Review's choices, Apply): its mode and when it was made.
+export const calibrationName = (c) => `${c.mode} · ${c.created.replace("T", " ").slice(0, 19)}`;
 
 // Text written only when it changes (no layout or repaint for the same words).
 export const setText = (e, text) => {

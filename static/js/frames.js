@@ -3,9 +3,7 @@
 
 import { api } from "./api.js";
 import { $, act, el, fmt, toast } from "./dom.js";
-import { loadReview, refreshFigures, unit } from "./review.js";
-import { drawSplit } from "./split.js";
-import { DEBUG, state } from "./state.js";
+import { DEBUG, emit, on, reviewUnit, state } from "./state.js";
 
 let reviewStale = false;  // frames captured since the review was loaded: the server's review lacks them
 
@@ -32,10 +30,17 @@ const verdict = (r) => (change(r) === null ? "" : r.verdict || "");
 
 const signed = (v) => (v > 0 ? "+" : v < 0 ? "−" : "±") + fmt(Math.abs(v));
 
+// A review loaded: its frames listed worst first (by the new calibration's error, the old one's without a new).
+function listReview(review) {
+  state.sort = { key: state.newCal ? "err_new" : "err_old", dir: -1 };
+  $("#frame-slider").max = Math.max(0, review.table.length - 1);
+  renderFrames();
+}
+
 // The frame list, sorted; stepping (◀ ▶|, the slider, play) follows its order.
-export function renderFrames() {
+function renderFrames() {
   const t = $("#frames");
-  const u = unit();
+  const u = reviewUnit();
   const cols = [["index", "frame"], ["status", "status"], ["err_old", `old ${u}`], ["err_new", `new ${u}`],
     ["change", `new−old ${u}`]];
   const withChange = state.review.table.map((r) => ({ ...r, change: change(r) }));
@@ -82,7 +87,7 @@ function renderFrameSummary(index) {
     box.replaceChildren();
     return;
   }
-  const u = unit();
+  const u = reviewUnit();
   const v = verdict(r);
   const title = el("b", {}, `Frame ${index}${r.heldout ? " (held out)" : ""}`);
   if (r.err_old === null || r.err_old === undefined) {  // nothing measured: no error to give, only why
@@ -114,11 +119,11 @@ function showPosition() {
 // Latest wins: while a scene update is in flight only the newest request waits behind it.
 let selecting = false;
 let pending = null;
-export async function selectFrame(index) {
+async function selectFrame(index) {
   if (index === undefined || index === null) return;
   if (reviewStale) {  // the server's review is made anew
     reviewStale = false;
-    await act(() => loadReview(...state.reviewAsked));
+    await act(() => emit("review:load", ...state.reviewAsked));
   }
   state.frame = index;
   showPosition();
@@ -134,10 +139,10 @@ export async function selectFrame(index) {
   }
   selecting = true;
   try {
-    // The scene and the 2-D view at once: neither waits for the other.
+    // The scene and the 2-D view (`frame:shown`) at once: neither waits for the other.
     const [r] = await Promise.all([
       api("POST", "/review/frame", { index, all: $("#all-frames").checked, overlay: $("#overlay").checked }),
-      drawSplit(index),
+      emit("frame:shown", index),
     ]);
     if (DEBUG) $("#scene-ms").textContent = `scene ${r.server_ms.toFixed(1)} ms`;
   } catch (err) {
@@ -174,10 +179,10 @@ function togglePlay() {
 }
 
 // Frames captured while the page looks on (a replay, auto-capture) join the frame list at once: fetched with
-// the session, then their errors (the review's figures asked again, its scene untouched: selecting a new
-// frame loads the review again). Latest wins.
+// the session, then their errors (the review's figures asked again, `review:refresh`, its scene untouched:
+// selecting a new frame loads the review again). Latest wins.
 let refreshing = null;
-export async function showNewFrames(sid) {
+async function showNewFrames(sid) {
   if (refreshing) {
     refreshing.again = true;
     return;
@@ -206,11 +211,7 @@ export async function showNewFrames(sid) {
       reviewStale = true;  // selecting one loads the review again
       renderFrames();  // the frame list's order is the stepping order
       showPosition();
-      if (await refreshFigures()) {
-        renderFrames();
-        showPosition();
-        renderFrameSummary(state.frame);
-      }
+      await emit("review:refresh");  // their errors: `review:refreshed` lists them
     } while (refreshing.again);
   } catch (err) {
     toast(err.message);
@@ -219,7 +220,27 @@ export async function showNewFrames(sid) {
   }
 }
 
+// The review's figures asked again: the list, the slider and the selected frame's figures with them.
+function refreshed() {
+  renderFrames();
+  showPosition();
+  renderFrameSummary(state.frame);
+}
+
+// No session: no frames, none selected.
+function clearFrames() {
+  $("#frames").replaceChildren();
+  $("#frame-summary").replaceChildren();
+  $("#frame-label").textContent = "frame —";
+  $("#frame-slider").max = 0;
+}
+
 export function wireFrames() {
+  on("frames:captured", showNewFrames);
+  on("session:closed", clearFrames);
+  on("review:shown", listReview);
+  on("review:refreshed", refreshed);
+  on("frame:select", selectFrame);
   // A review loaded while its tab was hidden (a calibration's end) selected its frame unseen: shown, the list
   // goes to it.
   new ResizeObserver(revealSelected).observe($("#frames").parentElement);

@@ -2,12 +2,12 @@
 // beyond both calibrations' uncertainty; a small plot per parameter that moved, most moved first) and the robots of
 // its model side by side (the odd one out, which calibration each runs and how old it is). It reads the server's
 // analysis (GET /api/robot/drift, /api/team) and imports no other panel: it reloads when its tab is opened and,
-// while it is open, when the robot's active calibration is shown anew (the "desk:active" event: another robot
+// while it is open, when the robot's active calibration is shown anew (the event `active:shown`: another robot
 // chosen, a calibration applied).
 
 import { api } from "./api.js";
 import { $, act, el, fmt } from "./dom.js";
-import { state } from "./state.js";
+import { on, state } from "./state.js";
 
 const SVG = "http://www.w3.org/2000/svg";
 let asked = 0;  // the newest load: an older answer arriving late is dropped
@@ -165,6 +165,6 @@ function renderTeam(t, robot) {
 export function wireHistory() {
   const reload = () => shown() && act(loadHistory);
   $("#tabs button[data-tab='history']").addEventListener("click", () => act(loadHistory));
-  document.addEventListener("desk:active", reload);
+  on("active:shown", reload);
   $("#drift-all").addEventListener("change", reload);
 }

@@ -4,13 +4,13 @@
 
 import { api } from "./api.js";
 import { $, setText } from "./dom.js";
-import { state } from "./state.js";
+import { on, state } from "./state.js";
 
 let shown = 0;         // the look on the canvas
 let asking = false;    // a look is being fetched: the next stream message asks again if still newer
 
 // Nothing looked at: not observing, or another robot.
-export function clearLive() {
+function clearLive() {
   if (!shown) return;
   shown = 0;
   const canvas = $("#live-image");
@@ -20,7 +20,7 @@ export function clearLive() {
 }
 
 // `look`: the number of the robot's latest look (the stream's observing.look), undefined when there is none.
-export async function showLook(look) {
+async function showLook(look) {
   if (!look || look === shown || asking || $("#tab-observe").hidden) return;
   asking = true;
   try {
@@ -38,6 +38,11 @@ export async function showLook(look) {
   } finally {
     asking = false;
   }
+}
+
+export function wireLive() {
+  // The robot's stream: what it observes (null: nothing, or the tab turned to another robot).
+  on("robot:observing", (o) => (o ? showLook(o.look) : clearLive()));
 }
 
 function decoded(url) {

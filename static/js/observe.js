@@ -3,10 +3,7 @@
 import { api } from "./api.js";
 import { jobControls } from "./controls.js";
 import { $, act, el, setText, toast } from "./dom.js";
-import { showNewFrames } from "./frames.js";
-import { clearLive, showLook } from "./live.js";
-import { loadSessions } from "./sessions.js";
-import { state } from "./state.js";
+import { emit, on, state } from "./state.js";
 
 let driving = null;    // {since}: the sliders show the page's move target until the robot stopped after it
 let readings = {};     // joint name -> degrees, the robot's last streamed readings
@@ -57,7 +54,9 @@ function slidersToReadings(all = false) {
 }
 
 // This tab's robot's state, streamed while it has a driver (another tab's robot has its own stream there);
-// opened again for the robot the tab turns to. The page's pill, readings and motion controls follow it.
+// opened again for the robot the tab turns to. The page's pill, readings and motion controls follow it; what the
+// robot observes goes to the camera's view (`robot:observing`, null: nothing), the frames it auto-captured into
+// the session shown to the frame list (`frames:captured`).
 let stream = null;
 
 // Why a robot is not connected, in a word the pill has room for (its title holds the driver's sentence).
@@ -70,7 +69,7 @@ function notConnected(message) {
 export function robotEvents() {
   if (stream) stream.close();
   stream = null;
-  clearLive();
+  emit("robot:observing", null);
   state.moving = false;
   if (!state.robots[state.robot].drivable) return;
   const robot = state.robot;
@@ -96,10 +95,9 @@ export function robotEvents() {
     if (driving && !r.moving && performance.now() - driving.since > SLIDERS_FOLLOW_AFTER_MS) driving = null;
     if (!driving) slidersToReadings();
     const o = r.observing;
-    if (o && state.session && o.session === state.session.id && o.captured > autoCaptured) showNewFrames(o.session);
+    if (o && state.session && o.session === state.session.id && o.captured > autoCaptured) emit("frames:captured", o.session);
     autoCaptured = o ? o.captured : 0;
-    if (o) showLook(o.look);
-    else clearLive();
+    emit("robot:observing", o || null);
     setText($("#observe-state"), o ? `live: ${o.detection || "…"}${o.reason && o.reason !== "ok" && o.reason !== o.detection ? ` (${o.reason})` : ""} · ${o.captured} auto-captured` : "");
   };
   es.onerror = () => {
@@ -128,10 +126,14 @@ async function captureNow() {
     jobControls();
   }
   toast(`Frame ${frame.index}: ${frame.status}${frame.reason && frame.reason !== "ok" && frame.reason !== frame.status ? ` (${frame.reason})` : ""}`, "info");
-  await loadSessions(state.session.id);
+  await emit("sessions:load", state.session.id);
 }
 
 export function wireObserve() {
+  on("robot:turned", () => {
+    buildJoints();
+    robotEvents();
+  });
   $("#capture").addEventListener("click", () => act(captureNow));
   $("#observe-on").addEventListener("change", () => act(setObserve));
   $("#autocapture").addEventListener("change", () => act(setObserve));

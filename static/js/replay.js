@@ -1,31 +1,17 @@
 // Step 2, Replay: drive the robot through a session's configurations or planned ones; the dry run first.
 
 import { api, follow } from "./api.js";
+import { replayControls } from "./controls.js";
 import { $, act, el, setText } from "./dom.js";
-import { showNewFrames } from "./frames.js";
-import { loadSessions } from "./sessions.js";
-import { state } from "./state.js";
+import { emit, on, state } from "./state.js";
 
 let replayJob = null;   // the replay or dry run job the Pause, Resume and Abort buttons act on
 let replaySeed = null;  // the seed of the N new configurations a dry run checked (null: a new one next)
 
 // A replay drives the robot in view through configurations of its own sessions only.
-export function fillReplaySources() {
+function fillReplaySources() {
   const mine = state.sessions.filter((s) => s.robot === state.robot);
   $("#replay-from").replaceChildren(...mine.map((s) => el("option", { value: s.id }, `${s.name} (${s.frames})`)));
-}
-
-// Pause while it runs, resume while paused, abort until it ends; no second replay or dry run meanwhile, none
-// without a session to replay into. A dry run's job moves nothing: abort it, there is nothing to pause.
-export function replayControls(job) {
-  state.replaySnap = job;
-  const live = Boolean(job) && ["queued", "running"].includes(job.state);
-  const pausable = live && job.kind !== "dry_run";
-  const drivable = state.robots[state.robot].drivable;
-  $("#replay-pause").disabled = !pausable || job.paused;
-  $("#replay-resume").disabled = !pausable || !job.paused;
-  $("#replay-abort").disabled = !live;
-  for (const sel of ["#replay-start", "#dry-run"]) $(sel).disabled = live || !drivable || !state.session;
 }
 
 async function replay(dry) {
@@ -67,7 +53,7 @@ async function followReplay(jobId, sid) {
     const d = j.detail || {};
     if ((d.done || 0) > done) {
       done = d.done;
-      showNewFrames(sid);
+      emit("frames:captured", sid);
     }
     const planning = j.state === "running" && d.phase === "planning" ? ` · ${planningText(d)}` : "";
     const shown = j.paused && j.state === "running" ? "paused" : j.state;
@@ -76,7 +62,7 @@ async function followReplay(jobId, sid) {
   });
   replayControls(null);
   if (!watching()) await act(() => api("POST", `/sessions/${sid}/observe`, { on: false }));
-  if (state.session && state.session.id === sid) await loadSessions(sid);
+  if (state.session && state.session.id === sid) await emit("sessions:load", sid);
 }
 
 // A page that loads (a reload mid-replay) finds the replay or dry run of its robot still running: its session
@@ -87,7 +73,7 @@ export async function followRunning() {
   const job = jobs.find((j) => ["replay", "dry_run"].includes(j.kind) && ["queued", "running"].includes(j.state) &&
     robotOf(j) === state.robot);
   if (!job) return false;
-  if (job.session && (!state.session || state.session.id !== job.session)) await loadSessions(job.session);
+  if (job.session && (!state.session || state.session.id !== job.session)) await emit("sessions:load", job.session);
   replayControls(job);
   if (job.kind === "dry_run") act(async () => showDryRun(await followDryRun(job.id)));
   else act(() => followReplay(job.id, job.session));
@@ -147,7 +133,7 @@ function replayPlanning(source) {
 
 // The target of "capture until" is in the robot's measurement unit; a first value of its scale when the
 // unit changes (the operator's own value stays while it does not).
-export function setUntilUnit(robot) {
+function setUntilUnit(robot) {
   if ($("#replay-until-unit").textContent === robot.sensor.unit) return;
   $("#replay-until-unit").textContent = robot.sensor.unit;
   $("#replay-until-error").value = { m: 0.0001, mm: 1 }[robot.sensor.unit] ?? 0.1;
@@ -190,6 +176,9 @@ function showUntilProgress(d) {
 }
 
 export function wireReplay() {
+  on("robot:turned", fillReplaySources);
+  on("sessions:listed", fillReplaySources);
+  on("session:opened", (session) => setUntilUnit(state.robots[session.robot]));
   $("#dry-run").addEventListener("click", () => act(async () => {
     const button = $("#dry-run");
     if (button.disabled) return;  // a double click: one dry run

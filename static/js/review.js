@@ -2,14 +2,9 @@
 // the new calibration's warnings and parameters.
 
 import { api } from "./api.js";
-import { renderApply } from "./apply.js";
 import { axes, ticks } from "./charts.js";
 import { $, act, displayUnit, el, fmt } from "./dom.js";
-import { renderFrames, selectFrame } from "./frames.js";
-import { forgetMarks, showSplitFor } from "./split.js";
-import { state } from "./state.js";
-
-export const unit = () => (state.review && state.review.summary ? state.review.summary.unit : "");
+import { emit, on, reviewUnit, state } from "./state.js";
 
 // A review's table and summary (POST /review, /review/table) in the unit errors are shown in, in place.
 function inDisplayUnit(answer) {
@@ -29,45 +24,46 @@ function inDisplayUnit(answer) {
 const reviewBody = (old, neu, sensor) => ({ session: state.session.id, old: old || null, new: neu || null, sensor });
 
 // `sensor`: whose observations (a session of several sensors); null: the data format's sensor. `keep`: the
-// selected frame stays selected (a review asked again: the robot's active calibration changed).
-export async function loadReview(old, neu, sensor = null, keep = false) {
+// selected frame stays selected (a review asked again: the robot's active calibration changed). Once the review
+// is shown, its frame is selected (`frame:select`), as the scene shows the review's frame only.
+async function loadReview(old, neu, sensor = null, keep = false) {
   const kept = keep ? state.frame : null;
   state.review = inDisplayUnit(await api("POST", "/review", reviewBody(old, neu, sensor)));
-  forgetMarks();  // the server's marks are of this review from now on
   state.reviewAsked = [old, neu, sensor];
   state.newCal = state.review.new;
   $("#review-old").value = old || "";
   $("#review-new").value = neu || "";
-  renderApply();  // with the review's choice, before anything awaited: Apply never names the one before
+  emit("calibration:chosen");  // with the review's choice, before anything awaited: Apply never names the one before
   const sensors = $("#review-sensor");
   const names = [...new Set([state.review.sensor, ...state.review.sensors])];
   sensors.replaceChildren(...names.map((s) => el("option", { value: s }, s)));
   sensors.value = state.review.sensor;
   $("#review-sensor-label").hidden = state.review.sensors.length < 2;
-  showSplitFor(state.review);
   // What the scene could not show as asked (a URDF robot's mesh that cannot be read): said once per review.
   $("#review-warnings").replaceChildren(...(state.review.warnings || []).map((w) => el("p", { class: "warning" }, w)));
-  const rows = state.review.table;
-  state.sort = { key: state.newCal ? "err_new" : "err_old", dir: -1 };
-  const slider = $("#frame-slider");
-  slider.max = Math.max(0, rows.length - 1);
-  renderFrames();
+  emit("review:shown", state.review);  // its frames listed, its 2-D view made ready: still before anything awaited
   renderBand();
   renderSummary();
   await renderParameters();
-  if (state.frameOrder.includes(kept)) await selectFrame(kept);
-  else if (state.frameOrder.length) await selectFrame(state.frameOrder[0]);
+  if (state.frameOrder.includes(kept)) await emit("frame:select", kept);
+  else if (state.frameOrder.length) await emit("frame:select", state.frameOrder[0]);
 }
 
-// The review's figures again, its scene untouched (frames captured meanwhile: a live view keeps running).
-export async function refreshFigures() {
+// The review's figures again, its scene untouched (frames captured meanwhile: a live view keeps running); the
+// frame list follows them (`review:refreshed`).
+async function refreshFigures() {
   const [old, neu, sensor] = state.reviewAsked;
   const sid = state.session.id;
   const fresh = inDisplayUnit(await api("POST", "/review/table", reviewBody(old, neu, sensor)));
-  if (!state.review || state.review.session !== sid || state.reviewAsked[1] !== neu) return false;
+  if (!state.review || state.review.session !== sid || state.reviewAsked[1] !== neu) return;
   Object.assign(state.review, fresh);
   renderSummary();
-  return true;
+  emit("review:refreshed");
+}
+
+// A review whose old side is the robot's active calibration shows the one just applied (its frame kept).
+function reviewApplied() {
+  if (state.reviewAsked && state.reviewAsked[0] === "active") return loadReview(...state.reviewAsked, true);
 }
 
 // What "same", "better" and "worse" in the frame list mean (app/review.py's band).
@@ -86,7 +82,7 @@ function renderBand() {
   const whose = b.of.length === 2 ? "the old and the new calibration's" : `the ${b.of[0]} calibration's`;
   const other = b.of[0] === "new" ? "old" : "new";
   const without = b.of.length === 2 ? "" : ` (the ${other} calibration has none: the nominal model, or a file written before covariances were kept)`;
-  p.textContent = `better / worse: new−old beyond ${b.k}× the frame's band, same within it. The band: how far ${whose} own uncertainty moves the frame's predicted points (RMS over its points; median ${fmt(b.median)} ${unit()})${without}.`;
+  p.textContent = `better / worse: new−old beyond ${b.k}× the frame's band, same within it. The band: how far ${whose} own uncertainty moves the frame's predicted points (RMS over its points; median ${fmt(b.median)} ${reviewUnit()})${without}.`;
 }
 
 function renderSummary() {
@@ -169,10 +165,21 @@ function drawHistogram(canvas, hist) {
     });
   });
   const yt = ticks(0, top, 3).filter((v) => Number.isInteger(v)).map((v) => [v, String(v)]);
-  axes(ctx, box, ticks(lo, hi, 5).map((v) => [v, fmt(v, 2)]), yt, `error (${unit()})`, "observations");
+  axes(ctx, box, ticks(lo, hi, 5).map((v) => [v, fmt(v, 2)]), yt, `error (${reviewUnit()})`, "observations");
+}
+
+// No session: no figures.
+function clearReview() {
+  for (const sel of ["#summary", "#parameters", "#warnings"]) $(sel).replaceChildren();
+  const histogram = $("#histogram");
+  histogram.getContext("2d").clearRect(0, 0, histogram.width, histogram.height);
 }
 
 export function wireReview() {
+  on("session:closed", clearReview);
+  on("review:load", loadReview);
+  on("review:refresh", refreshFigures);
+  on("calibration:applied", reviewApplied);
   const reviewAgain = () => act(() => loadReview($("#review-old").value, $("#review-new").value, $("#review-sensor").value || null));
   $("#review-load").addEventListener("click", reviewAgain);
   $("#review-sensor").addEventListener("change", reviewAgain);

@@ -3,11 +3,7 @@
 import { api } from "./api.js";
 import { showDrivable } from "./controls.js";
 import { $, act, checkForm, el, toast } from "./dom.js";
-import { refreshActive } from "./apply.js";
-import { buildJoints, robotEvents } from "./observe.js";
-import { fillReplaySources } from "./replay.js";
-import { closeSession } from "./sessions.js";
-import { state } from "./state.js";
+import { emit, on, state } from "./state.js";
 
 export function fillRobots() {
   for (const r of Object.values(state.robots)) addRobotOption(r);
@@ -20,16 +16,15 @@ function addRobotOption(r) {
 
 // A robot with real data only (no driver) has sessions imported from CSV, calibrations and reviews,
 // but nothing to connect to or move: its capture and motion controls are disabled.
-// This tab's 3-D scene shows the connected robot: a session and review of another robot are closed.
-export async function connect(robot) {
+// This tab's 3-D scene shows the connected robot: a session and review of another robot are closed
+// (`robot:turned`, which every panel that follows the robot hears; Apply asks for its active calibration).
+async function connect(robot) {
   if (state.robots[robot].drivable) await api("POST", "/robot/connect", { robot });
   state.robot = robot;
-  if (state.session && state.session.robot !== robot) closeSession();
-  fillReplaySources();
-  buildJoints();
-  robotEvents();
+  $("#robot-select").value = robot;
+  const followed = emit("robot:turned", robot);  // each panel follows it at once; Apply's answer awaited below
   showDrivable();
-  await refreshActive();
+  await followed;
 }
 
 // A robot added to the running desk: a profile file (with its URDF when it says `urdf: ...`, and a zip of
@@ -60,6 +55,7 @@ async function stopAll() {
 }
 
 export function wireRobots() {
+  on("robot:connect", connect);  // a session of another robot opened
   const sel = $("#robot-select");
   sel.addEventListener("change", () => act(() => connect(sel.value)));
   $("#stop").addEventListener("click", stopAll);

@@ -2,9 +2,7 @@
 
 import { api, VIEWER } from "./api.js";
 import { $, act } from "./dom.js";
-import { selectFrame } from "./frames.js";
-import { loadReview } from "./review.js";
-import { state } from "./state.js";
+import { emit, state } from "./state.js";
 
 export function showScene() {
   $("#scene").src = `/scene/${VIEWER}/`;
@@ -46,6 +44,6 @@ async function reopenScene() {
   await magnify();  // the new server's viewer draws at x1
   if (!state.session || !state.reviewAsked) return;
   const frame = state.frame;
-  await loadReview(...state.reviewAsked);
-  if (frame !== null && state.frameOrder.includes(frame)) await selectFrame(frame);
+  await emit("review:load", ...state.reviewAsked);
+  if (frame !== null && state.frameOrder.includes(frame)) await emit("frame:select", frame);
 }

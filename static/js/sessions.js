@@ -1,18 +1,13 @@
 // The Sessions list: a session opened, made, imported or closed.
 
 import { api } from "./api.js";
-import { renderApply } from "./apply.js";
-import { clearJob, loadCalibrations } from "./calibrate.js";
 import { jobControls } from "./controls.js";
 import { $, act, checkForm, el, toast } from "./dom.js";
-import { fillReplaySources, setUntilUnit } from "./replay.js";
-import { loadReview } from "./review.js";
-import { connect } from "./robots.js";
-import { clearSplit } from "./split.js";
-import { state } from "./state.js";
+import { emit, on, state } from "./state.js";
 import { showTab } from "./tabs.js";
 
-// Newest first: a session just made or imported is at the top of the list.
+// Newest first: a session just made or imported is at the top of the list. `selectId`: the session then opened
+// (`sessions:load` asks for it: frames captured, a replay's end).
 export async function loadSessions(selectId, sessions = null) {
   state.sessions = (sessions || (await api("GET", "/sessions"))).sort((a, b) => b.created.localeCompare(a.created));
   const ul = $("#sessions");
@@ -22,43 +17,34 @@ export async function loadSessions(selectId, sessions = null) {
       el("b", {}, s.name), el("small", {}, ` ${s.robot} · ${s.measured}/${s.frames} frames measured`));
     ul.append(li);
   }
-  fillReplaySources();
+  emit("sessions:listed");
   if (selectId) await openSession(selectId);
 }
 
+// A session of another robot turns this tab to that robot first (`robot:connect`); the session's steps made
+// ready for it (`session:opened`: its calibrations listed), then its review of the newest calibration loaded.
 async function openSession(id) {
   state.session = await api("GET", `/sessions/${id}`);
-  state.newCal = null;  // Apply names nothing of the session before while this one's review loads
-  renderApply();
+  state.newCal = null;
+  emit("calibration:chosen");  // Apply names nothing of the session before while this one's review loads
   for (const li of document.querySelectorAll("#sessions li")) li.classList.toggle("selected", li.dataset.session === id);
-  if (state.session.robot !== state.robot) {
-    await connect(state.session.robot);
-    $("#robot-select").value = state.robot;
-  }
-  const robot = state.robots[state.session.robot];
-  const mode = $("#mode");
-  mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
-  mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
-  setUntilUnit(robot);
-  if (!state.job || state.job.session !== id) clearJob();
-  jobControls();
-  await loadCalibrations();
-  await loadReview("active", state.calibrations.length ? state.calibrations[0].id : "");
+  if (state.session.robot !== state.robot) await emit("robot:connect", state.session.robot);
+  await emit("session:opened", state.session);
+  await emit("review:load", "active", state.calibrations.length ? state.calibrations[0].id : "");
 }
 
-export function closeSession() {
+// The tab turned to another robot: a session of the robot before is closed (this tab's scene shows its robot).
+function robotTurned(robot) {
+  if (state.session && state.session.robot !== robot) closeSession();
+}
+
+// Each panel clears what it showed of the session (`session:closed`).
+function closeSession() {
   Object.assign(state, { session: null, review: null, reviewAsked: null, newCal: null, frame: null, frameOrder: [],
     calibrations: [] });
   for (const li of document.querySelectorAll("#sessions li")) li.classList.remove("selected");
-  for (const sel of ["#frames", "#summary", "#parameters", "#warnings", "#calibrations"]) $(sel).replaceChildren();
-  const histogram = $("#histogram");
-  histogram.getContext("2d").clearRect(0, 0, histogram.width, histogram.height);
-  clearSplit();
-  $("#frame-summary").replaceChildren();
-  $("#frame-label").textContent = "frame —";
-  $("#frame-slider").max = 0;
-  renderApply();
-  clearJob();
+  emit("session:closed");
+  emit("calibration:chosen");
   jobControls();
 }
 
@@ -85,6 +71,8 @@ async function importSession(e) {
 }
 
 export function wireSessions() {
+  on("sessions:load", loadSessions);
+  on("robot:turned", robotTurned);
   $("#new-session").addEventListener("submit", (e) => act(() => newSession(e)));
   $("#import-session").addEventListener("submit", (e) => act(() => importSession(e)));
 }

@@ -6,7 +6,7 @@
 
 import { api } from "./api.js";
 import { $, el } from "./dom.js";
-import { state } from "./state.js";
+import { on, state } from "./state.js";
 
 const split = { marks: null, img: null, zoom: 1, cx: null, cy: null, drag: null };
 
@@ -44,7 +44,7 @@ const imaged = () => Boolean(state.review && state.review.images.includes(state.
 
 // The 2-D view of a review: its sensor's image, and a choice of the session's sensors that take one when there
 // is a choice (or the sensor reviewed takes none). Choosing one reviews that sensor.
-export function showSplitFor(review) {
+function showSplitFor(review) {
   const sel = $("#split-sensor");
   const names = review.images.includes(review.sensor) ? review.images : ["", ...review.images];
   sel.replaceChildren(...names.map((s) => el("option", { value: s }, s || `— (${review.sensor}: no image)`)));
@@ -54,7 +54,7 @@ export function showSplitFor(review) {
   $("#split-view").hidden = !imaged();
 }
 
-export async function drawSplit(index) {
+async function drawSplit(index) {
   if (!imaged()) return;
   const { m, img } = await frameMarks(index);
   if (!split.marks || split.marks.width !== m.width || split.marks.height !== m.height) fitSplit(m);
@@ -249,9 +249,10 @@ function zoomOnMarks(factor) {
   redrawSplit();
 }
 
-// The marks of another review from now on: none kept of the last.
-export function forgetMarks() {
+// Another review shown: the server's marks are of it from now on (none kept of the last), its sensors offered.
+function showReview(review) {
   marksCache.clear();
+  showSplitFor(review);
 }
 
 // No session: nothing drawn, nothing kept.
@@ -277,6 +278,9 @@ export function clearSplit() {
 }
 
 export function wireSplit() {
+  on("review:shown", showReview);
+  on("frame:shown", drawSplit);
+  on("session:closed", clearSplit);
   $("#zoom-in").addEventListener("click", () => zoomOnMarks(2));
   $("#zoom-out").addEventListener("click", () => zoomOnMarks(0.5));
   $("#zoom-fit").addEventListener("click", () => {
