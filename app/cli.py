@@ -53,7 +53,7 @@ from calib_core.model import BUILTIN_PROFILES, Profile
 from calib_core.sim import Law, measured_on
 from calib_core.units import length_factor
 
-from .limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
+from .web.limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
 
 if TYPE_CHECKING:
     from calib_core.sim import ImageSimulation
@@ -1047,7 +1047,7 @@ def _serve(args: argparse.Namespace) -> int:
             meeting.close()
         if web.is_alive():
             web.join()
-    from .server import serve
+    from .web.server import serve
 
     serve(
         args.host,

@@ -3,7 +3,7 @@ all frames) and its own 3-D scene, so two tabs never move each other.
 
 A viewer is named by an id its page makes (sent as the `X-Viewer` header; a request without one addresses
 the default viewer, which scripts and single-viewer clients share). Its scene is a `ReviewScene` over the
-viser client of its page's iframe (`/scene/<viewer>/`, app/scene_proxy.py), so everything it shows is
+viser client of its page's iframe (`/scene/<viewer>/`, app/web/scene_proxy.py), so everything it shows is
 client-scoped in viser: another browser never receives it. The viewer keeps what it shows apart from the
 scene, so a review can be loaded before its iframe connects and is drawn again on a new client (the iframe
 reloaded after a server restart, or viser's client reconnecting).

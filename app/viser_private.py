@@ -1,7 +1,7 @@
 """Every use of viser's private names, in one place: the desk needs two things viser has no public API for.
 
 - Which client a websocket became: viser's connect callback does not say which request made the client, so
-  the scene proxy (app/scene_proxy.py) hooks viser's websocket server, whose callbacks run at the handshake,
+  the scene proxy (app/web/scene_proxy.py) hooks viser's websocket server, whose callbacks run at the handshake,
   and reads the connection's peer address there.
 - The share tunnel closed: the share button is hidden (`configure_theme`), but any websocket client can still
   send the message that asks viser to tunnel the scene through an external service; its handlers are dropped.

@@ -1,4 +1,4 @@
-// In the 3-D scene's page (viser's client, served by app/scene_proxy.py): the review's marks drawn over the robot's
+// In the 3-D scene's page (viser's client, served by app/web/scene_proxy.py): the review's marks drawn over the robot's
 // bodies, so a hand in front of its board, or the overlay's translucent copy, never hides a measurement. viser's
 // API has no depth test for point clouds and line segments: this reads the three.js object of each marks node
 // from viser's client (window.__viserMutable.nodeRefFromName, the hook viser keeps for its own browser tests;

@@ -19,7 +19,7 @@ from fastapi.testclient import TestClient
 
 from app.cli import main as calib
 from app.desk_config import load_desk_config
-from app.server import create_app
+from app.web.server import create_app
 from calib_core import Profile, SimulatedRobot, calibrate
 from calib_core.estimation.drift import Epoch, compare_epochs, compare_team, find_drift
 

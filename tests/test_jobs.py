@@ -26,6 +26,7 @@ from app.jobs.runner import JobContext, JobRunner, crashed
 from app.jobs.snapshot import JobSnapshot, JobState
 from app.services.calibration import CalibrationService, solve
 from app.store import INTERRUPTED, Observations, Store
+from app.web.limits import Limits
 from calib_core import InputError
 from calib_core.errors import Cancelled
 
@@ -50,7 +51,7 @@ def clock(jobs: JobRunner) -> ManualClock:
 
 @pytest.fixture(scope="module")
 def calibrations(sample_store: Store, jobs: JobRunner) -> CalibrationService:
-    return CalibrationService(sample_store, jobs)
+    return CalibrationService(sample_store, jobs, max_rows=Limits().rows)
 
 
 def wait_running(jobs: JobRunner, job_id: str) -> int:
@@ -456,7 +457,6 @@ def test_a_worker_imports_none_of_the_servers_modules() -> None:
         "app.jobs",
         "app.jobs.snapshot",
         "app.jobs.worker",
-        "app.limits",
         "app.parent_watch",
         "app.services",
         "app.services.calibration",

@@ -126,14 +126,14 @@ def test_the_store_imports_nothing_above_it() -> None:
 
 
 def test_routers_reach_the_desk_only_through_their_dependencies_and_services_never_import_routers() -> None:
-    desk = {name for name in _MODULES if "app.desk" in _app_imports(name)}
-    assert {n for n in desk if n.startswith("app.routers")} <= {"app.routers.deps"}
+    desk = {name for name in _MODULES if "app.web.desk" in _app_imports(name)}
+    assert {n for n in desk if n.startswith("app.web.routers")} <= {"app.web.routers.deps"}
     assert not {
         f"{name} imports {m}"
         for name in _MODULES
         if name.startswith(("app.services", "app.store"))
         for m in _app_imports(name)
-        if m.startswith(("app.routers", "app.desk", "app.server"))
+        if m.startswith(("app.web.routers", "app.web.desk", "app.web.server"))
     }
 
 

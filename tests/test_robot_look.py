@@ -19,7 +19,7 @@ from app.desk_config import load_desk_config
 from app.review import Review
 from app.robot_look import cluster_vertices, read_look, robot_look
 from app.scene import GHOST_RGBA, ReviewScene
-from app.server import create_app
+from app.web.server import create_app
 from calib_core import SimulatedRobot, load_profile, to_csv
 from calib_core.model.kinematics import forward
 from calib_core.units import length_factor

@@ -20,10 +20,10 @@ from PIL import Image
 from test_robot_look import meshed_arm
 from test_urdf_import import PROFILE, arm_urdf
 
-from app.limits import Limits
 from app.robot_look import read_look, robot_look
-from app.server import create_app
 from app.store.robots import PACKAGE_ROOT
+from app.web.limits import Limits
+from app.web.server import create_app
 from calib_core import SimulatedRobot, load_profile, to_csv
 
 DRAWN = {"box", "cylinder", "mesh package://meshed_arm/meshes/upper.stl", "mesh ../meshes/fore.obj"}

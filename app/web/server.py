@@ -1,7 +1,7 @@
 """The dashboard's web server: FastAPI (the JSON API, the page and the 3-D scene) on one port.
 
 One process, one uvicorn worker: the viser server runs its own threads on a loopback port, started and
-stopped in the app's lifespan, and browsers reach it through this app (app/scene_proxy.py: its client page
+stopped in the app's lifespan, and browsers reach it through this app (app/web/scene_proxy.py: its client page
 and its websocket under /scene, behind the same guard as the API); calibrations run in a spawn process pool
 (app/jobs/runner.py).
 """
@@ -25,20 +25,20 @@ from fastapi.staticfiles import StaticFiles
 
 from calib_core import InputError
 
+from ..clock import SYSTEM_CLOCK, Clock
+from ..desk_config import DeskConfig
+from ..drivers import RobotFault
+from ..errors import NotAllowed, NotFound, TooLarge
+from ..safety import ConfirmationRequired
+from ..store import StoreWriteError
+from ..viewers import TooManyViewers
 from . import scene_proxy, security
-from .api_docs import add_docs
-from .clock import SYSTEM_CLOCK, Clock
+from .api_docs import add_docs, keep_schema_names
 from .desk import SAMPLE_DIR, Desk
-from .desk_config import DeskConfig
-from .drivers import RobotFault
-from .errors import NotAllowed, NotFound, TooLarge
 from .limits import Limits
 from .routers import api
 from .routers.robots import VERSION
-from .safety import ConfirmationRequired
 from .static_dir import STATIC_DIR
-from .store import StoreWriteError
-from .viewers import TooManyViewers
 
 SHUTDOWN_WAIT_S = 3
 log = logging.getLogger("calib.server")
@@ -59,12 +59,12 @@ def create_app(
     limits: Limits | None = None,
 ) -> FastAPI:
     """`config`: the robots (None: the built-in ones). `host`: the address the server is bound to; off loopback
-    every /api request but /api/health, and the scene under /scene, need the access token (app/security.py);
+    every /api request but /api/health, and the scene under /scene, need the access token (app/web/security.py);
     `app.state.new_token` is the token made at this start (shown once), None when one was stored before;
     `app.state.closing` is set once the server is asked to stop (`serve`): the pages' event streams end then.
     `viser_port`: the viser server's port, on 127.0.0.1 whatever `host` is (0: any free one). `trusted_hosts`:
     the Host names answered (None: any). `limits`: the size of an upload and the rows of an import or a
-    calibration (None: app/limits.py's defaults). `clock`: the drivers' (app/clock.py; a test's ManualClock)."""
+    calibration (None: app/web/limits.py's defaults). `clock`: the drivers' (app/clock.py; a test's ManualClock)."""
     limits = limits or Limits()
     tokens = None
     token = None
@@ -93,6 +93,7 @@ def create_app(
     app.state.new_token = token
     app.state.closing = threading.Event()
     add_docs(app)
+    keep_schema_names(app)
     app.include_router(api)
     app.include_router(scene_proxy.router)
     _error_handlers(app, desk.scrub)

@@ -1,7 +1,7 @@
 """The 3-D scene through the API's port: viser's client page and a websocket proxy to the loopback viser server.
 
 The viser server is bound to 127.0.0.1 only; browsers reach it through FastAPI, same origin and same token as
-the API (app/security.py guards `/scene` like `/api`, the websocket included):
+the API (app/web/security.py guards `/scene` like `/api`, the websocket included):
 
 - `GET /scene/<viewer>/` answers viser's prebuilt client page (the `index.html` of the installed package's
   `client/build/`) with static/viser_marks.js inlined (the review's marks drawn over the bodies) and
@@ -36,9 +36,9 @@ from fastapi import APIRouter, Path, Response, WebSocket, WebSocketDisconnect
 from starlette.concurrency import run_in_threadpool
 from websockets.asyncio.client import ClientConnection, connect
 
+from ..viewers import VIEWER_PATTERN, TooManyViewers
+from ..viser_private import Address, on_connections
 from .static_dir import STATIC_DIR
-from .viewers import VIEWER_PATTERN, TooManyViewers
-from .viser_private import Address, on_connections
 
 CLAIM_TIMEOUT_S = 5.0  # viser reports a connection at its handshake: milliseconds
 OPEN_TIMEOUT_S = 10.0

@@ -3,7 +3,7 @@ error texts without paths (the viser server's share tunnel is closed in app/vise
 
 - Bound to loopback (the default), the desk needs no token: only this machine reaches it. Bound to any
   other address, every /api request except /api/health, and the 3-D scene under /scene (its page and its
-  websocket, app/scene_proxy.py), need the access token: requests that change state or move the robot
+  websocket, app/web/scene_proxy.py), need the access token: requests that change state or move the robot
   (every method but GET and HEAD) carry it as `Authorization: Bearer <token>`; reads (the scene's websocket
   is one: it shows the scene and changes nothing on the desk) may instead carry the read cookie the desk sets
   on an answer to a request with the token (so the page's images, server-sent events and the scene's iframe

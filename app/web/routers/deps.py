@@ -14,23 +14,23 @@ from typing import Annotated, Any
 from fastapi import Depends, Header, HTTPException, Request, UploadFile
 from fastapi import Path as PathParam
 
+from ...jobs.runner import JobRunner
+from ...robots import Robots
+from ...services.apply import ApplyService
+from ...services.calibration import CalibrationService
+from ...services.connection import Connection
+from ...services.drive import DriveService
+from ...services.history import HistoryService
+from ...services.replay import ReplayService
+from ...services.review import ReviewService
+from ...services.robots import RobotService
+from ...store import Store
+from ...store.calibrations import CalibrationRepository
+from ...store.sessions import SessionRepository
+from ...validation import FRAME_MAX, FRAME_MIN
+from ...viewers import VIEWER_PATTERN, Viewer, Viewers
 from ..desk import Desk
-from ..jobs.runner import JobRunner
 from ..limits import Limits
-from ..robots import Robots
-from ..services.apply import ApplyService
-from ..services.calibration import CalibrationService
-from ..services.connection import Connection
-from ..services.drive import DriveService
-from ..services.history import HistoryService
-from ..services.replay import ReplayService
-from ..services.review import ReviewService
-from ..services.robots import RobotService
-from ..store import Store
-from ..store.calibrations import CalibrationRepository
-from ..store.sessions import SessionRepository
-from ..validation import FRAME_MAX, FRAME_MIN
-from ..viewers import VIEWER_PATTERN, Viewer, Viewers
 
 
 def get_desk(request: Request) -> Desk:

@@ -1,9 +1,9 @@
 """The calibration desk: the store, the jobs, the robots, the viewers with their 3-D scenes and the services over
 them (app/services/), composed; nothing more.
 
-The HTTP API (app/routers/) is a thin layer over the services, each given to a router as a dependency
-(app/routers/deps.py); a script or a test can use them directly. One desk per process: it owns the viser server
-(on loopback: browsers reach it through app/scene_proxy.py) and the robots' drivers.
+The HTTP API (app/web/routers/) is a thin layer over the services, each given to a router as a dependency
+(app/web/routers/deps.py); a script or a test can use them directly. One desk per process: it owns the viser server
+(on loopback: browsers reach it through app/web/scene_proxy.py) and the robots' drivers.
 """
 
 from __future__ import annotations
@@ -17,36 +17,36 @@ from pathlib import Path
 
 import viser
 
+from ..clock import SYSTEM_CLOCK, Clock
+from ..desk_config import DeskConfig, default_config
+from ..drivers.registry import DriverContext
+from ..importers import ensure_samples
+from ..jobs.runner import JobRunner
+from ..robots import Robots
+from ..scene import configure
+from ..services.apply import ApplyService
+from ..services.calibration import CalibrationService
+from ..services.connection import Connection
+from ..services.drive import DriveService
+from ..services.history import HistoryService
+from ..services.replay import ReplayService
+from ..services.review import ReviewService
+from ..services.robots import RobotService
+from ..store import Store
+from ..viewers import Viewers
+from ..viser_private import close_share_tunnel
 from . import security
-from .clock import SYSTEM_CLOCK, Clock
-from .desk_config import DeskConfig, default_config
-from .drivers.registry import DriverContext
-from .importers import ensure_samples
-from .jobs.runner import JobRunner
 from .limits import Limits
-from .robots import Robots
-from .scene import configure
 from .scene_proxy import ViserClients
-from .services.apply import ApplyService
-from .services.calibration import CalibrationService
-from .services.connection import Connection
-from .services.drive import DriveService
-from .services.history import HistoryService
-from .services.replay import ReplayService
-from .services.review import ReviewService
-from .services.robots import RobotService
-from .store import Store
-from .viewers import Viewers
-from .viser_private import close_share_tunnel
 
-PACKAGE_DIR = Path(__file__).resolve().parent.parent  # the code: no answer names a path under it
+PACKAGE_DIR = Path(__file__).resolve().parents[2]  # the code: no answer names a path under it
 SAMPLE_DIR = Path(str(resources.files("app.sample_sessions")))  # package data, in a wheel as in a checkout
 
 
 class Desk:
     def __init__(self, data_dir: Path, *, loopback: bool = True, limits: Limits | None = None) -> None:
         """`loopback`: the desk is reached from this machine only, so a request may name a file on it. `limits`:
-        what one request may ask (app/limits.py; read at each request, so a test may change them)."""
+        what one request may ask (app/web/limits.py; read at each request, so a test may change them)."""
         self.data_dir = Path(data_dir)
         self.loopback = loopback
         self.limits = limits or Limits()

@@ -11,8 +11,8 @@ from pydantic import BaseModel
 
 from calib_core import Profile
 
-from ..robots import Robot
-from ..services.robots import NewRobot, Upload
+from ...robots import Robot
+from ...services.robots import NewRobot, Upload
 from .deps import DeskDep, LimitsDep, RobotsDep, RobotServiceDep, read_upload
 
 VERSION = "0.4.0"

@@ -10,8 +10,8 @@ from pydantic import BaseModel, Field, JsonValue
 
 from calib_core import FrameStatus, Profile
 
-from ..services.connection import Connection
-from ..store import FrameInfo
+from ...services.connection import Connection
+from ...store import FrameInfo
 
 
 class ObserveState(BaseModel):

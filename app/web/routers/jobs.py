@@ -10,7 +10,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Depends, Request
 from fastapi.sse import EventSourceResponse
 
-from ..jobs.snapshot import JobSnapshot
+from ...jobs.snapshot import JobSnapshot
 from .deps import JobsDep, ReplayDep
 from .models import DryRun
 
