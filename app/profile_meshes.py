@@ -20,7 +20,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 
-from .robot_look import MAX_MESH_BYTES, mesh_file
+from .scene.robot_look import MAX_MESH_BYTES, mesh_file
 from .store.meshes import MESH_SUFFIXES, TEXTURE_SUFFIXES, MeshArchive, archive_files
 
 

@@ -23,8 +23,8 @@ from sim_frames import measured_frames
 from app.capture import out_of_margin
 from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
-from app.review import Review
-from app.scene import ReviewScene
+from app.scene.review import Review
+from app.scene.review_scene import ReviewScene
 from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv
 from calib_core.estimation.planning import within_margin
 from calib_core.io.csv_format import readings_beyond_limits

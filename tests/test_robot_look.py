@@ -1,6 +1,6 @@
-"""A URDF robot drawn with its own visuals in the review scene (app/robot_look.py, app/scene.py): meshes (STL,
-OBJ; package:// and relative paths) and primitives under the links of both copies, posed by each calibration's
-kinematics; a mesh that cannot be found falls back to simple shapes with one warning naming the file."""
+"""A URDF robot drawn with its own visuals in the review scene (app/scene/robot_look.py, app/scene/review_scene.py):
+meshes (STL, OBJ; package:// and relative paths) and primitives under the links of both copies, posed by each
+calibration's kinematics; a mesh that cannot be found falls back to simple shapes with one warning naming the file."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ from sim_frames import measured_frames
 from test_urdf_import import PROFILE as ARM_PROFILE
 
 from app.desk_config import load_desk_config
-from app.review import Review
-from app.robot_look import cluster_vertices, read_look, robot_look
-from app.scene import GHOST_RGBA, ReviewScene
+from app.scene.review import Review
+from app.scene.review_scene import GHOST_RGBA, ReviewScene
+from app.scene.robot_look import cluster_vertices, read_look, robot_look
 from app.web.server import create_app
 from calib_core import SimulatedRobot, load_profile, to_csv
 from calib_core.model.kinematics import forward
@@ -150,7 +150,7 @@ def test_a_missing_mesh_falls_back_to_simple_shapes_with_one_warning(
     viser_server: viser.ViserServer, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     path = meshed_arm(tmp_path, meshes=False)
-    with caplog.at_level("WARNING", logger="app.robot_look"):
+    with caplog.at_level("WARNING", logger="app.scene.robot_look"):
         review = _review(path)
         scene = ReviewScene(viser_server)
         scene.load(review)

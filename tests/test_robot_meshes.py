@@ -20,7 +20,7 @@ from PIL import Image
 from test_robot_look import meshed_arm
 from test_urdf_import import PROFILE, arm_urdf
 
-from app.robot_look import read_look, robot_look
+from app.scene.robot_look import read_look, robot_look
 from app.store.robots import PACKAGE_ROOT
 from app.web.limits import Limits
 from app.web.server import create_app

@@ -20,9 +20,9 @@ from sim_frames import measured_frames, unmeasured_frames
 from test_viewers import PROTOCOL, camera_message, wait_until
 
 from app.errors import NotFound
-from app.framing import DEFAULT_FOV_RAD, camera_reported
-from app.review import Review
-from app.scene import ReviewScene, display_rotation
+from app.scene.framing import DEFAULT_FOV_RAD, camera_reported
+from app.scene.review import Review
+from app.scene.review_scene import ReviewScene, display_rotation
 from calib_core import SimulatedRobot, load_profile
 from calib_core.model.kinematics import forward
 from calib_core.vision.sighting import Sighting

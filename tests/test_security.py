@@ -21,7 +21,7 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketDenialResponse
 from test_viewers import PROTOCOL, camera_message
 
-from app.viser_private import close_share_tunnel
+from app.scene.viser_private import close_share_tunnel
 from app.web.security import (
     LOOPBACK_NAMES,
     MAX_UPLOAD_BYTES,

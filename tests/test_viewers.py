@@ -1,4 +1,4 @@
-"""Viewers in-process: each browser tab's review and scene are its own (app/viewers.py), and the scene's websocket
+"""Viewers in-process: each browser tab's review and scene are its own (app/scene/viewers.py), and the scene's websocket
 through the API's port reaches the loopback viser server as its own viser client (app/web/scene_proxy.py).
 
 A "browser" here is a websocket through the app (FastAPI's TestClient) that sends what viser's client sends
@@ -22,7 +22,7 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketTestSession
 from starlette.websockets import WebSocketDisconnect
 
-from app.viewers import Viewer
+from app.scene.viewers import Viewer
 from app.web.desk import Desk
 from app.web.static_dir import STATIC_DIR
 

@@ -32,7 +32,7 @@ from .meshes import MeshArchive, unpack
 from .profiles import file_name, instance_profile, load_model
 
 T = TypeVar("T")
-# Marks the folder of a robot the desk keeps: its URDF's meshes are looked for there only (app/robot_look.py).
+# Marks the folder of a robot the desk keeps: its URDF's meshes are looked for there only (app/scene/robot_look.py).
 PACKAGE_ROOT = ".uploaded-description"
 CONFINED = b"the URDF's meshes are looked for in this folder only\n"  # PACKAGE_ROOT's text
 

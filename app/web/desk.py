@@ -23,7 +23,9 @@ from ..drivers.registry import DriverContext
 from ..importers import ensure_samples
 from ..jobs.runner import JobRunner
 from ..robots import Robots
-from ..scene import configure
+from ..scene.review_scene import configure
+from ..scene.viewers import Viewers
+from ..scene.viser_private import close_share_tunnel
 from ..services.apply import ApplyService
 from ..services.calibration import CalibrationService
 from ..services.connection import Connection
@@ -33,8 +35,6 @@ from ..services.replay import ReplayService
 from ..services.review import ReviewService
 from ..services.robots import RobotService
 from ..store import Store
-from ..viewers import Viewers
-from ..viser_private import close_share_tunnel
 from . import security
 from .limits import Limits
 from .scene_proxy import ViserClients

@@ -7,7 +7,7 @@ the API (app/web/security.py guards `/scene` like `/api`, the websocket included
   `client/build/`) with static/viser_marks.js inlined (the review's marks drawn over the bodies) and
   static/viser_notice.js (viser's notice of software WebGL hidden; the desk's page says it under the view). viser's
   client makes its websocket URL from the page's address without the query, so the iframe's websocket comes to
-  `/scene/<viewer>`: the path names the viewer (app/viewers.py).
+  `/scene/<viewer>`: the path names the viewer (app/scene/viewers.py).
 - `/scene/<viewer>` (websocket) opens a websocket to the viser server offering the browser's `viser-v<version>`
   subprotocol (viser closes with 1002 without it), accepts the browser's with the one viser chose, then copies
   frames (binary and text) both ways until one side closes, and closes the other with its code.
@@ -15,7 +15,7 @@ the API (app/web/security.py guards `/scene` like `/api`, the websocket included
 Which viser client a proxied websocket became: viser numbers clients in the order it accepts them, and its
 connect callback does not say which request made them, so counting would go wrong as soon as two tabs connect
 at once (or anything else connects to the loopback port). `ViserClients` hooks viser's websocket server
-(app/viser_private.py), whose connect callback runs at the handshake, and records each new connection's peer
+(app/scene/viser_private.py), whose connect callback runs at the handshake, and records each new connection's peer
 address with its client id; the proxy looks up its own upstream socket's local address, which is that peer
 address.
 """
@@ -36,8 +36,8 @@ from fastapi import APIRouter, Path, Response, WebSocket, WebSocketDisconnect
 from starlette.concurrency import run_in_threadpool
 from websockets.asyncio.client import ClientConnection, connect
 
-from ..viewers import VIEWER_PATTERN, TooManyViewers
-from ..viser_private import Address, on_connections
+from ..scene.viewers import VIEWER_PATTERN, TooManyViewers
+from ..scene.viser_private import Address, on_connections
 from .static_dir import STATIC_DIR
 
 CLAIM_TIMEOUT_S = 5.0  # viser reports a connection at its handshake: milliseconds

@@ -1,5 +1,5 @@
 """Who may talk to the desk: the access token off loopback, the cross-origin guard, request size limits,
-error texts without paths (the viser server's share tunnel is closed in app/viser_private.py).
+error texts without paths (the viser server's share tunnel is closed in app/scene/viser_private.py).
 
 - Bound to loopback (the default), the desk needs no token: only this machine reaches it. Bound to any
   other address, every /api request except /api/health, and the 3-D scene under /scene (its page and its

@@ -30,8 +30,8 @@ from ..desk_config import DeskConfig
 from ..drivers import RobotFault
 from ..errors import NotAllowed, NotFound, TooLarge
 from ..safety import ConfirmationRequired
+from ..scene.viewers import TooManyViewers
 from ..store import StoreWriteError
-from ..viewers import TooManyViewers
 from . import scene_proxy, security
 from .api_docs import add_docs, keep_schema_names
 from .desk import SAMPLE_DIR, Desk

@@ -70,7 +70,7 @@ export async function refreshFigures() {
   return true;
 }
 
-// What "same", "better" and "worse" in the frame list mean (app/review.py's band).
+// What "same", "better" and "worse" in the frame list mean (app/scene/review.py's band).
 function renderBand() {
   const b = state.review.summary.band;
   const p = $("#change-band");

@@ -16,6 +16,7 @@ from fastapi import Path as PathParam
 
 from ...jobs.runner import JobRunner
 from ...robots import Robots
+from ...scene.viewers import VIEWER_PATTERN, Viewer, Viewers
 from ...services.apply import ApplyService
 from ...services.calibration import CalibrationService
 from ...services.connection import Connection
@@ -28,7 +29,6 @@ from ...store import Store
 from ...store.calibrations import CalibrationRepository
 from ...store.sessions import SessionRepository
 from ...validation import FRAME_MAX, FRAME_MIN
-from ...viewers import VIEWER_PATTERN, Viewer, Viewers
 from ..desk import Desk
 from ..limits import Limits
 

@@ -1,7 +1,7 @@
 """Review: load a session with an old and a new calibration into a viewer's scene, select frames, the 2-D marks.
 
 Each request is for the viewer its `X-Viewer` header names (a browser tab; none: the default viewer), so tabs
-reviewing different sessions never move each other (app/viewers.py)."""
+reviewing different sessions never move each other (app/scene/viewers.py)."""
 
 from __future__ import annotations
 
@@ -38,6 +38,7 @@ class ReviewRow(BaseModel):
     verdict: Literal["better", "worse", "same"] | None = None  # new - old beyond / within k bands (None: no band)
 
 
+# Its docstring is the API document's description, kept as written (app/review.py: now app/scene/review.py).
 class ReviewFigures(BaseModel):
     """The distances between prediction and measurement of the measured observations (app/review.py): their mean,
     RMS and max (None: none measured) and their count."""
@@ -56,6 +57,7 @@ class Histogram(BaseModel):
     new: list[int] | None  # None: no new calibration
 
 
+# Its docstring is the API document's description, kept as written (app/review.py: now app/scene/review.py).
 class ChangeBand(BaseModel):
     """What a frame's change is read against (app/review.py): better or worse beyond k times its band, the RMS
     over its points of how far the uncertainty of the calibrations named in `of` moves their predictions."""

@@ -12,7 +12,7 @@ import numpy as np
 from calib_core import Profile
 from calib_core.vision import predicted_points
 
-from .drivers import Look
+from ..drivers import Look
 from .review import image_pixels
 
 JPEG_QUALITY = 85

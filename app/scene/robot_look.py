@@ -3,7 +3,7 @@
 The review scene draws a profile's frame tree (calib_core.io.urdf_export.to_urdf) at each calibration's
 parameters. A profile made from a URDF (`urdf: robot.urdf`) has one frame per URDF link, named after the
 link and at the link's pose, so a link's visuals hang under that frame's node in each copy and every copy
-shows them where its own calibration puts the link (app/scene.py).
+shows them where its own calibration puts the link (app/scene/review_scene.py).
 
 Meshes (STL, OBJ, DAE; `package://` or relative to the URDF, found as yourdfpy finds them) are read with
 trimesh and kept as plain arrays, in the visual's own frame (m): each copy sends them to the browser once,
@@ -32,8 +32,8 @@ from calib_core import Profile
 from calib_core.io import BODY
 from calib_core.model import profile_urdf_path
 
-from .store.meshes import MESH_SUFFIXES
-from .store.robots import PACKAGE_ROOT
+from ..store.meshes import MESH_SUFFIXES
+from ..store.robots import PACKAGE_ROOT
 
 if TYPE_CHECKING:  # both load when a look is read (trimesh's import takes half a second: not at the desk's start)
     import trimesh

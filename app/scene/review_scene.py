@@ -3,7 +3,7 @@
     /review/old                    root: placed in the world (left copy; the overlay puts both at 0)
         label                      "old calibration"
         base                       the robot's base frame, turned upright (display_rotation)
-            robot/...              URDF at the old calibration's parameters (app/robot_copy.py)
+            robot/...              URDF at the old calibration's parameters (app/scene/robot_copy.py)
             ghost/...              the same, translucent: shown instead of `robot` in the overlay (built
                                    when the overlay is first asked for: a third copy costs the browser)
             frame                  the selected frame's marks, lifted toward the camera (`_Marks`)
@@ -16,7 +16,7 @@
 
 Each side's URDF is generated from that side's parameters (`Review.urdf`), so both copies take the
 same joint readings and still differ where the calibrations differ. A robot made from a URDF file is drawn
-with that URDF's own visuals (app/robot_look.py: meshes, primitives) under each copy's link frames, in place of
+with that URDF's own visuals (app/scene/robot_look.py: meshes, primitives) under each copy's link frames, in place of
 the generated bodies of those links; they are sent once per copy and move with the links. The scene keeps its
 own registry of the nodes it made (viser has no public listing) and reports it through `state()`.
 
@@ -34,13 +34,13 @@ enough (a narrow field of view) that both copies are seen from nearly the same d
 body. Millimetre residuals show at a magnification (`set_magnify`, as the 2-D view's): a measurement is drawn at
 prediction + k (measurement - prediction), and the copies' labels say k.
 
-A scene draws on a target: one browser's viser client (the desk: each viewer's own scene, app/viewers.py;
+A scene draws on a target: one browser's viser client (the desk: each viewer's own scene, app/scene/viewers.py;
 viser sends client-scoped nodes to that browser only) or the server (every browser).
 
 One robot at a time: when the robot shown changes (a review, the built-in robot, or the live view of
 another robot), everything shown for the previous one is removed from viser (re-adding a node under the
 same name would keep the old children, so a Robonaut arm would stay inside a NAO scene) and the target's
-browsers' cameras are framed on the new robot (app/framing.py): the copies' extents at the nominal model and
+browsers' cameras are framed on the new robot (app/scene/framing.py): the copies' extents at the nominal model and
 zero joint angles, where the layout puts them.
 """
 
@@ -61,11 +61,11 @@ from calib_core.model import forward
 from calib_core.units import length_factor
 from calib_core.vision import Sighting
 
+from ..validation import MAGNIFY_MAX
 from .framing import DEFAULT_FOV_RAD, FRONT, ClientFraming, Target, framing, leave_box
 from .review import FrameGeometry, Review, frame_bounds_m, live_geometry
 from .robot_copy import RobotCopy, quaternion
 from .robot_look import LinkVisual, link_visuals, robot_look, without_bodies
-from .validation import MAGNIFY_MAX
 
 if TYPE_CHECKING:  # loaded with the first robot drawn (with trimesh, half a second): not at the desk's start
     import yourdfpy
@@ -102,7 +102,7 @@ class LookLike(Protocol):
 @dataclass
 class _Copy:
     """One URDF copy: its document, its model (the URDF shown: the profile's frame tree, without the simple
-    bodies of links drawn with their own visuals) and its frames and visuals in viser (app/robot_copy.py).
+    bodies of links drawn with their own visuals) and its frames and visuals in viser (app/scene/robot_copy.py).
 
     `root` is the slot's frame (kept, its visibility is the copy's); the URDF's nodes hang under `node`, a
     child named once per build (`root`/u<n>), removed with the copy: viser's buffer merges the removal of
@@ -116,7 +116,7 @@ class _Copy:
     node: viser.FrameHandle
     joint_order: list[int]  # the profile joint index of each URDF actuated joint
     joint_unit: np.ndarray  # per URDF actuated joint: its reading's unit in the URDF's (a prismatic one's, in m)
-    looks: dict[str, LinkVisual]  # the robot's own visuals (app/robot_look.py): viser node -> visual
+    looks: dict[str, LinkVisual]  # the robot's own visuals (app/scene/robot_look.py): viser node -> visual
 
 
 @dataclass(frozen=True)
@@ -367,7 +367,7 @@ class ReviewScene:
         its parent), and color + points (N, 3) / segments (N, 2, 3) of what it really holds, or text}};
         urdf: {copy ("old", "ghost", "new", "live"): {root, node (the URDF's nodes hang under it), shown,
         joints: {name: rad}, looks: {node: {link, what, faces}} (a URDF robot's own visuals)}}; camera: the
-        framing of the robot shown and each browser's camera (app.framing.ClientFraming.state)."""
+        framing of the robot shown and each browser's camera (app.scene.framing.ClientFraming.state)."""
         with self._lock:
             return {
                 "camera": self.camera.state(),

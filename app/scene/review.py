@@ -40,7 +40,7 @@ from calib_core.model import forward, to_sensor
 from calib_core.sensors import Sensor
 from calib_core.units import length_factor
 
-from .errors import NotFound
+from ..errors import NotFound
 
 HISTOGRAM_BINS = 20
 CHANGE_BANDS = 2.0  # a frame's change is "better" or "worse" beyond this many bands
