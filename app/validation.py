@@ -20,7 +20,6 @@ ROLE = re.compile(r"[a-z][a-z0-9_]{0,31}")  # an image's role in a frame (left, 
 IMAGE_NAME = re.compile(r"\d{4}_[a-z0-9_]+\.jpg")  # a stored frame image's file name
 # A frame number as the store keeps it (SQLite INTEGER): beyond it a 422, not an overflow deep inside.
 FRAME_MIN, FRAME_MAX = -(2**63), 2**63 - 1
-MAGNIFY_MAX = 1000.0  # the largest factor the 3-D view draws residuals at (app/scene/review_scene.py)
 
 
 def check_id(kind: str, value: str) -> str:

@@ -33,7 +33,7 @@ from urdf_sweep import chains, load  # noqa: E402
 
 from app.scene import robot_look as looks  # noqa: E402
 from app.scene.review import Review  # noqa: E402
-from app.scene.review_scene import ReviewScene  # noqa: E402
+from app.scene.review_scene.scene import ReviewScene  # noqa: E402
 from calib_core import SimulatedRobot  # noqa: E402
 from calib_core.model.urdf_import import read_urdf  # noqa: E402
 

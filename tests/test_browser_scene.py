@@ -17,7 +17,8 @@ from test_browser_viewers import open_page, open_session, scene_frame, step
 from test_scene import _marks_world, build
 
 from app.scene.framing import FRONT
-from app.scene.review_scene import ReviewScene, configure
+from app.scene.review_scene.scene import ReviewScene
+from app.scene.theme import configure
 from app.web.static_dir import STATIC_DIR
 
 pytestmark = pytest.mark.browser

@@ -3,7 +3,7 @@
 The review scene draws a profile's frame tree (calib_core.io.urdf_export.to_urdf) at each calibration's
 parameters. A profile made from a URDF (`urdf: robot.urdf`) has one frame per URDF link, named after the
 link and at the link's pose, so a link's visuals hang under that frame's node in each copy and every copy
-shows them where its own calibration puts the link (app/scene/review_scene.py).
+shows them where its own calibration puts the link (app/scene/review_scene/copies.py).
 
 Meshes (STL, OBJ, DAE; `package://` or relative to the URDF, found as yourdfpy finds them) are read with
 trimesh and kept as plain arrays, in the visual's own frame (m): each copy sends them to the browser once,

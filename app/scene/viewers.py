@@ -29,7 +29,7 @@ import viser
 from calib_core import InputError, Profile
 
 from .review import Review
-from .review_scene import LookLike, ReviewScene
+from .review_scene.scene import LookLike, ReviewScene
 
 DEFAULT = "default"
 VIEWER_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
@@ -126,7 +126,7 @@ class Viewer:
                 scene.set_magnify(k)
 
     def frame_marks(self) -> None:
-        """The page's "frame it": the scene's camera onto the selected frame's marks (app/scene/review_scene.py;
+        """The page's "frame it": the scene's camera onto the selected frame's marks (app/scene/review_scene/camera.py;
         without a review, onto the robot)."""
         with self.lock:
             for scene in self._drawn():

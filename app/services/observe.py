@@ -24,7 +24,7 @@ from ..drivers import Look, RobotDriver
 from ..errors import NotFound
 from ..robots import Robots
 from ..scene.live_look import look_view
-from ..scene.review_scene import LookLike
+from ..scene.review_scene.scene import LookLike
 from ..store import Store
 
 OBSERVE_PERIOD_S = 0.5

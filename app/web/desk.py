@@ -23,7 +23,7 @@ from ..drivers.registry import DriverContext
 from ..importers import ensure_samples
 from ..jobs.runner import JobRunner
 from ..robots import Robots
-from ..scene.review_scene import configure
+from ..scene.theme import configure
 from ..scene.viewers import Viewers
 from ..scene.viser_private import close_share_tunnel
 from ..services.apply import ApplyService

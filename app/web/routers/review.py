@@ -12,7 +12,8 @@ from pydantic import BaseModel, Field
 
 from calib_core import FrameStatus
 
-from ...validation import FRAME_MAX, FRAME_MIN, MAGNIFY_MAX
+from ...scene.review_scene.marks import MAGNIFY_MAX
+from ...validation import FRAME_MAX, FRAME_MIN
 from .deps import FrameIndex, ReviewDep, ViewerDep, ViewersDep
 
 router = APIRouter()
