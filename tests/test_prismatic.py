@@ -20,9 +20,9 @@ from jacobian_check import check_jacobian, perturbed
 from scene_nodes import node_pose
 from sim_frames import measured_frames
 
-from app.capture import out_of_margin
 from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
+from app.robots.capture import out_of_margin
 from app.scene.review import Review
 from app.scene.review_scene.scene import ReviewScene
 from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv

@@ -16,7 +16,7 @@ from scene_nodes import node_pose
 from sim_frames import measured_frames
 from test_urdf_import import PROFILE as ARM_PROFILE
 
-from app.desk_config import load_desk_config
+from app.robots.desk_config import load_desk_config
 from app.scene.review import Review
 from app.scene.review_scene.copies import GHOST_RGBA
 from app.scene.review_scene.scene import ReviewScene

@@ -172,7 +172,7 @@ def test_a_zip_written_by_pythons_writestr_is_taken(tmp_path: Path) -> None:
 
 def test_a_profile_file_named_brings_its_urdfs_meshes_and_needs_its_folder_no_more(tmp_path: Path) -> None:
     """A profile file on this machine named on a loopback desk: the meshes its URDF's visuals name are kept with
-    it (app/profile_meshes.py), each where the kept URDF's name finds it, an OBJ's material and its texture
+    it (app/robots/profile_meshes.py), each where the kept URDF's name finds it, an OBJ's material and its texture
     beside it, nothing else of the folder; drawn with no warning, after a restart and with the original folder
     moved away, then deleted, too."""
     profile = meshed_arm(tmp_path / "disk")

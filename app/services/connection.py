@@ -15,7 +15,7 @@ from typing import Any
 
 from ..drivers import RobotDriver
 from ..errors import NotFound
-from ..robots import Robot, Robots
+from ..robots.roster import Robot, Robots
 from ..scene.viewers import Shown, Viewer, Viewers
 from ..store import Store
 from .observe import Observer

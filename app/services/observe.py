@@ -2,7 +2,7 @@
 
 At a few Hz, look through the cameras when the robot stands still and show the detection beside the
 prediction of the active calibration; while it moves (a replay, the sliders, someone else), show the robot at
-its readings ten times a second, without a look; with autocapture, keep the good settled frames (app/capture.py's
+its readings ten times a second, without a look; with autocapture, keep the good settled frames (app/robots/capture.py's
 AutoCapture). One robot is observed at a time; its live view goes to the viewers watching (app/scene/viewers.py).
 """
 
@@ -19,10 +19,10 @@ import numpy as np
 from calib_core import FrameStatus, InputError, Profile
 from calib_core.estimation import register, registration_params
 
-from ..capture import AutoCapture, look_outcome
 from ..drivers import Look, RobotDriver
 from ..errors import NotFound
-from ..robots import Robots
+from ..robots.capture import AutoCapture, look_outcome
+from ..robots.roster import Robots
 from ..scene.live_look import look_view
 from ..scene.review_scene.scene import LookLike
 from ..store import Store

@@ -15,7 +15,7 @@ import numpy as np
 from calib_core import Dataset, InputError, Profile
 from calib_core.estimation import Covariance, register, registration_params
 
-from ..robots import Robots
+from ..robots.roster import Robots
 from ..scene.review import Review
 from ..scene.robot_look import robot_look
 from ..scene.viewers import Viewer

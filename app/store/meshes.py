@@ -11,7 +11,7 @@ The zip is checked whole before anything is written, from its directory: every e
 (a texture, an OBJ's material), not encrypted; at most MAX_FILES files and `max_unpacked_bytes` unpacked
 (against zip bombs: zipfile itself stops an entry at the size the directory gives it). A macOS archive's
 `__MACOSX/` folder and `.DS_Store` files are left out. The meshes of a profile file named on this machine
-are kept as such an archive too, zipped in memory (archive_files; app/profile_meshes.py), checked alike.
+are kept as such an archive too, zipped in memory (archive_files; app/robots/profile_meshes.py), checked alike.
 """
 
 from __future__ import annotations

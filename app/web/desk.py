@@ -18,11 +18,10 @@ from pathlib import Path
 import viser
 
 from ..clock import SYSTEM_CLOCK, Clock
-from ..desk_config import DeskConfig, default_config
 from ..drivers.registry import DriverContext
-from ..importers import ensure_samples
 from ..jobs.runner import JobRunner
-from ..robots import Robots
+from ..robots.desk_config import DeskConfig, default_config
+from ..robots.roster import Robots
 from ..scene.theme import configure
 from ..scene.viewers import Viewers
 from ..scene.viser_private import close_share_tunnel
@@ -35,6 +34,7 @@ from ..services.replay import ReplayService
 from ..services.review import ReviewService
 from ..services.robots import RobotService
 from ..store import Store
+from ..store.importers import ensure_samples
 from . import security
 from .limits import Limits
 from .scene_proxy import ViserClients

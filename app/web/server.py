@@ -26,11 +26,11 @@ from fastapi.staticfiles import StaticFiles
 from calib_core import InputError
 
 from ..clock import SYSTEM_CLOCK, Clock
-from ..desk_config import DeskConfig
 from ..drivers import RobotFault
 from ..errors import NotAllowed, NotFound, TooLarge
-from ..safety import ConfirmationRequired
+from ..robots.desk_config import DeskConfig
 from ..scene.viewers import TooManyViewers
+from ..services.safety import ConfirmationRequired
 from ..store import StoreWriteError
 from . import scene_proxy, security
 from .api_docs import add_docs, keep_schema_names

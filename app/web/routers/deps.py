@@ -15,7 +15,7 @@ from fastapi import Depends, Header, HTTPException, Request, UploadFile
 from fastapi import Path as PathParam
 
 from ...jobs.runner import JobRunner
-from ...robots import Robots
+from ...robots.roster import Robots
 from ...scene.viewers import VIEWER_PATTERN, Viewer, Viewers
 from ...services.apply import ApplyService
 from ...services.calibration import CalibrationService
@@ -28,7 +28,7 @@ from ...services.robots import RobotService
 from ...store import Store
 from ...store.calibrations import CalibrationRepository
 from ...store.sessions import SessionRepository
-from ...validation import FRAME_MAX, FRAME_MIN
+from ...store.validation import FRAME_MAX, FRAME_MIN
 from ..desk import Desk
 from ..limits import Limits
 

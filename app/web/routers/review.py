@@ -13,7 +13,7 @@ from pydantic import BaseModel, Field
 from calib_core import FrameStatus
 
 from ...scene.review_scene.marks import MAGNIFY_MAX
-from ...validation import FRAME_MAX, FRAME_MIN
+from ...store.validation import FRAME_MAX, FRAME_MIN
 from .deps import FrameIndex, ReviewDep, ViewerDep, ViewersDep
 
 router = APIRouter()

@@ -11,7 +11,7 @@ from pydantic import BaseModel
 
 from calib_core import Profile
 
-from ...robots import Robot
+from ...robots.roster import Robot
 from ...services.robots import NewRobot, Upload
 from .deps import DeskDep, LimitsDep, RobotsDep, RobotServiceDep, read_upload
 
@@ -121,6 +121,8 @@ def robots(robots: RobotsDep) -> list[RobotOut]:
     return [robot_out(r) for r in robots.all()]
 
 
+# Its docstring is the API document's description, kept as written (app/profile_meshes.py: now
+# app/robots/profile_meshes.py).
 @router.post("/robots", status_code=201)
 async def add_robot(
     service: RobotServiceDep,

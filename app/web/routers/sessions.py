@@ -11,10 +11,10 @@ from fastapi import APIRouter, File, Form, HTTPException, Response, UploadFile
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
-from ...capture import Until
-from ...importers import csv_text, import_csv, measured_time
+from ...robots.capture import Until
 from ...services.replay import ReplayPlan
-from ...validation import ID, IMAGE_NAME
+from ...store.importers import csv_text, import_csv, measured_time
+from ...store.validation import ID, IMAGE_NAME
 from .deps import (
     CalibrationDep,
     CalibrationsDep,

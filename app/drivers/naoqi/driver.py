@@ -1,7 +1,7 @@
 """A NAO through NAOqi behind the RobotDriver interface (driver kind `naoqi`; specs naoqi.md): the driver core
 (core.py) over libqi's ALMotion, ALVideoDevice and ALPreferenceManager.
 
-Options (a connection file's fields, app/naoqi/connection.py; `calib serve --naoqi FILE` makes them): `url` (the
+Options (a connection file's fields, app/drivers/naoqi/connection.py; `calib serve --naoqi FILE` makes them): `url` (the
 robot's NAOqi address, tcp://host:9559), `camera` (ALVideoDevice's index: 1, the lower camera, the paper's),
 and as extensions `color_space` (what the camera is asked for: 0 grey, 9 YUV 4:2:2, 11 RGB, 13 BGR), `fps`,
 `margin_deg`, `tolerance_deg` (a move has arrived when every reading is this close), `still_deg` (readings that
@@ -32,11 +32,11 @@ import numpy as np
 from calib_core import Calibration, InputError, Profile
 from calib_core.io import NAOQI_COLOR_SPACES, estimated_offsets_deg, naoqi_image
 
-from ..clock import Clock
-from . import RobotFault
-from .calls import calling
-from .core import DEFAULT_SETTLE_S, Command, Driver, Feed, Measurement, Motion, Poller, per_joint
-from .registry import DriverContext
+from ...clock import Clock
+from .. import RobotFault
+from ..calls import calling
+from ..core import DEFAULT_SETTLE_S, Command, Driver, Feed, Measurement, Motion, Poller, per_joint
+from ..registry import DriverContext
 
 OPTIONS: dict[str, Any] = {
     "url": "tcp://127.0.0.1:9559",
@@ -63,7 +63,7 @@ STIFF = 0.5  # a joint whose stiffness reads below this after setStiffnesses(1.0
 
 def check(profile: Profile, options: Mapping[str, Any], where: str, options_at: str) -> dict[str, Any]:
     """The options checked (InputError naming `options_at`.<option>), with their defaults."""
-    from ..naoqi import require
+    from . import require
 
     require()
     unknown = sorted(set(options) - set(OPTIONS))
@@ -162,7 +162,7 @@ class NaoqiTransport:
             return self._link
 
     def _open(self) -> _Link:
-        from ..naoqi import open_session
+        from . import open_session
 
         calling(f"the connection to {self.url}")
         session = open_session(self.url)

@@ -21,10 +21,10 @@ import numpy as np
 from calib_core import FrameStatus, InputError, Profile, parse_dataset
 from calib_core.io import parse_measured, read_session, readings_beyond_limits, session_robot
 
-from .errors import TooLarge
-from .store import NewFrame, Observations, Store
-from .store.db import StoreWriteError, now, writing
-from .store.files import fsync_dir, write_bytes
+from ..errors import TooLarge
+from . import NewFrame, Observations, Store
+from .db import StoreWriteError, now, writing
+from .files import fsync_dir, write_bytes
 from .validation import check_role
 
 log = logging.getLogger(__name__)

@@ -29,7 +29,7 @@ import numpy as np
 from calib_core import Profile
 from calib_core.sim import SimulatedRobot
 
-from ..drivers.faults import HUGE_PX, FaultSwitch, parse_fault
+from ..faults import HUGE_PX, FaultSwitch, parse_fault
 from ..sim_view import home, render_in_view
 from . import require
 

@@ -1,7 +1,7 @@
 """A robot on its own ROS 2 graph behind the RobotDriver interface (driver kind `ros2`; specs ros2.md): the
 driver core (core.py) over the robot's topics.
 
-Options: `connection` (the connection file, app/ros2/connection.py) and `files` (the folder in the data
+Options: `connection` (the connection file, app/drivers/ros2/connection.py) and `files` (the folder in the data
 directory where apply writes the calibrated URDF and the offsets YAML). `calib serve --ros2 FILE` makes
 both.
 
@@ -38,11 +38,11 @@ from calib_core.io import calibrated_urdf, grey_image, offsets_yaml
 from calib_core.units import length_factor
 from calib_core.vision import StereoHead
 
-from ..clock import SYSTEM_CLOCK, Clock
-from . import RobotFault
-from .calls import calling
-from .core import Command, Driver, Feed, Measurement, Motion, per_joint
-from .registry import DriverContext
+from ...clock import SYSTEM_CLOCK, Clock
+from .. import RobotFault
+from ..calls import calling
+from ..core import Command, Driver, Feed, Measurement, Motion, per_joint
+from ..registry import DriverContext
 
 DURATION_FACTOR = 1.05  # time_from_start this much longer than the fastest the velocity limits allow
 MIN_DURATION_S = 0.1
@@ -55,7 +55,7 @@ _STEREO_KEEP = 4  # the latest images of each side kept for pairing by stamp
 def check(profile: Profile, options: Mapping[str, Any], where: str, options_at: str) -> dict[str, Any]:
     """The options checked (InputError naming `options_at`.<option>): `connection` a connection file (for this
     profile), `files` a folder (optional)."""
-    from ..ros2 import require
+    from . import require
 
     require()
     unknown = sorted(set(options) - {"connection", "files"})
@@ -71,8 +71,8 @@ def check(profile: Profile, options: Mapping[str, Any], where: str, options_at: 
 
 
 def create(profile: Profile, options: Mapping[str, Any], context: DriverContext) -> Driver:
-    from ..ros2.connection import check_against, load_connection, take_pending
-    from ..ros2.link import Link
+    from .connection import check_against, load_connection, take_pending
+    from .link import Link
 
     path = Path(options["connection"])
     conn = load_connection(path if path.is_absolute() else context.base_dir / path)
@@ -145,7 +145,7 @@ class Ros2Transport:
         from sensor_msgs.msg import CameraInfo, Image, JointState
         from trajectory_msgs.msg import JointTrajectory
 
-        from ..ros2.link import COMMAND_QOS, SENSOR_QOS
+        from .link import COMMAND_QOS, SENSOR_QOS
 
         self.feed, self.clock = feed, clock
         conn, node = self.conn, self.link.node

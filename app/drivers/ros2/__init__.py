@@ -1,8 +1,8 @@
 """ROS 2 for the desk (the `ros2` extra): a robot on its own ROS 2 graph, and a simulated one.
 
 The contract other tools rely on is /specs ros2.md: the connection file (connection.py), the driver
-(app/drivers/ros2.py), the simulated robot as a ROS 2 node (sim_node.py, `calib sim-ros2`). Nothing here
-imports rclpy at import time: `require()` does, and says what to install when it is missing.
+(driver.py), the simulated robot as a ROS 2 node (sim_node.py, `calib sim-ros2`). Nothing here imports rclpy at
+import time: `require()` does, and says what to install when it is missing.
 """
 
 from __future__ import annotations

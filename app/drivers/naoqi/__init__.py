@@ -1,8 +1,8 @@
 """NAOqi for the desk (the `naoqi` extra): a NAO through its own SDK over libqi, and a simulated one.
 
 The contract other tools rely on is /specs naoqi.md: the connection file (connection.py), the driver
-(app/drivers/naoqi.py), the simulated NAO served over libqi (sim.py, `calib sim-naoqi`). Nothing here imports
-`qi` at import time: `require()` does, and says what to install when it is missing.
+(driver.py), the simulated NAO served over libqi (sim.py, `calib sim-naoqi`). Nothing here imports `qi` at import
+time: `require()` does, and says what to install when it is missing.
 """
 
 from __future__ import annotations

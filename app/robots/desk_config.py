@@ -24,11 +24,11 @@ from calib_core import InputError
 from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
-from .drivers import registry
-from .drivers.registry import DriverSpec
-from .drivers.simulated import can_simulate
-from .store.profiles import instance_profile
-from .validation import check_id
+from ..drivers import registry
+from ..drivers.registry import DriverSpec
+from ..drivers.simulated import can_simulate
+from ..store.profiles import instance_profile
+from ..store.validation import check_id
 
 # The simulated robots' "today": Robonaut is the later-day robot of its day-2 sample session (its
 # offsets drifted since day 1), so a calibration made on day 1 and applied shows the drift live.

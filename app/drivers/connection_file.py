@@ -11,7 +11,7 @@ from calib_core import InputError
 from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
-from .validation import check_id
+from ..store.validation import check_id
 
 
 def read_connection(path: Path, what: str, shape: str, fields: Iterable[str]) -> dict[str, Any]:

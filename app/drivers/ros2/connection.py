@@ -51,7 +51,7 @@ from calib_core.model import BUILTIN_PROFILES
 from calib_core.safe_yaml import read_yaml
 
 from ..connection_file import profile_ref, read_connection
-from ..drivers.core import DEFAULT_SETTLE_S
+from ..core import DEFAULT_SETTLE_S
 from . import require
 
 FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")

@@ -28,14 +28,14 @@ from calib_core.model import Profile
 from calib_core.units import length_factor
 from calib_core.vision import VIEW_MARGIN_PX, Visibility
 
-from .drivers import LimitError, Look, RobotDriver, RobotFault
-from .store import Observations, StoreWriteError
+from ..drivers import LimitError, Look, RobotDriver, RobotFault
+from ..store import Observations, StoreWriteError
 
 if TYPE_CHECKING:
     from calib_core.estimation import SequentialPlan
 
-    from .jobs.runner import JobContext
-    from .store import FrameInfo, Store
+    from ..jobs.runner import JobContext
+    from ..store import FrameInfo, Store
 
 DEFAULT_MIN_GAP_DEG = 2.0
 CHECK_CHUNK = 100  # configurations a dry run checks between two reports of its progress

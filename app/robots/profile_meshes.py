@@ -20,8 +20,8 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 
-from .scene.robot_look import MAX_MESH_BYTES, mesh_file
-from .store.meshes import MESH_SUFFIXES, TEXTURE_SUFFIXES, MeshArchive, archive_files
+from ..scene.robot_look import MAX_MESH_BYTES, mesh_file
+from ..store.meshes import MESH_SUFFIXES, TEXTURE_SUFFIXES, MeshArchive, archive_files
 
 
 def gather_meshes(urdf_file: Path, package_root: Path, kept_urdf: str, max_unpacked_bytes: int) -> MeshArchive | None:

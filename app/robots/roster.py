@@ -4,7 +4,7 @@ A robot is its name, its profile (the model, named after the robot: app/store/pr
 move it (or none: real data only, sessions imported from CSV) and, in the store, its own active
 calibration and apply history. Five NAOs are five robots of one profile, each calibrated on its own.
 
-The desk starts with the robots of its configuration (app/desk_config.py), those added through the API
+The desk starts with the robots of its configuration (app/robots/desk_config.py), those added through the API
 before (kept in the store), and any other robot the store has sessions or calibrations of (without a
 driver, so that its data stay reachable). "Drivable" means: has a driver that can move it.
 """
@@ -22,15 +22,15 @@ from calib_core import InputError, Profile
 from calib_core.files import read_regular_file
 from calib_core.safe_yaml import MAX_YAML_BYTES, load_yaml
 
+from ..drivers import RobotDriver
+from ..drivers import registry as drivers
+from ..drivers.registry import DriverContext, DriverSpec
+from ..errors import NotFound
+from ..store import ProfileFiles, RobotRecord, Store
+from ..store.profiles import as_instance, builtin_urdf, file_name, is_builtin, load_model
+from ..store.robots import kept_urdf_path
 from .desk_config import DeskConfig
-from .drivers import RobotDriver
-from .drivers import registry as drivers
-from .drivers.registry import DriverContext, DriverSpec
-from .errors import NotFound
 from .profile_meshes import gather_meshes
-from .store import ProfileFiles, RobotRecord, Store
-from .store.profiles import as_instance, builtin_urdf, file_name, is_builtin, load_model
-from .store.robots import kept_urdf_path
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +219,7 @@ class Robots:
 
 def read_profile_files(path: Path, max_mesh_bytes: int) -> ProfileFiles:
     """A profile file on this machine, the URDF it names (relative to it) and that URDF's meshes (at most
-    `max_mesh_bytes` together: app/profile_meshes.py), for the store to keep."""
+    `max_mesh_bytes` together: app/robots/profile_meshes.py), for the store to keep."""
     text = read_regular_file(path, MAX_YAML_BYTES, "robot profile file")
     doc = load_yaml(text, str(path))
     ref = doc.get("urdf") if isinstance(doc, dict) else None

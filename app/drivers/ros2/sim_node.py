@@ -43,8 +43,8 @@ from calib_core.sim import SimulatedRobot
 from calib_core.units import length_factor
 from calib_core.vision import StereoHead, found_targets
 
-from ..drivers.core import DEFAULT_SETTLE_S
-from ..drivers.faults import HUGE_PX, Fault, FaultSwitch, parse_fault
+from ..core import DEFAULT_SETTLE_S
+from ..faults import HUGE_PX, Fault, FaultSwitch, parse_fault
 from ..sim_view import home, render_in_view
 from . import require
 
@@ -92,7 +92,7 @@ class Topics:
 def load_sim_profile(robot: str, urdf: Path | None) -> tuple[Profile, str]:
     """The profile (a built-in name or a file; `urdf` for a profile that says `urdf: ros2`) and the URDF
     text the node publishes (the profile's own URDF, a built-in's shipped one, or one drawn from the model)."""
-    from ..store.profiles import builtin_urdf
+    from ...store.profiles import builtin_urdf
 
     if robot in BUILTIN_PROFILES:
         profile = load_profile(robot)
@@ -131,7 +131,7 @@ def connection_doc(
 def sensor_kind(profile: Profile) -> str:
     """How the node publishes the profile's data sensor: "stereo" (a pair of images), "image" or "point"; a
     sensor publishes images when its finder renders them (calib_core.vision.finders). InputError: it cannot."""
-    from ..drivers.core import reads_points
+    from ..core import reads_points
 
     sensor = profile.sensors[profile.data.sensor]
     if found_targets(profile, profile.data.sensor):
@@ -177,7 +177,7 @@ class SimNode:
         self.stall_apply = stall_apply
         self._closing = threading.Event()
         self.topics = topics
-        from ..drivers.core import first_target
+        from ..core import first_target
 
         sensor = profile.sensors[profile.data.sensor]
         self.kind = sensor_kind(profile)
