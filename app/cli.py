@@ -53,12 +53,12 @@ from calib_core.model import BUILTIN_PROFILES, Profile
 from calib_core.sim import Law, measured_on
 from calib_core.units import length_factor
 
-from .limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
+from .web.limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
 
 if TYPE_CHECKING:
     from calib_core.sim import ImageSimulation
 
-    from .desk_config import DeskConfig
+    from .robots.desk_config import DeskConfig
 
 SIGPIPE_STATUS = 141  # 128 + SIGPIPE: how a shell reports a command that wrote to a closed pipe
 
@@ -1033,7 +1033,7 @@ def _serve(args: argparse.Namespace) -> int:
     meetings = _meet_ros2(args.ros2) if args.ros2 else []
     web = threading.Thread(target=_import_quietly, args=(f"{__package__}.server",), daemon=True)
     try:
-        from .desk_config import load_desk_config
+        from .robots.desk_config import load_desk_config
 
         config = None if args.desk is None else load_desk_config(Path(args.desk))
         if meetings:
@@ -1047,7 +1047,7 @@ def _serve(args: argparse.Namespace) -> int:
             meeting.close()
         if web.is_alive():
             web.join()
-    from .server import serve
+    from .web.server import serve
 
     serve(
         args.host,
@@ -1070,11 +1070,12 @@ def _import_quietly(module: str) -> None:
 
 
 def _meet_ros2(files: list[str]) -> list[Any]:
-    """Every ROS 2 connection file checked, then each robot listened to at once (app/ros2/connection.Meeting)."""
-    from .ros2 import require
+    """Every ROS 2 connection file checked, then each robot listened to at once
+    (app/drivers/ros2/connection.Meeting)."""
+    from .drivers.ros2 import require
 
     require()
-    from .ros2.connection import Meeting, load_connection
+    from .drivers.ros2.connection import Meeting, load_connection
 
     conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is met
     meetings: list[Any] = []
@@ -1091,7 +1092,7 @@ def _meet_ros2(files: list[str]) -> list[Any]:
 def _with_ros2(config: DeskConfig | None, meetings: list[Any], data_dir: Path) -> DeskConfig:
     """The desk's robots and those on ROS 2 graphs, each checked on its graph before the desk starts; a robot's
     meeting is taken from `meetings` (in order) as it is connected."""
-    from .ros2.connection import connect
+    from .drivers.ros2.connection import connect
 
     conns = [meeting.conn for meeting in meetings]
     return _with_robots(config, conns, lambda _conn: connect(meetings.pop(0), data_dir), "ros2")
@@ -1104,8 +1105,8 @@ def _with_robots(
     `connect(conn)` giving its profile reference and driver options; the first is the one the page shows."""
     from dataclasses import replace
 
-    from .desk_config import RobotConfig, default_config
     from .drivers.registry import DriverSpec
+    from .robots.desk_config import RobotConfig, default_config
 
     config = config or default_config()
     robots = list(config.robots)
@@ -1120,10 +1121,10 @@ def _with_robots(
 def _with_naoqi(config: DeskConfig | None, files: list[str]) -> DeskConfig:
     """The desk's robots and the NAOs reached through NAOqi. A robot that does not answer yet is said so; the desk
     starts all the same and connects to it once it answers."""
-    from .naoqi import open_session, require
+    from .drivers.naoqi import open_session, require
 
     require()
-    from .naoqi.connection import load_connection
+    from .drivers.naoqi.connection import load_connection
 
     def connect(conn: Any) -> tuple[str, dict]:
         url = conn.options["url"]
@@ -1144,11 +1145,11 @@ def _with_naoqi(config: DeskConfig | None, files: list[str]) -> DeskConfig:
 
 def _sim_naoqi(args: argparse.Namespace) -> int:
 
-    from .naoqi import require
+    from .drivers.naoqi import require
 
     require()
     from .drivers.faults import parse_fault
-    from .naoqi.sim import SimNao, serve
+    from .drivers.naoqi.sim import SimNao, serve
 
     if not 0.1 <= args.speed <= 100 or not 1 <= args.day <= 1000:
         raise InputError("--speed must be in 0.1..100 and --day in 1..1000")
@@ -1191,11 +1192,11 @@ def _sim_naoqi(args: argparse.Namespace) -> int:
 
 def _sim_ros2(args: argparse.Namespace) -> int:
 
-    from .ros2 import require
+    from .drivers.ros2 import require
 
     require()
     from .drivers.faults import parse_fault
-    from .ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
+    from .drivers.ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
 
     if not 0.1 <= args.speed <= 100 or not 1 <= args.rate <= 1000 or not 1 <= args.day <= 1000:
         raise InputError("--speed must be in 0.1..100, --rate in 1..1000 and --day in 1..1000")

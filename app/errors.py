@@ -1,4 +1,4 @@
-"""The desk's own errors, each answered by app/server.py with its sentence: an id it does not know (404), a
+"""The desk's own errors, each answered by app/web/server.py with its sentence: an id it does not know (404), a
 request it does not take from where it comes (403), and one beyond its limits (413).
 
 Repositories, the job runner and the review raise NotFound for unknown ids; nothing catches KeyError or
@@ -24,4 +24,4 @@ class NotAllowed(Exception):
 
 
 class TooLarge(InputError):
-    """Bad input beyond one of the desk's limits (app/limits.py): the message names the limit."""
+    """Bad input beyond one of the desk's limits (app/web/limits.py): the message names the limit."""

@@ -22,8 +22,8 @@ import viser
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from sim_frames import measured_frames
 
-from app.review import Review
-from app.scene import ReviewScene
+from app.scene.review import Review
+from app.scene.review_scene.scene import ReviewScene
 from calib_core import SimulatedRobot, load_profile
 
 

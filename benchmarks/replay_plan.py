@@ -20,8 +20,8 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from app.jobs.snapshot import JobSnapshot
-from app.server import create_app
 from app.services.replay import ReplayPlan
+from app.web.server import create_app
 
 
 def wait(client: TestClient, job: str, ok: Callable[[JobSnapshot], bool]) -> JobSnapshot:

@@ -4,7 +4,7 @@
 
 Without URDFs: the meshed arm of tests/test_robot_look.py (an STL, an OBJ, three primitives; a few KB) and
 the same arm with a 327,680-triangle sphere as its upper arm (a 16 MB STL), which is thinned to
-app.robot_look.MAX_FACES. Any URDF can be given (pybullet's kuka_iiwa/model.urdf, franka_panda/panda.urdf):
+app.scene.robot_look.MAX_FACES. Any URDF can be given (pybullet's kuka_iiwa/model.urdf, franka_panda/panda.urdf):
 each is loaded as a profile with a tracker and a reflector on the last link of its first chain
 (benchmarks/urdf_sweep.py). For each: reading the look (time, triangles read and kept, the arrays kept, the
 peak of Python allocations while reading, from tracemalloc), then a review of simulated frames on an
@@ -31,9 +31,9 @@ from sim_frames import measured_frames  # noqa: E402
 from test_robot_look import meshed_arm  # noqa: E402
 from urdf_sweep import chains, load  # noqa: E402
 
-from app import robot_look as looks  # noqa: E402
-from app.review import Review  # noqa: E402
-from app.scene import ReviewScene  # noqa: E402
+from app.scene import robot_look as looks  # noqa: E402
+from app.scene.review import Review  # noqa: E402
+from app.scene.review_scene.scene import ReviewScene  # noqa: E402
 from calib_core import SimulatedRobot  # noqa: E402
 from calib_core.model.urdf_import import read_urdf  # noqa: E402
 

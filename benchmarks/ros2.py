@@ -75,7 +75,7 @@ def latency(watcher: Watcher, moves: int = 20) -> None:
     from geometry_msgs.msg import PointStamped
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-    from app.ros2.link import COMMAND_QOS, SENSOR_QOS
+    from app.drivers.ros2.link import COMMAND_QOS, SENSOR_QOS
 
     node = watcher.link.node
     ages: dict[str, list[float]] = {"mocap points": [], "joint states": []}

@@ -3,9 +3,9 @@ process draws WebGL with Mesa's llvmpipe, as on an operator's machine without a 
 
     .venv/bin/python benchmarks/scene_open.py [--robot robonaut-a] [--runs 3] [--environment-map]
 
-A review of 6 simulated frames on an in-process viser server configured as the desk's (app/scene.py `configure`),
-opened in a new page of one chromium per run and left 4 s to load and draw; `--environment-map` adds viser's
-environment map ("warehouse"), which the desk drew before it lit its scenes with a hemisphere light.
+A review of 6 simulated frames on an in-process viser server configured as the desk's (app/scene/theme.py
+`configure`), opened in a new page of one chromium per run and left 4 s to load and draw; `--environment-map` adds
+viser's environment map ("warehouse"), which the desk drew before it lit its scenes with a hemisphere light.
 Needs Debian's chromium (scripts/test.sh installs it).
 """
 
@@ -24,8 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from browser import launch
 from sim_frames import measured_frames
 
-from app.review import Review
-from app.scene import ReviewScene, configure
+from app.scene.review import Review
+from app.scene.review_scene.scene import ReviewScene
+from app.scene.theme import configure
 from calib_core import SimulatedRobot, load_profile
 
 TICKS = os.sysconf("SC_CLK_TCK")

@@ -1,10 +1,10 @@
-// In the 3-D scene's page (viser's client, served by app/scene_proxy.py): the review's marks drawn over the robot's
+// In the 3-D scene's page (viser's client, served by app/web/scene_proxy.py): the review's marks drawn over the robot's
 // bodies, so a hand in front of its board, or the overlay's translucent copy, never hides a measurement. viser's
 // API has no depth test for point clouds and line segments: this reads the three.js object of each marks node
 // from viser's client (window.__viserMutable.nodeRefFromName, the hook viser keeps for its own browser tests;
-// app/viser_private.py lists every such use, tests/test_browser_scene.py checks it on the pinned viser) and turns
+// app/scene/viser_private.py lists every such use, tests/test_browser_scene.py checks it on the pinned viser) and turns
 // their materials' depth test off, drawing them last: the old side's, then the new side's over them (as
-// app/scene.py lifts the new side nearer); on each side the residual lines, the rings, then the prediction dots.
+// app/scene/review_scene/marks.py lifts the new side nearer); on each side the residual lines, the rings, then the prediction dots.
 (() => {
   const MARKS = /^\/(review\/(old|new)|live)\/base\/(frame|all)\/(lines|measured|predicted)$/;
   const ORDER = 9000;  // after every body (viser's are at 0), before viser's labels (10 001 and on)

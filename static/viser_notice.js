@@ -1,4 +1,4 @@
-// In the 3-D scene's page (viser's client, served by app/scene_proxy.py): viser's "Software WebGL rendering
+// In the 3-D scene's page (viser's client, served by app/web/scene_proxy.py): viser's "Software WebGL rendering
 // detected" notice covers a corner of the view until it is closed, on every machine without a GPU (most laptops
 // beside a robot, every screenshot of a headless browser). It is hidden here and the scene tells the desk's page,
 // which says it in a line of its own under the view (static/js/scene.js). viser's other notices stay.

@@ -32,8 +32,8 @@ from browser import launch
 from fastapi.testclient import TestClient
 from hypothesis import Phase, settings
 
-from app.server import create_app
 from app.store import Store
+from app.web.server import create_app
 from calib_core import Profile, load_profile
 
 if TYPE_CHECKING:

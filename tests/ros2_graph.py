@@ -179,7 +179,7 @@ class Watcher:
         from std_msgs.msg import String
         from trajectory_msgs.msg import JointTrajectory
 
-        from app.ros2.link import COMMAND_QOS, LATCHED_QOS, SENSOR_QOS, Link
+        from app.drivers.ros2.link import COMMAND_QOS, LATCHED_QOS, SENSOR_QOS, Link
 
         self.link = Link(f"watcher_{os.getpid()}")
         node = self.link.node
@@ -291,10 +291,10 @@ def driver_look(profile_path: Path, q: np.ndarray, picture: np.ndarray, folder: 
     from sensor_msgs.msg import CameraInfo, Image, JointState
 
     from app.clock import ManualClock
-    from app.drivers.ros2 import ros2_driver
-    from app.ros2.connection import load_connection
-    from app.ros2.link import Link
-    from app.ros2.sim_node import Topics, connection_doc
+    from app.drivers.ros2.connection import load_connection
+    from app.drivers.ros2.driver import ros2_driver
+    from app.drivers.ros2.link import Link
+    from app.drivers.ros2.sim_node import Topics, connection_doc
     from calib_core import load_profile
     from calib_core.units import length_factor
 

@@ -24,7 +24,7 @@ from fastapi.testclient import TestClient
 from test_viewers import browser, wait_until
 
 from app.drivers.simulated import can_simulate
-from app.limits import Limits
+from app.web.limits import Limits
 from calib_core import load_profile, parse_dataset, to_csv
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
@@ -713,3 +713,20 @@ def test_importing_joint_readings_in_radians_for_a_degree_profile_is_a_422_namin
     )
     assert r.status_code == 422, r.text
     assert "look like radians" in r.text and "column" in r.text
+
+
+def test_the_api_document_keeps_its_schema_names(client: TestClient) -> None:
+    """Two answers named Applied are told apart by their routers' modules: the document keeps the names it gave them
+    before the routers moved under app/web/ (app/web/api_docs.py), and every reference finds its schema."""
+    doc = client.get("/openapi.json").json()
+    schemas = doc["components"]["schemas"]
+    assert {"app__routers__calibrations__Applied", "app__routers__robot__Applied"} <= set(schemas)
+    assert not [name for name in schemas if name.startswith("app__web__")]
+    refs = {ref.removeprefix("#/components/schemas/") for ref in _refs(doc)}
+    assert "app__routers__robot__Applied" in refs and refs <= set(schemas)
+
+
+def _refs(node: object) -> list[str]:
+    if isinstance(node, dict):
+        return [v for k, v in node.items() if k == "$ref"] + [r for v in node.values() for r in _refs(v)]
+    return [r for v in node for r in _refs(v)] if isinstance(node, list) else []

@@ -16,8 +16,9 @@ import viser
 from browser import PAPER_COLOURS, colour_pixels, new_nao_session, served, split_pixel, wait_for_scene
 from test_scene import URDF_DIR, build
 
-from app.review import frame_bounds_m
-from app.scene import ReviewScene, display_rotation
+from app.scene.review import frame_bounds_m
+from app.scene.review_scene.layout import display_rotation
+from app.scene.review_scene.scene import ReviewScene
 from calib_core import load_profile
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]

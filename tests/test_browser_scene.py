@@ -1,5 +1,5 @@
 """The Review's 3-D view as an instrument, in a real headless Chromium showing an in-process viser server's scene
-with the script the desk's scene page inlines (static/viser_marks.js, app/scene_proxy.py; tests/test_viewers.py
+with the script the desk's scene page inlines (static/viser_marks.js, app/web/scene_proxy.py; tests/test_viewers.py
 checks it is there): the marks are drawn over the bodies (seen from behind the hand's sphere, its rings still
 show), "frame it" shows both copies from nearly the same direction, and in the overlay it never puts the camera
 inside the translucent copy."""
@@ -16,9 +16,10 @@ from browser import calibrated, colour_pixels, served
 from test_browser_viewers import open_page, open_session, scene_frame, step
 from test_scene import _marks_world, build
 
-from app.framing import FRONT
-from app.scene import ReviewScene, configure
-from app.static_dir import STATIC_DIR
+from app.scene.framing import FRONT
+from app.scene.review_scene.scene import ReviewScene
+from app.scene.theme import configure
+from app.web.static_dir import STATIC_DIR
 
 pytestmark = pytest.mark.browser
 

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from manual_jobs import manual_runner, wait
 
-from app.capture import AutoCapture, capture_frame, dry_run, out_of_margin, replay
 from app.clock import ManualClock
 from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
 from app.jobs.runner import JobRunner
 from app.jobs.snapshot import JobState
+from app.robots.capture import AutoCapture, capture_frame, dry_run, out_of_margin, replay
 from app.store import Store
 from calib_core import InputError, Problem, SimulatedRobot, Visibility, load_profile
 from calib_core.io.session import read_session

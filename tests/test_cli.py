@@ -334,7 +334,7 @@ def test_the_served_connections_send_at_once() -> None:
     and on) waited about 40 ms for the browser's delayed ACK."""
     import asyncio
 
-    from app.server import listen
+    from app.web.server import listen
 
     async def accepted() -> int:
         options: list[int] = []

@@ -18,8 +18,8 @@ from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 
 from app.cli import main as calib
-from app.desk_config import load_desk_config
-from app.server import create_app
+from app.robots.desk_config import load_desk_config
+from app.web.server import create_app
 from calib_core import Profile, SimulatedRobot, calibrate
 from calib_core.estimation.drift import Epoch, compare_epochs, compare_team, find_drift
 

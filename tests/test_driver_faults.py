@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from manual_jobs import manual_runner, wait
 
-from app.capture import dry_run, replay
 from app.clock import ManualClock
 from app.drivers import RobotFault
 from app.drivers.simulated import SimulatedDriver
 from app.jobs.runner import JobRunner
 from app.jobs.snapshot import JobState
+from app.robots.capture import dry_run, replay
 from calib_core import SimulatedRobot
 
 KEPT = "; the 1 frames before it are kept (start the replay again with resume to go on)"

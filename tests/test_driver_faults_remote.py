@@ -37,7 +37,7 @@ KEPT = "; the 1 frames before it are kept (start the replay again with resume to
 @pytest.fixture(scope="module")
 def nao3(client: TestClient) -> Iterator[SimpleNamespace]:
     """A simulated NAO served over libqi here (8 times as fast), on the desk as nao-3."""
-    from app.naoqi.sim import SimNao, serve
+    from app.drivers.naoqi.sim import SimNao, serve
 
     url = f"tcp://127.0.0.1:{free_port()}"
     nao = SimNao(load_profile("nao"), speed=8)
@@ -129,7 +129,7 @@ NAOQI_IMAGES = {
 def test_a_nao_over_naoqi_that_fails_mid_replay_is_named_and_stop_answers_at_once(
     client: TestClient, nao3: SimpleNamespace, fault: str
 ) -> None:
-    from app.naoqi.sim import serve
+    from app.drivers.naoqi.sim import serve
 
     driver = client.app.state.desk.robots.driver("nao-3")
     driver.move_slack_s = 0.5 if fault == "stall" else 5.0
@@ -163,7 +163,7 @@ def test_a_nao_over_naoqi_that_fails_mid_replay_is_named_and_stop_answers_at_onc
 def test_a_naoqi_without_a_call_the_desk_uses_says_which(client: TestClient, nao3: SimpleNamespace) -> None:
     """An ALMotion that lacks getStiffnesses: the replay ends naming the service and the call, not an internal
     error, and nothing moves."""
-    from app.naoqi.sim import SimNao, serve
+    from app.drivers.naoqi.sim import SimNao, serve
 
     url = f"tcp://127.0.0.1:{free_port()}"
     nao = SimNao(load_profile("nao"), speed=8, lacks=["ALMotion.getStiffnesses"])
@@ -196,7 +196,7 @@ def nao_ros(client: TestClient, tmp_path_factory: pytest.TempPathFactory) -> Ite
     pytest.importorskip("rclpy", reason="the ROS 2 faults need the ros2 extra (pip install -e '.[ros2]')")
     from ros2_graph import graph_env
 
-    from app.ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
+    from app.drivers.ros2.sim_node import SimNode, Topics, connection_doc, load_sim_profile
 
     with pytest.MonkeyPatch.context() as mp:
         for key, value in graph_env().items():
@@ -280,7 +280,7 @@ def test_stop_on_the_page_with_a_hung_nao_says_which_robot_did_not_take_it(chrom
     """A NAO over NAOqi whose every call hangs: the page's pill says it is not responding (its title the whole
     sentence); STOP, clicked twice and pressed as Esc, answers at once each time, and the toast names the robot that
     did not take it and what to do; nothing on the page is left waiting."""
-    from app.naoqi.sim import SimNao, serve
+    from app.drivers.naoqi.sim import SimNao, serve
 
     url = f"tcp://127.0.0.1:{free_port()}"
     nao = SimNao(load_profile("nao"), speed=8)

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from schemathesis.checks import not_a_server_error
 from schemathesis.specs.openapi.checks import content_type_conformance, response_schema_conformance
 
-from app.server import create_app
+from app.web.server import create_app
 from calib_core import InputError, SimulatedRobot, load_profile
 
 REQUEST_TIMEOUT_S = 15.0

@@ -21,7 +21,7 @@ from fastapi.testclient import TestClient
 from handeye_data import PROFILES, camera_error, rms_px
 
 from app.cli import main
-from app.server import create_app
+from app.web.server import create_app
 from calib_core import FrameStatus, SimulatedRobot
 from calib_core.estimation.calibration import Calibration
 from calib_core.io.session import read_session

@@ -21,11 +21,12 @@ from worker_functions import exploder, sleeper
 
 from app.clock import ManualClock
 from app.errors import NotFound
-from app.importers import ensure_samples
 from app.jobs.runner import JobContext, JobRunner, crashed
 from app.jobs.snapshot import JobSnapshot, JobState
 from app.services.calibration import CalibrationService, solve
 from app.store import INTERRUPTED, Observations, Store
+from app.store.importers import ensure_samples
+from app.web.limits import Limits
 from calib_core import InputError
 from calib_core.errors import Cancelled
 
@@ -50,7 +51,7 @@ def clock(jobs: JobRunner) -> ManualClock:
 
 @pytest.fixture(scope="module")
 def calibrations(sample_store: Store, jobs: JobRunner) -> CalibrationService:
-    return CalibrationService(sample_store, jobs)
+    return CalibrationService(sample_store, jobs, max_rows=Limits().rows)
 
 
 def wait_running(jobs: JobRunner, job_id: str) -> int:
@@ -445,7 +446,7 @@ def test_a_worker_imports_none_of_the_servers_modules() -> None:
     no module of the server: not the store, the runner, the routers, viser or FastAPI."""
     root = Path(__file__).resolve().parent.parent
     code = (
-        "import sys, app.parent_watch, app.jobs.worker, app.services.calibration; "
+        "import sys, app.jobs.parent_watch, app.jobs.worker, app.services.calibration; "
         "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in ('app', 'fastapi', 'viser', 'sqlite3'))))"
     )
     proc = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
@@ -454,10 +455,9 @@ def test_a_worker_imports_none_of_the_servers_modules() -> None:
         "app",
         "app.errors",
         "app.jobs",
+        "app.jobs.parent_watch",
         "app.jobs.snapshot",
         "app.jobs.worker",
-        "app.limits",
-        "app.parent_watch",
         "app.services",
         "app.services.calibration",
     ]
@@ -480,7 +480,7 @@ if __name__ == "__main__":
 def test_spawned_children_do_not_import_the_servers_script(tmp_path: Path) -> None:
     """A spawned child imports the parent's main script before its initializer (the server watch) runs: with the
     `calib` console script that is the whole command line, seconds on a loaded machine, during which a SIGKILLed
-    server's child lived on. The jobs' children import app/parent_watch.py as their main module instead."""
+    server's child lived on. The jobs' children import app/jobs/parent_watch.py as their main module instead."""
     script, log = tmp_path / "server_like.py", tmp_path / "imports.log"
     script.write_text(SERVER_LIKE)
     root = Path(__file__).resolve().parent.parent

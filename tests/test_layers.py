@@ -1,5 +1,6 @@
 """The code's layers: calib_core's public surface (what each package hands on, loaded lazily), and who in app
-may import whom (routers -> services -> store, and no import cycle)."""
+may import whom (its packages on floors: web -> services -> robots -> scene -> drivers -> store; routers ->
+services -> store; no import cycle), with no level of app holding more than a handful of entries."""
 
 from __future__ import annotations
 
@@ -112,9 +113,8 @@ def _app_imports(name: str) -> set[str]:
 
 
 def test_the_store_imports_nothing_above_it() -> None:
-    """The store is the bottom of the desk: below it only the checks every door shares, the errors and the job
-    snapshot it keeps."""
-    below = {"app", "app.errors", "app.validation", "app.jobs", "app.jobs.snapshot"}
+    """The store is the bottom of the desk: below it only the errors and the job snapshot it keeps."""
+    below = {"app", "app.errors", "app.jobs", "app.jobs.snapshot"}
     upward = {
         f"{name} imports {m}"
         for name in _MODULES
@@ -125,16 +125,56 @@ def test_the_store_imports_nothing_above_it() -> None:
     assert upward == set()
 
 
-def test_routers_reach_the_desk_only_through_their_dependencies_and_services_never_import_routers() -> None:
-    desk = {name for name in _MODULES if "app.desk" in _app_imports(name)}
-    assert {n for n in desk if n.startswith("app.routers")} <= {"app.routers.deps"}
-    assert not {
+def test_routers_reach_the_desk_only_through_their_dependencies() -> None:
+    desk = {name for name in _MODULES if "app.web.desk" in _app_imports(name)}
+    assert {n for n in desk if n.startswith("app.web.routers")} <= {"app.web.routers.deps"}
+
+
+# app's packages from the ground up: a module imports its own package's modules and those of lower floors only. The
+# store and the jobs share a floor (the store keeps the job snapshot, the runner keeps its jobs in the store).
+FLOORS = [
+    ("app.clock", "app.errors"),
+    ("app.store", "app.jobs"),
+    ("app.drivers",),
+    ("app.scene",),
+    ("app.robots",),
+    ("app.services",),
+    ("app.web",),
+    ("app.cli",),
+]
+
+
+def _floor(name: str) -> int:
+    top = ".".join(name.split(".")[:2])
+    return next(k for k, floor in enumerate(FLOORS) if top in floor)
+
+
+def test_every_package_of_app_has_a_floor_and_imports_nothing_above_it() -> None:
+    """What the browser sees (scene) never reaches for the services or the web, the services never import the
+    web application (its routers, the desk it composes), the drivers never the robots on the desk."""
+    assert {".".join(name.split(".")[:2]) for name in _MODULES if name != "app"} == {p for f in FLOORS for p in f}
+    upward = {
         f"{name} imports {m}"
         for name in _MODULES
-        if name.startswith(("app.services", "app.store"))
+        if name != "app"
         for m in _app_imports(name)
-        if m.startswith(("app.routers", "app.desk", "app.server"))
+        if m != "app" and _floor(m) > _floor(name)
     }
+    assert upward == set()
+
+
+MAX_ENTRIES = 10
+
+
+def test_no_level_of_app_holds_more_than_ten_entries() -> None:
+    """A reader finds a module among a handful: every package of app holds at most MAX_ENTRIES files and folders
+    (its __init__.py and caches not counted)."""
+    crowded = {}
+    for folder in [ROOT / "app", *(p.parent for p in (ROOT / "app").rglob("*/__init__.py"))]:
+        entries = [e for e in folder.iterdir() if e.name not in ("__init__.py", "__pycache__", ".DS_Store")]
+        if len(entries) > MAX_ENTRIES:
+            crowded[str(folder.relative_to(ROOT))] = sorted(e.name for e in entries)
+    assert crowded == {}
 
 
 def test_app_has_no_import_cycle() -> None:

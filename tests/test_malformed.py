@@ -4,7 +4,7 @@ never a partial session.
 Each input meets the surface a user hands it to: CSVs the dashboard's import endpoint (HTTP 422 with
 the line), images and depth maps `calib detect-board` / `calib detect-sphere` (exit 2 with the file),
 robot profiles `load_profile`, calibration files `Calibration.load`, session folders `read_session`
-and `app.importers.import_session_folder` (InputError naming session.json). The CSV parser itself is fuzzed
+and `app.store.importers.import_session_folder` (InputError naming session.json). The CSV parser itself is fuzzed
 in test_dataset.py; here the same mutations travel through HTTP and the store.
 """
 
@@ -27,8 +27,8 @@ from hypothesis import strategies as st
 from test_dataset import mutate, mutation, small_csv
 
 from app.cli import main as calib
-from app.importers import import_session_folder
 from app.store import Store
+from app.store.importers import import_session_folder
 from calib_core import Calibration, InputError, calibrate, load_profile, read_dataset
 from calib_core.io.session import read_session
 from calib_core.model.loader import BUILTIN_PROFILES

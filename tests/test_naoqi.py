@@ -40,7 +40,7 @@ def truth_deg() -> dict[str, float]:
 
 
 def qi_session(url: str):
-    from app.naoqi import open_session
+    from app.drivers.naoqi import open_session
 
     return open_session(url)
 
@@ -129,7 +129,7 @@ def test_sim_naoqi_names_a_fault_or_a_joint_it_does_not_know(capsys):
 
 @needs_qi
 def test_a_bad_connection_file_names_its_field(tmp_path):
-    from app.naoqi.connection import load_connection
+    from app.drivers.naoqi.connection import load_connection
 
     conn = tmp_path / "nao.yaml"
     for text, expected in (
@@ -149,7 +149,7 @@ def test_a_bad_connection_file_names_its_field(tmp_path):
 @pytest.fixture
 def served_nao():
     """Serve a simulated NAO (its options) over libqi here; the driver of the desk to it; both closed after."""
-    from app.naoqi.sim import SimNao, serve
+    from app.drivers.naoqi.sim import SimNao, serve
 
     made = []
 

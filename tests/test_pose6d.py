@@ -19,8 +19,8 @@ from pose_data import POSITION_MM, PROFILE, ROTATION_DEG, configurations, measur
 from scipy.spatial.transform import Rotation
 from sim_frames import measured_frames
 
-from app.review import Review
-from app.server import create_app
+from app.scene.review import Review
+from app.web.server import create_app
 from calib_core import InputError, Problem, calibrate, load_profile, parse_dataset, read_dataset, to_csv
 from calib_core.estimation.registration import register, registration_params
 from calib_core.io.figaroh_data import ROBOTS, heldout_errors, rpy_matrix

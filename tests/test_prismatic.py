@@ -20,11 +20,11 @@ from jacobian_check import check_jacobian, perturbed
 from scene_nodes import node_pose
 from sim_frames import measured_frames
 
-from app.capture import out_of_margin
 from app.drivers import LimitError
 from app.drivers.simulated import SimulatedDriver
-from app.review import Review
-from app.scene import ReviewScene
+from app.robots.capture import out_of_margin
+from app.scene.review import Review
+from app.scene.review_scene.scene import ReviewScene
 from calib_core import InputError, Problem, SimulatedRobot, calibrate, load_profile, parse_dataset, to_csv
 from calib_core.estimation.planning import within_margin
 from calib_core.io.csv_format import readings_beyond_limits
@@ -284,7 +284,7 @@ def test_the_review_scene_draws_a_prismatic_joint_in_metres(profile_path: Path) 
         scene.load(review)
         index = int(review.indices[1])
         scene.select(index)
-        copy = scene._copies["new"]
+        copy = scene.copies["new"]
         q = review.frame_geometry(index).joints_rad
         assert copy.urdf.joint_map["telescope"].type == "prismatic"
         poses = forward(profile, review.sides["new"].p, q[None])

@@ -20,8 +20,8 @@ from fastapi.testclient import TestClient
 from sim_frames import Frame, measured_frames, unmeasured_frames
 
 from app.errors import NotFound
-from app.review import Review, live_geometry
-from app.server import create_app
+from app.scene.review import Review, live_geometry
+from app.web.server import create_app
 from calib_core import Problem, SimulatedRobot, Simulation, calibrate, load_profile, to_csv
 from calib_core.model.kinematics import forward
 from calib_core.model.profile import Profile

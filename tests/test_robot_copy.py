@@ -1,4 +1,4 @@
-"""A robot copy in viser (app/robot_copy.py): every link where yourdfpy's kinematics put it, for each joint type,
+"""A robot copy in viser (app/scene/robot_copy.py): every link where yourdfpy's kinematics put it, for each joint type,
 and a pose step that sends only the frames of the joints that moved."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import viser
 import yourdfpy
 from scene_nodes import node_pose
 
-from app.robot_copy import RobotCopy
-from app.robot_look import link_visuals
+from app.scene.robot_copy import RobotCopy
+from app.scene.robot_look import link_visuals
 
 URDF = """<robot name="every_joint">
   <material name="grey"><color rgba="0.5 0.5 0.5 1"/></material>

@@ -1,6 +1,7 @@
-"""A URDF robot drawn with its own visuals in the review scene (app/robot_look.py, app/scene.py): meshes (STL,
-OBJ; package:// and relative paths) and primitives under the links of both copies, posed by each calibration's
-kinematics; a mesh that cannot be found falls back to simple shapes with one warning naming the file."""
+"""A URDF robot drawn with its own visuals in the review scene (app/scene/robot_look.py,
+app/scene/review_scene/copies.py): meshes (STL, OBJ; package:// and relative paths) and primitives under the links
+of both copies, posed by each calibration's kinematics; a mesh that cannot be found falls back to simple shapes with
+one warning naming the file."""
 
 from __future__ import annotations
 
@@ -15,11 +16,12 @@ from scene_nodes import node_pose
 from sim_frames import measured_frames
 from test_urdf_import import PROFILE as ARM_PROFILE
 
-from app.desk_config import load_desk_config
-from app.review import Review
-from app.robot_look import cluster_vertices, read_look, robot_look
-from app.scene import GHOST_RGBA, ReviewScene
-from app.server import create_app
+from app.robots.desk_config import load_desk_config
+from app.scene.review import Review
+from app.scene.review_scene.copies import GHOST_RGBA
+from app.scene.review_scene.scene import ReviewScene
+from app.scene.robot_look import cluster_vertices, read_look, robot_look
+from app.web.server import create_app
 from calib_core import SimulatedRobot, load_profile, to_csv
 from calib_core.model.kinematics import forward
 from calib_core.units import length_factor
@@ -141,7 +143,7 @@ def test_the_review_shows_the_urdf_visuals_where_each_calibration_puts_the_links
     assert sorted(v["link"] for v in ghost.values()) == ["base_link", "fore", "shoulder", "upper"]
     assert all(viser_server.scene.get_handle_by_name(name).opacity == GHOST_RGBA[3] for name in ghost)
     # The generated bodies of links with their own visuals are gone; the reflector (the profile's) stays.
-    robot = scene._copies["new"].urdf  # the copy's model as the scene drew it
+    robot = scene.copies["new"].urdf  # the copy's model as the scene drew it
     materials = {v.material.name for link in robot.robot.links for v in link.visuals if v.material is not None}
     assert "body" not in materials and "target" in materials
 
@@ -150,7 +152,7 @@ def test_a_missing_mesh_falls_back_to_simple_shapes_with_one_warning(
     viser_server: viser.ViserServer, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     path = meshed_arm(tmp_path, meshes=False)
-    with caplog.at_level("WARNING", logger="app.robot_look"):
+    with caplog.at_level("WARNING", logger="app.scene.robot_look"):
         review = _review(path)
         scene = ReviewScene(viser_server)
         scene.load(review)
@@ -168,7 +170,7 @@ def test_a_missing_mesh_falls_back_to_simple_shapes_with_one_warning(
         looks = state["urdf"][side]["looks"]
         assert sorted(v["link"] for v in looks.values()) == ["base_link", "shoulder"]  # the primitives still
     # upper and fore keep the frame tree's simple bodies.
-    robot = scene._copies["new"].urdf
+    robot = scene.copies["new"].urdf
     bodies = {link.name for link in robot.robot.links for v in link.visuals if v.material and v.material.name == "body"}
     assert {"upper", "fore"} <= bodies and not bodies & {"base_link", "shoulder"}
 

@@ -20,10 +20,10 @@ from PIL import Image
 from test_robot_look import meshed_arm
 from test_urdf_import import PROFILE, arm_urdf
 
-from app.limits import Limits
-from app.robot_look import read_look, robot_look
-from app.server import create_app
+from app.scene.robot_look import read_look, robot_look
 from app.store.robots import PACKAGE_ROOT
+from app.web.limits import Limits
+from app.web.server import create_app
 from calib_core import SimulatedRobot, load_profile, to_csv
 
 DRAWN = {"box", "cylinder", "mesh package://meshed_arm/meshes/upper.stl", "mesh ../meshes/fore.obj"}
@@ -172,7 +172,7 @@ def test_a_zip_written_by_pythons_writestr_is_taken(tmp_path: Path) -> None:
 
 def test_a_profile_file_named_brings_its_urdfs_meshes_and_needs_its_folder_no_more(tmp_path: Path) -> None:
     """A profile file on this machine named on a loopback desk: the meshes its URDF's visuals name are kept with
-    it (app/profile_meshes.py), each where the kept URDF's name finds it, an OBJ's material and its texture
+    it (app/robots/profile_meshes.py), each where the kept URDF's name finds it, an OBJ's material and its texture
     beside it, nothing else of the folder; drawn with no warning, after a restart and with the original folder
     moved away, then deleted, too."""
     profile = meshed_arm(tmp_path / "disk")

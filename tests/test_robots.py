@@ -20,12 +20,12 @@ from fastapi.testclient import TestClient
 from test_urdf_import import JOINTS, PROFILE, arm_urdf
 
 from app.cli import main as calib
-from app.desk_config import DeskConfig, default_config, load_desk_config
 from app.drivers import registry
 from app.drivers.registry import DriverContext, DriverSpec
 from app.drivers.simulated import SimulatedDriver
-from app.server import create_app
+from app.robots.desk_config import DeskConfig, default_config, load_desk_config
 from app.store.profiles import PROFILE_DIR
+from app.web.server import create_app
 from calib_core import InputError, SimulatedRobot, load_profile
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"

@@ -59,8 +59,8 @@ def arm_profile():
 
 @pytest.fixture(scope="module")
 def graph(tmp_path_factory):
-    from app.ros2.connection import FIELDS
-    from app.ros2.sim_node import Topics, connection_doc
+    from app.drivers.ros2.connection import FIELDS
+    from app.drivers.ros2.sim_node import Topics, connection_doc
 
     env = graph_env()
     folder = tmp_path_factory.mktemp("ros2")
@@ -174,7 +174,7 @@ def test_observe_while_someone_else_drives_captures_each_still_pose_measured_whe
     of that pose and the marker where the simulator's truth puts it there; the desk itself commands nothing."""
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-    from app.ros2.link import COMMAND_QOS
+    from app.drivers.ros2.link import COMMAND_QOS
     from app.store import Store
     from calib_core.model.kinematics import sensor_points
 
@@ -393,7 +393,7 @@ def test_a_bad_graph_is_refused_before_the_desk_starts(graph, tmp_path):
     from sensor_msgs.msg import JointState
     from std_msgs.msg import String
 
-    from app.ros2.link import LATCHED_QOS
+    from app.drivers.ros2.link import LATCHED_QOS
 
     node = graph.watcher.link.node
     arm_joints = [j.name for j in arm_profile().joints]
@@ -522,9 +522,9 @@ def test_prismatic_joints_settle_and_arrive_by_thresholds_in_metres(tmp_path):
     from trajectory_msgs.msg import JointTrajectory
 
     from app.clock import ManualClock
-    from app.drivers.ros2 import ros2_driver
-    from app.ros2.connection import load_connection
-    from app.ros2.link import COMMAND_QOS, Link
+    from app.drivers.ros2.connection import load_connection
+    from app.drivers.ros2.driver import ros2_driver
+    from app.drivers.ros2.link import COMMAND_QOS, Link
 
     (tmp_path / "robot.urdf").write_text(robot_urdf(), encoding="utf-8")
     (tmp_path / "lift-arm.yaml").write_text(PROFILE, encoding="utf-8")
@@ -581,10 +581,10 @@ def test_a_stereo_head_without_a_matching_pair_gives_a_frame_not_found_with_the_
     from sensor_msgs.msg import CameraInfo, Image, JointState
 
     from app.clock import ManualClock
-    from app.drivers.ros2 import ros2_driver
-    from app.ros2.connection import load_connection
-    from app.ros2.link import Link
-    from app.ros2.sim_node import Topics, connection_doc
+    from app.drivers.ros2.connection import load_connection
+    from app.drivers.ros2.driver import ros2_driver
+    from app.drivers.ros2.link import Link
+    from app.drivers.ros2.sim_node import Topics, connection_doc
 
     profile = load_profile("robonaut-a")
     doc = connection_doc("robonaut-a", "rn", profile, Topics("/rn_unit"))
@@ -643,7 +643,7 @@ def test_a_charuco_board_on_a_camera_topic_is_measured_by_its_finder(tmp_path):
     simulator's truth puts them."""
     from ros2_graph import driver_look
 
-    from app.ros2.sim_node import sensor_kind
+    from app.drivers.ros2.sim_node import sensor_kind
     from calib_core.vision.sandal_board import board_corners
 
     path = ROOT / "tests" / "profiles" / "charuco-arm.yaml"
@@ -663,7 +663,7 @@ def test_listeners_of_a_topic_share_its_subscription_and_stop_alone(monkeypatch)
     check's is never destroyed under the spinning executor), and the check's stop() ends its calls alone."""
     from std_msgs.msg import String
 
-    from app.ros2.link import SENSOR_QOS, Link
+    from app.drivers.ros2.link import SENSOR_QOS, Link
 
     for key, value in graph_env().items():
         monkeypatch.setenv(key, value)

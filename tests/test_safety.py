@@ -16,11 +16,11 @@ import pytest
 from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 
-from app import safety
 from app.clock import ManualClock
 from app.drivers import LimitError
 from app.drivers.core import Command
 from app.drivers.simulated import SimulatedDriver
+from app.services import safety
 from calib_core import load_profile
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"

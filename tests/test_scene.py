@@ -20,9 +20,10 @@ from sim_frames import measured_frames, unmeasured_frames
 from test_viewers import PROTOCOL, camera_message, wait_until
 
 from app.errors import NotFound
-from app.framing import DEFAULT_FOV_RAD, camera_reported
-from app.review import Review
-from app.scene import ReviewScene, display_rotation
+from app.scene.framing import DEFAULT_FOV_RAD, camera_reported
+from app.scene.review import Review
+from app.scene.review_scene.layout import display_rotation
+from app.scene.review_scene.scene import ReviewScene
 from calib_core import SimulatedRobot, load_profile
 from calib_core.model.kinematics import forward
 from calib_core.vision.sighting import Sighting
@@ -238,7 +239,7 @@ def test_switching_robots_removes_everything_the_previous_one_showed(
     scene.show_live(profile, Look(robonaut_review.frame_geometry(2).joints_rad, [sighting]), profile.true_params())
     state = scene.state()
     assert set(state["urdf"]) == {"old", "ghost", "new", "live"}
-    texts = {slot: scene._copies[slot].text for slot in state["urdf"]}
+    texts = {slot: scene.copies[slot].text for slot in state["urdf"]}
     before = {name for slot, c in state["urdf"].items() for name in _link_nodes(texts[slot], c["node"])}
     assert any(name.endswith("/wrist_yaw/fixture") for name in before)  # the arm and its sphere
     assert all(viser_server.scene.get_handle_by_name(name) is not None for name in before)

@@ -1,4 +1,4 @@
-"""Security of the desk (app/security.py): the access token off loopback, the cross-origin guard, the Host
+"""Security of the desk (app/web/security.py): the access token off loopback, the cross-origin guard, the Host
 names answered, request size limits, paths that cannot leave the data directory, error texts without
 paths or tracebacks, and the viser share tunnel closed."""
 
@@ -21,7 +21,8 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketDenialResponse
 from test_viewers import PROTOCOL, camera_message
 
-from app.security import (
+from app.scene.viser_private import close_share_tunnel
+from app.web.security import (
     LOOPBACK_NAMES,
     MAX_UPLOAD_BYTES,
     TOKEN_FILE,
@@ -29,8 +30,7 @@ from app.security import (
     TokenFile,
     is_loopback,
 )
-from app.server import create_app
-from app.viser_private import close_share_tunnel
+from app.web.server import create_app
 
 LOCAL = "http://127.0.0.1:8000"
 
@@ -304,7 +304,7 @@ def test_the_desks_scene_has_its_share_closed(remote: TestClient, local: TestCli
         assert listening(desk.viser_port_number) == {"127.0.0.1"}
 
 
-# --- the 3-D scene through the API's port (app/scene_proxy.py) ----------------------------------------------
+# --- the 3-D scene through the API's port (app/web/scene_proxy.py) ----------------------------------------------
 def _scene_socket(client: TestClient, **headers: str):
     """The scene's websocket as a browser on the desk's page opens it (TestClient would say Host: testserver)."""
     return client.websocket_connect(

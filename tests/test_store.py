@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from app.errors import NotFound
-from app.importers import ensure_samples, import_csv, import_session_folder
 from app.jobs.snapshot import JobSnapshot, JobState
 from app.store import INTERRUPTED, FrameInfo, Observations, Store
 from app.store.files import SWEEP_AGE_S
+from app.store.importers import ensure_samples, import_csv, import_session_folder
 from calib_core import Calibration, InputError, calibrate, load_profile, parse_dataset, read_dataset, to_csv
 
 SAMPLE_NAMES = ["robonaut-a-day1", "robonaut-a-day2", "nao"]
@@ -224,7 +224,7 @@ def test_an_import_failing_inside_its_transaction_leaves_nothing(
 KILLED_WRITER = """
 import sys, numpy as np
 from pathlib import Path
-from app.importers import import_csv
+from app.store.importers import import_csv
 from app.store import Observations, Store
 store = Store(Path(sys.argv[1]))
 profile = store.sessions.profile("robonaut-a")

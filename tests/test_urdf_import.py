@@ -670,8 +670,8 @@ def test_the_profiles_joints_give_limits_before_they_are_checked(tmp_path: Path)
 
 
 def test_the_api_robot_answer_carries_the_notes_and_prismatic_units(tmp_path: Path) -> None:
-    from app.robots import Robot  # noqa: F401  (the router's answer is built from a loaded profile)
-    from app.routers.robots import _joint_out
+    from app.robots.roster import Robot  # noqa: F401  (the router's answer is built from a loaded profile)
+    from app.web.routers.robots import _joint_out
 
     text = arm_urdf().replace('<?xml version="1.0"?>', '<?xml version="0.0"?>', 1)
     profile = load_profile(_setup(tmp_path, urdf_text=text))

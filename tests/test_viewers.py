@@ -1,5 +1,5 @@
-"""Viewers in-process: each browser tab's review and scene are its own (app/viewers.py), and the scene's websocket
-through the API's port reaches the loopback viser server as its own viser client (app/scene_proxy.py).
+"""Viewers in-process: each browser tab's review and scene are its own (app/scene/viewers.py), and the scene's websocket
+through the API's port reaches the loopback viser server as its own viser client (app/web/scene_proxy.py).
 
 A "browser" here is a websocket through the app (FastAPI's TestClient) that sends what viser's client sends
 first, its camera; viser then reports the client and the viewer draws on it.
@@ -22,9 +22,9 @@ from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketTestSession
 from starlette.websockets import WebSocketDisconnect
 
-from app.desk import Desk
-from app.static_dir import STATIC_DIR
-from app.viewers import Viewer
+from app.scene.viewers import Viewer
+from app.web.desk import Desk
+from app.web.static_dir import STATIC_DIR
 
 PROTOCOL = f"viser-v{viser.__version__}"
 

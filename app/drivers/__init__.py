@@ -8,9 +8,11 @@ at its velocity limit, all joints arriving together.
 Every driver is the one core (core.py: limits, velocity limits, state from the stream of joint readings, moves
 that arrive or time out, settling, stop, the detectors) over a small transport per kind of robot. A kind is a
 module of this package registered by name in registry.py (`simulated`: the robot simulated by calib_core,
-simulated.py; `ros2`: a robot on its own ROS 2 graph, ros2.py); docs/drivers.md shows what a new one holds. The
-desk makes one driver per robot that has one, from its configuration, and closes it when the desk stops or the
-robot is removed.
+simulated.py; `ros2`: a robot on its own ROS 2 graph, ros2/driver.py; `naoqi`: a NAO over libqi, naoqi/driver.py);
+docs/drivers.md shows what a new one holds. ros2/ and naoqi/ hold the rest of their extras too (a connection file,
+the simulated robot served from another process, which sim_view.py renders for), and connection_file.py what both
+connection files share. The desk makes one driver per robot that has one, from its configuration, and closes it
+when the desk stops or the robot is removed.
 """
 
 from __future__ import annotations

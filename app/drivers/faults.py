@@ -1,8 +1,8 @@
 """The fault harness: what a simulated robot can be told to do wrong, the same words for every kind.
 
 The desk's simulated robot (simulated.py, `SimulatedDriver.inject_fault`), the simulated NAO served over libqi
-(app/naoqi/sim.py, its CalibSim service's `fault`, `calib sim-naoqi --fault`) and the simulated ROS 2 robot node
-(app/ros2/sim_node.py, its `fault` parameter, `calib sim-ros2 --fault`) each hold a FaultSwitch and apply it where
+(naoqi/sim.py, its CalibSim service's `fault`, `calib sim-naoqi --fault`) and the simulated ROS 2 robot node
+(ros2/sim_node.py, its `fault` parameter, `calib sim-ros2 --fault`) each hold a FaultSwitch and apply it where
 a real robot would fail: its joint readings, its answers, its moves and its images. A fault is armed now, or
 after the robot's next `after_moves` moves (so that a replay captures frames before it strikes), and stays until
 it is cleared (`drop` and `stall` strike one move: the next, or the one after those `after_moves`). Written as

@@ -31,8 +31,8 @@ if TYPE_CHECKING:
 
 KINDS = {
     "simulated": "app.drivers.simulated",
-    "ros2": "app.drivers.ros2",  # a robot on its own ROS 2 graph (the `ros2` extra; app/ros2/)
-    "naoqi": "app.drivers.naoqi",  # a NAO through NAOqi over libqi (the `naoqi` extra; app/naoqi/)
+    "ros2": "app.drivers.ros2.driver",  # a robot on its own ROS 2 graph (the `ros2` extra; app/drivers/ros2/)
+    "naoqi": "app.drivers.naoqi.driver",  # a NAO through NAOqi over libqi (the `naoqi` extra; app/drivers/naoqi/)
 }
 
 

@@ -6,7 +6,7 @@ one-process ProcessPoolExecutor: a crashed or killed worker breaks only its own 
 job and is then rebuilt. Workers send their steps through a queue of a spawned multiprocessing Manager (a
 killed client cannot corrupt it) and read their cancel flag from the same Manager; a thread here turns the
 messages into calls to the runner. Workers and the Manager end by themselves when the server dies without
-cleaning up (SIGKILL): app/parent_watch.py.
+cleaning up (SIGKILL): app/jobs/parent_watch.py.
 
 The pool knows jobs by id only: it tells the runner when a job starts in a worker (with its pid), each step the
 job reports, and how it ended, or that its worker died under it. What that makes of the job is the runner's.
@@ -30,7 +30,7 @@ from functools import partial
 from multiprocessing.managers import SyncManager
 from typing import Any
 
-from ..parent_watch import light_main, watch_parent
+from .parent_watch import light_main, watch_parent
 from .snapshot import JobState
 from .worker import WorkerLink, internal_error, run_in_worker, warm_up
 

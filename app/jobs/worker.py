@@ -1,7 +1,7 @@
 """The worker's side of a process job: what runs in the spawned worker process.
 
 A worker imports this module, its job function's module and what that needs; none of the server's (the store,
-the routers, viser). Its initializer, app/parent_watch.py's watch_parent, imports nothing of the project.
+the routers, viser). Its initializer, app/jobs/parent_watch.py's watch_parent, imports nothing of the project.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Apply: make a calibration its robot's active one, through the gate of app/safety.py.
+"""Apply: make a calibration its robot's active one, through the gate of app/services/safety.py.
 
 A calibration belongs to the robot whose session it was made from (an instance: `nao-2`, not every NAO),
 and is applied to that robot only: recorded in its apply history first, then pushed to its driver. One
@@ -16,9 +16,9 @@ import numpy as np
 
 from calib_core.estimation import register
 
-from .. import safety
-from ..robots import Robots
+from ..robots.roster import Robots
 from ..store import Store
+from . import safety
 
 
 class ApplyService:

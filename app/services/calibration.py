@@ -18,7 +18,6 @@ from calib_core.estimation import METHODS, check_can_fit
 
 from ..errors import NotFound
 from ..jobs.worker import WorkerLink
-from ..limits import DEFAULT_MAX_ROWS
 
 if TYPE_CHECKING:
     from ..jobs.runner import JobContext, JobRunner
@@ -48,8 +47,8 @@ def solve(payload: dict, link: WorkerLink) -> dict:
 
 
 class CalibrationService:
-    def __init__(self, store: Store, runner: JobRunner, *, max_rows: int = DEFAULT_MAX_ROWS) -> None:
-        """A calibration of more than `max_rows` observations is refused."""
+    def __init__(self, store: Store, runner: JobRunner, *, max_rows: int) -> None:
+        """A calibration of more than `max_rows` observations is refused (the desk's row limit, app/web/limits.py)."""
         self.store = store
         self.runner = runner
         self.max_rows = max_rows

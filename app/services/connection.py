@@ -15,9 +15,9 @@ from typing import Any
 
 from ..drivers import RobotDriver
 from ..errors import NotFound
-from ..robots import Robot, Robots
+from ..robots.roster import Robot, Robots
+from ..scene.viewers import Shown, Viewer, Viewers
 from ..store import Store
-from ..viewers import Shown, Viewer, Viewers
 from .observe import Observer
 
 
@@ -118,7 +118,7 @@ class Connection:
         return observer.snapshot()
 
     def look(self, robot: str | None = None) -> dict[str, Any]:
-        """Observe's latest look through the camera (app/live_look.py); NotFound when not observing `robot`."""
+        """Observe's latest look through the camera (app/scene/live_look.py); NotFound when not observing `robot`."""
         observer = self._observer
         if observer is None or (robot is not None and observer.robot != robot):
             raise NotFound(f"Observe is not watching {robot or 'a robot'}: turn on Watch live")

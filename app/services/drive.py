@@ -13,14 +13,14 @@ from dataclasses import dataclass
 
 from calib_core import InputError
 
-from ..capture import capture_frame
 from ..clock import SYSTEM_CLOCK, Clock
 from ..drivers import Wandering
 from ..drivers.core import Halt
 from ..jobs.runner import JobRunner
-from ..robots import Robots
+from ..robots.capture import capture_frame
+from ..robots.roster import Robots
 from ..store import FrameInfo, Store
-from ..validation import joints_from_deg
+from ..store.validation import joints_from_deg
 from .connection import Connection
 
 MOTION_JOBS = ("replay", "dry_run")  # the jobs that drive a robot, or plan for one that will

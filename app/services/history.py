@@ -15,7 +15,7 @@ from datetime import UTC, datetime
 
 from calib_core.estimation import Drift, Epoch, Team, compare_team, find_drift
 
-from ..robots import Robots
+from ..robots.roster import Robots
 from ..store import Store
 
 

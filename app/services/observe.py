@@ -2,8 +2,8 @@
 
 At a few Hz, look through the cameras when the robot stands still and show the detection beside the
 prediction of the active calibration; while it moves (a replay, the sliders, someone else), show the robot at
-its readings ten times a second, without a look; with autocapture, keep the good settled frames (app/capture.py's
-AutoCapture). One robot is observed at a time; its live view goes to the viewers watching (app/viewers.py).
+its readings ten times a second, without a look; with autocapture, keep the good settled frames (app/robots/capture.py's
+AutoCapture). One robot is observed at a time; its live view goes to the viewers watching (app/scene/viewers.py).
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ import numpy as np
 from calib_core import FrameStatus, InputError, Profile
 from calib_core.estimation import register, registration_params
 
-from ..capture import AutoCapture, look_outcome
 from ..drivers import Look, RobotDriver
 from ..errors import NotFound
-from ..live_look import look_view
-from ..robots import Robots
-from ..scene import LookLike
+from ..robots.capture import AutoCapture, look_outcome
+from ..robots.roster import Robots
+from ..scene.live_look import look_view
+from ..scene.review_scene.scene import LookLike
 from ..store import Store
 
 OBSERVE_PERIOD_S = 0.5
@@ -33,7 +33,7 @@ MIN_REGISTRATION_FRAMES = 3  # measured frames an external tracker's pose is fit
 
 
 class LiveView(Protocol):
-    """Where the looks go (app.viewers.Viewers: every viewer watching)."""
+    """Where the looks go (app.scene.viewers.Viewers: every viewer watching)."""
 
     def show_live(self, profile: Profile, look: LookLike, p: np.ndarray) -> None: ...
 
@@ -77,7 +77,7 @@ class Observer:
         return dict(self._last)
 
     def look(self) -> dict[str, Any]:
-        """The latest settled look with an image, for Observe's 2-D view (app/live_look.py)."""
+        """The latest settled look with an image, for Observe's 2-D view (app/scene/live_look.py)."""
         shown = self._shown
         if shown is None:
             raise NotFound(f"Observe has not looked through {self.robot}'s camera yet")

@@ -9,7 +9,7 @@ measured frames once they fix them, and before that around where it stands: the 
 image seeds the model, and the new configurations keep near it (`base_model`). A plan from frames is made
 when the request comes, so its mistakes answer at once; N new configurations are planned in the job (about
 0.1 s each on Robonaut), so the request returns at once and the job shows "planning" meanwhile. The dry run
-(app/capture.py) checks every configuration before anything moves and predicts the accuracy of a
+(app/robots/capture.py) checks every configuration before anything moves and predicts the accuracy of a
 calibration from those it would capture: of frames, in the request; of new configurations, in a job of its
 own (kind "dry_run": planning, checking, predicting; its result read with `dry_run_result`), and the plan it
 checked is the one the replay after it drives. `resume` goes on with a replay a fault or an abort stopped.
@@ -40,12 +40,12 @@ from calib_core.estimation import (
 from calib_core.estimation import plan as plan_configurations
 from calib_core.vision import Sampler, Visibility
 
-from ..capture import Until, capture_until, dry_run, out_of_margin, replay
 from ..drivers import LimitError, RobotDriver
 from ..errors import NotFound
 from ..jobs.runner import JobContext, JobRunner
 from ..jobs.snapshot import JobState
-from ..robots import Robots
+from ..robots.capture import Until, capture_until, dry_run, out_of_margin, replay
+from ..robots.roster import Robots
 from ..store import Store
 
 # A resumed replay leaves out a configuration the session holds a frame at within this on every joint: a

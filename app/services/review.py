@@ -1,6 +1,6 @@
 """Review: a session's frames as an old and a new calibration see them, in a viewer's scene and as figures.
 
-Each viewer (a browser tab, app/viewers.py) has its own review: the one it loaded last is the one its frame
+Each viewer (a browser tab, app/scene/viewers.py) has its own review: the one it loaded last is the one its frame
 slider and 2-D marks address; loading a session of another robot replaces what that viewer's scene showed.
 """
 
@@ -15,11 +15,11 @@ import numpy as np
 from calib_core import Dataset, InputError, Profile
 from calib_core.estimation import Covariance, register, registration_params
 
-from ..review import Review
-from ..robot_look import robot_look
-from ..robots import Robots
+from ..robots.roster import Robots
+from ..scene.review import Review
+from ..scene.robot_look import robot_look
+from ..scene.viewers import Viewer
 from ..store import Store
-from ..viewers import Viewer
 from .connection import Connection
 
 

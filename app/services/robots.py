@@ -1,6 +1,7 @@
 """Adding a robot to the running desk and taking one off: the request checked (its profile given one way, the
 URDF and meshes that go with an uploaded profile, a profile file named only on a loopback desk, the driver's
-kind and options), then app/robots.py's Robots does it and the robot in view follows (app/services/connection.py).
+kind and options), then app/robots/roster.py's Robots does it and the robot in view follows
+(app/services/connection.py).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from calib_core import InputError
 
 from ..drivers.registry import KINDS, DriverSpec
 from ..errors import NotAllowed
-from ..robots import Robot, Robots
+from ..robots.roster import Robot, Robots
 from ..store import ProfileFiles
 from ..store.meshes import check_archive
 from ..store.profiles import file_name, is_builtin

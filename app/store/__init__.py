@@ -5,7 +5,9 @@
     DATA/calibrations/<id>.json        calib-calibration/1 files: calibrations.py
     DATA/robots/<name>/                profiles (and their URDF) of robots added while the desk ran: robots.py
 
-A robot's profile is a built-in one by name or a profile file, named after the robot (profiles.py).
+A robot's profile is a built-in one by name or a profile file, named after the robot (profiles.py). Sessions
+from outside the desk come in whole through importers.py; validation.py holds the checks every door of the desk
+shares (ids, image roles, frame numbers, joints, targets), the store's first of all.
 
 Crash safety comes from ordering: every file is written whole (temporary name, fsync, rename) before
 the transaction that references it commits, and every multi-row change is one transaction. A crash

@@ -4,14 +4,14 @@ A zip keeps the package's folders, which the URDF's mesh names depend on (`packa
 base.stl`, `../meshes/base.stl`), is one file to pick in a browser and one `-F meshes_zip=@meshes.zip` for curl.
 Its paths are taken relative to the profile's folder (the package's root): the store unpacks it there, beside
 the profile and the URDF, and the review finds the meshes as it finds those of a URDF on disk, but in that
-folder only (app/robot_look.py `mesh_file`, robots.PACKAGE_ROOT).
+folder only (app/scene/robot_look.py `mesh_file`, robots.PACKAGE_ROOT).
 
 The zip is checked whole before anything is written, from its directory: every entry a plain relative path
 (no `..`, no absolute path, no drive), a regular file or a folder (no symlink), a mesh or what a mesh reads
 (a texture, an OBJ's material), not encrypted; at most MAX_FILES files and `max_unpacked_bytes` unpacked
 (against zip bombs: zipfile itself stops an entry at the size the directory gives it). A macOS archive's
 `__MACOSX/` folder and `.DS_Store` files are left out. The meshes of a profile file named on this machine
-are kept as such an archive too, zipped in memory (archive_files; app/profile_meshes.py), checked alike.
+are kept as such an archive too, zipped in memory (archive_files; app/robots/profile_meshes.py), checked alike.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from calib_core import InputError
 from ..errors import TooLarge
 from .files import fsync_dir
 
-MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".glb", ".gltf")  # what app/robot_look.py reads
+MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".glb", ".gltf")  # what app/scene/robot_look.py reads
 TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".mtl")  # what a DAE or an OBJ reads beside it
 SUFFIXES = MESH_SUFFIXES + TEXTURE_SUFFIXES
 MAX_FILES = 2000

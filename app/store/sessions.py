@@ -25,9 +25,9 @@ from calib_core import Dataset, FrameStatus, InputError, Profile, to_csv
 from calib_core.io import csv_sensors
 
 from ..errors import NotFound
-from ..validation import check_id, check_joints_rad, check_role, check_target
 from .db import Database, jsonable, now
 from .files import encode_jpeg, fsync_dir, write_bytes
+from .validation import check_id, check_joints_rad, check_role, check_target
 
 SESSION_SOURCES = ("sample", "import", "capture")
 

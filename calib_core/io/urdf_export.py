@@ -37,7 +37,9 @@ LIMB_SHARE = 0.035  # a body's limb radius, as a share of the robot's size (its 
 LIMB_RADIUS = (0.006, 0.06)  # m, the least and the most
 HEAD_PER_LIMB = 2.4  # a head's radius, in limb radii
 BODY_RGBA = "0.78 0.8 0.84 1"
-BODY = "body"  # the material of the display model's bodies (a URDF robot's own visuals replace them: app/scene.py)
+# The material of the display model's bodies (a URDF robot's own visuals replace them:
+# app/scene/review_scene/copies.py).
+BODY = "body"
 MATERIALS = {
     "grey": "0.6 0.6 0.6 1",
     "target": "1 0.45 0 1",

@@ -66,7 +66,7 @@ function reviewApplied() {
   if (state.reviewAsked && state.reviewAsked[0] === "active") return loadReview(...state.reviewAsked, true);
 }
 
-// What "same", "better" and "worse" in the frame list mean (app/review.py's band).
+// What "same", "better" and "worse" in the frame list mean (app/scene/review.py's band).
 function renderBand() {
   const b = state.review.summary.band;
   const p = $("#change-band");
