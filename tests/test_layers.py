@@ -1,6 +1,6 @@
-"""The code's layers: calib_core's public surface (what each package hands on, loaded lazily), and who in app
-may import whom (its packages on floors: web -> services -> robots -> scene -> drivers -> store; routers ->
-services -> store; no import cycle), with no level of app holding more than a handful of entries."""
+"""The code's layers: calib_core's public surface (what each package hands on, loaded lazily) and no import cycle
+in it, and who in app may import whom (its packages on floors: web -> services -> robots -> scene -> drivers -> store;
+routers -> services -> store; no import cycle), with no level of app holding more than a handful of entries."""
 
 from __future__ import annotations
 
@@ -64,13 +64,14 @@ def test_a_small_calib_solve_loads_neither_scipy_nor_lxml(tmp_path: Path) -> Non
     assert (tmp_path / "cal.json").exists()
 
 
-def _imports(path: Path) -> list[str]:
-    """The modules a file imports at run time (not in `if TYPE_CHECKING:`), relative ones made absolute."""
-    package = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+def _imports(path: Path, *, typed: bool = False) -> list[str]:
+    """The modules a file imports at run time (and, `typed`, in `if TYPE_CHECKING:` too), relative ones made
+    absolute."""
+    package = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
     if path.name != "__init__.py":
         package = package.rpartition(".")[0]
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    skipped = {
+    hinted = {
         id(n)
         for b in ast.walk(tree)
         if isinstance(b, ast.If) and getattr(b.test, "id", None) == "TYPE_CHECKING"
@@ -78,7 +79,7 @@ def _imports(path: Path) -> list[str]:
     }
     out = []
     for node in ast.walk(tree):
-        if id(node) in skipped:
+        if id(node) in hinted and not typed:
             continue
         if isinstance(node, ast.Import):
             out += [a.name for a in node.names]
@@ -87,14 +88,22 @@ def _imports(path: Path) -> list[str]:
             if node.level:
                 parts = package.split(".")
                 base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
-            out += [f"{base}.{a.name}" if f"{base}.{a.name}" in _MODULES else base for a in node.names]
+            out += [f"{base}.{a.name}" if f"{base}.{a.name}" in _KNOWN else base for a in node.names]
     return out
 
 
-_FILES = {
-    ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p for p in ROOT.glob("app/**/*.py")
-}
+def _files(package: str) -> dict[str, Path]:
+    """A package's modules by dotted name (a package by its own name, not its __init__)."""
+    return {
+        ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p
+        for p in ROOT.glob(f"{package}/**/*.py")
+    }
+
+
+_FILES = _files("app")
 _MODULES = set(_FILES)
+_CORE = _files("calib_core")
+_KNOWN = _MODULES | set(_CORE)
 
 
 def test_app_imports_calib_core_through_its_packages_only() -> None:
@@ -177,21 +186,38 @@ def test_no_level_of_app_holds_more_than_ten_entries() -> None:
     assert crowded == {}
 
 
-def test_app_has_no_import_cycle() -> None:
-    graph = {name: _app_imports(name) for name in _MODULES}
+def _first_cycle(graph: dict[str, set[str]]) -> list[str]:
+    """An import cycle of a graph (module -> the modules it imports) as the path round it, or [] if none."""
     done: set[str] = set()
     path: list[str] = []
 
-    def visit(name: str) -> None:
+    def visit(name: str) -> list[str]:
         if name in path:
-            raise AssertionError("import cycle: " + " -> ".join([*path[path.index(name) :], name]))
+            return [*path[path.index(name) :], name]
         if name in done:
-            return
+            return []
         path.append(name)
         for m in sorted(graph[name]):
-            visit(m)
+            if cycle := visit(m):
+                return cycle
         path.pop()
         done.add(name)
+        return []
 
     for name in sorted(graph):
-        visit(name)
+        if cycle := visit(name):
+            return cycle
+    return []
+
+
+def test_app_has_no_import_cycle() -> None:
+    cycle = _first_cycle({name: _app_imports(name) for name in _MODULES})
+    assert not cycle, "import cycle: " + " -> ".join(cycle)
+
+
+def test_calib_core_has_no_import_cycle_not_even_through_a_type_hint() -> None:
+    """The library's layers go one way (sensors < model < vision < estimation, sim < io): a module that names
+    another's type in a hint stands above it too, whether Python imports it at run time or a type checker only."""
+    graph = {name: {m for m in _imports(path, typed=True) if m in _CORE and m != name} for name, path in _CORE.items()}
+    cycle = _first_cycle(graph)
+    assert not cycle, "import cycle: " + " -> ".join(cycle)

@@ -93,7 +93,7 @@ class Visibility:
             finder = finder_for(self.profile, s, t)
             if finder is not None:
                 rows = np.flatnonzero(seen & (targets == t))
-                seen[rows] = finder.clear(self, q[rows])
+                seen[rows] = finder.clear(self.p, q[rows], self.margin_px, self.sphere_share)
         return seen
 
     def too_small(self, q: np.ndarray, target: int) -> str:

@@ -11,7 +11,8 @@ a sensor and a target (`calib_core.vision.finders.finder_for`), it:
   (status and reason, measured rows, the points and vertices they are of, the detector's own figures);
 - `shows(p, x)`: the detector's limits on a target whose points x lie in the field of view (a board's face,
   its obliquity, the spacing of its corners in the image): what `Visibility` asks of every view;
-- `clear(view, q)`: the costly limits (the arm hiding a stereo head's sphere), asked for whole views only;
+- `clear(p, q, margin_px, sphere_share)`: the costly limits (the arm hiding a stereo head's sphere), asked
+  for whole views only, with the view's margins (`Visibility`'s, which asks the finders and is above them);
 - `plan_margins`: what a plan's configurations keep clear with the base model (px from the border, the share
   of a sphere's outline the arm leaves free), when the detector needs more than `Visibility`'s defaults;
   `plan_obliquity_margin_deg`: how much less obliquely than its limit a plan's boards are seen.
@@ -33,7 +34,6 @@ from ..sighting import Sighting, predicted_points
 
 if TYPE_CHECKING:
     from ..stereo import StereoHead  # OpenCV and SciPy: loaded by the finders that render or read a stereo pair
-    from ..visibility import Visibility
 
 
 @dataclass
@@ -62,7 +62,7 @@ class Finder(Protocol):
 
     def shows(self, p: np.ndarray, x: np.ndarray, obliquity_margin_deg: float = 0.0) -> np.ndarray: ...
 
-    def clear(self, view: Visibility, q: np.ndarray) -> np.ndarray: ...
+    def clear(self, p: np.ndarray, q: np.ndarray, margin_px: float, sphere_share: float) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -81,8 +81,10 @@ class BoundFinder:
         (a board at least `obliquity_margin_deg` less obliquely than its limit)."""
         return np.ones(len(x), bool)
 
-    def clear(self, view: Visibility, q: np.ndarray) -> np.ndarray:
-        """Whether nothing hides the target from the detector in configurations q (N, n_joints) rad (N,)."""
+    def clear(self, p: np.ndarray, q: np.ndarray, margin_px: float, sphere_share: float) -> np.ndarray:
+        """Whether nothing hides the target from the detector in configurations q (N, n_joints) rad (N,), with
+        parameters p, the target `margin_px` clear of the image's border and at least `sphere_share` of a sphere's
+        outline free."""
         return np.ones(len(q), bool)
 
 

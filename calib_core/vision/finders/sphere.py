@@ -2,13 +2,13 @@
 
 The BallFinder is seeded by where the believed kinematics put the sphere's centre and measures that centre
 as one 3-D point in the sensor frame. The arm and hand must leave enough of the sphere's outline free in each
-camera (`Visibility.sphere_share`), and the sphere must lie whole inside both images, right of the matcher's
-band without depth.
+camera (`Visibility.sphere_share`, which it passes to `clear`), and the sphere must lie whole inside both images,
+right of the matcher's band without depth.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -18,9 +18,6 @@ from ..ballfinder import find_sphere
 from ..sighting import Sighting, predicted_points
 from ..stereo import StereoHead, depth_from_pair, no_depth_band_px, render_pair, sphere_views
 from .base import BoundFinder, Rendered
-
-if TYPE_CHECKING:
-    from ..visibility import Visibility
 
 # What a plan for a stereo head's sphere picks keeps more clear: its configurations lie at the edges of what
 # the head sees (near, the arm close to the view ray), and on a Robonaut 13 cm off the nominal model the
@@ -63,14 +60,14 @@ class SphereFinder(BoundFinder):
         measured = (head.R_frame_optical @ found.center_m) / to_m
         return Sighting(self.sensor, target, FrameStatus.MEASURED, "ok", measured[None], points, vertices, detail)
 
-    def clear(self, view: Visibility, q: np.ndarray) -> np.ndarray:
+    def clear(self, p: np.ndarray, q: np.ndarray, margin_px: float, sphere_share: float) -> np.ndarray:
         """Whether the pair would show the sphere well enough to the BallFinder (N,) bool: whole inside both
-        images, `view.margin_px` clear of their borders and of the band without depth, and at least
-        `view.sphere_share` of its outline free of the arm in each camera."""
-        head = self.head(view.p)
-        seen = sphere_views(self.profile, view.p, q, head)
+        images, `margin_px` clear of their borders and of the band without depth, and at least `sphere_share` of
+        its outline free of the arm in each camera."""
+        head = self.head(p)
+        seen = sphere_views(self.profile, p, q, head)
         u_min, u_max, v_min, v_max = seen.box_px.T
-        m = view.margin_px
+        m = margin_px
         with np.errstate(invalid="ignore"):  # NaN boxes: the sphere reaches behind the camera
             inside = (
                 (u_min >= no_depth_band_px(head) + m)
@@ -78,4 +75,4 @@ class SphereFinder(BoundFinder):
                 & (v_min >= m)
                 & (v_max <= head.height_px - 1 - m)
             )
-        return inside & (seen.visible.min(axis=1) >= view.sphere_share)
+        return inside & (seen.visible.min(axis=1) >= sphere_share)
