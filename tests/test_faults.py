@@ -27,7 +27,7 @@ from browser import CLIENT, Server, free_port
 from desk_jobs import wait_job
 from fastapi.testclient import TestClient
 
-from app.jobs.runner import crashed
+from app.jobs.process_jobs import crashed
 from app.services.replay import ReplayPlan
 from app.store import INTERRUPTED, Store
 from calib_core import load_profile, read_dataset

@@ -21,7 +21,8 @@ from worker_functions import exploder, sleeper
 
 from app.clock import ManualClock
 from app.errors import NotFound
-from app.jobs.runner import JobContext, JobRunner, crashed
+from app.jobs.process_jobs import crashed
+from app.jobs.runner import JobContext, JobRunner
 from app.jobs.snapshot import JobSnapshot, JobState
 from app.services.calibration import CalibrationService, solve
 from app.store import INTERRUPTED, Observations, Store

@@ -5,11 +5,11 @@ threads), so it neither holds the server's GIL nor takes the server down when it
 one-process ProcessPoolExecutor: a crashed or killed worker breaks only its own pool, which fails only its own
 job and is then rebuilt. Workers send their steps through a queue of a spawned multiprocessing Manager (a
 killed client cannot corrupt it) and read their cancel flag from the same Manager; a thread here turns the
-messages into calls to the runner. Workers and the Manager end by themselves when the server dies without
-cleaning up (SIGKILL): app/jobs/parent_watch.py.
+messages into calls to the process jobs (process_jobs.py). Workers and the Manager end by themselves when the
+server dies without cleaning up (SIGKILL): app/jobs/parent_watch.py.
 
-The pool knows jobs by id only: it tells the runner when a job starts in a worker (with its pid), each step the
-job reports, and how it ended, or that its worker died under it. What that makes of the job is the runner's.
+The pool knows jobs by id only: it tells process_jobs.py when a job starts in a worker (with its pid), each step
+the job reports, and how it ended, or that its worker died under it. What that makes of the job is theirs.
 """
 
 from __future__ import annotations
@@ -197,7 +197,7 @@ class WorkerPool:
         self._dispatch()
 
     def _pump_messages(self) -> None:
-        """The workers' messages into calls to the runner, until close sends None."""
+        """The workers' messages into calls to the process jobs, until close sends None."""
         while True:
             try:
                 message = self._messages.get()
