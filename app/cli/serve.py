@@ -89,13 +89,13 @@ def _serve(args: argparse.Namespace) -> int:
     # anything starts: nothing is written until the robots are checked), the web stack imported (loaded only for
     # this subcommand; for NAOqi, in a thread while its sessions open).
     meetings = _meet_ros2(args.ros2) if args.ros2 else []
-    web = threading.Thread(target=_import_quietly, args=("..server",), daemon=True)
+    web = threading.Thread(target=_import_quietly, args=("..web.server",), daemon=True)
     try:
         from ..robots.desk_config import load_desk_config
 
         config = None if args.desk is None else load_desk_config(Path(args.desk))
         if meetings:
-            _import_quietly("..server")
+            _import_quietly("..web.server")
             config = _with_ros2(config, meetings, Path(args.data_dir))
         if args.naoqi:
             web.start()
