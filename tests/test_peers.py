@@ -131,16 +131,20 @@ def test_the_points_weigh_a_pose_as_figaroh_does() -> None:
         assert total == pytest.approx(7 * (dp @ dp + 0.25 * dtheta @ dtheta), rel=1e-3)
 
 
-def test_splits_are_figaroh_protocol_and_repeated_kfold(profiles) -> None:
-    tiago = splits(profiles["tiago"], FOLDER, "tiago")
+def test_splits_are_ten_random_70_30_splits_by_configuration_and_figaroh_s_sessions(profiles) -> None:
+    """Every robot: 10 splits (seeds 0-9) of its file's configurations, 30% held out, each a different held-out set
+    and none seen in training; TIAGo also by FIGAROH's protocol, one session against the other."""
+    sizes = {"talos": (43, 18), "tiago": (26, 11), "ur10e-pose": (16, 7)}
+    for robot, size in sizes.items():
+        pairs = splits(profiles[robot], FOLDER, robot)
+        assert [(len(t.frame_ids), len(h.frame_ids)) for t, h in pairs] == [size] * 10
+        assert len({tuple(h.frame_ids) for _, h in pairs}) == 10
+        for train, heldout in pairs:
+            assert not set(train.frame_ids) & set(heldout.frame_ids)
+    tiago = splits(profiles["tiago"], FOLDER, "tiago", sessions=True)
     assert [(len(t.frame_ids), len(h.frame_ids)) for t, h in tiago] == [(37, 62)]
-    talos = splits(profiles["talos"], FOLDER, "talos")
-    assert len(talos) == 25
-    for repeat in range(5):
-        held = np.concatenate([h.frame_ids for _, h in talos[5 * repeat : 5 * repeat + 5]])
-        assert sorted(held.tolist()) == list(range(1, 62))  # each configuration held out once per repeat
-    for train, heldout in talos:
-        assert not set(train.frame_ids) & set(heldout.frame_ids)
+    with pytest.raises(InputError, match="robot 'talos' has no held-out session"):
+        splits(profiles["talos"], FOLDER, "talos", sessions=True)
 
 
 @pytest.mark.slow

@@ -9,6 +9,7 @@ from enum import Enum
 from typing import Any
 
 from .solver import SolveStatus
+from .validation import Figures
 
 
 class Severity(Enum):
@@ -20,13 +21,16 @@ class Severity(Enum):
 class Diagnostic:
     """One finding about a calibration: `code` for programs (`not-converged`, `held-fixed`, `weak`,
     `outliers`, `model-error`, `at-bound`, `holdout-worse`, `registration-misfit`, `noise-excess`,
-    `worse-than-start`, `minimal-set`), `message` for people, `parameters` the ones it is about (labels)."""
+    `worse-than-start`, `minimal-set`, `model-choice`), `message` for people, `parameters` the ones it is about
+    (labels)."""
 
     severity: Severity
     code: str
     message: str
     parameters: tuple[str, ...] = ()
-    mode: str | None = None  # a mode of the profile that may fit what this one cannot (noise-excess), for a program
+    # For a program: a mode of the profile that may fit what this one cannot (noise-excess, richer-predicts), or
+    # the one `auto` chose (model-choice).
+    mode: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -49,6 +53,7 @@ class Diagnostic:
 # The kinds of diagnostic in the order a reader should meet them: those that change whether to apply first
 # (the fit is wrong, or worse than it looks), then what is weak, then what the mode holds by design.
 DECISION_ORDER = (
+    "model-choice",  # a note, after every warning: what `auto` chose and why
     "not-converged",
     "worse-than-start",
     "registration-misfit",
@@ -275,4 +280,91 @@ class IdentifiabilityReport:
             o1=None if d.get("o1") is None else float(d["o1"]),
             correlations=[Correlation(**c) for c in d.get("correlations", [])],
             inflation={str(k): float(v) for k, v in d.get("inflation", {}).items()},
+        )
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One model `auto` compared (calib_core.estimation.model_choice): a mode of the profile, its priors' standard
+    deviations times `prior_scale` (None: the mode has no priors), and how it predicted the configurations its
+    cross-validation held out. `score`: their mean squared error per row, weighed by the sensors' declared noise
+    (several sensors: the geometric mean over them, weighed by their rows); `figures`: the same errors in the
+    sensors' units. `refused`: why it was not compared (it cannot be fitted on these data), else None."""
+
+    mode: str
+    prior_scale: float | None
+    score: float | None = None
+    figures: Figures | None = None
+    refused: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The mode and its priors' scale, as a report names it: `origins (priors x1/8)`."""
+        if self.prior_scale is None:
+            return self.mode
+        scale = self.prior_scale
+        return f"{self.mode} (priors x{f'1/{1 / scale:g}' if scale < 1 else f'{scale:g}'})"
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Candidate:
+        scale, score, figs = d.get("prior_scale"), d.get("score"), d.get("figures")
+        return cls(
+            str(d["mode"]),
+            None if scale is None else float(scale),
+            None if score is None else float(score),
+            None if figs is None else Figures(**figs),
+            None if d.get("refused") is None else str(d["refused"]),
+        )
+
+
+@dataclass
+class ModelChoice:
+    """What mode `auto` chose and why: every candidate's cross-validated figures, `chosen` the index of the one
+    with the lowest score. Each of `repeats` shuffles of the training configurations is cut into `folds` parts,
+    each part predicted by every candidate fitted on the rest; compared on the `compared` observations that most
+    candidates' fits explain (within their sensors' outlier limits) out of `held_out` predicted."""
+
+    candidates: list[Candidate]
+    chosen: int
+    folds: int
+    repeats: int
+    compared: int
+    held_out: int
+    seconds: float
+
+    @property
+    def picked(self) -> Candidate:
+        return self.candidates[self.chosen]
+
+    def describe(self) -> str:
+        """The choice in a sentence, each candidate with its cross-validated RMS."""
+
+        def figure(c: Candidate) -> str:
+            if c.figures is None:
+                return f"{c.name}: not compared ({c.refused})"
+            f = c.figures
+            scale, unit = (1000.0, "mm") if f.unit == "m" else (1.0, f.unit)
+            rotation = "" if f.rms_rotation_deg is None else f" / {f.rms_rotation_deg:.3g} deg"
+            return f"{c.name} {f.rms * scale:.4g} {unit}{rotation}"
+
+        others = "; ".join(figure(c) for k, c in enumerate(self.candidates) if k != self.chosen)
+        shuffles = f", {self.repeats} shuffles" if self.repeats > 1 else ""
+        left = self.held_out - self.compared
+        left = f", {left} that most candidates call outliers left out" if left else ""
+        return (
+            f"auto chose mode {self.picked.name}: it predicts the training configurations it did not see best, "
+            f"{figure(self.picked)} RMS ({self.folds}-fold cross-validation{shuffles}, {self.compared} predicted "
+            f"observations{left}), against {others}"
+        )
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ModelChoice:
+        return cls(
+            [Candidate.from_dict(c) for c in d["candidates"]],
+            int(d["chosen"]),
+            int(d["folds"]),
+            int(d["repeats"]),
+            int(d["compared"]),
+            int(d["held_out"]),
+            float(d["seconds"]),
         )
