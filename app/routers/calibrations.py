@@ -81,8 +81,8 @@ class ModelChoiceOut(BaseModel):
     candidates: list[CandidateOut]
     chosen: int  # the index of the one chosen: the least score
     folds: int
-    repeats: int  # shuffles of the folds
-    compared: int  # predicted observations compared (those most candidates' fits explain)
+    shuffles: int  # of the training configurations, each cut into `folds` parts
+    compared: int  # predicted observations compared (those every competitive candidate's fit explains)
     held_out: int  # predicted observations
     seconds: float
 

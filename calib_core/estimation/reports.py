@@ -300,10 +300,7 @@ class Candidate:
     @property
     def name(self) -> str:
         """The mode and its priors' scale, as a report names it: `origins (priors x1/8)`."""
-        if self.prior_scale is None:
-            return self.mode
-        scale = self.prior_scale
-        return f"{self.mode} (priors x{f'1/{1 / scale:g}' if scale < 1 else f'{scale:g}'})"
+        return self.mode if self.prior_scale is None else f"{self.mode} (priors {_scale(self.prior_scale)})"
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Candidate:
@@ -320,14 +317,14 @@ class Candidate:
 @dataclass
 class ModelChoice:
     """What mode `auto` chose and why: every candidate's cross-validated figures, `chosen` the index of the one
-    with the lowest score. Each of `repeats` shuffles of the training configurations is cut into `folds` parts,
-    each part predicted by every candidate fitted on the rest; compared on the `compared` observations that most
-    candidates' fits explain (within their sensors' outlier limits) out of `held_out` predicted."""
+    with the lowest score. Each of `shuffles` shuffles of the training configurations is cut into `folds` parts,
+    each part predicted by every candidate fitted on the rest; compared on the `compared` observations of the
+    `held_out` predicted that every competitive candidate's fit explains (calib_core.estimation.model_choice)."""
 
     candidates: list[Candidate]
     chosen: int
     folds: int
-    repeats: int
+    shuffles: int
     compared: int
     held_out: int
     seconds: float
@@ -337,24 +334,25 @@ class ModelChoice:
         return self.candidates[self.chosen]
 
     def describe(self) -> str:
-        """The choice in a sentence, each candidate with its cross-validated RMS."""
-
-        def figure(c: Candidate) -> str:
-            if c.figures is None:
-                return f"{c.name}: not compared ({c.refused})"
-            f = c.figures
-            scale, unit = (1000.0, "mm") if f.unit == "m" else (1.0, f.unit)
-            rotation = "" if f.rms_rotation_deg is None else f" / {f.rms_rotation_deg:.3g} deg"
-            return f"{c.name} {f.rms * scale:.4g} {unit}{rotation}"
-
-        others = "; ".join(figure(c) for k, c in enumerate(self.candidates) if k != self.chosen)
-        shuffles = f", {self.repeats} shuffles" if self.repeats > 1 else ""
+        """The choice in a sentence, and every candidate's cross-validated RMS, each mode's prior scales together."""
+        by_mode: dict[str, list[Candidate]] = {}
+        for c in self.candidates:
+            by_mode.setdefault(c.mode, []).append(c)
+        each = []
+        for mode, group in by_mode.items():
+            if group[0].refused is not None and len(group) == 1:
+                each.append(f"{mode}: not compared ({group[0].refused})")
+                continue
+            scales = [_scale(c.prior_scale) for c in group if c.prior_scale is not None]
+            what = f"{mode} with priors {', '.join(scales)}" if scales else mode
+            each.append(f"{what}: {', '.join(_figure(c) for c in group)}")
+        shuffles = f", {self.shuffles} shuffles" if self.shuffles > 1 else ""
         left = self.held_out - self.compared
-        left = f", {left} that most candidates call outliers left out" if left else ""
+        left = f", {left} that a competitive candidate's fit cannot explain left out" if left else ""
         return (
             f"auto chose mode {self.picked.name}: it predicts the training configurations it did not see best, "
-            f"{figure(self.picked)} RMS ({self.folds}-fold cross-validation{shuffles}, {self.compared} predicted "
-            f"observations{left}), against {others}"
+            f"{_figure(self.picked)} RMS ({self.folds}-fold cross-validation{shuffles}, {self.compared} predicted "
+            f"observations{left}). Each candidate: {'; '.join(each)}"
         )
 
     @classmethod
@@ -363,8 +361,23 @@ class ModelChoice:
             [Candidate.from_dict(c) for c in d["candidates"]],
             int(d["chosen"]),
             int(d["folds"]),
-            int(d["repeats"]),
+            int(d["shuffles"]),
             int(d["compared"]),
             int(d["held_out"]),
             float(d["seconds"]),
         )
+
+
+def _scale(scale: float) -> str:
+    """A prior scale as a report writes it: x1/8, x1, x4."""
+    return f"x1/{1 / scale:g}" if scale < 1 else f"x{scale:g}"
+
+
+def _figure(c: Candidate) -> str:
+    """A candidate's cross-validated RMS with its unit (a metre profile's in mm), a pose's rotation too."""
+    if c.figures is None:
+        return f"not compared ({c.refused})"
+    f = c.figures
+    scale, unit = (1000.0, "mm") if f.unit == "m" else (1.0, f.unit)
+    rotation = "" if f.rms_rotation_deg is None else f" / {f.rms_rotation_deg:.3g} deg"
+    return f"{f.rms * scale:.4g} {unit}{rotation}"
