@@ -29,17 +29,18 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..errors import InputError
-from ..model.profile import Mode, Profile
+from ..model.profile import AUTO, Mode, Profile
 from .calibration import Calibration, Covariance, Outlier, parameter_estimate
 from .chi_square import upper_quantile
 from .diagnostics import diagnose, richer_mode
 from .fit import Fit
 from .identifiability import find_dependencies, identifiability_report, minimal_set, report
+from .model_choice import choose
 from .noise_test import noise_tests, sensor_scatter
 from .outliers import OutlierVerdict, inliers, pooled_robust_sigma, problem_outliers, robust_sigma, sort_outliers
 from .problem import Problem
 from .registration import register, registration_params
-from .reports import Diagnostic, Severity, SolverReport
+from .reports import Diagnostic, ModelChoice, Severity, SolverReport
 from .solver import Robust, SolveResult, levenberg_marquardt, nelder_mead
 from .starts import SOLVED_STARTS, Start, closed_form_starts, far_above_noise, turned_starts, unknown_poses
 from .validation import Figures, check_share, holdout_split, kfold_splits, sensor_figures
@@ -64,18 +65,34 @@ def calibrate(
 ) -> Calibration:
     """Estimate the parameters of `mode` from `data`, starting from `base` (or the nominal model).
 
+    `mode` `auto`: the profile's mode and the strength of its priors that predict the training configurations
+    best in cross-validation (calib_core.estimation.model_choice); the calibration is named `auto` and says what
+    was chosen and why (`choice`, and a `model-choice` note). With `folds`, its cross-validated figures repeat the
+    choice in every fold.
     `minimal`: estimate a minimal identifiable set of the mode's parameters, chosen by QR with column
     pivoting at the start values, without the mode's priors; the others are held (and named)."""
     m = profile.mode(mode)
     if method not in METHODS:
         raise InputError(f"unknown method '{method}' ({', '.join(METHODS)})")
     check_share(holdout)
-    data = sensors_of(profile, data, m)
+    auto = mode == AUTO
+    if auto and minimal:
+        raise InputError("mode 'auto' chooses the strength of the priors and a minimal set has none: choose a mode")
+    if not auto:
+        data = sensors_of(profile, data, m)
     if holdout > 0:
         train_idx, test_idx = holdout_split(data, holdout, seed)
     else:
         train_idx, test_idx = np.arange(data.n_configurations), np.array([], int)
     train = data.select(train_idx)
+    choice = None
+
+    def fit_mode(part: Dataset, candidate: Mode) -> Fit:
+        return _fit_mode(profile, part, candidate, base, method, robust, should_stop)
+
+    if auto:
+        m, choice = choose(profile, train, fit_mode, robust=robust, seed=seed, should_stop=should_stop)
+    chosen = m
     m = observed_mode(profile, train, m)
     p_base = start_values(profile, train, m, base)
     _check_rows(profile, train, m, p_base)
@@ -107,17 +124,41 @@ def calibrate(
     )
     if folds >= 2:
         start = time.perf_counter()
-        figs["cv_after"] = cross_validate(
-            profile, train, m, p_base, folds, method, robust, seed, should_stop, minimal=minimal
-        )
+
+        def fit_part(part: Dataset) -> Fit:
+            if auto:  # the choice too is made without the fold's held-out part
+                return fit_mode(
+                    part, choose(profile, part, fit_mode, robust=robust, seed=seed, should_stop=should_stop)[0]
+                )
+            return fit_parameters(
+                profile, part, m, p_base, method=method, robust=robust, minimal=minimal, should_stop=should_stop
+            )
+
+        figs["cv_after"] = cross_validate(profile, train, fit_part, folds, robust, seed)
         solver.folds, solver.cv_seconds = folds, time.perf_counter() - start
     frames = {"train": [int(f) for f in train.frame_ids], "holdout": [int(data.frame_ids[i]) for i in test_idx]}
-    cal = _result(profile, data, train, profile.mode(mode), fit, p_base, figs, each, solver, frames)
-    if len(test_idx) and any(t.rejected and not t.warns for t in fit.noise_tests):
+    cal = _result(profile, data, train, chosen, fit, p_base, figs, each, solver, frames, choice)
+    if not auto and len(test_idx) and any(t.rejected and not t.warns for t in fit.noise_tests):
         better = _richer_predicts(profile, train, data.select(test_idx), m, fit, base, method, robust, should_stop)
         if better is not None:
             cal.diagnostics.append(better)
     return cal
+
+
+def _fit_mode(
+    profile: Profile,
+    data: Dataset,
+    mode: Mode,
+    base: Calibration | None,
+    method: str,
+    robust: bool,
+    should_stop: Callable[[], bool] | None,
+) -> Fit:
+    """`mode` fitted on `data` as `calibrate` fits it on its training part (InputError where it cannot be)."""
+    mode = observed_mode(profile, data, mode)
+    p_start = start_values(profile, data, mode, base)
+    _check_rows(profile, data, mode, p_start)
+    return fit_parameters(profile, data, mode, p_start, method=method, robust=robust, should_stop=should_stop)
 
 
 def _richer_predicts(
@@ -172,7 +213,16 @@ def _configuration_errors(profile: Profile, data: Dataset, p: np.ndarray) -> np.
 def check_can_fit(profile: Profile, data: Dataset, mode: str, base: Calibration | None = None) -> None:
     """Refuse (InputError) data from which `calibrate` cannot estimate `mode`, as it would on these data
     as its training part: a registration these data need that neither the mode nor a base gives, or too few
-    observations (`_check_rows`)."""
+    observations (`_check_rows`). Mode `auto`: when none of the profile's modes can be estimated from them (the
+    first one's reason)."""
+    if mode == AUTO:
+        refusals = []
+        for name in profile.modes:
+            try:
+                return check_can_fit(profile, data, name, base)
+            except InputError as exc:
+                refusals.append(exc)
+        raise refusals[0]
     m = profile.mode(mode)
     data = sensors_of(profile, data, m)
     m = observed_mode(profile, data, m)
@@ -503,36 +553,18 @@ MIN_SCALE = 0.1
 
 
 def cross_validate(
-    profile: Profile,
-    data: Dataset,
-    mode: Mode,
-    p_base: np.ndarray,
-    folds: int,
-    method: str,
-    robust: bool,
-    seed: int,
-    should_stop: Callable[[], bool] | None = None,
-    *,
-    minimal: bool = False,
+    profile: Profile, data: Dataset, fit: Callable[[Dataset], Fit], folds: int, robust: bool, seed: int
 ) -> Figures:
-    """Pooled held-out figures: every configuration predicted by a calibration that did not see it."""
+    """Pooled held-out figures: every configuration predicted by a calibration (`fit` of the other folds) that did
+    not see it."""
     parts = []
     for train_idx, test_idx in kfold_splits(data, folds, seed):
         if len(test_idx) == 0 or len(train_idx) == 0:
             continue
-        fit = fit_parameters(
-            profile,
-            data.select(train_idx),
-            mode,
-            p_base,
-            method=method,
-            robust=robust,
-            minimal=minimal,
-            should_stop=should_stop,
-        )
+        result = fit(data.select(train_idx))
         test = data.select(test_idx)
-        keep = inliers(profile, test, fit.p, fit.sigmas) if robust else None
-        parts.append((test, _predict(profile, test, fit.p), keep))
+        keep = inliers(profile, test, result.p, result.sigmas) if robust else None
+        parts.append((test, _predict(profile, test, result.p), keep))
     return sensor_figures(profile, parts)[0]
 
 
@@ -597,7 +629,10 @@ def _result(
     each: dict[str, dict[str, Figures]],
     solver: SolverReport,
     frames: dict[str, list[int]],
+    choice: ModelChoice | None = None,
 ) -> Calibration:
+    """`choice`: what mode `auto` chose (`mode`, which it names AUTO); the calibration says so in a note, and leaves
+    out the richer mode a noise test would name (the choice compared it already)."""
     problem = fit.problem
     r, J = problem.residuals_jacobian(fit.p[problem.free])
     # Errors the readings share, where the fit did not eliminate them: a sandwich clustered by configuration.
@@ -629,7 +664,7 @@ def _result(
     nuisance = frozenset(registration_params(profile, train.sensors))
     return Calibration(
         robot=profile.name,
-        mode=mode.name,
+        mode=mode.name if choice is None else AUTO,
         method=solver.method,
         created=datetime.now(UTC).isoformat(timespec="seconds"),
         source=data.source,
@@ -638,7 +673,8 @@ def _result(
         solver=solver,
         identifiability=identifiability_report(profile, rep, problem.free, fit.dependencies),
         outliers=outliers,
-        diagnostics=diagnose(
+        diagnostics=_chosen(choice)
+        + diagnose(
             profile,
             observed_mode(profile, train, mode),
             fit,
@@ -648,12 +684,20 @@ def _result(
             solver,
             outliers,
             nuisance,
-            [observed_mode(profile, train, m) for m in profile.modes.values()],
+            [observed_mode(profile, train, m) for m in profile.modes.values()] if choice is None else [],
         ),
         frames=frames,
         sensor_figures=each,
         covariance=_covariance(profile, problem, rep.covariance),
+        choice=choice,
     )
+
+
+def _chosen(choice: ModelChoice | None) -> list[Diagnostic]:
+    """What mode `auto` chose and each candidate's cross-validated figure, as a note (none for a named mode)."""
+    if choice is None:
+        return []
+    return [Diagnostic(Severity.INFO, "model-choice", choice.describe(), mode=choice.picked.mode)]
 
 
 def _covariance(profile: Profile, problem: Problem, cov: np.ndarray | None) -> Covariance | None:

@@ -20,7 +20,15 @@ import numpy as np
 from ..errors import InputError
 from ..files import write_atomic
 from ..model.profile import Profile
-from .reports import Diagnostic, DiagnosticGroup, IdentifiabilityReport, Severity, SolverReport, group_diagnostics
+from .reports import (
+    Diagnostic,
+    DiagnosticGroup,
+    IdentifiabilityReport,
+    ModelChoice,
+    Severity,
+    SolverReport,
+    group_diagnostics,
+)
 from .validation import Figures
 
 FORMAT = "calib-calibration/1"
@@ -90,6 +98,7 @@ class Calibration:
     frames: dict[str, list[int]] = field(default_factory=dict)
     sensor_figures: dict[str, dict[str, Figures]] = field(default_factory=dict)  # several sensors: each one's
     covariance: Covariance | None = None  # None: a file written before it was kept
+    choice: ModelChoice | None = None  # mode `auto`: what it chose and why (None: a named mode)
     format: str = FORMAT
 
     @property
@@ -168,6 +177,7 @@ class Calibration:
                     n: {k: Figures(**v) for k, v in f.items()} for n, f in d.get("sensor_figures", {}).items()
                 },
                 covariance=None if d.get("covariance") is None else Covariance(**d["covariance"]),
+                choice=None if d.get("choice") is None else ModelChoice.from_dict(d["choice"]),
             )
         except InputError:
             raise
@@ -199,6 +209,12 @@ class Calibration:
         diagnostic of a kind that has several under its line)."""
         f = self.figures
         lines = [f"{self.robot} {self.mode} calibration ({self.method}) on {f['after'].n} observations"]
+        if self.choice is not None:
+            c = self.choice
+            lines.append(
+                f"  chosen: {c.picked.name}, the least {c.folds}-fold cross-validated error of {len(c.candidates)} "
+                f"candidates ({c.seconds:.1f} s)"
+            )
         lines.append(f"  before: {f['before']}")
         lines.append(f"  after:  {f['after']}")
         if "holdout_after" in f:

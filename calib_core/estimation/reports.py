@@ -9,6 +9,7 @@ from enum import Enum
 from typing import Any
 
 from .solver import SolveStatus
+from .validation import Figures
 
 
 class Severity(Enum):
@@ -20,13 +21,16 @@ class Severity(Enum):
 class Diagnostic:
     """One finding about a calibration: `code` for programs (`not-converged`, `held-fixed`, `weak`,
     `outliers`, `model-error`, `at-bound`, `holdout-worse`, `registration-misfit`, `noise-excess`,
-    `worse-than-start`, `minimal-set`), `message` for people, `parameters` the ones it is about (labels)."""
+    `worse-than-start`, `minimal-set`, `model-choice`), `message` for people, `parameters` the ones it is about
+    (labels)."""
 
     severity: Severity
     code: str
     message: str
     parameters: tuple[str, ...] = ()
-    mode: str | None = None  # a mode of the profile that may fit what this one cannot (noise-excess), for a program
+    # For a program: a mode of the profile that may fit what this one cannot (noise-excess, richer-predicts), or
+    # the one `auto` chose (model-choice).
+    mode: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -49,6 +53,7 @@ class Diagnostic:
 # The kinds of diagnostic in the order a reader should meet them: those that change whether to apply first
 # (the fit is wrong, or worse than it looks), then what is weak, then what the mode holds by design.
 DECISION_ORDER = (
+    "model-choice",  # a note, after every warning: what `auto` chose and why
     "not-converged",
     "worse-than-start",
     "registration-misfit",
@@ -276,3 +281,103 @@ class IdentifiabilityReport:
             correlations=[Correlation(**c) for c in d.get("correlations", [])],
             inflation={str(k): float(v) for k, v in d.get("inflation", {}).items()},
         )
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One model `auto` compared (calib_core.estimation.model_choice): a mode of the profile, its priors' standard
+    deviations times `prior_scale` (None: the mode has no priors), and how it predicted the configurations its
+    cross-validation held out. `score`: their mean squared error per row, weighed by the sensors' declared noise
+    (several sensors: the geometric mean over them, weighed by their rows); `figures`: the same errors in the
+    sensors' units. `refused`: why it was not compared (it cannot be fitted on these data), else None."""
+
+    mode: str
+    prior_scale: float | None
+    score: float | None = None
+    figures: Figures | None = None
+    refused: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The mode and its priors' scale, as a report names it: `origins (priors x1/8)`."""
+        return self.mode if self.prior_scale is None else f"{self.mode} (priors {_scale(self.prior_scale)})"
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Candidate:
+        scale, score, figs = d.get("prior_scale"), d.get("score"), d.get("figures")
+        return cls(
+            str(d["mode"]),
+            None if scale is None else float(scale),
+            None if score is None else float(score),
+            None if figs is None else Figures(**figs),
+            None if d.get("refused") is None else str(d["refused"]),
+        )
+
+
+@dataclass
+class ModelChoice:
+    """What mode `auto` chose and why: every candidate's cross-validated figures, `chosen` the index of the one
+    with the lowest score. Each of `shuffles` shuffles of the training configurations is cut into `folds` parts,
+    each part predicted by every candidate fitted on the rest; compared on the `compared` observations of the
+    `held_out` predicted that every competitive candidate's fit explains (calib_core.estimation.model_choice)."""
+
+    candidates: list[Candidate]
+    chosen: int
+    folds: int
+    shuffles: int
+    compared: int
+    held_out: int
+    seconds: float
+
+    @property
+    def picked(self) -> Candidate:
+        return self.candidates[self.chosen]
+
+    def describe(self) -> str:
+        """The choice in a sentence, and every candidate's cross-validated RMS, each mode's prior scales together."""
+        by_mode: dict[str, list[Candidate]] = {}
+        for c in self.candidates:
+            by_mode.setdefault(c.mode, []).append(c)
+        each = []
+        for mode, group in by_mode.items():
+            if group[0].refused is not None and len(group) == 1:
+                each.append(f"{mode}: not compared ({group[0].refused})")
+                continue
+            scales = [_scale(c.prior_scale) for c in group if c.prior_scale is not None]
+            what = f"{mode} with priors {', '.join(scales)}" if scales else mode
+            each.append(f"{what}: {', '.join(_figure(c) for c in group)}")
+        shuffles = f", {self.shuffles} shuffles" if self.shuffles > 1 else ""
+        left = self.held_out - self.compared
+        left = f", {left} that a competitive candidate's fit cannot explain left out" if left else ""
+        return (
+            f"auto chose mode {self.picked.name}: it predicts the training configurations it did not see best, "
+            f"{_figure(self.picked)} RMS ({self.folds}-fold cross-validation{shuffles}, {self.compared} predicted "
+            f"observations{left}). Each candidate: {'; '.join(each)}"
+        )
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ModelChoice:
+        return cls(
+            [Candidate.from_dict(c) for c in d["candidates"]],
+            int(d["chosen"]),
+            int(d["folds"]),
+            int(d["shuffles"]),
+            int(d["compared"]),
+            int(d["held_out"]),
+            float(d["seconds"]),
+        )
+
+
+def _scale(scale: float) -> str:
+    """A prior scale as a report writes it: x1/8, x1, x4."""
+    return f"x1/{1 / scale:g}" if scale < 1 else f"x{scale:g}"
+
+
+def _figure(c: Candidate) -> str:
+    """A candidate's cross-validated RMS with its unit (a metre profile's in mm), a pose's rotation too."""
+    if c.figures is None:
+        return f"not compared ({c.refused})"
+    f = c.figures
+    scale, unit = (1000.0, "mm") if f.unit == "m" else (1.0, f.unit)
+    rotation = "" if f.rms_rotation_deg is None else f" / {f.rms_rotation_deg:.3g} deg"
+    return f"{f.rms * scale:.4g} {unit}{rotation}"

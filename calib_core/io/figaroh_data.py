@@ -1,12 +1,12 @@
 """FIGAROH's published real data (sample_sessions/figaroh): three robots, their profiles, and the
 train/held-out splits the desk is compared with FIGAROH on (benchmarks/peers.py, tests/test_peers.py).
 
-- `tiago`: the split of FIGAROH's own held-out protocol: fit on the 2021-11-30 session (37 postures),
-  judge on the 2021-11-26 session (62).
-- `talos`, `ur10e`: FIGAROH's examples hold no held-out data, so 5-fold cross-validation, repeated with
-  5 shuffles (seeds 0-4): every configuration is predicted 5 times by a calibration that did not see it.
-  One 5-fold split alone moves the held-out figure by up to 15% from another (TALOS), more than the
-  tools differ by.
+- Every robot: SPLITS random splits by configuration (`holdout_split`, seeds 0 to 9, as `calib solve
+  --holdout 0.3 --seed k` makes them), HELD_OUT of the configurations of its file held out of each; the
+  held-out figure pools the 10 held-out sets. One split alone moves it by up to 25% from another (TALOS),
+  more than the tools differ by.
+- `tiago` also has FIGAROH's own held-out protocol (`session_split`): fit on the 2021-11-30 session (37
+  postures), judge on the 2021-11-26 session (62).
 
 A 6-D pose (the UR10e's camera: x, y, z and roll, pitch, yaw, FIGAROH's columns) is read by a pose6d
 sensor as it is (`ur10e-pose`), or, as before the desk had one, as 7 points of the measured frame
@@ -31,20 +31,20 @@ from ..dataset import Dataset
 from ..errors import InputError
 from ..estimation.calibrate import calibrate
 from ..estimation.problem import Problem
-from ..estimation.validation import kfold_splits
+from ..estimation.validation import holdout_split
 from ..model.profile import Profile
 from ..units import length_factor
 from .csv_format import read_dataset
 
 POSE_AXIS_M = math.sqrt(7 / 16)  # 4 a^2 / 7 = 0.5^2: FIGAROH's UR10 weighting (see the module doc)
 POSE_COLUMNS = ("x1", "y1", "z1", "phix1", "phiy1", "phiz1")  # m, and roll, pitch, yaw in rad
-FOLDS = 5
-REPEATS = 5
+SPLITS = 10  # random train/held-out splits by configuration, seeds 0-9
+HELD_OUT = 0.3  # the share of configurations each split holds out
 
 
 @dataclass(frozen=True)
 class PeerData:
-    """One robot's profile and data files in the folder, and its held-out session (None: k-fold)."""
+    """One robot's profile and data files in the folder, and its held-out session (FIGAROH's protocol; None: none)."""
 
     profile: str
     data: str
@@ -102,18 +102,21 @@ def pose_points(text: str, name: str = "<poses>") -> str:
     return out.getvalue()
 
 
-def splits(profile: Profile, folder: str | Path, robot: str) -> list[tuple[Dataset, Dataset]]:
-    """The (train, held-out) datasets the comparison uses for `robot` (a key of ROBOTS)."""
+def splits(profile: Profile, folder: str | Path, robot: str, sessions: bool = False) -> list[tuple[Dataset, Dataset]]:
+    """The (train, held-out) datasets the comparison uses for `robot` (a key of ROBOTS): SPLITS random splits of
+    its data file, HELD_OUT of the configurations held out of each, seeds 0 to SPLITS - 1 (the same for every tool
+    compared); `sessions`: FIGAROH's protocol instead, its data file against its held-out session (TIAGo)."""
     if robot not in ROBOTS:
         raise InputError(f"unknown robot '{robot}' (known: {', '.join(ROBOTS)})")
     spec = ROBOTS[robot]
     data = read_dataset(profile, Path(folder) / spec.data)
-    if spec.heldout is not None:
+    if sessions:
+        if spec.heldout is None:
+            raise InputError(f"robot '{robot}' has no held-out session")
         return [(data, read_dataset(profile, Path(folder) / spec.heldout))]
     return [
         (data.select(train), data.select(test))
-        for seed in range(REPEATS)
-        for train, test in kfold_splits(data, FOLDS, seed)
+        for train, test in (holdout_split(data, HELD_OUT, seed) for seed in range(SPLITS))
     ]
 
 
@@ -169,10 +172,10 @@ def pooled(parts: list[PoseErrors]) -> PoseErrors:
     )
 
 
-def heldout_errors(profile: Profile, folder: str | Path, robot: str, mode: str) -> PoseErrors:
-    """The desk's held-out errors in `mode`, pooled over the robot's splits."""
+def heldout_errors(profile: Profile, folder: str | Path, robot: str, mode: str, sessions: bool = False) -> PoseErrors:
+    """The desk's held-out errors in `mode`, pooled over the robot's splits (`splits`)."""
     parts = []
-    for train, heldout in splits(profile, folder, robot):
+    for train, heldout in splits(profile, folder, robot, sessions):
         p = calibrate(profile, train, mode).params(profile)
         parts.append(pose_errors(profile, heldout, Problem(profile, heldout, [], p, noise_model=False).predict(p)))
     return pooled(parts)

@@ -101,6 +101,13 @@ class Tie:
     sign: float
 
 
+AUTO = "auto"  # the mode the data choose (calib_core.estimation.model_choice); no profile may name one so
+AUTO_DESCRIPTION = (
+    "the data choose: the profile's mode and the strength of its priors towards nominal that predict best "
+    "in k-fold cross-validation on the training configurations"
+)
+
+
 @dataclass(frozen=True)
 class Mode:
     name: str
@@ -177,6 +184,10 @@ class Profile:
         self._joint_index = {j.name: i for i, j in enumerate(self.joints)}
         # (frame, position) of every op in a fixed order: an op's id is its index here (kinematics).
         self.op_ids = [(f, k) for f, frame in enumerate(self.frames) for k in range(len(frame.ops))]
+        if AUTO in self.modes:
+            raise InputError(
+                f"modes.{AUTO}: the name '{AUTO}' is reserved (the data choose the mode)", file=self.source
+            )
 
     # --- look-ups -------------------------------------------------------------------------------
     @property
@@ -203,10 +214,24 @@ class Profile:
         return [t.name for t in self.targets].index(name)
 
     def mode(self, name: str) -> Mode:
+        """A mode of the profile by name, or `auto` (AUTO): the richest of them under that name, what a plan for
+        `auto` makes accurate and a check of its rows counts (the calibration chooses among them:
+        calib_core.estimation.model_choice)."""
+        if name == AUTO and self.modes:
+            richest = max(self.modes.values(), key=lambda m: len(m.free))  # the first of the largest
+            return replace(richest, name=AUTO, description=f"{AUTO_DESCRIPTION} ({', '.join(self.modes)})")
         if name not in self.modes:
-            known = ", ".join(self.modes)
+            known = ", ".join([*self.modes, AUTO])
             raise InputError(f"unknown mode '{name}' for robot '{self.name}' (known: {known})")
         return self.modes[name]
+
+    def offered_modes(self) -> list[Mode]:
+        """The modes a user chooses from, in order: `auto` first where the data have something to choose (several
+        modes, or a mode with priors whose strength they set), then the profile's."""
+        modes = list(self.modes.values())
+        if len(modes) > 1 or any(m.priors for m in modes):
+            return [self.mode(AUTO), *modes]
+        return modes
 
     def nominal(self) -> np.ndarray:
         return np.array([p.nominal for p in self.parameters])

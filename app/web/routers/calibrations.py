@@ -65,6 +65,28 @@ class Identifiability(BaseModel):
     note: str
 
 
+class CandidateOut(BaseModel):
+    """One model mode `auto` compared (calib_core.estimation.reports.Candidate)."""
+
+    mode: str
+    prior_scale: float | None  # the mode's priors' standard deviations times this (None: the mode has none)
+    score: float | None  # cross-validated mean squared error per row, weighed by the declared noise (None: refused)
+    figures: Figures | None  # the same cross-validated errors in the sensors' units
+    refused: str | None  # why it was not compared
+
+
+class ModelChoiceOut(BaseModel):
+    """What mode `auto` chose and why (calib_core.estimation.reports.ModelChoice)."""
+
+    candidates: list[CandidateOut]
+    chosen: int  # the index of the one chosen: the least score
+    folds: int
+    shuffles: int  # of the training configurations, each cut into `folds` parts
+    compared: int  # predicted observations compared (those every competitive candidate's fit explains)
+    held_out: int  # predicted observations
+    seconds: float
+
+
 class CalibrationOut(BaseModel):
     """The calibration file (format calib-calibration/1, calib_core.estimation.Calibration: every parameter with
     its unit and standard deviation, the figures before and after, the solver, identifiability, outliers,
@@ -94,6 +116,7 @@ class CalibrationOut(BaseModel):
     fits_noise: bool | None
     solve_seconds: float
     iterations: int
+    choice: ModelChoiceOut | None = None  # mode `auto`: every candidate's cross-validated figures (None: a named mode)
 
 
 @router.get("/calibrations/{cal_id}")

@@ -104,7 +104,7 @@ def robot_out(robot: Robot) -> RobotOut:
         margin_deg=None if robot.driver is None else math.degrees(robot.driver.margin_rad),
         margin_m=None if robot.driver is None else robot.driver.margin_m,
         notes=list(p.notes),
-        modes=[ModeOut(name=m.name, description=m.description) for m in p.modes.values()],
+        modes=[ModeOut(name=m.name, description=m.description) for m in p.offered_modes()],
         targets=[t.name for t in p.targets],
         sensor=SensorOut(
             kind=sensor.kind,
