@@ -282,7 +282,7 @@ def test_a_failing_worker_fails_its_job_with_one_line(jobs: JobRunner, calibrati
     job_id = jobs.submit_process("calibration", solve, lambda ctx: {**payload, "mode": "bogus"}, session_id=None)
     snap = wait(jobs, job_id)
     assert snap.state == JobState.FAILED
-    assert snap.error == "unknown mode 'bogus' for robot 'robonaut-a' (known: daily, full)"
+    assert snap.error == "unknown mode 'bogus' for robot 'robonaut-a' (known: daily, full, auto)"
     # A bug: the exception's type and message on one line, no traceback.
     job_id = jobs.submit_process("test", exploder, lambda ctx: "boom\n  at line 2", session_id=None)
     snap = wait(jobs, job_id)
