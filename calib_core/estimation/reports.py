@@ -357,15 +357,8 @@ class ModelChoice:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ModelChoice:
-        return cls(
-            [Candidate.from_dict(c) for c in d["candidates"]],
-            int(d["chosen"]),
-            int(d["folds"]),
-            int(d["shuffles"]),
-            int(d["compared"]),
-            int(d["held_out"]),
-            float(d["seconds"]),
-        )
+        counts = {k: int(d[k]) for k in ("chosen", "folds", "shuffles", "compared", "held_out")}
+        return cls([Candidate.from_dict(c) for c in d["candidates"]], **counts, seconds=float(d["seconds"]))
 
 
 def _scale(scale: float) -> str:

@@ -3,8 +3,8 @@ train/held-out splits the desk is compared with FIGAROH on (benchmarks/peers.py,
 
 - Every robot: SPLITS random splits by configuration (`holdout_split`, seeds 0 to 9, as `calib solve
   --holdout 0.3 --seed k` makes them), HELD_OUT of the configurations of its file held out of each; the
-  held-out figure pools the 10 held-out sets. One split alone moves it by up to 25% from another (TALOS),
-  more than the tools differ by.
+  held-out figure pools the 10 held-out sets. One split's figure differs from another's by up to a half
+  (TALOS), far more than the tools differ by.
 - `tiago` also has FIGAROH's own held-out protocol (`session_split`): fit on the 2021-11-30 session (37
   postures), judge on the 2021-11-26 session (62).
 
