@@ -149,13 +149,13 @@ def test_observe_replay_calibrate_review_and_apply_the_hand_eye_sample(chromium_
         shot(page, "5-apply")
 
 
-def test_the_sample_in_its_default_mode_shows_its_warning_and_calibrates_again_in_the_mode_it_names(
+def test_the_sample_in_its_first_mode_shows_its_warning_and_calibrates_again_in_the_mode_it_names(
     chromium_2d, desk_data: Path
 ) -> None:
-    """The hand-eye sample's joints carry offsets that the default mode `handeye` (the camera's and the board's poses
-    only) cannot fit: the Calibrate panel shows the calibration's warning where its result is (it showed "done ·
-    iteration 0" and nothing else) with a button for the mode the warning names; one click calibrates in mode
-    'offsets', which fits to the noise and has no such warning."""
+    """The hand-eye sample's joints carry offsets that mode `handeye` (the camera's and the board's poses only), the
+    profile's first, cannot fit: the Calibrate panel shows the calibration's warning where its result is (it showed
+    "done · iteration 0" and nothing else) with a button for the mode the warning names; one click calibrates in
+    mode 'offsets', which fits to the noise and has no such warning. The panel offers `auto` first, and chooses it."""
     from browser import ready_page
 
     with served(desk_data) as server:
@@ -165,7 +165,8 @@ def test_the_sample_in_its_default_mode_shows_its_warning_and_calibrates_again_i
         page.wait_for_selector("#frames th", state="attached")  # the session loaded: a tab clicked now stays
         page.click("#tabs button[data-tab='calibrate']")
         page.wait_for_selector("#tab-calibrate:not([hidden])")
-        page.wait_for_function("document.querySelector('#mode').value === 'handeye'")  # the profile's first mode
+        page.wait_for_function("document.querySelector('#mode').value === 'auto'")  # the data choose, by default
+        page.select_option("#mode", "handeye")  # the profile's first mode
         page.click("#calibrate-start")
         page.wait_for_selector("#job-warnings p[data-code='noise-excess']", state="attached", timeout=60_000)
         said = page.text_content("#job-warnings p[data-code='noise-excess']")
