@@ -25,10 +25,10 @@ from typing import Protocol
 
 import numpy as np
 
-FIRST_LOOK = 64  # the best candidates ranked first: the rest are ranked only where none of them may be chosen,
-WIDER = 16  # WIDER times as many at a time (the best candidates of a camera are often those the arm hides)
-REFRESH_SHRINK = 1e3
-REFRESH_EVERY = 64
+FIRST_LOOK = 64  # the best candidates ranked first; where none of them may be chosen, the next window is ranked,
+WIDER = 16  # WIDER times as large (a stereo head's most informative candidates are often those the arm hides)
+REFRESH_SHRINK = 1e3  # S and T afresh once C has shrunk this much since (module doc)
+REFRESH_EVERY = 64  # and after this many changes at most
 
 
 class Pool(Protocol):
