@@ -62,10 +62,11 @@ def import_session_folder(
     for fr in s.frames:
         where = f"{folder / 'session.json'}"
         q = np.zeros(len(profile.joints))
-        for jname, deg in fr.joints_deg.items():
+        for jname, value in fr.joints_deg.items():
             if jname not in profile.joint_names:
                 raise InputError(f"frame {fr.frame}: unknown joint '{jname}'", file=where)
-            q[profile.joint(jname)] = math.radians(float(deg))
+            j = profile.joint(jname)  # a prismatic joint's reading is a length in the profile's unit
+            q[j] = float(value) if profile.joints[j].prismatic else math.radians(float(value))
         obs = by_frame.get(fr.frame)
         status = fr.status
         if obs is not None:

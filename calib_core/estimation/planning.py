@@ -462,16 +462,16 @@ def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -
         return Jc
     profile = problem.profile
     steps = {
-        op.param: profile.joints[op.joint].resolution
+        op.param: profile.joints[op.joint].reading_sd
         for f in profile.frames
         for op in f.ops
-        if op.joint >= 0 and profile.joints[op.joint].resolution > 0
+        if op.joint >= 0 and profile.joints[op.joint].reading_sd > 0
     }
     U = np.zeros((len(J), len(steps)))
     if steps:
         probe = Problem(profile, problem.data, list(steps), p, noise_model=False)
         _, Jq = probe.residuals_jacobian(probe.x0)
-        U = Jq[: probe.n_data_rows] * np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
+        U = Jq[: probe.n_data_rows] * np.array(list(steps.values()))
     Jd, Ud = np.empty_like(J), np.empty_like(U)
     for b in problem.blocks:
         rows = np.arange(b.rows.start, b.rows.stop).reshape(-1, b.dim)  # (n_obs, dim)

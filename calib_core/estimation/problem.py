@@ -196,19 +196,19 @@ class Problem:
             self.readings.relinearise(self._offset_jacobian(self.readings.params, self.params(x)))
 
     def _reading_covariance(self, p: np.ndarray, J: np.ndarray | None = None) -> dict[int, np.ndarray] | None:
-        """Per sensor, (n, dim, dim): what rounding each joint reading to its encoder step adds to a
-        measurement.
+        """Per sensor, (n, dim, dim): what each joint reading's error adds to a measurement.
 
-        A reading's rounding error is uniform over one step (variance step^2 / 12) and moves the
-        prediction like the joint's offset does, so its Jacobian is the offset's column.
+        A reading's rounding error is uniform over one step (variance step^2 / 12), plus the reading's own noise
+        where the profile declares one (`Joint.reading_sd`); it moves the prediction like the joint's offset
+        does, so its Jacobian is the offset's column.
         """
-        steps = {op.param: self.profile.joints[op.joint].resolution for op in self._op if op.joint >= 0}
+        steps = {op.param: self.profile.joints[op.joint].reading_sd for op in self._op if op.joint >= 0}
         steps = {k: v for k, v in steps.items() if v > 0}
         if not steps:
             return None
         if J is None or J.shape[1] != len(steps):
             J = self._offset_jacobian(list(steps), p)
-        scale = np.sqrt(np.array(list(steps.values())) ** 2 / 12.0)
+        scale = np.array(list(steps.values()))
         out = {}
         for b in self.blocks:
             Jq = J[b.rows].reshape(-1, b.dim, len(steps)) * scale

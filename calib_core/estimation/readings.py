@@ -18,6 +18,10 @@ and the Jacobian is P [J; 0] exactly. The cost is r^T (Sigma + U S U^T)^-1 r: th
 the whole configuration, whose covariance (J^T P J)^-1 accounts for the shared rounding. U is taken at the base
 model, then again at each solution the fit reaches (`relinearise`): with pixel noise far below a reading step's
 effect, U's error at a model a few degrees off would outweigh the noise and bias the offsets.
+
+A reading may also carry noise of its own (`Joint.noise`: a controller's reported flange pose, read as the six
+joints of calib_core.model.flange_pose): its variance adds to the rounding's in the prior, and the same
+elimination keeps the image's corners from absorbing it.
 """
 
 from __future__ import annotations
@@ -67,10 +71,10 @@ class ReadingErrors:
         configuration of each data row; `offset_jacobian(params)`: the unweighted data rows' Jacobian with
         respect to those joint offsets at the base model."""
         steps = {
-            op.param: (op.joint, profile.joints[op.joint].resolution)
+            op.param: (op.joint, profile.joints[op.joint].reading_sd)
             for f in profile.frames
             for op in f.ops
-            if op.joint >= 0 and profile.joints[op.joint].resolution > 0
+            if op.joint >= 0 and profile.joints[op.joint].reading_sd > 0
         }
         if not steps or len(row_cfg) == 0:
             return None
@@ -100,7 +104,7 @@ class ReadingErrors:
             for j, (_, cfgs) in enumerate(vs):
                 reads[cfgs, j] = True
             mask = reads[row_cfg[rows]]
-            std = np.array([steps[params[k]][1] / np.sqrt(12.0) for k, _ in vs])
+            std = np.array([steps[params[k]][1] for k, _ in vs])
             clusters.append(_Cluster(rows, np.array([k for k, _ in vs]), mask, std))
         return cls(clusters, params, Jq)
 

@@ -6,6 +6,10 @@
     <folder>/data.csv       the measured observations in the robot's pinned CSV format
     <folder>/truth.json     (simulated sessions) the hidden true parameters, display units
     <folder>/images/        camera images (JPEG; the detections were made before compression), where kept
+    <folder>/profile.yaml   (a robot no built-in profile describes) its profile, e.g. a robot known by its
+                            reported flange pose (calib_core.io.flange_session)
+
+A prismatic joint's reading (under "joints_deg" as any joint's) is a length in its profile's length unit.
 
 The CSV is the contract other tools read; session.json adds what the CSV cannot hold: frames whose
 detector found nothing, and where each frame's images are.
@@ -34,6 +38,7 @@ from .csv_format import read_dataset, to_csv
 from .observations_csv import parse_observations, to_observations_csv
 
 FORMAT = "calib-session/1"
+CARRIED_PROFILE = "profile.yaml"  # a session of a robot no built-in profile describes may carry its own
 
 
 @dataclass
@@ -85,9 +90,10 @@ def write_session(
     images: dict[int, dict[str, np.ndarray]] | None = None,
     truth: np.ndarray | None = None,
     measured: datetime | None = None,
+    extra: dict[str, str] | None = None,
 ) -> None:
     """Write a session folder whole: it is built beside the target and moved into place, so a
-    crash leaves the old folder or the new one, never half of one."""
+    crash leaves the old folder or the new one, never half of one. `extra`: more text files (name -> text)."""
     target = Path(folder)
     target.parent.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}."))
@@ -123,6 +129,8 @@ def write_session(
         write_atomic(work / meta["data"], text)
         if truth is not None:
             write_atomic(work / "truth.json", json.dumps(profile.params_to_display(truth), indent=1) + "\n")
+        for file_name, text in (extra or {}).items():
+            write_atomic(work / file_name, text)
         if target.exists():
             old = target.with_name(f".{target.name}.old")
             shutil.rmtree(old, ignore_errors=True)
@@ -138,9 +146,13 @@ def write_session(
 
 def read_session(folder: str | Path, profile: Profile | None = None) -> SessionFolder:
     """A session folder; InputError names the file and the field of any problem. `profile`: the robot
-    the folder must be of (a robot of one's own); default a built-in one, by the folder's robot name."""
+    the folder must be of (a robot of one's own); default the profile the folder carries (`profile.yaml`, a
+    robot known by its flange pose: calib_core.io.flange_session), else a built-in one, by the folder's robot
+    name."""
     folder = Path(folder)
     meta, meta_path = _meta(folder)
+    if profile is None and (folder / CARRIED_PROFILE).is_file():
+        profile = load_profile(folder / CARRIED_PROFILE)
     try:
         profile = _profile(meta["robot"], profile)
         if not isinstance(meta["frames"], list):

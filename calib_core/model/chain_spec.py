@@ -22,7 +22,8 @@ Step = tuple[str, np.ndarray, str, float, bool]
 
 
 def compile_joints(read: FieldReader, doc: dict) -> list[Joint]:
-    """`joints:`, each with its limits, velocity and resolution in internal units (rad, or the length unit)."""
+    """`joints:`, each with its limits, velocity, resolution and reading noise in internal units (rad, or the length
+    unit)."""
     out = []
     for jname, spec in (doc.get("joints") or {}).items():
         where = f"joints.{jname}"
@@ -35,9 +36,12 @@ def compile_joints(read: FieldReader, doc: dict) -> list[Joint]:
         upper = read.number(read.get(spec, "upper", where), f"{where}.upper") * scale
         vel = read.number(read.get(spec, "velocity", where, 30.0), f"{where}.velocity") * scale
         res = read.number(spec.get("resolution", 0.0), f"{where}.resolution") * scale
+        noise = read.number(spec.get("noise", 0.0), f"{where}.noise") * scale
         if lower > upper:
             raise read.fail(where, "lower limit above upper limit")
-        out.append(Joint(str(jname), lower, upper, vel, res, prismatic))
+        if res < 0 or noise < 0:
+            raise read.fail(f"{where}.{'resolution' if res < 0 else 'noise'}", "must not be negative")
+        out.append(Joint(str(jname), lower, upper, vel, res, prismatic, noise))
     return out
 
 

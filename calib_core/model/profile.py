@@ -74,6 +74,13 @@ class Joint:
     velocity: float  # rad/s (prismatic: length unit/s)
     resolution: float = 0.0  # the encoder's step; its rounding is noise on every reading
     prismatic: bool = False
+    noise: float = 0.0  # the standard deviation of a reading's own error (a reported pose's), as `lower`
+
+    @property
+    def reading_sd(self) -> float:
+        """The standard deviation of a reading's error: its rounding to the step (uniform over one step) and its
+        own noise."""
+        return math.sqrt(self.resolution**2 / 12.0 + self.noise**2)
 
 
 @dataclass(frozen=True)

@@ -197,7 +197,11 @@ class SimulatedRobot:
 
     # --- seeing: rendered images and the detectors ------------------------------------------------
     def readings(self, q: np.ndarray) -> np.ndarray:
-        """What the encoders report for true readings q: rounded to each joint's resolution."""
+        """What the encoders report for true readings q: with each joint's own noise where it declares one (a
+        controller's reported pose), rounded to its resolution."""
+        noise = np.array([j.noise for j in self.profile.joints])
+        if noise.any():
+            q = q + self.rng.normal(size=q.shape) * noise
         step = np.array([j.resolution for j in self.profile.joints])
         if not self.quantise:
             return q.copy()
