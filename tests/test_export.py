@@ -14,7 +14,8 @@ import yaml
 import yourdfpy
 
 from calib_core.estimation.calibration import Calibration, parameter_estimate
-from calib_core.io.export import calibrated_urdf, offsets_geometry, offsets_yaml
+from calib_core.io.export import calibrated_links, calibrated_urdf, offsets_geometry, offsets_yaml
+from calib_core.io.ros_tf import link_names
 from calib_core.io.urdf_export import to_urdf
 from calib_core.model.kinematics import forward
 from calib_core.model.loader import BUILTIN_PROFILES, load_profile
@@ -171,3 +172,26 @@ def _joint_order(profile: Profile) -> list[str]:
         if f.joint >= 0:
             seen.setdefault(profile.joints[f.joint].name)
     return list(seen)
+
+
+# A camera's frame in calib_core's model of a profile (Motoman's), and in the user's URDF (the hand-eye arm's).
+@pytest.mark.parametrize(("name", "frame"), [("motoman", "camera1"), ("arm-handeye", "camera_mount")])
+def test_renamed_links_stand_where_they_stood_under_their_new_names(name: str, frame: str, tmp_path: Path) -> None:
+    """A camera's frame, its parent's and the base renamed (the names a ROS robot's TF uses): every link at the same
+    pose, every reference following, no old name left."""
+    profile = load_profile(name)
+    cal = _calibration(profile, _perturbed(profile, 4), "full")
+    camera = profile.frames[profile.frame(frame)]
+    names = {camera.name: "camera_optical_frame", profile.frames[camera.parent].name: "mount", profile.base: "world"}
+    plain = calibrated_urdf(profile, cal)
+    assert calibrated_links(profile) == link_names(plain)
+    renamed = _load(tmp_path, "renamed.urdf", calibrated_urdf(profile, cal, names))
+    original = _load(tmp_path, "plain.urdf", plain)
+    assert set(renamed.link_map) == {names.get(link, link) for link in original.link_map}
+    for angles in _readings(profile, 5)[:2]:
+        cfg = dict(zip(profile.joint_names, angles, strict=True))
+        original.update_cfg(cfg)
+        renamed.update_cfg(cfg)
+        for link in original.link_map:
+            T = renamed.get_transform(frame_to=names.get(link, link), frame_from="world")
+            np.testing.assert_allclose(T, original.get_transform(frame_to=link, frame_from=profile.base), atol=1e-12)

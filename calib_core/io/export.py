@@ -10,8 +10,8 @@ driver that model; use one of them, never both:
   `<calibration>` tags, so none are used. For a profile loaded from a URDF it is the user's own file
   with only the changed `<origin>`s rewritten (meshes, inertials, materials, everything else kept) and the
   set-up's fixed frames it has no link for (a camera mount, a board) added on fixed joints;
-  for the other profiles it is calib_core.urdf's model of the profile. A comment in the file says
-  what changed.
+  for the other profiles it is calib_core.urdf's model of the profile. Its links may be renamed to
+  the names a ROS robot's TF uses (ros_tf.py). A comment in the file says what changed.
 - the offsets YAML: per joint, what to add to the encoder reading (deg) before giving it to the
   robot's nominal model (the original URDF). That alone is the calibrated model when the calibration
   changed nothing but joint offsets; otherwise its `geometry` lists the other changes (those only
@@ -20,6 +20,8 @@ driver that model; use one of them, never both:
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 import yaml
@@ -30,6 +32,7 @@ from ..model.kinematics import axis_angle
 from ..model.profile import Frame, Profile
 from ..model.urdf_import import UrdfRobot, profile_urdf
 from ..units import length_factor
+from .ros_tf import link_names, rename_links
 from .urdf_export import rpy_angles, to_urdf, urdf_numbers
 
 DIGITS = 10  # decimals of the YAML's values: far below any calibration, exact enough to 1e-9 m
@@ -148,21 +151,37 @@ def bhuman_joint_calibration(profile: Profile, cal: Calibration) -> str:
     return "\n".join([*lines, "};", ""])
 
 
-def calibrated_urdf(profile: Profile, cal: Calibration) -> str:
-    """The robot's URDF with the calibration's geometry and offsets in its joint origins."""
+def calibrated_urdf(profile: Profile, cal: Calibration, links: Mapping[str, str] | None = None) -> str:
+    """The robot's URDF with the calibration's geometry and offsets in its joint origins; `links` renames links
+    (a profile frame -> the name a ROS robot's TF gives it; calibrated_links() are the names there are), every
+    reference to them following."""
     p = cal.params(profile)
     header = (
         f"Calibrated by robot-selfcal: robot '{profile.name}', mode '{cal.mode}', created {cal.created}, "
         f"from {cal.source or 'unknown data'}. {USE_URDF}"
     )
+    if links:
+        header += f" Renamed links (profile frame -> link): {', '.join(f'{a} -> {b}' for a, b in links.items())}."
+    return _calibrated(profile, p, header, links or {})
+
+
+def calibrated_links(profile: Profile) -> list[str]:
+    """The links of the profile's calibrated URDF, none renamed: the same for every calibration (only numbers
+    differ)."""
+    return link_names(_calibrated(profile, profile.nominal(), USE_URDF, {}))
+
+
+def _calibrated(profile: Profile, p: np.ndarray, header: str, links: Mapping[str, str]) -> str:
     robot = profile_urdf(profile)
     if robot is None:
-        return _with_comment(to_urdf(profile, p), header)
-    return corrected_urdf(profile, p, robot, header)
+        return _with_comment(to_urdf(profile, p), header, links)
+    return corrected_urdf(profile, p, robot, header, links)
 
 
-def corrected_urdf(profile: Profile, p: np.ndarray, robot: UrdfRobot, header: str = USE_URDF) -> str:
-    """The user's URDF file with the joint origins of parameters p (a profile loaded from it).
+def corrected_urdf(
+    profile: Profile, p: np.ndarray, robot: UrdfRobot, header: str = USE_URDF, links: Mapping[str, str] | None = None
+) -> str:
+    """The user's URDF file with the joint origins of parameters p (a profile loaded from it), `links` renamed.
 
     Only the `<origin>` of a joint whose transform changed is rewritten (with a comment giving the
     old values and the changes); every other byte of meaning stays (links, meshes, inertials,
@@ -206,6 +225,7 @@ def corrected_urdf(profile: Profile, p: np.ndarray, robot: UrdfRobot, header: st
     comment = etree.Comment(_comment_text(note))
     root.insert(0, comment)
     comment.tail = root.text
+    rename_links(root, links or {})
     return _document(root)
 
 
@@ -303,10 +323,11 @@ def _comment_before(element: etree._Element, text: str) -> None:
     comment.tail = indent
 
 
-def _with_comment(urdf_text: str, text: str) -> str:
-    """calib_core.urdf's document with a comment first inside <robot>."""
+def _with_comment(urdf_text: str, text: str, links: Mapping[str, str]) -> str:
+    """calib_core.urdf's document with a comment first inside <robot>, `links` renamed."""
     root = etree.fromstring(urdf_text.encode("utf-8"))
     comment = etree.Comment(_comment_text(text))
     root.insert(0, comment)
     comment.tail = root.text
+    rename_links(root, links)
     return _document(root)

@@ -11,16 +11,15 @@ The camera's frame is the one the calibration used: OpenCV's optical frame (x ri
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..estimation.handeye import zyx_angles
+from .ros_tf import FRAME, StaticTransform, quaternion, static_tf_launch
 
 HANDEYE_FORMATS = ("ros2-static-tf", "urdf-joint", "easy-handeye")
-FRAME = re.compile(r"[A-Za-z_][A-Za-z0-9_/]*")
 
 
 def read_handeye(path: str | Path) -> tuple[str, np.ndarray]:
@@ -52,28 +51,10 @@ def export_handeye(setup: str, T: np.ndarray, fmt: str, parent: str, child: str)
         if not FRAME.fullmatch(frame):
             raise InputError(f"{option} {frame!r}: a frame name (letters, digits, _ and /)")
     x, y, z = (float(v) for v in T[:3, 3])
-    qx, qy, qz, qw = _quaternion(T[:3, :3])
+    qx, qy, qz, qw = quaternion(T[:3, :3])
     source = f"calib handeye ({setup}): the camera's optical frame {child} in {parent}"
     if fmt == "ros2-static-tf":
-        args = [
-            f'"--{k}", "{v!r}"'
-            for k, v in (("x", x), ("y", y), ("z", z), ("qx", qx), ("qy", qy), ("qz", qz), ("qw", qw))
-        ]
-        return (
-            f"# {source}: published on /tf_static.\n"
-            "from launch import LaunchDescription\n"
-            "from launch_ros.actions import Node\n\n\n"
-            "def generate_launch_description():\n"
-            "    return LaunchDescription([\n"
-            "        Node(\n"
-            '            package="tf2_ros",\n'
-            '            executable="static_transform_publisher",\n'
-            '            name="calib_handeye",\n'
-            f"            arguments=[{', '.join(args)},\n"
-            f'                       "--frame-id", "{parent}", "--child-frame-id", "{child}"],\n'
-            "        ),\n"
-            "    ])\n"
-        )
+        return static_tf_launch([StaticTransform(parent, child, T, "calib_handeye")], source)
     if fmt == "urdf-joint":
         yaw, pitch, roll = zyx_angles(T[:3, :3])  # URDF's rpy: R = Rz(yaw) Ry(pitch) Rx(roll)
         return (
@@ -99,11 +80,3 @@ def export_handeye(setup: str, T: np.ndarray, fmt: str, parent: str, child: str)
             f"  qw: {qw!r}\n"
         )
     raise InputError(f"--format {fmt!r}: a hand-eye result exports as {', '.join(HANDEYE_FORMATS)}")
-
-
-def _quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(R).as_quat()  # x, y, z, w
-    q = q if q[3] >= 0 else -q
-    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
