@@ -24,21 +24,32 @@ __getattr__ = lazy_exports(
             "to_csv",
         ),
         "ctu_motoman": ("camera_dataset",),
-        "export": ("bhuman_joint_calibration", "calibrated_urdf", "estimated_offsets_deg", "offsets_yaml"),
+        "export": (
+            "bhuman_joint_calibration",
+            "calibrated_links",
+            "calibrated_urdf",
+            "estimated_offsets_deg",
+            "offsets_yaml",
+        ),
         "flange_poses": ("BoardSpec", "Camera", "parse_board", "read_camera", "read_flange_poses"),
         "handeye_export": ("HANDEYE_FORMATS", "export_handeye", "read_handeye"),
+        "ros_tf": ("FRAME_NAME", "LinkPose", "StaticTransform", "link_poses", "static_tf_launch"),
         "session": ("FrameRecord", "csv_sensors", "parse_measured", "read_session", "session_robot", "write_session"),
         "urdf_export": ("BODY", "to_urdf"),
     },
 )
 __all__ = [
     "BODY",
+    "FRAME_NAME",
     "HANDEYE_FORMATS",
     "NAOQI_COLOR_SPACES",
     "BoardSpec",
     "Camera",
     "FrameRecord",
+    "LinkPose",
+    "StaticTransform",
     "bhuman_joint_calibration",
+    "calibrated_links",
     "calibrated_urdf",
     "camera_dataset",
     "csv_sensors",
@@ -47,6 +58,7 @@ __all__ = [
     "grey_image",
     "handeye_folder_from_bag",
     "import_bag",
+    "link_poses",
     "measurement_values",
     "naoqi_image",
     "offsets_yaml",
@@ -62,6 +74,7 @@ __all__ = [
     "readings_beyond_limits",
     "select_rows",
     "session_robot",
+    "static_tf_launch",
     "to_csv",
     "to_urdf",
     "write_session",
@@ -81,8 +94,15 @@ if TYPE_CHECKING:
         to_csv,
     )
     from .ctu_motoman import camera_dataset
-    from .export import bhuman_joint_calibration, calibrated_urdf, estimated_offsets_deg, offsets_yaml
+    from .export import (
+        bhuman_joint_calibration,
+        calibrated_links,
+        calibrated_urdf,
+        estimated_offsets_deg,
+        offsets_yaml,
+    )
     from .flange_poses import BoardSpec, Camera, parse_board, read_camera, read_flange_poses
     from .handeye_export import HANDEYE_FORMATS, export_handeye, read_handeye
+    from .ros_tf import FRAME_NAME, LinkPose, StaticTransform, link_poses, static_tf_launch
     from .session import FrameRecord, csv_sensors, parse_measured, read_session, session_robot, write_session
     from .urdf_export import BODY, to_urdf

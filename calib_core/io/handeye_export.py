@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimation.handeye import zyx_angles
-from .ros_tf import FRAME, StaticTransform, quaternion, static_tf_launch
+from .ros_tf import FRAME_NAME, StaticTransform, quaternion, static_tf_launch
 
 HANDEYE_FORMATS = ("ros2-static-tf", "urdf-joint", "easy-handeye")
 
@@ -48,7 +48,7 @@ def read_handeye(path: str | Path) -> tuple[str, np.ndarray]:
 def export_handeye(setup: str, T: np.ndarray, fmt: str, parent: str, child: str) -> str:
     """The camera's pose T (4, 4, m) in `parent` as `fmt` (HANDEYE_FORMATS), `child` the camera's optical frame."""
     for option, frame in (("--parent", parent), ("--child", child)):
-        if not FRAME.fullmatch(frame):
+        if not FRAME_NAME.fullmatch(frame):
             raise InputError(f"{option} {frame!r}: a frame name (letters, digits, _ and /)")
     x, y, z = (float(v) for v in T[:3, 3])
     qx, qy, qz, qw = quaternion(T[:3, :3])

@@ -17,7 +17,7 @@ from lxml import etree
 
 from ..model.kinematics import axis_angle
 
-FRAME = re.compile(r"[A-Za-z_][A-Za-z0-9_/]*")  # a TF frame name (a URDF link's as robot_state_publisher sends it)
+FRAME_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_/]*")  # a TF frame name (a URDF link's as robot_state_publisher sends it)
 _AXES = np.eye(3)
 
 

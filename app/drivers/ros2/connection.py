@@ -10,6 +10,7 @@
     # a stereo head (extension): {left: .../left/image_rect, left_info: .../left/camera_info,
     #                             right: .../right/image_rect, right_info: .../right/camera_info}
     apply: {node: /robot_state_publisher, parameter: robot_description}   # optional
+    # extension: frames: {camera_mount: camera_color_optical_frame} (frames.py), the node optional with it
 
 Extensions of the contract (optional, with their defaults): `wait_s: 30` (how long `calib serve` waits for
 the robot's description and joint states), `timeout_s: 1.0` (joint states older than this: disconnected),
@@ -53,6 +54,7 @@ from calib_core.safe_yaml import read_yaml
 from ..connection_file import profile_ref, read_connection
 from ..core import DEFAULT_SETTLE_S
 from . import require
+from .frames import check_frames, read_frames
 
 FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")
 OPTIONS = {
@@ -120,6 +122,7 @@ class Connection:
     apply_node: str | None = None
     apply_parameter: str | None = None
     options: dict[str, float] = field(default_factory=lambda: dict(OPTIONS))
+    apply_frames: dict[str, str] = field(default_factory=dict)  # profile frame -> its link's name (frames.py)
 
     @property
     def urdf_from_graph(self) -> bool:
@@ -163,12 +166,21 @@ def load_connection(path: Path) -> Connection:
         info = _topic(spec, "info", file, where) if "info" in spec else None
         measurements.append(Measurement(str(sensor), _topic(spec, "topic", file, where), info))
     apply_node = apply_parameter = None
+    frames: dict[str, str] = {}
     if doc.get("apply") is not None:
         spec = doc["apply"]
-        if not isinstance(spec, dict) or set(spec) != {"node", "parameter"}:
-            raise InputError("apply: expected {node: /robot_state_publisher, parameter: robot_description}", file=file)
-        apply_node = _topic(spec, "node", file, "apply")
-        apply_parameter = _text(spec, "parameter", file, "apply")
+        keys = set(spec) if isinstance(spec, dict) else None  # node and parameter, frames with or without them
+        if keys not in ({"node", "parameter"}, {"node", "parameter", "frames"}, {"frames"}):
+            raise InputError(
+                "apply: expected {node: /robot_state_publisher, parameter: robot_description}, optionally with "
+                "frames: {profile frame: link name}",
+                file=file,
+            )
+        if "node" in spec:
+            apply_node = _topic(spec, "node", file, "apply")
+            apply_parameter = _text(spec, "parameter", file, "apply")
+        if "frames" in spec:
+            frames = read_frames(spec["frames"], file)
     options = dict(OPTIONS)
     for key in OPTIONS:
         if key in doc:
@@ -177,20 +189,23 @@ def load_connection(path: Path) -> Connection:
                 raise InputError(f"{key}: expected a positive number, got {value!r}", file=file)
             options[key] = float(value)
     conn = Connection(
-        path, doc["robot"], profile, *topics.values(), tuple(measurements), apply_node, apply_parameter, options
+        path, doc["robot"], profile, *topics.values(), tuple(measurements), apply_node, apply_parameter, options, frames
     )
-    _check_sensors(conn, conn.load_profile(None) if not conn.urdf_from_graph else None)
+    if not conn.urdf_from_graph:
+        check_against(conn, conn.load_profile(None))
     return conn
 
 
 def check_against(conn: Connection, profile: Profile) -> None:
-    """The connection's sensors against the robot's profile (InputError naming the field)."""
+    """The connection's sensors and apply.frames against the robot's profile (InputError naming the field)."""
     _check_sensors(conn, profile)
+    if conn.apply_frames:
+        from calib_core.io import calibrated_links
+
+        check_frames(conn.apply_frames, profile, calibrated_links(profile), str(conn.path))
 
 
-def _check_sensors(conn: Connection, profile: Profile | None) -> None:
-    if profile is None:
-        return
+def _check_sensors(conn: Connection, profile: Profile) -> None:
     from calib_core.vision import finders_served, found_targets  # OpenCV: only once a profile is checked
 
     file = str(conn.path)

@@ -2,8 +2,8 @@
 driver core (core.py) over the robot's topics.
 
 Options: `connection` (the connection file, app/drivers/ros2/connection.py) and `files` (the folder in the data
-directory where apply writes the calibrated URDF and the offsets YAML). `calib serve --ros2 FILE` makes
-both.
+directory where apply writes the calibrated URDF, the offsets YAML and, with `apply.frames`, the launch file that
+publishes the named links on /tf_static: frames.py). `calib serve --ros2 FILE` makes both.
 
 Joint readings come from `/joint_states` (matched by name, rad; a prismatic joint's metres in the
 profile's length unit). A move is one JointTrajectory of every profile joint, one point, `time_from_start`
@@ -34,7 +34,7 @@ import numpy as np
 
 from calib_core import Calibration, InputError, Profile
 from calib_core.files import write_atomic
-from calib_core.io import calibrated_urdf, grey_image, offsets_yaml
+from calib_core.io import calibrated_urdf, grey_image, link_poses, offsets_yaml
 from calib_core.units import length_factor
 from calib_core.vision import StereoHead
 
@@ -43,6 +43,7 @@ from .. import RobotFault
 from ..calls import calling
 from ..core import Command, Driver, Feed, Measurement, Motion, per_joint
 from ..registry import DriverContext
+from .frames import launch_file, published
 
 DURATION_FACTOR = 1.05  # time_from_start this much longer than the fastest the velocity limits allow
 MIN_DURATION_S = 0.1
@@ -343,20 +344,36 @@ class Ros2Transport:
 
     # --- calibration ----------------------------------------------------------------------------------
     def deploy(self, cal_id: str, cal: Calibration) -> str:
-        """Write the calibrated URDF and the offsets YAML into the data directory, then (with `apply:`) set the
-        node's parameter to that URDF; RobotFault when the node refuses or does not answer. What was done, as
+        """Write the calibrated URDF (its links named as `apply.frames` says), the offsets YAML and (with
+        `apply.frames`) the launch file of the named links into the data directory, then (with `apply: {node}`) set
+        the node's parameter to that URDF; RobotFault when the node refuses or does not answer. What was done, as
         a sentence for the apply history."""
-        urdf = calibrated_urdf(self.profile, cal)
-        done = []
+        names = self.conn.apply_frames
+        urdf = calibrated_urdf(self.profile, cal, names)
+        poses = link_poses(urdf, names.values())
+        wrote = []
         if self.files is not None:
-            write_atomic(self.files / f"{cal_id}.urdf", urdf)
-            write_atomic(self.files / f"{cal_id}.offsets.yaml", offsets_yaml(self.profile, cal))
-            done.append(f"wrote {cal_id}.urdf and {cal_id}.offsets.yaml")
+            wrote = [f"{cal_id}.urdf", f"{cal_id}.offsets.yaml"]
+            write_atomic(self.files / wrote[0], urdf)
+            write_atomic(self.files / wrote[1], offsets_yaml(self.profile, cal))
+            source = f"robot-selfcal: calibration {cal_id} of robot '{self.profile.name}', the links of apply.frames"
+            launch = launch_file(poses, source)
+            if launch is not None:
+                wrote.append(f"{cal_id}.tf_static.launch.py")
+                write_atomic(self.files / wrote[-1], launch)
+        done = []
         if self._set_parameters is not None:
             self._set_parameter(urdf)
-            done.insert(0, f"set {self.conn.apply_parameter} of {self.conn.apply_node} to the calibrated URDF")
+            node = self.conn.apply_node
+            done.append(f"set {self.conn.apply_parameter} of {node} to the calibrated URDF")
+            if poses:
+                done.append(f"{node} publishes {published(poses)}")
             if self.files is not None:
                 write_atomic(self.files / "applied.urdf", urdf)
+        if wrote:
+            done.append(f"wrote {', '.join(wrote[:-1])} and {wrote[-1]}")
+        if len(wrote) > 2 and self._set_parameters is None:  # the launch file, for a robot without the node
+            done.append(f"{wrote[-1]} publishes {published([p for p in poses if p.fixed])}")
         return "; ".join(done)
 
     def _set_parameter(self, urdf: str) -> None:
