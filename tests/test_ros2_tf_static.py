@@ -216,3 +216,27 @@ def test_without_robot_state_publisher_apply_writes_the_launch_file_of_the_fixed
     text = (tmp_path / "files" / "c1.tf_static.launch.py").read_text(encoding="utf-8")
     assert text.count("static_transform_publisher") == 1
     assert '"--y", "0.06"' in text and '"--frame-id", "tool0", "--child-frame-id", "camera_optical_frame"' in text
+
+
+def test_a_profile_of_the_graphs_urdf_has_its_names_checked_against_the_urdf_received(tmp_path) -> None:
+    """`urdf: ros2` (the demo arm): the links are known once the robot's URDF is received, and `calib serve` checks
+    apply.frames against that URDF's links then (connect(), before the desk starts)."""
+    from app.drivers.ros2.connection import check_against, load_connection
+    from calib_core import InputError
+
+    arm = Path(__file__).resolve().parent.parent / "docs" / "ros2"
+    doc = yaml.safe_load((arm / "arm-connection.yaml").read_text(encoding="utf-8"))
+    doc["profile"] = str(arm / doc["profile"])
+    for tool, expected in (("flange", None), ("wrist_2_link", "'wrist_2_link' is the name of another link")):
+        doc["apply"]["frames"] = {"mocap": "mocap_optical_frame", "tool0": tool}
+        path = tmp_path / "arm.yaml"
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        conn = load_connection(path)  # no URDF yet: the profile's links are not known
+        received = arm / "arm.urdf"
+        profile = conn.load_profile(received)
+        if expected is None:
+            check_against(conn, profile, received)
+            continue
+        with pytest.raises(InputError) as refused:
+            check_against(conn, profile, received)
+        assert str(refused.value).startswith(f"{path}: apply.frames.tool0: {expected}")

@@ -22,6 +22,7 @@ driver that model; use one of them, never both:
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 import yaml
@@ -30,7 +31,7 @@ from lxml import etree
 from ..estimation.calibration import Calibration
 from ..model.kinematics import axis_angle
 from ..model.profile import Frame, Profile
-from ..model.urdf_import import UrdfRobot, profile_urdf
+from ..model.urdf_import import UrdfRobot, profile_urdf, read_urdf
 from ..units import length_factor
 from .ros_tf import link_names, rename_links
 from .urdf_export import rpy_angles, to_urdf, urdf_numbers
@@ -165,10 +166,13 @@ def calibrated_urdf(profile: Profile, cal: Calibration, links: Mapping[str, str]
     return _calibrated(profile, p, header, links or {})
 
 
-def calibrated_links(profile: Profile) -> list[str]:
+def calibrated_links(profile: Profile, urdf: str | Path | None = None) -> list[str]:
     """The links of the profile's calibrated URDF, none renamed: the same for every calibration (only numbers
-    differ)."""
-    return link_names(_calibrated(profile, profile.nominal(), USE_URDF, {}))
+    differ). `urdf`: the URDF file the profile was loaded with, when its profile file does not name it (`urdf: ros2`:
+    a ROS 2 robot's, received from its graph)."""
+    robot = profile_urdf(profile) if urdf is None else read_urdf(urdf)
+    text = to_urdf(profile) if robot is None else corrected_urdf(profile, profile.nominal(), robot)
+    return link_names(text)
 
 
 def _calibrated(profile: Profile, p: np.ndarray, header: str, links: Mapping[str, str]) -> str:

@@ -196,13 +196,14 @@ def load_connection(path: Path) -> Connection:
     return conn
 
 
-def check_against(conn: Connection, profile: Profile) -> None:
-    """The connection's sensors and apply.frames against the robot's profile (InputError naming the field)."""
+def check_against(conn: Connection, profile: Profile, urdf: Path | None = None) -> None:
+    """The connection's sensors and apply.frames against the robot's profile (InputError naming the field); `urdf`:
+    the URDF received, which a profile of `urdf: ros2` was loaded with."""
     _check_sensors(conn, profile)
     if conn.apply_frames:
         from calib_core.io import calibrated_links
 
-        check_frames(conn.apply_frames, profile, calibrated_links(profile), str(conn.path))
+        check_frames(conn.apply_frames, profile, calibrated_links(profile, urdf), str(conn.path))
 
 
 def _check_sensors(conn: Connection, profile: Profile) -> None:
@@ -339,7 +340,7 @@ def connect(meeting: Meeting, data_dir: Path) -> tuple[str, dict[str, Any]]:
                     f"(the message's text{line}): {exc.message}",
                     file=str(conn.path),
                 ) from None
-        check_against(conn, profile)
+            check_against(conn, profile, received if conn.urdf_from_graph else None)
         missing = [j.name for j in profile.joints if j.name not in got["joints"]]
         if missing:
             raise InputError(
