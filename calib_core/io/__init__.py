@@ -26,6 +26,7 @@ __getattr__ = lazy_exports(
         "ctu_motoman": ("camera_dataset",),
         "export": ("bhuman_joint_calibration", "calibrated_urdf", "estimated_offsets_deg", "offsets_yaml"),
         "flange_poses": ("BoardSpec", "Camera", "parse_board", "read_camera", "read_flange_poses"),
+        "flange_session": ("FlangeSession", "flange_pose_session", "write_flange_session"),
         "handeye_export": ("HANDEYE_FORMATS", "export_handeye", "read_handeye"),
         "session": ("FrameRecord", "csv_sensors", "parse_measured", "read_session", "session_robot", "write_session"),
         "urdf_export": ("BODY", "to_urdf"),
@@ -37,6 +38,7 @@ __all__ = [
     "NAOQI_COLOR_SPACES",
     "BoardSpec",
     "Camera",
+    "FlangeSession",
     "FrameRecord",
     "bhuman_joint_calibration",
     "calibrated_urdf",
@@ -44,6 +46,7 @@ __all__ = [
     "csv_sensors",
     "estimated_offsets_deg",
     "export_handeye",
+    "flange_pose_session",
     "grey_image",
     "handeye_folder_from_bag",
     "import_bag",
@@ -64,6 +67,7 @@ __all__ = [
     "session_robot",
     "to_csv",
     "to_urdf",
+    "write_flange_session",
     "write_session",
 ]
 
@@ -83,6 +87,7 @@ if TYPE_CHECKING:
     from .ctu_motoman import camera_dataset
     from .export import bhuman_joint_calibration, calibrated_urdf, estimated_offsets_deg, offsets_yaml
     from .flange_poses import BoardSpec, Camera, parse_board, read_camera, read_flange_poses
+    from .flange_session import FlangeSession, flange_pose_session, write_flange_session
     from .handeye_export import HANDEYE_FORMATS, export_handeye, read_handeye
     from .session import FrameRecord, csv_sensors, parse_measured, read_session, session_robot, write_session
     from .urdf_export import BODY, to_urdf
