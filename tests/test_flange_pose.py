@@ -12,9 +12,15 @@ import pytest
 from calib_core.estimation import calibrate_flange, find_views
 from calib_core.estimation.calibrate import calibrate
 from calib_core.io import parse_board, read_camera, read_flange_poses
-from calib_core.io.flange_session import board_target, flange_session, write_flange_session
+from calib_core.io.flange_session import board_target, flange_pose_session, write_flange_session
 from calib_core.io.session import read_session
-from calib_core.model.flange_pose import flange_pose_profile, readings, reference_rotation, zyx_angles
+from calib_core.model.flange_pose import (
+    flange_pose_profile,
+    profile_reference,
+    readings,
+    reference_rotation,
+    zyx_angles,
+)
 from calib_core.model.kinematics import axis_angle
 from calib_core.model.loader import compile_profile
 from calib_core.sim.simulator import SimulatedRobot
@@ -168,14 +174,6 @@ def test_modelling_the_poses_noise_finds_the_camera_better_than_taking_them_as_e
     assert np.linalg.norm(rms["exact"]) > 1.5 * np.linalg.norm(rms["model"]), rms
 
 
-def profile_reference(profile) -> np.ndarray:
-    """The reference orientation a flange-pose profile reads its angles from."""
-    p = profile.params_from_display({})
-    angles = [p[profile.param(f"reference.{k}")] for k in ("yaw", "pitch", "roll")]
-    z, y, x = (np.eye(3)[k] for k in (2, 1, 0))
-    return axis_angle(z, angles[0]) @ axis_angle(y, angles[1]) @ axis_angle(x, angles[2])
-
-
 def test_visp_s_real_images_as_a_desk_session_agree_with_calib_handeye(tmp_path) -> None:
     """ViSP's 8 real images and poses as a desk robot and session: written, read back through its own profile,
     calibrated by the desk in mode handeye: the camera where `calib handeye`'s fit puts it (within its standard
@@ -188,7 +186,7 @@ def test_visp_s_real_images_as_a_desk_session_agree_with_calib_handeye(tmp_path)
 
     images = {n: cv2.imread(str(VISP / "images" / n)) for n in names}
     views = find_views({n: cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for n, im in images.items()}, board, camera)
-    session = flange_session("visp-arm", views, poses, camera, board, "eye-in-hand")
+    session = flange_pose_session("visp-arm", views, poses, camera, board, "eye-in-hand")
     write_flange_session(tmp_path / "visp", session, images, name="ViSP's tutorial", made_by="test")
     folder = read_session(tmp_path / "visp")  # the folder carries its robot's profile
     assert folder.robot == "visp-arm" and folder.data.n_configurations == 8

@@ -32,6 +32,7 @@ __getattr__ = lazy_exports(
             "offsets_yaml",
         ),
         "flange_poses": ("BoardSpec", "Camera", "parse_board", "read_camera", "read_flange_poses"),
+        "flange_session": ("FlangeSession", "flange_pose_session", "write_flange_session"),
         "handeye_export": ("HANDEYE_FORMATS", "export_handeye", "read_handeye"),
         "ros_tf": ("FRAME_NAME", "LinkPose", "StaticTransform", "link_poses", "static_tf_launch"),
         "session": ("FrameRecord", "csv_sensors", "parse_measured", "read_session", "session_robot", "write_session"),
@@ -45,6 +46,7 @@ __all__ = [
     "NAOQI_COLOR_SPACES",
     "BoardSpec",
     "Camera",
+    "FlangeSession",
     "FrameRecord",
     "LinkPose",
     "StaticTransform",
@@ -55,6 +57,7 @@ __all__ = [
     "csv_sensors",
     "estimated_offsets_deg",
     "export_handeye",
+    "flange_pose_session",
     "grey_image",
     "handeye_folder_from_bag",
     "import_bag",
@@ -77,6 +80,7 @@ __all__ = [
     "static_tf_launch",
     "to_csv",
     "to_urdf",
+    "write_flange_session",
     "write_session",
 ]
 
@@ -102,6 +106,7 @@ if TYPE_CHECKING:
         offsets_yaml,
     )
     from .flange_poses import BoardSpec, Camera, parse_board, read_camera, read_flange_poses
+    from .flange_session import FlangeSession, flange_pose_session, write_flange_session
     from .handeye_export import HANDEYE_FORMATS, export_handeye, read_handeye
     from .ros_tf import FRAME_NAME, LinkPose, StaticTransform, link_poses, static_tf_launch
     from .session import FrameRecord, csv_sensors, parse_measured, read_session, session_robot, write_session

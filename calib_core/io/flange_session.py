@@ -13,14 +13,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 
 from ..dataset import Dataset
+from ..errors import InputError
 from ..estimation.flange_handeye import View, calibrate_flange
 from ..frame_status import FrameStatus
-from ..model.flange_pose import flange_pose_profile, readings, reference_rotation
+from ..model.flange_pose import (
+    flange_pose_profile,
+    is_flange_pose,
+    profile_reference,
+    readings,
+    reference_rotation,
+    setup_of,
+)
 from ..model.loader import compile_profile
 from ..model.profile import Profile
 from .flange_poses import BoardSpec, Camera, natural_key
@@ -31,7 +40,7 @@ from .session import CARRIED_PROFILE, FrameRecord, write_session
 class FlangeSession:
     """A flange-pose robot's profile (its document and compiled) and its session's observations and frames."""
 
-    doc: dict
+    doc: dict | None  # the profile's document, for a new robot (None: the robot's own)
     profile: Profile
     data: Dataset
     frames: list[FrameRecord]
@@ -48,20 +57,29 @@ def board_target(board: BoardSpec) -> dict:
     return {"charuco": charuco | {"dictionary": f"DICT_{board.dictionary}"}}
 
 
-def flange_session(
+def flange_pose_session(
     robot: str,
     views: dict[str, View],
     poses: dict[str, np.ndarray],
     camera: Camera,
     board: BoardSpec,
     setup: str,
+    profile: Profile | None = None,
 ) -> FlangeSession:
     """The robot `robot` and its session from each image's board (`find_views`) and reported flange pose (m): one
     frame per image with a pose, in the images' natural order; measured where its board was found. A chessboard's
-    corners are put in the order the poses agree with (`calibrate_flange`, in place)."""
+    corners are put in the order the poses agree with (`calibrate_flange`, in place). `profile`: the robot's, when
+    it is on the desk already (another day's images: read against its reference, its noise as it declares);
+    default a new one from these images."""
     names = [n for n in sorted(views, key=natural_key) if n in poses]
     fit = calibrate_flange(views, poses, camera, board, setup)  # the noise the images show; orders the corners
     T = np.array([poses[n] for n in names])
+    if profile is not None:
+        if not is_flange_pose(profile):
+            raise InputError(f"robot: '{profile.name}' is not a robot known by its flange pose")
+        if setup_of(profile) != setup:
+            raise InputError(f"setup: robot '{profile.name}' is {setup_of(profile)}, not {setup}")
+        return _session(robot, None, profile, views, names, T, profile_reference(profile))
     reference = reference_rotation(T[:, :3, :3])
     doc = flange_pose_profile(
         robot,
@@ -75,7 +93,18 @@ def flange_session(
         flange_sd_mm=fit.noise["flange_mm"],
         flange_sd_deg=fit.noise["flange_deg"],
     )
-    profile = compile_profile(doc, f"<{robot}>")
+    return _session(robot, doc, compile_profile(doc, f"<{robot}>"), views, names, T, reference)
+
+
+def _session(
+    robot: str,
+    doc: dict | None,
+    profile: Profile,
+    views: dict[str, View],
+    names: list[str],
+    T: np.ndarray,
+    reference: np.ndarray,
+) -> FlangeSession:
     q = readings(T, reference)
     q[:, 3:] = np.radians(q[:, 3:])
     obs: dict[str, list] = {"cfg": [], "vertex": [], "measured": []}
@@ -112,27 +141,34 @@ def flange_session(
 
 
 def write_flange_session(
-    folder: str | Path, session: FlangeSession, images: dict[str, np.ndarray], *, name: str, made_by: str
+    folder: str | Path,
+    session: FlangeSession,
+    images: dict[str, np.ndarray],
+    *,
+    name: str,
+    made_by: str,
+    measured: datetime | None = None,
 ) -> None:
     """The session folder (calib-session/1, `write_session`) with the robot's profile beside it (CARRIED_PROFILE),
     each frame's image as `image`."""
     import yaml
 
     frame_images = {f: {"image": images[n]} for f, n in session.image_of.items() if n in images}
-    measured = sum(fr.status == FrameStatus.MEASURED for fr in session.frames)
+    found = sum(fr.status == FrameStatus.MEASURED for fr in session.frames)
     write_session(
         folder,
         session.profile,
         name=name,
         description=(
-            f"{len(session.frames)} images with the flange pose the controller reported, {measured} with the board "
+            f"{len(session.frames)} images with the flange pose the controller reported, {found} with the board "
             "found (a robot known by its flange pose: no URDF, no joint angles)"
         ),
         made_by=made_by,
         data=session.data,
         frames=session.frames,
         images=frame_images,
-        extra={CARRIED_PROFILE: yaml.safe_dump(session.doc, sort_keys=False)},
+        measured=measured,
+        extra={} if session.doc is None else {CARRIED_PROFILE: yaml.safe_dump(session.doc, sort_keys=False)},
     )
 
 

@@ -24,6 +24,9 @@ import math
 
 import numpy as np
 
+from .kinematics import axis_angle
+from .profile import Profile
+
 JOINTS = ("x", "y", "z", "yaw", "pitch", "roll")  # the reading: mm, mm, mm, deg, deg, deg
 TRANSLATION_JOINTS = JOINTS[:3]
 ROTATION_JOINTS = JOINTS[3:]
@@ -38,6 +41,25 @@ def reference_rotation(rotations: np.ndarray) -> np.ndarray:
     """The mean orientation (3, 3) of rotations (N, 3, 3): the rotation nearest their sum (chordal L2 mean)."""
     U, _, Vt = np.linalg.svd(np.sum(rotations, axis=0))
     return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+
+
+def profile_reference(profile: Profile) -> np.ndarray:
+    """The reference orientation (3, 3) a flange-pose profile reads its angles from (its `reference` frame)."""
+    p = profile.nominal()
+    yaw, pitch, roll = (float(p[profile.param(f"reference.{k}")]) for k in ("yaw", "pitch", "roll"))
+    return axis_angle(np.eye(3)[2], yaw) @ axis_angle(np.eye(3)[1], pitch) @ axis_angle(np.eye(3)[0], roll)
+
+
+def is_flange_pose(profile: Profile) -> bool:
+    """Whether a profile is one `flange_pose_profile` wrote (its joints are the pose's six readings)."""
+    names = {f.name for f in profile.frames}
+    return tuple(profile.joint_names) == JOINTS and {"reference", FLANGE, CAMERA_FRAME, BOARD_FRAME} <= names
+
+
+def setup_of(profile: Profile) -> str:
+    """eye-in-hand or eye-to-hand: where a flange-pose profile's camera hangs."""
+    parent = profile.frames[profile.frame(CAMERA_FRAME)].parent
+    return "eye-in-hand" if parent >= 0 and profile.frames[parent].name == FLANGE else "eye-to-hand"
 
 
 def zyx_angles(R: np.ndarray) -> np.ndarray:

@@ -11,7 +11,9 @@ from fastapi import APIRouter, File, Form, HTTPException, Response, UploadFile
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
+from ...errors import TooLarge
 from ...robots.capture import Until
+from ...robots.flange_import import FlangeUpload, import_flange_session
 from ...services.replay import ReplayPlan
 from ...store.importers import csv_text, import_csv, measured_time
 from ...store.validation import ID, IMAGE_NAME
@@ -149,6 +151,59 @@ async def import_session(
     text = csv_text(raw, filename, limits.rows)
     imported = await asyncio.to_thread(import_csv, store, robot, name, text, filename, when)
     return ImportedOut(id=imported.id, notes=imported.notes)
+
+
+class FlangeImportedOut(BaseModel):
+    id: str  # the session
+    robot: str
+    added: bool  # the robot is new on the desk: a robot known by its flange pose
+    notes: list[str]  # images left out, and why
+
+
+@router.post("/sessions/import-handeye", status_code=201)
+async def import_handeye_session(
+    robots: RobotsDep,
+    limits: LimitsDep,
+    robot: Annotated[str, Form(min_length=1, max_length=64)],
+    name: Annotated[str, Form(min_length=1, max_length=200)],
+    board: Annotated[str, Form(min_length=1, max_length=200)],
+    poses: Annotated[UploadFile, File()],
+    camera: Annotated[UploadFile, File()],
+    images: Annotated[list[UploadFile], File()],
+    setup: Annotated[Literal["eye-in-hand", "eye-to-hand"], Form()] = "eye-in-hand",
+    length_unit: Annotated[Literal["m", "mm"], Form()] = "m",
+    angle_unit: Annotated[Literal["rad", "deg"], Form()] = "rad",
+    measured: Annotated[str | None, Form(max_length=64)] = None,
+) -> FlangeImportedOut:
+    """A session from images of a board and the flange pose the controller reported for each, as `calib handeye`
+    takes them (specs handeye-poses.md): `poses` (CSV with x, y, z and a rotation vector or a quaternion, or one
+    4 x 4 matrix a line), `camera` (ROS camera_info or OpenCV YAML), `images` (the image files, or one zip of them),
+    `board` (`chessboard:9x6:18`, `charuco:8x6:30:22:5X5_100`), `setup`. `robot` names a robot known by its flange
+    pose: added to the desk when new (its profile from these images: the corners' and the poses' noise they show),
+    else this is another session of it. No pose is guessed. A mistake answers 422 naming the file (and line) or the
+    field, and changes nothing; images whose board is not found are listed in `notes` and left out."""
+    when = measured_time(measured)
+    files = {}
+    total = 0
+    for upload in images:
+        data = await read_upload(limits, upload)
+        total += len(data)
+        if total > limits.unpacked_bytes:
+            raise TooLarge(f"images: more than {limits.unpacked_bytes // 2**20} MB together (the desk's limit)")
+        files[Path(upload.filename or f"image-{len(files)}").name] = data
+    upload = FlangeUpload(
+        (poses.filename or "poses.csv", await read_upload(limits, poses)),
+        (camera.filename or "camera.yaml", await read_upload(limits, camera)),
+        files,
+        board,
+        setup,
+        length_unit,
+        angle_unit,
+    )
+    done = await asyncio.to_thread(
+        import_flange_session, robots, robot, name, upload, measured=when, max_unpacked_bytes=limits.unpacked_bytes
+    )
+    return FlangeImportedOut(id=done.id, robot=done.robot, added=done.added, notes=done.notes)
 
 
 @router.get("/sessions/{session_id}/calibrations")
