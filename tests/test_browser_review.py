@@ -313,16 +313,21 @@ def _figure(page, column: str) -> str:
 def test_figures_follow_an_apply_and_the_session_shown(chromium_2d, desk_data: Path) -> None:
     """A calibration made on the page, reviewed against the robot's active one (the nominal model) and applied: the
     review's old side is then the applied calibration (its figures the new side's); another session opened shows
-    no job line or cost curve of this one's calibration."""
+    no job line or cost curve of this one's calibration. The page's mode is the first the API offers, `auto` (NAO
+    has two), and the review says what it chose and each candidate's cross-validated error."""
     with served(desk_data) as server:
         page = ready_page(chromium_2d, server.url, 1600, 1000)
         page.on("dialog", lambda d: d.accept())
         page.click("li[data-session='nao']")
         page.wait_for_selector("#frames tr[data-frame]", state="attached")
         page.click("#tabs button[data-tab='calibrate']")
+        assert page.input_value("#mode") == "auto"
         page.click("#calibrate-start")
         page.wait_for_selector("#tab-review:not([hidden])", timeout=120_000)  # done: the review of the new one
         assert page.input_value("#review-old") == "active"
+        chose = page.text_content("#warnings p[data-code='model-choice']")
+        assert chose.startswith("auto chose mode full") and "Each candidate: full: " in chose, chose  # or full+head
+        assert "; full+head: " in chose and chose.endswith(" px"), chose
         new = page.input_value("#review-new")
         assert new and _figure(page, "old") != _figure(page, "new")
         page.click("#tabs button[data-tab='apply']")

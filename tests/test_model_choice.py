@@ -16,6 +16,7 @@ import pytest
 from desk_jobs import wait_job
 from test_urdf_import import FLOOR_MM, Truth, _dataset, _readings, _setup, _write_csv
 
+from app.cli import main
 from calib_core import Calibration, InputError, calibrate, load_profile, read_dataset
 from calib_core.estimation.calibrate import check_can_fit
 from calib_core.estimation.model_choice import PRIOR_SCALES, SHUFFLES
@@ -148,6 +149,20 @@ def test_the_api_offers_auto_first_and_shows_what_it_chose(client) -> None:
     assert choice["chosen"] == int(np.argmin(scores))
     assert all(c["figures"]["unit"] == "cm" and c["figures"]["rms"] > 0 for c in choice["candidates"])
     assert next(g["code"] for g in cal["diagnostic_groups"] if g["severity"] == "info") == "model-choice"
+
+
+@pytest.mark.parametrize("command", ["solve", "self-observe", "plan"])
+def test_each_command_with_a_mode_says_auto_in_its_help(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--mode auto` works wherever a command takes a mode; `--help` says so, and what it does (solve's listed the
+    named modes only)."""
+    assert main([command, "--help"]) == 0
+    words = " ".join(capsys.readouterr().out.split())
+    said = words.split("--mode MODE ")[-1].split(" --")[0]  # the option's help, after the usage line's mention
+    assert "auto" in said, said
+    if command == "plan":
+        assert "richest mode" in said, said  # what a plan for `auto` makes accurate (Profile.mode)
+    else:
+        assert "k-fold cross-validation on the training" in said, said
 
 
 @pytest.mark.slow

@@ -27,7 +27,9 @@ def _solve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--mode",
         required=True,
-        help="robonaut-a: daily, full; nao: full (profiles may define more)",
+        help="the profile's mode (robonaut-a: daily, full; nao: full, full+head; profiles may define more), or auto: "
+        "the data choose among the profile's modes, and their priors' width, by k-fold cross-validation on the "
+        "training configurations (the summary says what was chosen and why)",
     )
     p.add_argument("--data", required=True, help="the dataset CSV")
     p.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE", help=WHERE_HELP)
@@ -69,7 +71,12 @@ def _evaluate_arguments(p: argparse.ArgumentParser) -> None:
 
 def _self_observe_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", required=True, help="a profile with camera1, camera2 and markers1, markers2 (motoman)")
-    p.add_argument("--mode", default="cameras", help="the profile's mode (default cameras)")
+    p.add_argument(
+        "--mode",
+        default="cameras",
+        help="the profile's mode (default cameras), or auto: the data choose among the profile's modes, and their "
+        "priors' width, by k-fold cross-validation on the training poses",
+    )
     p.add_argument("--data", required=True, help="folder with camera_observations.csv and camera_poses.csv")
     p.add_argument("--source", action="append", default=[], help="use only this source_file (repeatable)")
     p.add_argument("--holdout", type=float, default=0.3, help="share of poses held out (default 0.3)")

@@ -13,7 +13,12 @@ from .common import Command, check_writable, load_calibration, load_robot, save
 
 def _plan_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", required=True, help="built-in profile (robonaut-a, nao, motoman) or a profile YAML")
-    p.add_argument("--mode", required=True, help="the calibration mode the configurations are for")
+    p.add_argument(
+        "--mode",
+        required=True,
+        help="the calibration mode the configurations are for (auto: the profile's richest mode, the most a "
+        "calibration in mode auto may choose to estimate)",
+    )
     p.add_argument("--configurations", required=True, type=int, metavar="N", help="how many to plan")
     p.add_argument(
         "--base", help="calibration JSON the robot runs with (visibility and linearisation; default nominal)"

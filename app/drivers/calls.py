@@ -22,12 +22,15 @@ import threading
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Generic, Literal, TypeVar
 
 from ..clock import Clock
 from . import RobotFault
 
-LANES = ("readings", "commands", "measurements", "apply", "life")
+Lane = Literal["readings", "commands", "measurements", "apply", "life"]
+LANES: tuple[Lane, ...] = ("readings", "commands", "measurements", "apply", "life")
+T = TypeVar("T")  # what a call answers
+T_co = TypeVar("T_co", covariant=True)  # a call of a lane, whatever it answers, is a Call[object]
 LINGER_S = 2.0  # an idle lane's worker waits this long for its next call before it ends
 
 _here = threading.local()  # the call a lane's worker is making (calling() names its remote call)
@@ -55,19 +58,19 @@ def calling(what: str) -> None:
 
 
 @dataclass(eq=False)
-class Call:
+class Call(Generic[T_co]):
     """One call on a lane: what it is, its result once done."""
 
     what: str  # the transport's method ("send"); `doing` names the remote call within it
-    fn: Callable[[], Any]
+    fn: Callable[[], T_co]
     abortable: bool
     doing: str = ""
     started: float = math.nan  # the clock's s; nan while queued
-    value: Any = None
     error: BaseException | None = None
     interrupted: bool = False
     finished: threading.Event = field(default_factory=threading.Event)  # the robot answered (or the call failed)
     released: threading.Event = field(default_factory=threading.Event)  # finished, or a stop let its caller go
+    value: T_co = field(init=False, repr=False)  # the answer, once finished without an error (unset before)
 
     @property
     def name(self) -> str:
@@ -83,11 +86,11 @@ class _Lane:
         self.name = name
         self.clock = clock
         self._lock = threading.Condition()
-        self._queue: deque[Call] = deque()
-        self._current: Call | None = None
+        self._queue: deque[Call[object]] = deque()
+        self._current: Call[object] | None = None
         self._worker: threading.Thread | None = None
 
-    def submit(self, call: Call) -> None:
+    def submit(self, call: Call[object]) -> None:
         with self._lock:
             self._queue.append(call)
             self._lock.notify()
@@ -95,7 +98,7 @@ class _Lane:
                 self._worker = threading.Thread(target=self._run, name=f"calls-{self.name}", daemon=True)
                 self._worker.start()
 
-    def current(self) -> Call | None:
+    def current(self) -> Call[object] | None:
         """The call under way (None: idle)."""
         with self._lock:
             return self._current
@@ -134,7 +137,7 @@ class _Lane:
 class Calls:
     """A robot's calls with their deadlines (`deadlines_s` by lane, the clock's seconds), for its driver."""
 
-    def __init__(self, robot: str, clock: Clock, deadlines_s: Mapping[str, float]) -> None:
+    def __init__(self, robot: str, clock: Clock, deadlines_s: Mapping[Lane, float]) -> None:
         unknown = set(deadlines_s) - set(LANES)
         if unknown:
             raise ValueError(f"no such lane: {', '.join(sorted(unknown))}")
@@ -143,13 +146,13 @@ class Calls:
         self.deadlines_s = dict(deadlines_s)
         self._lanes = {name: _Lane(f"{robot}-{name}", clock) for name in LANES}
 
-    def submit(self, lane: str, what: str, fn: Callable[[], Any], *, abortable: bool = False) -> Call:
+    def submit(self, lane: Lane, what: str, fn: Callable[[], T], *, abortable: bool = False) -> Call[T]:
         """Queue the call on its lane; wait for it with `wait`."""
         call = Call(what, fn, abortable)
         self._lanes[lane].submit(call)
         return call
 
-    def wait(self, lane: str, call: Call, timeout_s: float | None = None) -> Any:
+    def wait(self, lane: Lane, call: Call[T], timeout_s: float | None = None) -> T:
         """The call's value (or its exception) once the robot answered; NotResponding once the lane's deadline (or
         `timeout_s`) has passed; Interrupted when a stop released it."""
         limit_s = self.deadlines_s[lane] if timeout_s is None else timeout_s
@@ -161,7 +164,7 @@ class Calls:
             raise call.error
         return call.value
 
-    def run(self, lane: str, what: str, fn: Callable[[], Any], *, abortable: bool = False, queue: bool = True) -> Any:
+    def run(self, lane: Lane, what: str, fn: Callable[[], T], *, abortable: bool = False, queue: bool = True) -> T:
         """submit and wait. `queue=False`: while an earlier call of the lane is under way, NotResponding at once
         (a poll does not pile up behind a read that hangs)."""
         if not queue:
@@ -171,7 +174,7 @@ class Calls:
                 raise NotResponding(f"{self.robot} has not answered {busy.name} for {waited:.1f} s")
         return self.wait(lane, self.submit(lane, what, fn, abortable=abortable))
 
-    def busy(self, lane: str) -> Call | None:
+    def busy(self, lane: Lane) -> Call[object] | None:
         """The call under way on the lane (None: idle)."""
         return self._lanes[lane].current()
 

@@ -25,21 +25,21 @@ from __future__ import annotations
 import contextlib
 import math
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from calib_core import Calibration, FrameStatus, Profile, Sensor
 from calib_core.errors import InputError
 from calib_core.units import length_factor
-from calib_core.vision import MAX_IMAGE_PX, Sighting, StereoHead, finder_for
+from calib_core.vision import MAX_IMAGE_PX, Detail, Sighting, StereoHead, finder_for
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, Look, RobotFault, RobotStatus, check_limits
-from .calls import Call, Calls, Interrupted, NotResponding
+from .calls import Call, Calls, Interrupted, Lane, NotResponding
 
 POLL_S = 0.01  # how often a wait asks its caller whether to stop
 DEFAULT_SETTLE_S = 0.3  # the robot's time its readings stay still before a capture looks
@@ -67,7 +67,7 @@ class Measurement:
     head: StereoHead | None = None  # the stereo head that took "left" and "right"
     point: np.ndarray | None = None  # a point sensor's reading (3,), the profile's length unit, sensor frame
     missing: str = ""  # why there is nothing to detect in
-    detail: dict[str, Any] = field(default_factory=dict)  # a point's: where it came from
+    detail: Detail = field(default_factory=dict)  # a point's: where it came from
     sightings: list[Sighting] = field(default_factory=list)  # other sensors' of the same moment, measured already
 
 
@@ -235,8 +235,8 @@ class Halt:
     driver is closed), `before` the call it waits behind when it has not started."""
 
     robot: str
-    call: Call | None
-    before: Call | None = None
+    call: Call[None] | None
+    before: Call[object] | None = None
     queued_s: float = 0.0  # how long `before` had been under way when the stop came
 
     @property
@@ -298,14 +298,14 @@ class Driver:
         self._target = first_target(profile) if target is None else target
         self._wake = threading.Event()  # set by a stop or a close: the settle wait under way looks again at once
         self._bad = ""  # the latest readings' fault (not a number, beyond a limit): nothing moves until good ones
-        self._halt: Call | None = None  # the latest halt sent
+        self._halt: Call[None] | None = None  # the latest halt sent
         self._limits = profile.joint_limits()
         self._slack = (
             motion.reading_slack
             if motion.reading_slack is not None
             else per_joint(profile, READING_SLACK_DEG, READING_SLACK_M)
         )
-        deadlines = {"readings": motion.call_timeout_s, "commands": motion.call_timeout_s}
+        deadlines: dict[Lane, float] = {"readings": motion.call_timeout_s, "commands": motion.call_timeout_s}
         deadlines |= {"measurements": motion.measure_timeout_s, "apply": motion.apply_timeout_s}
         self.calls = Calls(profile.name, clock, deadlines | {"life": motion.call_timeout_s})
         transport.start(self, clock)
@@ -639,8 +639,9 @@ class Driver:
         self.close()
 
 
-def _unusable(images: dict[str, Any]) -> str:
-    """Why a transport's images cannot go to a detector (not a grey uint8 array, or too large), or ""."""
+def _unusable(images: Mapping[str, object]) -> str:
+    """Why a transport's images cannot go to a detector (not a grey uint8 array, or too large), or "": whatever
+    it sent, which its type need not have been."""
     for role, image in images.items():
         name = "the image" if role == "image" else f"the {role} image"
         if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:

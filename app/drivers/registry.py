@@ -16,11 +16,9 @@ may raise InputError saying what to install.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from calib_core import InputError, Profile
 
@@ -36,12 +34,17 @@ KINDS = {
 }
 
 
+# A driver's options as a robot's configuration gives them (YAML or JSON, as written): each kind's `check` says which
+# it takes and answers them checked, with their defaults.
+Options = dict[str, Any]
+
+
 @dataclass(frozen=True)
 class DriverSpec:
     """A robot's driver as its configuration gives it: the kind and its options."""
 
     kind: str
-    options: dict[str, Any] = field(default_factory=dict)
+    options: Options = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -53,10 +56,20 @@ class DriverContext:
     clock: Clock = SYSTEM_CLOCK  # what the drivers' waits, settles and timeouts are measured on
 
 
-def kind(name: str, where: str = "driver.kind") -> ModuleType:
+class DriverKind(Protocol):
+    """A kind's module (the module doc): its two functions."""
+
+    def check(self, profile: Profile, options: Options, where: str, options_at: str) -> Options: ...
+
+    def create(self, profile: Profile, options: Options, context: DriverContext) -> RobotDriver: ...
+
+
+def kind(name: str, where: str = "driver.kind") -> DriverKind:
+    """The module of the kind `name` (InputError naming `where` for an unknown one)."""
     if name not in KINDS:
         raise InputError(f"{where}: unknown driver kind '{name}' (known: {', '.join(KINDS)})")
-    return importlib.import_module(KINDS[name])
+    # Which module a name loads is known at run time only; each of KINDS has the protocol's two functions.
+    return cast(DriverKind, importlib.import_module(KINDS[name]))
 
 
 def check(spec: DriverSpec, profile: Profile, where: str = "driver", options_at: str | None = None) -> DriverSpec:
@@ -71,5 +84,5 @@ def create(
 ) -> RobotDriver:
     """The robot's driver, its options checked first (check)."""
     module = kind(spec.kind, f"{where}.kind")
-    options: Mapping[str, Any] = module.check(profile, spec.options, where, options_at or where)
+    options = module.check(profile, spec.options, where, options_at or where)
     return module.create(profile, options, context)

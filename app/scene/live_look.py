@@ -5,7 +5,7 @@ in the answer (a JPEG data URL) so that it and its marks are always of the same 
 from __future__ import annotations
 
 import base64
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -18,11 +18,26 @@ from .review import image_pixels
 JPEG_QUALITY = 85
 
 
-def look_view(profile: Profile, look: Look, p: np.ndarray | None, number: int) -> dict[str, Any]:
-    """{look, sensor, status, reason, width, height, image, measured, predicted} of the data sensor's sighting:
-    `image` a JPEG data URL (None: the sensor takes no image), `measured` and `predicted` [u, v] px per point
-    (None where a point has no pixel; predicted None without `p`, while the camera's pose is not known yet),
-    `number` the look's count since Observe began."""
+class LookView(TypedDict):
+    """The data sensor's sighting of a look as the 2-D view draws it (the API's LiveLook): `image` a JPEG data URL
+    (None: the sensor takes no image), `measured` and `predicted` [u, v] px per point (None where a point has no
+    pixel; predicted None without the camera's pose), `look` its count since Observe began."""
+
+    look: int
+    sensor: str
+    target: str
+    status: str
+    reason: str
+    width: int | None
+    height: int | None
+    image: str | None
+    measured: list[list[float] | None] | None
+    predicted: list[list[float] | None] | None
+
+
+def look_view(profile: Profile, look: Look, p: np.ndarray | None, number: int) -> LookView:
+    """The data sensor's sighting of `look` (number `number`) in 2-D; its prediction with parameters `p` (None:
+    while the camera's pose is not known yet)."""
     sighting = look.sightings[0]
     sensor = profile.sensors[sighting.sensor]
     image = next((look.images[r] for r in sensor.image_roles if r in look.images), None)
@@ -35,18 +50,18 @@ def look_view(profile: Profile, look: Look, p: np.ndarray | None, number: int) -
         else sensor.measured_pixels(profile.nominal() if p is None else p, sighting.measured)
     )
     height, width = image.shape[:2] if image is not None else (None, None)
-    return {
-        "look": number,
-        "sensor": sensor.name,
-        "target": profile.targets[sighting.target].name,
-        "status": str(sighting.status),
-        "reason": sighting.reason,
-        "width": width,
-        "height": height,
-        "image": None if image is None else _jpeg(image),
-        "measured": None if measured is None else image_pixels(measured),
-        "predicted": None if predicted is None else image_pixels(predicted),
-    }
+    return LookView(
+        look=number,
+        sensor=sensor.name,
+        target=profile.targets[sighting.target].name,
+        status=str(sighting.status),
+        reason=sighting.reason,
+        width=width,
+        height=height,
+        image=None if image is None else _jpeg(image),
+        measured=None if measured is None else image_pixels(measured),
+        predicted=None if predicted is None else image_pixels(predicted),
+    )
 
 
 def _jpeg(image: np.ndarray) -> str:

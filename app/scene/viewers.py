@@ -21,7 +21,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 import viser
@@ -41,6 +41,36 @@ class TooManyViewers(Exception):
     """More viewers than the desk keeps: close a tab, or wait for closed ones to go."""
 
 
+class ReviewKey(TypedDict):
+    """What a viewer's review is of: the session, the old and the new calibration's ids (None: the nominal model),
+    the robot, the sensor reviewed, the sensors the session has observations of and those that take an image."""
+
+    session: str
+    old: str | None
+    new: str | None
+    robot: str
+    sensor: str
+    sensors: list[str]
+    images: list[str]
+
+
+class ViewerState(TypedDict):
+    """A viewer and what it shows (the API's ViewerOut): its review's key fields None while it has none."""
+
+    id: str
+    connected: bool
+    robot: str | None
+    session: str | None
+    old: str | None
+    new: str | None
+    sensor: str | None
+    index: int | None
+    overlay: bool
+    all: bool
+    magnify: float
+    live: bool
+
+
 @dataclass(frozen=True)
 class Shown:
     """A robot shown without a review (at zero joint angles): its profile and URDF (None: the profile's own)."""
@@ -58,7 +88,7 @@ class Viewer:
         self.lock = threading.RLock()
         self.shown = shown  # the robot shown when no review is loaded
         self.review: Review | None = None
-        self.key: dict[str, Any] = {}  # session, old, new, robot, sensor(s) of the review
+        self.key: ReviewKey | None = None  # what the review is of (None: no review)
         self.index: int | None = None
         self.overlay = False
         self.all = False
@@ -98,7 +128,7 @@ class Viewer:
             for scene in self._drawn():
                 scene.show_robot(shown.profile, shown.urdf_text)
 
-    def load(self, review: Review, key: dict[str, Any]) -> None:
+    def load(self, review: Review, key: ReviewKey) -> None:
         """Show a review, its first frame selected."""
         with self.lock:
             self.review, self.key = review, key
@@ -153,23 +183,23 @@ class Viewer:
             for scene in self._drawn():
                 scene.hide_live()
 
-    def state(self) -> dict[str, Any]:
-        """{id, connected, robot, session, old, new, sensor, index, overlay, all, magnify, live}."""
+    def state(self) -> ViewerState:
         with self.lock:
-            return {
-                "id": self.id,
-                "connected": bool(self.connections),
-                "robot": self.robot,
-                "session": self.key.get("session"),
-                "old": self.key.get("old"),
-                "new": self.key.get("new"),
-                "sensor": self.key.get("sensor"),
-                "index": self.index,
-                "overlay": self.overlay,
-                "all": self.all,
-                "magnify": self.magnify,
-                "live": self.live,
-            }
+            key = self.key
+            return ViewerState(
+                id=self.id,
+                connected=bool(self.connections),
+                robot=self.robot,
+                session=None if key is None else key["session"],
+                old=None if key is None else key["old"],
+                new=None if key is None else key["new"],
+                sensor=None if key is None else key["sensor"],
+                index=self.index,
+                overlay=self.overlay,
+                all=self.all,
+                magnify=self.magnify,
+                live=self.live,
+            )
 
     # --- its browser ----------------------------------------------------------------------------------
     def attach(self, client: viser.ClientHandle) -> None:
@@ -197,7 +227,7 @@ class Viewer:
         return [scene for c, scene in list(self.scenes.items()) if c in self.connections]
 
     def _close_review(self) -> None:
-        self.review, self.key, self.index, self.live = None, {}, None, False
+        self.review, self.key, self.index, self.live = None, None, None, False
 
 
 class Viewers:

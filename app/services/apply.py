@@ -10,7 +10,7 @@ history row.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import NotRequired, TypedDict
 
 import numpy as np
 
@@ -21,12 +21,24 @@ from ..store import Store
 from . import safety
 
 
+class Applied(TypedDict):
+    """A calibration applied (the API's answer): `previous` None for the nominal model, `recorded` False when it
+    was already active (pushed to the driver again, no history row), `deployed` what a driver that takes
+    calibrations on the robot did with it (absent for the others)."""
+
+    active: str
+    previous: str | None
+    robot: str
+    recorded: bool
+    deployed: NotRequired[str]
+
+
 class ApplyService:
     def __init__(self, store: Store, robots: Robots) -> None:
         self.store = store
         self.robots = robots
 
-    def apply(self, cal_id: str, note: str = "", *, confirm: bool = False) -> dict[str, Any]:
+    def apply(self, cal_id: str, note: str = "", *, confirm: bool = False) -> Applied:
         info = self.store.calibrations.info(cal_id)
         self.robots.get(info.robot)
         if not confirm:
@@ -40,19 +52,23 @@ class ApplyService:
         deployed = self._deploy(info.robot, cal_id)
         if self.store.calibrations.active(info.robot) == cal_id:  # already active: pushed again, no new row
             self.robots.push_active(info.robot)
-            return {"active": cal_id, "previous": cal_id, "robot": info.robot, "recorded": False} | deployed
-        if deployed:
-            note = f"{note} ({deployed['deployed']})" if note else deployed["deployed"]
-        active, previous = self.store.calibrations.apply(info.robot, cal_id, note)
-        self.robots.push_active(info.robot)
-        return {"active": active, "previous": previous, "robot": info.robot, "recorded": True} | deployed
+            answer = Applied(active=cal_id, previous=cal_id, robot=info.robot, recorded=False)
+        else:
+            if deployed is not None:
+                note = f"{note} ({deployed})" if note else deployed
+            active, previous = self.store.calibrations.apply(info.robot, cal_id, note)
+            self.robots.push_active(info.robot)
+            answer = Applied(active=active, previous=previous, robot=info.robot, recorded=True)
+        if deployed is not None:
+            answer["deployed"] = deployed
+        return answer
 
-    def _deploy(self, robot: str, cal_id: str) -> dict[str, str]:
+    def _deploy(self, robot: str, cal_id: str) -> str | None:
         """A driver that takes calibrations on the robot itself (a ROS 2 robot's parameter) gets this one first:
-        when that fails (RobotFault: refused, not answering) nothing is recorded and the active one stays."""
+        when that fails (RobotFault: refused, not answering) nothing is recorded and the active one stays. What it
+        did, a sentence (None: a driver that takes nothing)."""
         driver = self.robots.get(robot).driver
-        done = None if driver is None else driver.deploy(cal_id, self.store.calibrations.load(cal_id))
-        return {} if done is None else {"deployed": done}
+        return None if driver is None else driver.deploy(cal_id, self.store.calibrations.load(cal_id))
 
     def concerns(self, cal_id: str) -> list[str]:
         """Why applying this calibration needs a confirmation (empty: it does not)."""

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from typing import Any
 
 from ..drivers import RobotDriver
 from ..errors import NotFound
 from ..robots.roster import Robot, Robots
+from ..scene.live_look import LookView
 from ..scene.viewers import Shown, Viewer, Viewers
 from ..store import Store
-from .observe import Observer
+from .observe import Observed, Observer
 
 
 class Connection:
@@ -110,14 +110,14 @@ class Connection:
             observer.start()
             self._observer = observer
 
-    def observing(self, robot: str | None = None) -> dict[str, Any] | None:
+    def observing(self, robot: str | None = None) -> Observed | None:
         """What Observe sees now (None: not observing, or observing another robot than `robot` when given)."""
         observer = self._observer
         if observer is None or (robot is not None and observer.robot != robot):
             return None
         return observer.snapshot()
 
-    def look(self, robot: str | None = None) -> dict[str, Any]:
+    def look(self, robot: str | None = None) -> LookView:
         """Observe's latest look through the camera (app/scene/live_look.py); NotFound when not observing `robot`."""
         observer = self._observer
         if observer is None or (robot is not None and observer.robot != robot):

@@ -12,7 +12,7 @@ import threading
 from collections.abc import Callable
 from contextlib import suppress
 from dataclasses import replace
-from typing import Any, Protocol
+from typing import NotRequired, Protocol, TypedDict
 
 import numpy as np
 
@@ -23,13 +23,26 @@ from ..drivers import Look, RobotDriver
 from ..errors import NotFound
 from ..robots.capture import AutoCapture, look_outcome
 from ..robots.roster import Robots
-from ..scene.live_look import look_view
+from ..scene.live_look import LookView, look_view
 from ..scene.review_scene.scene import LookLike
 from ..store import Store
 
 OBSERVE_PERIOD_S = 0.5
 MOVING_PERIOD_S = 0.1  # the live robot follows a moving robot at this period (a pose costs a few ms, a look more)
 MIN_REGISTRATION_FRAMES = 3  # measured frames an external tracker's pose is fitted on (3 points not on one line)
+
+
+class Observed(TypedDict):
+    """What Observe sees now (the API's ObserveState): a key without a value yet is left out."""
+
+    session: str
+    autocapture: bool
+    captured: int  # frames autocapture kept
+    last_frame: NotRequired[int]  # the latest of them
+    detection: NotRequired[str]  # the latest look's status, or "moving"
+    reason: NotRequired[str]  # why it found nothing ("ok": it measured)
+    message: NotRequired[str]  # the latest look's failure
+    look: NotRequired[int]  # the latest look with an image
 
 
 class LiveView(Protocol):
@@ -60,7 +73,7 @@ class Observer:
         self._scrub = scrub
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="observe", daemon=True)
-        self._last: dict[str, Any] = {"session": session_id, "autocapture": autocapture, "captured": 0}
+        self._last = Observed(session=session_id, autocapture=autocapture, captured=0)
         self._registration: tuple[tuple, np.ndarray | None] | None = None  # (frames and calibration, fitted p)
         self._period = OBSERVE_PERIOD_S
         self._seen: Look | None = None  # the latest look: its target's points stand in while the robot moves
@@ -73,10 +86,10 @@ class Observer:
         self._stop.set()
         self._thread.join(timeout=5)
 
-    def snapshot(self) -> dict[str, Any]:
-        return dict(self._last)
+    def snapshot(self) -> Observed:
+        return self._last.copy()
 
-    def look(self) -> dict[str, Any]:
+    def look(self) -> LookView:
         """The latest settled look with an image, for Observe's 2-D view (app/scene/live_look.py)."""
         shown = self._shown
         if shown is None:

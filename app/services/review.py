@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -18,9 +18,28 @@ from calib_core.estimation import Covariance, register, registration_params
 from ..robots.roster import Robots
 from ..scene.review import Review
 from ..scene.robot_look import robot_look
-from ..scene.viewers import Viewer
+from ..scene.viewers import ReviewKey, Viewer
 from ..store import Store
 from .connection import Connection
+
+
+class Reviewed(ReviewKey):
+    """A review as the API answers it (its ReviewOut): what it is of, its table and summary (app/scene/review.py)
+    and what the scene could not show as asked."""
+
+    table: list[dict[str, Any]]
+    summary: dict[str, Any]
+    warnings: list[str]
+
+
+class Selection(TypedDict):
+    """A frame selected in a viewer's scene (the API's Selected): all frames or one, the overlay, the server's
+    time for it."""
+
+    index: int
+    all: bool
+    overlay: bool
+    server_ms: float
 
 
 class ReviewService:
@@ -34,17 +53,18 @@ class ReviewService:
 
     def load(
         self, viewer: Viewer, session_id: str, old: str | None, new: str | None, sensor: str | None = None
-    ) -> dict[str, Any]:
+    ) -> Reviewed:
         """Load a review (as one sensor sees it; None: the data format's) into a viewer: `build`, then `show`. A
         viewer watching another robot live stops watching (the live view ends when nobody watches it any more)."""
         review, key = self.build(session_id, old, new, sensor)
         self.connection.reviewing(viewer, key["robot"])
         answer = self.show(viewer, review, key)
-        return answer | {"warnings": [self.scrub(w) for w in answer["warnings"]]}  # a mesh's absolute path
+        answer["warnings"] = [self.scrub(w) for w in answer["warnings"]]  # a mesh's absolute path
+        return answer
 
     def build(
         self, session_id: str, old: str | None, new: str | None, sensor: str | None = None
-    ) -> tuple[Review, dict[str, Any]]:
+    ) -> tuple[Review, ReviewKey]:
         """A session's review with an old and a new calibration ("active": the robot's active one; None: the
         nominal model) as one sensor sees it (its name; None: the data format's), and its key (session, old,
         new, sensor, the sensors the session has observations of and those of them that take an image: the 2-D
@@ -73,39 +93,46 @@ class ReviewService:
             covariances={"old": old_cov, "new": new_cov},
         )
         observed = sorted(data.sensors) if data is not None else [profile.data.sensor]
-        key = {"session": session_id, "old": old_id, "new": new_id, "robot": session.robot}
-        return review, key | {
-            "sensor": profile.sensors[sensor_index].name,
-            "sensors": [profile.sensors[i].name for i in observed],
-            "images": [profile.sensors[i].name for i in observed if profile.sensors[i].image_size_px() is not None],
-        }
+        return review, ReviewKey(
+            session=session_id,
+            old=old_id,
+            new=new_id,
+            robot=session.robot,
+            sensor=profile.sensors[sensor_index].name,
+            sensors=[profile.sensors[i].name for i in observed],
+            images=[profile.sensors[i].name for i in observed if profile.sensors[i].image_size_px() is not None],
+        )
 
-    def show(self, viewer: Viewer, review: Review, key: dict[str, Any]) -> dict[str, Any]:
+    def show(self, viewer: Viewer, review: Review, key: ReviewKey) -> Reviewed:
         """Show a review in a viewer's scene (another robot's replaces everything it showed): its table, summary
         and what the scene could not show as asked (a URDF mesh that cannot be read)."""
         viewer.load(review, key)
         look = robot_look(review.profile)  # read by the scene's load: the URDF visuals it could not draw
         warnings = [] if look is None or look.warning is None else [look.warning]
-        return {**key, "table": review.table(), "summary": review.summary(), "warnings": warnings}
+        return Reviewed(**key, table=review.table(), summary=review.summary(), warnings=warnings)
 
-    def select(self, viewer: Viewer, index: int, *, show_all: bool = False, overlay: bool = False) -> dict[str, Any]:
+    def select(self, viewer: Viewer, index: int, *, show_all: bool = False, overlay: bool = False) -> Selection:
         t0 = time.perf_counter()
         viewer.select(index, show_all=show_all, overlay=overlay)
-        return {"index": index, "all": show_all, "overlay": overlay, "server_ms": (time.perf_counter() - t0) * 1e3}
+        return Selection(index=index, all=show_all, overlay=overlay, server_ms=(time.perf_counter() - t0) * 1e3)
 
     @staticmethod
-    def magnify(viewer: Viewer, factor: float) -> dict[str, Any]:
+    def magnify(viewer: Viewer, factor: float) -> float:
+        """The viewer's 3-D residuals drawn `factor` times their length: the factor."""
         viewer.set_magnify(factor)
-        return {"factor": factor}
+        return factor
 
     @staticmethod
-    def frame_marks(viewer: Viewer) -> dict[str, Any]:
+    def frame_marks(viewer: Viewer) -> int | None:
+        """The viewer's camera onto the selected frame's marks: that frame (None: none selected)."""
         viewer.frame_marks()
-        return {"index": viewer.index}
+        return viewer.index
 
     def marks(self, viewer: Viewer, index: int) -> dict[str, Any]:
         with viewer.lock:
-            review, session = viewer.current(), viewer.key["session"]
+            review, key = viewer.current(), viewer.key
+        assert key is not None  # loaded with its review
+        session = key["session"]
         marks = review.marks(index)
         frame = self.store.sessions.frame(session, index)
         path = frame.images.get(marks["role"]) if marks.get("role") else None

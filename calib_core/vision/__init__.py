@@ -16,7 +16,7 @@ __getattr__ = lazy_exports(
         "finders": ("FINDERS", "Finder", "finder_for", "finders_served", "found_targets"),
         "sampling": ("Sampler",),
         "sandal_board": ("MAX_IMAGE_PX", "detect_board", "render_board_image", "too_large"),
-        "sighting": ("Sighting", "predicted_points"),
+        "sighting": ("Detail", "Sighting", "predicted_points"),
         "stereo": ("StereoHead", "depth_from_pair", "render_pair"),
         "visibility": ("VIEW_MARGIN_PX", "Visibility"),
     },
@@ -25,6 +25,7 @@ __all__ = [
     "FINDERS",
     "MAX_IMAGE_PX",
     "VIEW_MARGIN_PX",
+    "Detail",
     "Finder",
     "Sampler",
     "Sighting",
@@ -47,6 +48,6 @@ if TYPE_CHECKING:
     from .finders import FINDERS, Finder, finder_for, finders_served, found_targets
     from .sampling import Sampler
     from .sandal_board import MAX_IMAGE_PX, detect_board, render_board_image, too_large
-    from .sighting import Sighting, predicted_points
+    from .sighting import Detail, Sighting, predicted_points
     from .stereo import StereoHead, depth_from_pair, render_pair
     from .visibility import VIEW_MARGIN_PX, Visibility

@@ -29,6 +29,8 @@ from functools import cache
 import cv2
 import numpy as np
 
+from .sighting import Detail
+
 # Stereo depth noise grows with z^2. The default is a 525 px, 9 cm baseline head with 0.25 px of
 # disparity noise: 0.25 / (525 * 0.09) m at 1 m.
 DEPTH_SIGMA_1M_M = 0.25 / (525 * 0.09)
@@ -70,7 +72,7 @@ class SphereDetection:
     fit_rms_m: float  # NaN when no fit was made
     reason: str  # "ok", or why the sphere was not found
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Detail:
         return {
             "found": self.found,
             "center": None if self.center_m is None else [float(v) for v in self.center_m],

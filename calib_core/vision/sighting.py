@@ -6,6 +6,7 @@ become rows of the pinned data formats. The same types serve the simulated robot
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -13,6 +14,10 @@ from ..dataset import Dataset
 from ..frame_status import FrameStatus
 from ..model.kinematics import sensor_points, target_points
 from ..model.profile import Profile
+
+# A detector's own record of a look (its votes, inliers, residual, why it found nothing): JSON as the detector
+# gives it, kept with the frame and shown as it came; its keys differ from one detector to another.
+Detail = dict[str, Any]
 
 
 @dataclass
@@ -26,7 +31,7 @@ class Sighting:
     measured: np.ndarray | None  # (K, dim): a sensor-frame point (profile length unit) or pixels
     points: np.ndarray  # (K, 3) the observed points in the target frame (NaN: the calibrated point)
     vertices: np.ndarray  # (K,) vertex ids, -1 for a single point
-    detail: dict = field(default_factory=dict)  # the detector's own figures (votes, inliers, ...)
+    detail: Detail = field(default_factory=dict)  # the detector's own figures (votes, inliers, ...)
 
 
 @dataclass

@@ -103,9 +103,9 @@ class Visibility:
         prof = self.profile
         s = prof.data.sensor
         finder = finder_for(prof, s, target)
-        spacing_px = getattr(finder, "min_spacing_px", None)
-        if finder is None or spacing_px is None:
+        if finder is None or finder.min_spacing_px is None:
             return ""
+        spacing_px = finder.min_spacing_px
         n = len(target_points(prof, self.p, target))
         x = sensor_points(prof, self.p, q, np.full(len(q), target), sensor=s)[:, :n]
         whole = prof.sensors[s].visible(self.p, x.reshape(-1, 3), self.margin_px).reshape(len(q), n).all(axis=1)

@@ -7,13 +7,13 @@ import { $, act, calibrationName, displayUnit, el, fmt, toast } from "./dom.js";
 import { emit, on, state } from "./state.js";
 import { showTab } from "./tabs.js";
 
-// A session opened: its robot's modes (full where it has one), the job line of another session's calibration
-// cleared, the session's calibrations listed.
+// A session opened: its robot's modes, the first selected (the API lists `auto` first where the data have a choice
+// to make), the job line of another session's calibration cleared, the session's calibrations listed.
 async function sessionOpened(session) {
   const robot = state.robots[session.robot];
   const mode = $("#mode");
   mode.replaceChildren(...robot.modes.map((m) => el("option", { value: m.name, title: m.description }, m.name)));
-  mode.value = robot.modes.some((m) => m.name === "full") ? "full" : robot.modes[0].name;
+  mode.value = robot.modes[0].name;
   if (!state.job || state.job.session !== session.id) clearJob();
   jobControls();
   await loadCalibrations();

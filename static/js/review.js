@@ -100,6 +100,10 @@ function renderSummary() {
   drawHistogram($("#histogram"), s.histogram);
 }
 
+// The notes shown after the warnings, each a line in the words `calib solve` prints (in the server's order): what
+// mode `auto` chose and why (every candidate's cross-validated error); a fit within a fifth of the declared noise.
+const NOTES = ["model-choice", "noise-scatter"];
+
 async function renderParameters() {
   const t = $("#parameters");
   const w = $("#warnings");
@@ -120,8 +124,7 @@ async function renderParameters() {
     w.append(el("details", { class: "warning", "data-code": g.code },
       el("summary", {}, `⚠ ${g.title}`), el("ul", {}, ...g.messages.map((m) => el("li", {}, m)))));
   }
-  // The noise test within a fifth of the declared noise: a line, in the words `calib solve` prints.
-  for (const g of cal.diagnostic_groups.filter((g) => g.code === "noise-scatter")) {
+  for (const g of cal.diagnostic_groups.filter((g) => NOTES.includes(g.code))) {
     w.append(el("p", { "data-code": g.code }, g.title));
   }
   if (cal.outliers.length) {

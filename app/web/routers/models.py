@@ -11,6 +11,7 @@ from pydantic import BaseModel, Field, JsonValue
 from calib_core import FrameStatus, Profile
 
 from ...services.connection import Connection
+from ...services.observe import Observed
 from ...store import FrameInfo
 
 
@@ -26,6 +27,11 @@ class ObserveState(BaseModel):
     reason: str | None = Field(None, exclude_if=lambda v: v is None)  # why it found nothing ("ok": it measured)
     message: str | None = Field(None, exclude_if=lambda v: v is None)  # the latest look's failure
     look: int | None = Field(None, exclude_if=lambda v: v is None)  # the latest look with an image (GET /robot/look)
+
+
+def observe_state(observed: Observed | None) -> ObserveState | None:
+    """What Observe sees as the API answers it (None: not observing)."""
+    return None if observed is None else ObserveState.model_validate(observed)
 
 
 class Figures(BaseModel):
@@ -144,5 +150,5 @@ def robot_state(connection: Connection, robot: str | None) -> RobotState:
         target=profile.targets[st.target].name,
         calibration=st.calibration_id,
         message=st.message,
-        observing=connection.observing(name),
+        observing=observe_state(connection.observing(name)),
     )

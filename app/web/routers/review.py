@@ -146,7 +146,7 @@ class Magnified(BaseModel):
 
 @router.post("/review/magnify")
 def magnify(reviews: ReviewDep, viewer: ViewerDep, body: MagnifyRequest) -> Magnified:
-    return Magnified.model_validate(reviews.magnify(viewer, body.factor))
+    return Magnified(factor=reviews.magnify(viewer, body.factor))
 
 
 class Framed(BaseModel):
@@ -158,7 +158,7 @@ def frame_marks(reviews: ReviewDep, viewer: ViewerDep) -> Framed:
     """The page's "frame it": the viewer's 3-D camera onto the selected frame's marks, both copies seen from nearly
     the same direction (a narrow field of view), never inside a body (without a review: onto the robot). Selecting a
     frame leaves the camera where it is."""
-    return Framed.model_validate(reviews.frame_marks(viewer))
+    return Framed(index=reviews.frame_marks(viewer))
 
 
 class Marks(BaseModel):

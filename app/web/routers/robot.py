@@ -59,7 +59,7 @@ class LiveLook(BaseModel):
 def robot_look(connection: ConnectionDep, robot: str | None = None) -> LiveLook:
     """Observe's latest settled look through the camera (`robot`; none: the one observed): the image, what the
     finder found and where the active calibration predicts the target."""
-    return LiveLook(**connection.look(robot))
+    return LiveLook.model_validate(connection.look(robot))
 
 
 class ActiveCalibration(BaseModel):

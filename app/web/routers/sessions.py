@@ -31,7 +31,17 @@ from .deps import (
     ViewerDep,
     read_upload,
 )
-from .models import DryRun, Figures, FrameOut, JobStarted, ObserveState, RobotState, frame_out, robot_state
+from .models import (
+    DryRun,
+    Figures,
+    FrameOut,
+    JobStarted,
+    ObserveState,
+    RobotState,
+    frame_out,
+    observe_state,
+    robot_state,
+)
 
 router = APIRouter()
 
@@ -267,7 +277,7 @@ def observe(
 ) -> Observing:
     sessions.get(session_id)
     connection.observe(session_id if body.on else None, autocapture=body.autocapture, viewer=viewer)
-    return Observing(observing=connection.observing())
+    return Observing(observing=observe_state(connection.observing()))
 
 
 class UntilRequest(BaseModel):

@@ -13,7 +13,7 @@ from functools import cache
 from importlib import import_module
 
 from ...model.profile import Profile
-from .base import Finder, Rendered
+from .base import Finder, FinderClass, Rendered
 
 # (sensor model, target pattern) -> "module:class" in this package, loaded on first use.
 FINDERS: dict[tuple[str, str], str] = {
@@ -25,7 +25,7 @@ FINDERS: dict[tuple[str, str], str] = {
 
 
 @cache
-def finder_class(key: tuple[str, str]) -> type[Finder] | None:
+def finder_class(key: tuple[str, str]) -> FinderClass | None:
     """The finder class registered for (sensor model, target pattern), or None."""
     if key not in FINDERS:
         return None
@@ -40,7 +40,7 @@ def finder_for(profile: Profile, sensor: int, target: int) -> Finder | None:
     kind = finder_class((sens.kind, tgt.pattern))
     if kind is None or tuple(sens.image_roles) != kind.images or sens.image_size_px() is None:
         return None
-    return kind(profile, sensor, target)  # type: ignore[call-arg]
+    return kind(profile, sensor, target)
 
 
 def finders_served() -> str:

@@ -13,6 +13,8 @@ a sensor and a target (`calib_core.vision.finders.finder_for`), it:
   its obliquity, the spacing of its corners in the image): what `Visibility` asks of every view;
 - `clear(p, q, margin_px, sphere_share)`: the costly limits (the arm hiding a stereo head's sphere), asked
   for whole views only, with the view's margins (`Visibility`'s, which asks the finders and is above them);
+- `spacing_px(p, x)` and `min_spacing_px`: how far apart a board's neighbouring vertices are in the image, and the
+  least its detector needs (None for a target that is not a board): why a board is seen nowhere (too small);
 - `plan_margins`: what a plan's configurations keep clear with the base model (px from the border, the share
   of a sphere's outline the arm leaves free), when the detector needs more than `Visibility`'s defaults;
   `plan_obliquity_margin_deg`: how much less obliquely than its limit a plan's boards are seen.
@@ -30,7 +32,7 @@ import numpy as np
 
 from ...frame_status import FrameStatus
 from ...model.profile import Profile
-from ..sighting import Sighting, predicted_points
+from ..sighting import Detail, Sighting, predicted_points
 
 if TYPE_CHECKING:
     from ..stereo import StereoHead  # OpenCV and SciPy: loaded by the finders that render or read a stereo pair
@@ -50,9 +52,20 @@ class Finder(Protocol):
     images: ClassVar[tuple[str, ...]]
     plan_margins: ClassVar[tuple[float, float] | None]
     plan_obliquity_margin_deg: ClassVar[float]
-    profile: Profile
-    sensor: int
-    target: int
+
+    # Read-only: a finder stays bound to what it was made for (a frozen dataclass's fields conform), and a board's
+    # finder says how far apart its detector needs the vertices (a class attribute of its own).
+    @property
+    def min_spacing_px(self) -> float | None: ...
+
+    @property
+    def profile(self) -> Profile: ...
+
+    @property
+    def sensor(self) -> int: ...
+
+    @property
+    def target(self) -> int: ...
 
     def render(self, p: np.ndarray, q: np.ndarray, rng: np.random.Generator) -> Rendered: ...
 
@@ -63,6 +76,17 @@ class Finder(Protocol):
     def shows(self, p: np.ndarray, x: np.ndarray, obliquity_margin_deg: float = 0.0) -> np.ndarray: ...
 
     def clear(self, p: np.ndarray, q: np.ndarray, margin_px: float, sphere_share: float) -> np.ndarray: ...
+
+    def spacing_px(self, p: np.ndarray, x: np.ndarray) -> np.ndarray | None: ...
+
+
+class FinderClass(Protocol):
+    """A finder's class as FINDERS names it: the images it looks at, and its finder bound to a profile's sensor and
+    target."""
+
+    images: tuple[str, ...]  # a class attribute of the finder's class
+
+    def __call__(self, profile: Profile, sensor: int, target: int) -> Finder: ...
 
 
 @dataclass(frozen=True)
@@ -75,6 +99,7 @@ class BoundFinder:
 
     plan_margins: ClassVar[tuple[float, float] | None] = None
     plan_obliquity_margin_deg: ClassVar[float] = 0.0
+    min_spacing_px: ClassVar[float | None] = None  # not a board
 
     def shows(self, p: np.ndarray, x: np.ndarray, obliquity_margin_deg: float = 0.0) -> np.ndarray:
         """Whether the detector finds the target whose points x (N, K, 3) in the sensor frame are in view (N,)
@@ -86,6 +111,11 @@ class BoundFinder:
         parameters p, the target `margin_px` clear of the image's border and at least `sphere_share` of a sphere's
         outline free."""
         return np.ones(len(q), bool)
+
+    def spacing_px(self, p: np.ndarray, x: np.ndarray) -> np.ndarray | None:
+        """The least distance (px) between neighbouring vertices in the image of a board whose vertices x (N, K, 3)
+        lie in the sensor frame (N,); None: not a board."""
+        return None
 
 
 class BoardFinder(BoundFinder):
@@ -114,7 +144,7 @@ class BoardFinder(BoundFinder):
         self,
         measured: np.ndarray | None,
         reason: str,
-        detail: dict,
+        detail: Detail,
         vertices: np.ndarray | None = None,
     ) -> Sighting:
         """A board's sighting: its corners `measured` (K, 2) px of `vertices` (default: every vertex in order),

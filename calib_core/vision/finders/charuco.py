@@ -24,7 +24,7 @@ from ...model.boards import MIN_CHARUCO_CORNERS, Charuco
 from ...model.kinematics import forward
 from ...sensors import Pinhole
 from ..sandal_board import BLACK, REFINE_BLUR_PX, REFINE_TILE_PX, ROOM, WHITE, illumination, refine_on_board
-from ..sighting import Sighting
+from ..sighting import Detail, Sighting
 from ..stereo import StereoHead
 from .base import BoardFinder, Rendered
 
@@ -148,7 +148,7 @@ class CharucoFinder(BoardFinder):
         corners, ids, _, marker_ids = detector.detectBoard(grey)
         n_markers = 0 if marker_ids is None else len(marker_ids)
         n = 0 if ids is None else len(ids)
-        detail: dict = {"markers": n_markers, "corners": n}
+        detail: Detail = {"markers": n_markers, "corners": n}
         if n < MIN_CHARUCO_CORNERS:
             reason = f"corners found: {n} ({n_markers} markers), fewer than {MIN_CHARUCO_CORNERS}"
             return self.sighting(None, "not found" if n == 0 else "partial", {**detail, "detail": reason})
