@@ -436,3 +436,40 @@ def test_a_bag_with_the_flange_on_tf_becomes_a_calibration(tmp_path: Path, capsy
     assert "no chain of transforms from 'base_link' to 'camera'" in capsys.readouterr().err
     assert calib(["import-bag", str(tmp_path / "bag"), "--tf", "base_link", "--out", str(tmp_path / "y")]) == 2
     assert "expected BASE:TOOL" in capsys.readouterr().err
+
+
+ROSI = Path(__file__).resolve().parent.parent / "sample_sessions" / "handeye-rosi-charuco"
+
+
+def test_a_real_charuco_board_loses_no_marker_to_slant_or_light() -> None:
+    """ROS-Industrial's real images (sample_sessions/handeye-rosi-charuco/SOURCES.md): in 2.png OpenCV's ChArUco
+    detector alone finds 6 of the 17 markers and 4 of the 24 corners (too few: the image was left out); the markers
+    looked for again where the board's layout puts them give all 24, on a flat board's homography."""
+    from calib_core.estimation import find_views
+    from calib_core.io import parse_board, read_camera
+
+    board = parse_board((ROSI / "board.txt").read_text().strip())
+    grey = cv2.imread(str(ROSI / "images" / "2.png"), cv2.IMREAD_GRAYSCALE)
+    view = find_views({"2.png": grey}, board, read_camera(ROSI / "camera.yaml"))["2.png"]
+    assert view.corners is not None and sorted(view.ids) == list(range(24))
+    H, _ = cv2.findHomography(board.points()[view.ids, :2], view.corners)
+    flat = cv2.perspectiveTransform(board.points()[None, view.ids, :2], H)[0]
+    assert np.sqrt(np.mean(np.sum((flat - view.corners) ** 2, axis=1))) < 1.0
+
+
+@pytest.mark.slow
+def test_real_images_of_a_board_on_the_wrist_seen_from_the_room(tmp_path: Path) -> None:
+    """The ROS-Industrial set (eye-to-hand, a ChArUco board on an ABB arm's wrist, quaternion poses): all 16
+    images used, the camera within 20 mm and 2 deg of the data set's own starting guess, no warning."""
+    out = tmp_path / "cal.json"
+    args = ["handeye", "--poses", str(ROSI / "poses.csv"), "--images", str(ROSI / "images"), "--camera",
+            str(ROSI / "camera.yaml"), "--board", (ROSI / "board.txt").read_text().strip(), "--setup", "eye-to-hand",
+            "--out", str(out)]  # fmt: skip
+    assert calib(args) == 0
+    got = json.loads(out.read_text())
+    X = np.array(got["camera_in_base"]["matrix"])
+    guess = pose(
+        Rotation.from_quat([-0.048080, -0.558686, 0.827604, -0.025104]).as_matrix(), [-19.646, 1278.43, 283.965]
+    )
+    assert np.linalg.norm(X[:3, 3] - guess[:3, 3]) < 20.0 and angle_deg(X, guess) < 2.0
+    assert all(i["used"] for i in got["images"]) and len(got["images"]) == 16 and got["warnings"] == []

@@ -105,7 +105,8 @@ class FlangeCalibration:
 def find_views(images: dict[str, np.ndarray], board: BoardSpec, camera: Camera) -> dict[str, View]:
     """Each grey image's board corners (px of the image as taken): a chessboard's by the desk's detector on the
     image with the lens distortion undone (sub-pixel, checked against a flat board's homography within
-    REAL_GRID_RESIDUAL_PX), a ChArUco board's by OpenCV's CharucoDetector (its corners' ids)."""
+    REAL_GRID_RESIDUAL_PX), a ChArUco board's by OpenCV's CharucoDetector (its corners' ids), the markers it missed
+    looked for again where the board's layout puts them."""
     out = {}
     if board.kind == "chessboard":
         import cv2
@@ -130,7 +131,12 @@ def find_views(images: dict[str, np.ndarray], board: BoardSpec, camera: Camera) 
 
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, f"DICT_{board.dictionary}"))
     cv_board = cv2.aruco.CharucoBoard((board.cols, board.rows), board.square_m, board.marker_m, dictionary)
-    detector = cv2.aruco.CharucoDetector(cv_board)
+    # The markers missed at first looked for again where the board's layout puts them: on real images a board
+    # seen at a slant or in uneven light loses most of its markers otherwise (sample_sessions/handeye-rosi-charuco:
+    # 4 of 24 corners in one image, 8 in another, all 24 with the layout's help).
+    settings = cv2.aruco.CharucoParameters()
+    settings.tryRefineMarkers = True
+    detector = cv2.aruco.CharucoDetector(cv_board, settings)
     for name, grey in images.items():
         corners, ids, _, _ = detector.detectBoard(grey)
         if ids is None or len(ids) < 6:
