@@ -3,11 +3,12 @@
 
 Reads an npz (`object_points` (K, 3) of the board in its frame, `camera_matrix` (3, 3), per case k `corners_k`
 (N, K, 2) px, `gripper_k` (N, 4, 4) the flange's pose in the robot's base by the believed kinematics, and
-`eye_in_hand_k`), writes a JSON list, per case {method: {"X": 4x4, "Z": 4x4, "seconds": s}} (X and Z null with the
-`error` OpenCV raised when a method fails outright): eye-in-hand X is
-the camera in the flange and Z the board in the base; eye-to-hand X is the camera in the base and Z the board in
-the flange. Each board pose per image is cv2.solvePnP's on the corners (no distortion, as the camera has none);
-`seconds` is those PnPs' time plus the method's.
+`eye_in_hand_k`; images that each see a part of the board, a ChArUco board's, instead give per case `counts_k` (N,)
+corners an image, `corners_k` (sum, 2) and `object_points_k` (sum, 3) the board's points they are), writes a JSON
+list, per case {method: {"X": 4x4, "Z": 4x4, "seconds": s}} (X and Z null with the `error` OpenCV raised when a
+method fails outright): eye-in-hand X is the camera in the flange and Z the board in the base; eye-to-hand X is the
+camera in the base and Z the board in the flange. Each board pose per image is cv2.solvePnP's on the corners (no
+distortion, as the camera has none); `seconds` is those PnPs' time plus the method's.
 
     .venv-cv4/bin/python benchmarks/handeye_opencv.py cases.npz out.json
 """
@@ -48,18 +49,20 @@ def mean_pose(T: np.ndarray) -> np.ndarray:
     return pose(R, T[:, :3, 3].mean(axis=0))
 
 
-def board_in_camera(object_points: np.ndarray, corners: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Each image's board pose in the camera (N, 4, 4) by cv2.solvePnP."""
+def board_in_camera(object_points: list[np.ndarray], corners: list[np.ndarray], K: np.ndarray) -> np.ndarray:
+    """Each image's board pose in the camera (N, 4, 4) by cv2.solvePnP on its corners and the board's points."""
     out = []
-    for uv in corners:
-        ok, rvec, tvec = cv2.solvePnP(object_points, uv, K, None)
+    for obj, uv in zip(object_points, corners, strict=True):
+        ok, rvec, tvec = cv2.solvePnP(obj, uv, K, None)
         if not ok:
             raise RuntimeError("solvePnP found no board pose")
         out.append(pose(cv2.Rodrigues(rvec)[0], tvec))
     return np.array(out)
 
 
-def solve_case(object_points: np.ndarray, K: np.ndarray, corners: np.ndarray, G: np.ndarray, in_hand: bool) -> dict:
+def solve_case(
+    object_points: list[np.ndarray], K: np.ndarray, corners: list[np.ndarray], G: np.ndarray, in_hand: bool
+) -> dict:
     """Every method's X and Z (module doc) for one case."""
     t0 = time.perf_counter()
     C = board_in_camera(object_points, corners, K)
@@ -111,7 +114,13 @@ def main() -> None:
         k = 0
         while f"corners_{k}" in f:
             corners = f[f"corners_{k}"].astype(np.float64)
-            cases.append(solve_case(obj, K, corners, f[f"gripper_{k}"], bool(f[f"eye_in_hand_{k}"])))
+            if f"counts_{k}" in f:  # each image its own corners of the board
+                split = np.cumsum(f[f"counts_{k}"])[:-1]
+                points = np.split(f[f"object_points_{k}"].astype(np.float64), split)
+                corners = np.split(corners, split)
+            else:
+                points = [obj] * len(corners)
+            cases.append(solve_case(points, K, list(corners), f[f"gripper_{k}"], bool(f[f"eye_in_hand_{k}"])))
             k += 1
     with open(dst, "w") as out:
         json.dump({"opencv": cv2.__version__, "cases": cases}, out)

@@ -82,11 +82,19 @@ def _handeye(args: argparse.Namespace) -> int:
     name = "camera_in_flange" if args.setup == "eye-in-hand" else "camera_in_base"
     t, sd = np.array(out[name]["matrix"])[:3, 3], out[name]["std"]
     used = sum(i["used"] for i in cal.images)
+    errors = cal.flange_errors
+    cv = errors["cross_validation_px"]
     print(
         f"{len(names)} images, {used} fitted ({cal.start} start, {cal.iterations} iterations, "
         f"{time.perf_counter() - start:.2f} s): {name} at ({t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}) mm "
         f"+/- ({sd['x']:.2f}, {sd['y']:.2f}, {sd['z']:.2f}); corners fitted to {cal.fitted_rms_px:.3f} px RMS"
         + (f", held out {cal.heldout_rms_px:.3f} px" if cal.heldout_rms_px is not None else "")
+        + ("; the flange poses' errors fitted" if errors["fitted"] else "; the flange poses taken as exact")
+        + (
+            f" (cross-validation: {cv['fitted']:.3f} px with their errors fitted, {cv['exact']:.3f} px as exact)"
+            if cv
+            else f" ({errors['chosen_by']})"
+        )
         + f": {args.out}"
     )
     return 0
