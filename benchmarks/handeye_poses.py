@@ -25,8 +25,10 @@ import cv2
 import numpy as np
 
 from calib_core.estimation import calibrate_flange, find_views
+from calib_core.estimation.calibrate import calibrate
 from calib_core.estimation.handeye import inverse
-from calib_core.io import parse_board, read_camera, read_flange_poses
+from calib_core.estimation.problem import Problem
+from calib_core.io import flange_pose_session, parse_board, read_camera, read_flange_poses
 from calib_core.io.flange_poses import natural_key
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -83,6 +85,8 @@ def leave_one_out(folder: Path, cv4_python: Path) -> None:
                 errors.setdefault(label, []).append(cal.heldout_rms_px)
                 if pose_errors is None:
                     chosen.setdefault(label, []).append(cal.flange_errors["fitted"])
+        for mode, error in _desk(views, poses, camera, board, setup, found, held).items():
+            errors.setdefault(f"the desk's robot known by its flange pose, mode {mode}", []).append(error)
     print(f"leave one out over {len(found)} images ({time.perf_counter() - started:.0f} s): held-out corner RMS, px")
     print("| method | mean | median | max |\n|---|---|---|---|")
     for label, e in sorted(errors.items(), key=lambda kv: statistics.mean(kv[1])):
@@ -93,6 +97,24 @@ def leave_one_out(folder: Path, cv4_python: Path) -> None:
             print(f"| {label} (failed outright on every split: {why}) | | | |")
     for label, fitted in chosen.items():
         print(f"{label}: the cross-validation fitted the poses' errors in {sum(fitted)} of the {len(fitted)} splits")
+
+
+def _desk(views, poses, camera, board, setup, found, held) -> dict[str, float]:
+    """The desk's own estimation (POST /api/sessions/import-handeye's robot and session): the robot's profile made
+    from the training images alone (its noise as they show it), the held-out image read against it, then per mode
+    the held-out image's corners predicted at its reported pose: RMS px."""
+    train = {n: views[n] for n in found if n != held}
+    robot = flange_pose_session("bench", train, poses, camera, board, setup).profile
+    session = flange_pose_session("bench", {n: views[n] for n in found}, poses, camera, board, setup, robot)
+    data = session.data
+    test = np.array([session.image_of[int(f)] == held for f in data.frame_ids])
+    out = {}
+    for mode in ("handeye", "handeye-lens", "auto"):
+        cal = calibrate(robot, data.select(~test), mode)
+        part = data.select(test)
+        predicted = Problem(robot, part, [], cal.params(robot), noise_model=False).predict(cal.params(robot))
+        out[mode] = float(np.sqrt(np.mean(np.sum((predicted[:, :2] - part.measured[:, :2]) ** 2, axis=1))))
+    return out
 
 
 def _opencv(python: Path, views, poses, found, points, camera, setup) -> list[dict]:

@@ -5,8 +5,11 @@ the same input (specs handeye-poses.md), so that the page reviews such a set fra
 of its modes, and applies the result as for any other robot. The robot's profile is
 calib_core.model.flange_pose's: six joints read from each image's pose, a registration frame for the camera and one
 for the board. Its declared noise is what the images show: the corners' scatter and the reported poses' error per
-axis, estimated together by the variance components of `calibrate_flange` on every image with a board and a pose
-(edit the profile's `noise` to your controller's figures if you know them better).
+axis, estimated together by the variance components of `calibrate_flange` on every image with a board and a pose;
+where its cross-validation finds the images predicted better with the poses taken as exact (a camera file that is
+off, pose errors that follow the arm's configuration: all three real sets of benchmarks/README.md), the poses
+declare no noise, and each image's scatter is the desk's per-frame scale (edit the profile's `noise` to your
+controller's figures if you know them better).
 """
 
 from __future__ import annotations
@@ -72,14 +75,16 @@ def flange_pose_session(
     it is on the desk already (another day's images: read against its reference, its noise as it declares);
     default a new one from these images."""
     names = [n for n in sorted(views, key=natural_key) if n in poses]
-    fit = calibrate_flange(views, poses, camera, board, setup)  # the noise the images show; orders the corners
     T = np.array([poses[n] for n in names])
     if profile is not None:
+        calibrate_flange(views, poses, camera, board, setup, pose_errors=False)  # orders a chessboard's corners
         if not is_flange_pose(profile):
             raise InputError(f"robot: '{profile.name}' is not a robot known by its flange pose")
         if setup_of(profile) != setup:
             raise InputError(f"setup: robot '{profile.name}' is {setup_of(profile)}, not {setup}")
         return _session(robot, None, profile, views, names, T, profile_reference(profile))
+    fit = calibrate_flange(views, poses, camera, board, setup)  # the noise the images show; orders the corners
+    errors = bool(fit.flange_errors["fitted"])
     reference = reference_rotation(T[:, :3, :3])
     doc = flange_pose_profile(
         robot,
@@ -90,8 +95,8 @@ def flange_pose_session(
         board=board_target(board),
         reference=reference,
         pixel_sd=fit.noise["corner_px"],
-        flange_sd_mm=fit.noise["flange_mm"],
-        flange_sd_deg=fit.noise["flange_deg"],
+        flange_sd_mm=fit.noise["flange_mm"] if errors else 0.0,
+        flange_sd_deg=fit.noise["flange_deg"] if errors else 0.0,
     )
     return _session(robot, doc, compile_profile(doc, f"<{robot}>"), views, names, T, reference)
 

@@ -182,9 +182,9 @@ def flange_pose_profile(
 
 
 def _sd(value: float) -> float:
-    """A standard deviation as the profile states it: 4 significant digits, never zero (a noise of zero would
-    make a reading exact: a controller's never is)."""
-    return float(f"{max(value, 1e-6):.4g}")
+    """A standard deviation as the profile states it: 4 significant digits; zero only where asked (readings taken
+    as exact), never from an estimate that came out at zero."""
+    return 0.0 if value == 0.0 else float(f"{max(value, 1e-6):.4g}")
 
 
 def _deg(value: float) -> float:
