@@ -119,3 +119,41 @@ def test_the_review_has_both_sides_numbers_the_old_through_poses_registered_on_t
     table = client.post("/api/review/table", json={"session": out["id"], "old": None, "new": done["result"]}).json()
     both = np.array([[f["err_old"], f["err_new"]] for f in table["table"]], float)
     assert both.shape == (8, 2) and np.isfinite(both).all() and both.max() < 3
+
+
+def test_its_camera_exports_where_calib_handeye_s_goes(client) -> None:
+    """No number copied by hand: the desk's calibration of a flange-pose robot exports in calib handeye's form (the
+    camera and the board where `calib handeye` puts them on the same images, the board in the detector's frame) and
+    as the ROS 2 launch file, URDF joint and easy_handeye YAML; another robot's calibration refuses those forms."""
+    from calib_core.estimation import calibrate_flange, find_views
+    from calib_core.io import parse_board, read_camera, read_flange_poses
+
+    out = client.post("/api/sessions/import-handeye", data=_form("visp-export"), files=_files()).json()
+    job = client.post(f"/api/sessions/{out['id']}/calibrations", json={"mode": "handeye"}).json()["job"]
+    cal_id = wait_job(client, job)["result"]
+    form = client.get(f"/api/calibrations/{cal_id}/export", params={"format": "handeye"}).json()
+    import cv2
+
+    names = sorted(p.name for p in (VISP / "images").iterdir())
+    board = parse_board((VISP / "board.txt").read_text().strip())
+    camera = read_camera(VISP / "camera.yaml")
+    grey = {n: cv2.imread(str(VISP / "images" / n), cv2.IMREAD_GRAYSCALE) for n in names}
+    views = find_views(grey, board, camera)
+    ref = calibrate_flange(views, read_flange_poses(VISP / "poses.csv", names), camera, board, "eye-in-hand")
+    ref = ref.to_json()
+    assert form["setup"] == "eye-in-hand"
+    for key in ("camera_in_flange", "board_in_base"):
+        assert np.allclose(form[key]["matrix"], ref[key]["matrix"], atol=0.05), key  # mm, and rotations
+        assert all(0 < v < 2 for v in form[key]["std"].values()), form[key]["std"]
+    launch = client.get(
+        f"/api/calibrations/{cal_id}/export", params={"format": "ros2-static-tf", "parent": "panda_hand"}
+    )
+    assert launch.status_code == 200 and "static_transform_publisher" in launch.text and "panda_hand" in launch.text
+    x_m = form["camera_in_flange"]["matrix"][0][3] / 1000
+    assert f"{x_m:.6f}"[:8] in launch.text.replace("'", "")
+    for fmt in ("urdf-joint", "easy-handeye"):
+        assert client.get(f"/api/calibrations/{cal_id}/export", params={"format": fmt}).status_code == 200
+    job = client.post("/api/sessions/robonaut-a-day1/calibrations", json={"mode": "daily"}).json()["job"]
+    other = wait_job(client, job)["result"]
+    refused = client.get(f"/api/calibrations/{other}/export", params={"format": "ros2-static-tf"})
+    assert refused.status_code == 422 and "flange pose" in refused.json()["detail"]

@@ -32,6 +32,7 @@ __getattr__ = lazy_exports(
             "offsets_yaml",
         ),
         "flange_poses": ("BoardSpec", "Camera", "parse_board", "read_camera", "read_flange_poses"),
+        "flange_export": ("flange_calibration_json",),
         "flange_session": ("FlangeSession", "flange_pose_session", "write_flange_session"),
         "handeye_export": ("HANDEYE_FORMATS", "export_handeye", "read_handeye"),
         "ros_tf": ("FRAME_NAME", "LinkPose", "StaticTransform", "link_poses", "static_tf_launch"),
@@ -57,6 +58,7 @@ __all__ = [
     "csv_sensors",
     "estimated_offsets_deg",
     "export_handeye",
+    "flange_calibration_json",
     "flange_pose_session",
     "grey_image",
     "handeye_folder_from_bag",
@@ -105,6 +107,7 @@ if TYPE_CHECKING:
         estimated_offsets_deg,
         offsets_yaml,
     )
+    from .flange_export import flange_calibration_json
     from .flange_poses import BoardSpec, Camera, parse_board, read_camera, read_flange_poses
     from .flange_session import FlangeSession, flange_pose_session, write_flange_session
     from .handeye_export import HANDEYE_FORMATS, export_handeye, read_handeye

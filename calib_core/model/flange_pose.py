@@ -189,3 +189,28 @@ def _sd(value: float) -> float:
 
 def _deg(value: float) -> float:
     return float(f"{value:.10g}") if math.isfinite(value) else 0.0
+
+
+def frame_pose(profile: Profile, p: np.ndarray, frame: str, parent: str) -> np.ndarray:
+    """The pose (4, 4) of `frame` in `parent` (its parent frame, or the base), in the profile's length unit, at
+    parameters p and zero readings: a registration frame's own pose."""
+    from .kinematics import forward
+
+    poses = forward(profile, p, np.zeros((1, len(profile.joints))))
+    out = []
+    for name in (frame, parent):
+        T = np.eye(4)
+        if name != "base":
+            k = profile.frame(name)
+            T[:3, :3], T[:3, 3] = poses.R[k][0], poses.t[k][0]
+        out.append(T)
+    return np.linalg.inv(out[1]) @ out[0]
+
+
+def body_rotation_covariance(yaw: float, pitch: float, roll: float, cov_ypr: np.ndarray) -> np.ndarray:
+    """The covariance (3, 3) of a small rotation about the frame's own axes (x, y, z), from that of its ZYX angles
+    R = Rz(yaw) Ry(pitch) Rx(roll) (rad): the body angular velocity is E d(yaw, pitch, roll)."""
+    Rx = axis_angle(np.eye(3)[0], roll)
+    Ry = axis_angle(np.eye(3)[1], pitch)
+    E = np.column_stack([Rx.T @ Ry.T @ np.eye(3)[2], Rx.T @ np.eye(3)[1], np.eye(3)[0]])
+    return E @ cov_ypr @ E.T

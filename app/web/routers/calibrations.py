@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import json
-from typing import Literal
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Response
+import numpy as np
+from fastapi import APIRouter, Query, Response
 from pydantic import BaseModel, Field
 
+from calib_core import Calibration, Profile
 from calib_core.estimation import Correlation, Diagnostic, DiagnosticGroup, HeldParameter, Outlier, ParameterEstimate
-from calib_core.io import calibrated_urdf, offsets_yaml
+from calib_core.io import calibrated_urdf, export_handeye, flange_calibration_json, offsets_yaml
 
 from .deps import ApplyDep, CalibrationsDep, RobotsDep
 from .models import Figures
@@ -171,6 +173,11 @@ EXPORTS = {
     "json": ("json", "application/json"),
     "yaml": ("offsets.yaml", "application/yaml"),
     "urdf": ("urdf", "application/xml"),
+    # A robot known by its flange pose: its camera where a ROS robot takes it (calib_core/io/handeye_export.py).
+    "handeye": ("handeye.json", "application/json"),
+    "ros2-static-tf": ("launch.py", "text/x-python"),
+    "urdf-joint": ("joint.urdf", "application/xml"),
+    "easy-handeye": ("easy_handeye.yaml", "application/yaml"),
 }
 
 
@@ -179,9 +186,18 @@ EXPORTS = {
     responses={200: {"content": {"application/json": {}, "application/yaml": {}, "application/xml": {}}}},
 )
 def export(
-    calibrations: CalibrationsDep, robots: RobotsDep, cal_id: str, format: Literal["json", "yaml", "urdf"] = "json"
+    calibrations: CalibrationsDep,
+    robots: RobotsDep,
+    cal_id: str,
+    format: Literal["json", "yaml", "urdf", "handeye", "ros2-static-tf", "urdf-joint", "easy-handeye"] = "json",
+    parent: Annotated[str | None, Query(max_length=200)] = None,
+    child: Annotated[str, Query(max_length=200)] = "camera_optical_frame",
 ) -> Response:
-    """What the robot's driver takes: the calibration JSON, an offsets YAML or a URDF with corrected origins."""
+    """What the robot's driver takes: the calibration JSON, an offsets YAML or a URDF with corrected origins. For a
+    robot known by its flange pose (imported from images and poses) also where its camera goes: `handeye`, `calib
+    handeye`'s output form (specs handeye-poses.md), and `ros2-static-tf`, `urdf-joint`, `easy-handeye` as `calib
+    export` writes them, the camera's optical frame `child` in `parent` (default tool0 eye-in-hand, base_link
+    eye-to-hand); a 422 for another robot."""
     info = calibrations.info(cal_id)
     cal = calibrations.load(cal_id)
     profile = robots.get(info.robot).profile
@@ -189,8 +205,21 @@ def export(
         text = json.dumps(cal.to_dict(), indent=2) + "\n"
     elif format == "yaml":
         text = offsets_yaml(profile, cal)
-    else:
+    elif format == "urdf":
         text = calibrated_urdf(profile, cal)
+    else:
+        text = _handeye_export(profile, cal, format, parent, child)
     suffix, media = EXPORTS[format]
     name = f"{cal.robot}-{cal.mode}-{cal_id}.{suffix}"
     return Response(text, media_type=media, headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+
+def _handeye_export(profile: Profile, cal: Calibration, fmt: str, parent: str | None, child: str) -> str:
+    """A flange-pose robot's calibration in calib handeye's form, or its camera as `calib export` writes it."""
+    form = flange_calibration_json(profile, cal)
+    if fmt == "handeye":
+        return json.dumps(form, indent=2) + "\n"
+    setup = form["setup"]
+    camera = np.array(form["camera_in_flange" if setup == "eye-in-hand" else "camera_in_base"]["matrix"])
+    camera[:3, 3] /= 1000.0  # mm -> m, as ROS takes it
+    return export_handeye(setup, camera, fmt, parent or ("tool0" if setup == "eye-in-hand" else "base_link"), child)
