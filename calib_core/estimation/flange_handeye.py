@@ -13,7 +13,8 @@ right Jacobians). A controller's pose is not exact: each image's reported flange
 fitted with a standard deviation that, like the corners', the data give (variance components), so that the
 corners are not asked to absorb it and the standard deviations (Gauss-Newton, at those weights) stay honest.
 Whether that model or the reported poses taken as exact predicts an image better from its reported pose is asked
-of the images themselves (k-fold cross-validation on the images fitted): on real data the poses' disagreement
+of the images themselves (k-fold cross-validation on the images fitted; the poses' errors are fitted only where they
+predict better by more than the comparison's standard error): on real data the poses' disagreement
 with the images is not always a controller's independent error (a camera model that is off, errors that follow
 the arm's configuration), and then the corners' pixels judge X and Z better (benchmarks/README.md). Either way
 the noise reported is the variance components', and the standard deviations are those of that noise.
@@ -311,7 +312,8 @@ def calibrate_flange(
 
     `pose_errors` None: the reported poses' errors fitted (variance components) or the poses taken as exact,
     whichever predicts the images better from their reported poses in a k-fold cross-validation on the images
-    fitted (`_cross_validate`); on real data a controller's pose errors are not always what the model says (a
+    fitted (`_cross_validate`; the poses as exact unless fitting their errors wins by more than a standard error);
+    on real data a controller's pose errors are not always what the model says (a
     camera model that is off, errors that follow the arm's configuration), and the corners' pixels are then the
     better judge. The noise reported is the variance components' either way, and the standard deviations of the
     poses taken as exact are those of that noise (`_sandwich`). True or False forces it (False: a plain
@@ -336,7 +338,7 @@ def calibrate_flange(
     if pose_errors is None:
         cv = _cross_validate(setup, fit, F, points, camera, intrinsics_free)
         choice["cross_validation_px"] = cv
-        choice["fitted"] = cv is None or cv["fitted"] <= cv["exact"]
+        choice["fitted"] = cv is None or cv["fit_errors"]
         choice["chosen_by"] = "too few images to cross-validate" if cv is None else "cross-validation"
     desk = _fit(setup, fit, F, points, camera, intrinsics_free, True, theta0)
     if choice["fitted"]:
@@ -419,8 +421,7 @@ def _cross_validate(
     folds = min(CV_FOLDS, n)
     if n - math.ceil(n / folds) < MIN_IMAGES:
         return None
-    sq = {True: 0.0, False: 0.0}
-    count = 0
+    sq = {True: np.zeros(n), False: np.zeros(n)}  # each image's squared corner distances, summed
     for j in range(folds):
         train = [i for i in range(n) if i % folds != j]
         tv, tp = [views[i] for i in train], [poses[i] for i in train]
@@ -429,9 +430,19 @@ def _cross_validate(
             model, theta = _fit(setup, tv, tp, points, camera, free, errors, theta0)
             for i in range(j, n, folds):
                 pred = model.image_rows(views[i], poses[i], theta, None, jacobian=False)[0]
-                sq[errors] += float(np.sum((pred - views[i].corners) ** 2))
-        count += sum(len(views[i].corners) for i in range(j, n, folds))
-    return {"fitted": math.sqrt(sq[True] / count), "exact": math.sqrt(sq[False] / count), "folds": folds}
+                sq[errors][i] = float(np.sum((pred - views[i].corners) ** 2))
+    count = sum(len(v.corners) for v in views)
+    corners = np.array([len(v.corners) for v in views], float)
+    gain = (sq[False] - sq[True]) / corners  # per image: how much lower its mean squared distance is when fitted
+    return {
+        "fitted": math.sqrt(sq[True].sum() / count),
+        "exact": math.sqrt(sq[False].sum() / count),
+        "folds": folds,
+        # The poses' errors fitted only where they predict better by more than the comparison's own standard
+        # error (the one-standard-error rule): with a few images the better of two close figures is chance, and
+        # the plain model is the one to keep then.
+        "fit_errors": bool(gain.mean() > gain.std(ddof=1) / math.sqrt(n)),
+    }
 
 
 def _sandwich(plain: _Model, theta: np.ndarray, desk: _Model) -> np.ndarray:
