@@ -372,8 +372,9 @@ def _in_client(page, prefix: str) -> bool:
 
 
 def _shown_box(scene: ReviewScene) -> np.ndarray:
-    """The world box of the copies the scene shows: the robot's frame origins at the nominal model and zero
-    joint angles, turned upright and placed where each copy's root is, and their labels (kept on-screen)."""
+    """The world box the scene frames the browsers' cameras on, which holds the copies it shows: the robot's frame
+    origins at the nominal model and zero joint angles, turned upright and placed where each copy's root is, and
+    their labels (kept on-screen); a review's selected frame too (tests/test_scene.py)."""
     state = scene.state()
     profile = load_profile(state["robot"])
     zero = np.zeros((1, len(profile.joints)))
@@ -383,7 +384,9 @@ def _shown_box(scene: ReviewScene) -> np.ndarray:
     roots = [r for r in ("/review/old", "/review/new", "/live") if r in state["nodes"] and state["nodes"][r]["shown"]]
     labels = [np.add(state["nodes"][f"{r}/label"]["position"], state["nodes"][r]["position"])[None] for r in roots]
     points = np.concatenate([corners + state["nodes"][r]["position"] for r in roots] + labels)
-    return np.stack([points.min(axis=0), points.max(axis=0)])
+    framed = np.array(state["camera"]["framing"]["box_m"])
+    assert np.all(framed[0] <= points.min(axis=0) + 1e-9) and np.all(points.max(axis=0) <= framed[1] + 1e-9)
+    return framed
 
 
 def _framed(

@@ -17,6 +17,7 @@ import websockets.sync.client
 import yourdfpy
 import zstandard
 from sim_frames import measured_frames, unmeasured_frames
+from test_flange_pose import _looking_at_the_board, _pose, _rot, _synthetic_doc, _truth
 from test_viewers import PROTOCOL, camera_message, wait_until
 
 from app.errors import NotFound
@@ -25,7 +26,10 @@ from app.scene.review import Review
 from app.scene.review_scene.layout import display_rotation
 from app.scene.review_scene.scene import ReviewScene
 from calib_core import SimulatedRobot, load_profile
+from calib_core.estimation import register
+from calib_core.model.flange_pose import readings, reference_rotation
 from calib_core.model.kinematics import forward
+from calib_core.model.loader import compile_profile
 from calib_core.vision.sighting import Sighting
 
 URDF_DIR = Path(__file__).resolve().parents[1] / "calib_core" / "model" / "profiles"
@@ -165,6 +169,51 @@ def test_without_a_new_calibration_only_the_old_copy(viser_server: viser.ViserSe
     state = scene.state()
     assert not state["nodes"]["/review/new"]["shown"] and state["nodes"]["/review/old"]["shown"]
     assert state["nodes"]["/review/old/base/frame/predicted"]["color"] == BLUE
+
+
+def flange_review(*, new: bool) -> Review:
+    """A robot known by its flange pose (calib_core/model/flange_pose.py), eye-in-hand: 8 frames of its camera
+    looking at the board, simulated; the old side through the camera's and board's poses registered on them (as
+    the desk reviews it), the new one (`new`) at the truth."""
+    rng = np.random.default_rng(7)
+    X = _pose(_rot(rng, 5), np.array([0.03, -0.05, 0.04]))
+    Z = _pose(np.eye(3), np.array([0.6, 0.1, -0.2]))
+    T = _looking_at_the_board(8, rng, X, Z)
+    reference = reference_rotation(T[:, :3, :3])
+    profile = compile_profile(_synthetic_doc(reference), "<test>")
+    q = readings(T, reference)
+    q[:, 3:] = np.radians(q[:, 3:])
+    truth = _truth(profile, X, Z)
+    data = SimulatedRobot(profile, truth, pixel_noise=0.3, seed=1).measure(q, np.zeros(len(q), int)).data
+    old = register(profile, data, profile.nominal())
+    return Review.build(profile, measured_frames(data), data, old, truth if new else None)
+
+
+def test_a_robot_known_by_its_flange_pose_is_framed_on_what_its_review_shows(viser_server: viser.ViserServer) -> None:
+    """Such a robot stands at its base at zero readings (its reading places the flange; the camera and the board
+    hang from registration frames): the camera is framed on the selected frame as both copies show it, the flange
+    where the reading puts it and the board's marks, from the review before its first calibration too (one copy;
+    the calibration puts the new one beside it and leaves the camera where it is)."""
+    scene = ReviewScene(viser_server)
+    scene.load(flange_review(new=False))
+    review = flange_review(new=True)
+    scene.load(review)
+    state = scene.state()
+    assert state["nodes"]["/review/new"]["shown"] and state["index"] == review.indices[0]
+    box = np.array(state["camera"]["framing"]["box_m"])
+    profile = review.profile
+    R = display_rotation(profile)
+    flange = profile.frame("flange")
+    geometry = review.frame_geometry(state["index"])
+    for side in ("old", "new"):
+        root = np.asarray(state["nodes"][f"/review/{side}"]["position"])
+        poses = forward(profile, review.sides[side].p, geometry.joints_rad[None], frames=[flange])
+        for what, points_m in (("flange", poses.t[flange] / 1000), ("board", geometry.measured_m[side])):
+            world = points_m @ R.T + root
+            # Within a mm: the copies of the review with both sides stand a hair apart from where the first review
+            # put them (its bounds hold the new side's points too).
+            outside = ~np.all((world >= box[0] - 1e-3) & (world <= box[1] + 1e-3), axis=1)
+            assert not outside.any(), (side, what, world[outside], box)
 
 
 def test_nao_board_and_switching_robots(viser_server: viser.ViserServer, robonaut_review: Review) -> None:

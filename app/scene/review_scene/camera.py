@@ -18,15 +18,33 @@ FRAME_VIEW_SHARE = 0.15  # "frame it" spans at least this share of the robot's s
 SAME_VIEW_DEG = 5.0  # "frame it": the side-by-side copies seen from directions at most this far apart
 
 
-def robot_view(layout: Layout, *, live: bool) -> Framing:
-    """The copies shown (the live one, or the review's), each its nominal extent where the layout puts it, and
-    their labels, at the default field of view."""
+def robot_view(layout: Layout, review: Review | None, index: int | None, *, live: bool, overlay: bool) -> Framing:
+    """The live copy, or the review's two side by side (or overlaid), each where the layout puts it: its extent at
+    the nominal model and zero joint angles, as it stands at the selected frame with that frame's marks (a robot
+    known by its flange pose is all at its base at zero readings: its reading places the flange, and the board is
+    where the marks are), and its label; at the default field of view. A review of one side is framed with the
+    other's place too, showing the same: its first calibration puts the new copy there, the camera left as it is."""
     nodes = layout.nodes
-    roots = ["/live"] if live else ["/review/old"] + (["/review/new"] if nodes["/review/new"].visible else [])
-    boxes = [layout.extent_m + np.asarray(nodes[r].position, float) for r in roots]
-    labels = [np.asarray(nodes[f"{r}/label"].position, float) + nodes[r].position for r in roots]
-    box = bounding_box(np.concatenate([*boxes, np.array(labels)]))
-    return framing(box, fov_rad=DEFAULT_FOV_RAD)
+    if live:
+        places = {"/live": (np.asarray(nodes["/live"].position, float), None)}
+    else:
+        places = {f"/review/{s}": (np.array(layout.root_position(s, apart=not overlay)), s) for s in SIDES}
+    points = []
+    for root, (at, side) in places.items():
+        points += [layout.extent_m + at, np.asarray(nodes[f"{root}/label"].position, float)[None] + at]
+        if side is not None and review is not None and index is not None:
+            points.append(_at_frame(layout, review, index, side if side in review.sides else "old") + at)
+    return framing(bounding_box(np.concatenate(points)), fov_rad=DEFAULT_FOV_RAD)
+
+
+def _at_frame(layout: Layout, review: Review, index: int, side: str) -> np.ndarray:
+    """(8, 3) the corners of a copy's box at the selected frame, relative to its root in the world: its frame
+    origins and the frame's marks."""
+    geometry = review.frame_geometry(index)
+    marks = (geometry.measured_m[side], geometry.predicted_m[side])
+    return (
+        box_corners(frame_bounds_m(review.profile, review.sides[side].p, geometry.joints_rad[None], marks)) @ layout.R.T
+    )
 
 
 def marks_view(layout: Layout, review: Review, index: int, *, overlay: bool) -> Framing | None:

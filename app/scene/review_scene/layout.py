@@ -75,6 +75,13 @@ class Layout:
         self.extent_m = bounding_box(box_corners(frame_bounds_m(profile, profile.nominal(), zero)) @ R.T)
         self.body_pad_m = BODY_PAD * float(span.max()) + self.marks.size.ring_m
 
+    def root_position(self, side: str, *, apart: bool) -> tuple[float, float, float]:
+        """Where a copy's root stands: side by side along the world y (old on the left, new on the right, seen from
+        the front), or both in one place (the overlay, a review of one side); the live copy stands where the old
+        one does."""
+        half = self.separation_m / 2 if apart else 0.0
+        return (0.0, -float(self.centre_m[1]) + (half if side == "new" else -half), 0.0)
+
     def label_position(self, side: str, *, at_marks: bool, overlay: bool) -> tuple[float, float, float]:
         """Where a copy's label goes (relative to its root): just above the selected frame's marks, where the
         camera looks ("frame it"), or above the robot; in the overlay the old one higher (both would coincide)."""

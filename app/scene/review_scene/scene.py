@@ -42,7 +42,8 @@ One robot at a time: when the robot shown changes (a review, the built-in robot,
 another robot), everything shown for the previous one is removed from viser (re-adding a node under the
 same name would keep the old children, so a Robonaut arm would stay inside a NAO scene) and the target's
 browsers' cameras are framed on the new robot (app/scene/framing.py): the copies' extents at the nominal model and
-zero joint angles, where the layout puts them.
+zero joint angles, and as they stand at the selected frame with its marks, where the layout puts them side by side
+(camera.robot_view).
 """
 
 from __future__ import annotations
@@ -308,14 +309,13 @@ class ReviewScene:
         if "/review/old" not in nodes:
             return
         has_new = self.review is None or "new" in self.review.sides
-        half = 0.0 if self.overlay or not has_new else self.layout.separation_m / 2
-        y0 = -float(self.layout.centre_m[1])
-        nodes["/review/old"].position = (0.0, y0 - half, 0.0)
-        nodes["/review/new"].position = (0.0, y0 + half, 0.0)
+        apart = has_new and not self.overlay
+        nodes["/review/old"].position = self.layout.root_position("old", apart=apart)
+        nodes["/review/new"].position = self.layout.root_position("new", apart=apart)
         nodes["/review/old"].visible = not self.live
         nodes["/review/new"].visible = has_new and not self.live
         if "/live" in nodes:
-            nodes["/live"].position = (0.0, y0 - half, 0.0)
+            nodes["/live"].position = self.layout.root_position("live", apart=apart)
             nodes["/live"].visible = self.live
         if "/review/old/base/ghost" in nodes:
             nodes["/review/old/base/robot"].visible = not self.overlay
@@ -339,7 +339,7 @@ class ReviewScene:
 
     def _reframe(self) -> None:
         """Every browser's camera on the copies shown (camera.robot_view)."""
-        self.camera.frame(robot_view(self.layout, live=self.live))
+        self.camera.frame(robot_view(self.layout, self.review, self.index, live=self.live, overlay=self.overlay))
 
     def _magnify_text(self) -> str:
         """What a label adds when the residuals are drawn longer than they are."""
