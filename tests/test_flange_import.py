@@ -157,3 +157,16 @@ def test_its_camera_exports_where_calib_handeye_s_goes(client) -> None:
     other = wait_job(client, job)["result"]
     refused = client.get(f"/api/calibrations/{other}/export", params={"format": "ros2-static-tf"})
     assert refused.status_code == 422 and "flange pose" in refused.json()["detail"]
+
+
+def test_images_of_more_than_a_megabyte_together_are_taken(client) -> None:
+    """A request's body is capped at 1 MB unless it is an upload: the images of a session are one (ViSP's 8 are
+    1.0 MB; a day's images of a camera are megabytes each). Here 16, twice the 8 (the copies without a pose are
+    left out, each named)."""
+    copies = [("images", (f"copy-{p.name}", p.read_bytes(), "image/png")) for p in sorted((VISP / "images").iterdir())]
+    files = _files() + copies
+    assert sum(len(f[1][1]) for f in files) > 1.9 * 2**20
+    r = client.post("/api/sessions/import-handeye", data=_form("visp-big"), files=files)
+    assert r.status_code == 201, r.text
+    assert r.json()["notes"] == [f"copy-{k}.png: no pose for it; left out" for k in range(1, 9)]
+    assert client.get(f"/api/sessions/{r.json()['id']}").json()["measured"] == 8

@@ -22,9 +22,9 @@ from starlette.testclient import WebSocketDenialResponse
 from test_viewers import PROTOCOL, camera_message
 
 from app.scene.viser_private import close_share_tunnel
+from app.web.limits import DEFAULT_MAX_UPLOAD_BYTES as MAX_UPLOAD_BYTES
 from app.web.security import (
     LOOPBACK_NAMES,
-    MAX_UPLOAD_BYTES,
     TOKEN_FILE,
     Scrubber,
     TokenFile,

@@ -25,7 +25,8 @@ error texts without paths (the viser server's share tunnel is closed in app/scen
   desk's own page only. Off loopback the OpenAPI document and its page (/openapi.json, /docs) need the token
   too (the page, opened by address, may carry it as `?token=`).
 - Request bodies are capped before they are read: an upload (a CSV to import, a robot's profile with its
-  URDF) at MAX_UPLOAD_BYTES plus the form's overhead, anything else at MAX_BODY_BYTES; a declared
+  URDF) at the desk's upload limit plus the form's overhead, a session's images (a hand-eye import) at what a
+  zip may unpack to, anything else at MAX_BODY_BYTES; a declared
   Content-Length above the cap is refused at once, and a body streamed without one is cut off when it
   passes the cap (413 either way).
 """
@@ -47,7 +48,7 @@ from urllib.parse import parse_qs
 from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException
 
-from .limits import DEFAULT_MAX_UPLOAD_BYTES as MAX_UPLOAD_BYTES
+from .limits import Limits
 
 TOKEN_FILE = "access-token.json"
 TOKEN_FORMAT = "calib-access-token/1"
@@ -60,6 +61,7 @@ LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_BODY_BYTES = 1024 * 1024
 FORM_OVERHEAD_BYTES = 64 * 1024
 UPLOAD_PATHS = frozenset({"/api/sessions/import", "/api/robots"})
+IMAGES_PATHS = frozenset({"/api/sessions/import-handeye"})  # a session's images: as much together as a zip unpacks to
 # No page of another site may frame the desk (a click in a hidden frame could start a motion): the page and the
 # API never, the scene only inside the desk's own page (its iframe).
 NO_FRAMING = ((b"x-frame-options", b"DENY"), (b"content-security-policy", b"frame-ancestors 'none'"))
@@ -152,12 +154,15 @@ class Guard:
         *,
         tokens: TokenFile | None,
         trusted_hosts: Iterable[str] | None = None,
-        max_upload_bytes: int = MAX_UPLOAD_BYTES,
+        limits: Limits | None = None,
     ) -> None:
         self.app = app
         self.tokens = tokens
         self.trusted_hosts = None if trusted_hosts is None else frozenset(h.lower() for h in trusted_hosts)
-        self.max_upload_bytes = max_upload_bytes
+        limits = limits or Limits()
+        self.caps = {path: limits.upload_bytes + FORM_OVERHEAD_BYTES for path in UPLOAD_PATHS} | {
+            path: limits.unpacked_bytes + FORM_OVERHEAD_BYTES for path in IMAGES_PATHS
+        }
         self.read_key = secrets.token_urlsafe(32)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -174,7 +179,7 @@ class Guard:
             await self.app(scope, receive, send)
             return
         path = scope["path"]
-        limit = self.max_upload_bytes + FORM_OVERHEAD_BYTES if path in UPLOAD_PATHS else MAX_BODY_BYTES
+        limit = self.caps.get(path, MAX_BODY_BYTES)
         declared = headers.get("content-length")
         if declared is not None:
             if not declared.isdigit():

@@ -97,7 +97,7 @@ def create_app(
     app.include_router(api)
     app.include_router(scene_proxy.router)
     _error_handlers(app, desk.scrub)
-    app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts, max_upload_bytes=limits.upload_bytes)
+    app.add_middleware(security.Guard, tokens=tokens, trusted_hosts=trusted_hosts, limits=limits)
     app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
     return app
 
