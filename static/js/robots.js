@@ -14,6 +14,12 @@ function addRobotOption(r) {
   $("#robot-select").append(el("option", { value: r.name }, r.drivable ? r.name : `${r.name} (real data only)`));
 }
 
+// A robot added to the desk (this form, or an import of images and poses that made one): offered in the header.
+function robotAdded(r) {
+  state.robots[r.name] = r;
+  addRobotOption(r);
+}
+
 // A robot with real data only (no driver) has sessions imported from CSV, calibrations and reviews,
 // but nothing to connect to or move: its capture and motion controls are disabled.
 // This tab's 3-D scene shows the connected robot: a session and review of another robot are closed
@@ -36,8 +42,7 @@ async function addRobot(e) {
   for (const key of ["profile_file", "urdf_file", "meshes_zip"]) if (!form.get(key) || !form.get(key).size) form.delete(key);
   for (const key of ["profile", "driver"]) if (!form.get(key)) form.delete(key);
   const robot = await api("POST", "/robots", form);
-  state.robots[robot.name] = robot;
-  addRobotOption(robot);
+  await emit("robot:added", robot);
   e.target.reset();
   $("#robot-select").value = robot.name;
   await connect(robot.name);
@@ -56,6 +61,7 @@ async function stopAll() {
 
 export function wireRobots() {
   on("robot:connect", connect);  // a session of another robot opened
+  on("robot:added", robotAdded);
   const sel = $("#robot-select");
   sel.addEventListener("change", () => act(() => connect(sel.value)));
   $("#stop").addEventListener("click", stopAll);

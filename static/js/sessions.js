@@ -70,9 +70,69 @@ async function importSession(e) {
   else toast("Imported.", "info");
 }
 
+// Images of a board, each with the flange pose the controller reported (POST /api/sessions/import-handeye): a
+// session of a robot known by its flange pose, that robot added to the desk when its name is new (`robot:added`:
+// the header offers it), then opened on step 3. The button is disabled while the desk reads the images (a double
+// click imports once); what came of it, or the server's sentence, is said under the form (a refusal changes
+// nothing: the form keeps what was chosen, to be corrected).
+async function importHandeye(e) {
+  e.preventDefault();
+  const form = e.target;
+  const said = $("#import-handeye-state");
+  try {
+    checkForm(form);
+    const body = new FormData(form);
+    // A folder holds the poses and camera files too, maybe more: only its images are sent, in their names' natural
+    // order (2.png before 10.png; a folder lists them in no order), the order the answer's notes then follow.
+    const folder = [...form.elements.folder.files].filter((f) => f.type.startsWith("image/"));
+    const images = [...form.elements.images.files, ...folder]
+      .sort((a, b) => a.name.localeCompare(b.name, undefined, { numeric: true }));
+    if (!images.length) throw new Error("Images: choose the images, a zip of them, or their folder");
+    body.delete("images");
+    body.delete("folder");
+    for (const f of images) body.append("images", f, f.name);
+    const mb = images.reduce((n, f) => n + f.size, 0) / 2 ** 20;
+    say(said, "busy", `Importing ${images.length} file${images.length > 1 ? "s" : ""} (${mb.toFixed(1)} MB): ` +
+      "the desk looks for the board in each image…");
+    form.querySelector("button").disabled = true;
+    const { id, robot, added, notes } = await api("POST", "/sessions/import-handeye", body);
+    // New on the desk, or added from another tab since this one loaded: this tab learns of it.
+    if (!state.robots[robot]) await emit("robot:added", (await api("GET", "/robots")).find((r) => r.name === robot));
+    form.reset();
+    await loadSessions(id);
+    showTab("calibrate");
+    const made = `Session ${state.session.name} of ${added ? "the new robot " : ""}${robot}: ` +
+      `${state.session.measured} frames.`;
+    say(said, notes.length ? "notes" : "done", notes.length ? `${made} Look: ${notes.join("; ")}.` : made);
+    if (notes.length) toast(`Imported, but look: ${notes.join("; ")}`, "error");
+    else toast("Imported: calibrate it.", "info");
+  } catch (err) {
+    say(said, "error", err.message);
+    throw err;
+  } finally {
+    form.querySelector("button").disabled = false;
+  }
+}
+
+function say(e, kind, text) {
+  e.dataset.state = kind;
+  e.textContent = text;
+}
+
+// The robots known by their flange pose (calib_core/model/flange_pose.py: its six joints are the reported pose),
+// offered for another day's images; any other name is a new robot.
+const FLANGE_JOINTS = "x,y,z,yaw,pitch,roll";
+function offerFlangeRobots() {
+  const flange = Object.values(state.robots).filter((r) => r.joints.map((j) => j.name).join() === FLANGE_JOINTS);
+  $("#flange-robots").replaceChildren(...flange.map((r) => el("option", { value: r.name })));
+}
+
 export function wireSessions() {
   on("sessions:load", loadSessions);
   on("robot:turned", robotTurned);
+  on("robot:added", offerFlangeRobots);
+  offerFlangeRobots();
   $("#new-session").addEventListener("submit", (e) => act(() => newSession(e)));
   $("#import-session").addEventListener("submit", (e) => act(() => importSession(e)));
+  $("#import-handeye").addEventListener("submit", (e) => act(() => importHandeye(e)));
 }
