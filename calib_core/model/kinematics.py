@@ -104,6 +104,7 @@ def forward(
         else:
             Rf, tf = R[frame.parent], t[frame.parent]
         C_R, C_t = _EYE, _ZERO  # pending constant transform after (Rf, tf)
+        pending: list[tuple[int, np.ndarray, np.ndarray]] = []  # constant ops to record: id, axis, pivot after Rf, tf
         for op in frame.ops:
             i = op_id
             op_id += 1
@@ -111,19 +112,20 @@ def forward(
                 continue
             if op.joint < 0:
                 if i in record:
-                    w[i] = Rf @ (C_R @ op.vector)
-                    o[i] = tf + Rf @ C_t
+                    pending.append((i, C_R @ op.vector, C_t))
                 value = float(p[op.param])
                 if op.kind == "t":
                     C_t = C_t + value * (C_R @ op.vector)
                 else:
                     C_R = C_R @ _rotation(op, value)
                 continue
+            if pending:
+                _record(Rf, tf, pending, w, o)
             if C_t is not _ZERO:
                 tf = tf + Rf @ C_t
             if C_R is not _EYE:
                 Rf = Rf @ C_R
-            C_R, C_t = _EYE, _ZERO
+            C_R, C_t, pending = _EYE, _ZERO, []
             value = p[op.param] + q[:, op.joint]
             axis = Rf[:, :, op.axis] if op.axis is not None else Rf @ op.vector
             if i in record:
@@ -134,9 +136,23 @@ def forward(
                 Rf = Rf @ _principal(op.axis, value)
             else:
                 Rf = Rf @ axis_angle(op.vector, value)
+        if pending:
+            _record(Rf, tf, pending, w, o)
         R[f] = Rf if C_R is _EYE else Rf @ C_R
         t[f] = tf if C_t is _ZERO else tf + Rf @ C_t
     return Poses(R, t, w, o)
+
+
+def _record(Rf: np.ndarray, tf: np.ndarray, ops: list[tuple[int, np.ndarray, np.ndarray]], w: dict, o: dict) -> None:
+    """The base-frame axes and pivots of a frame's constant ops (`ops`: each op's id, its axis and its pivot
+    after (Rf, tf)), all in one product: one at a time, they took half the kinematics of a Jacobian of a
+    URDF's origins."""
+    k = len(ops)
+    local = np.array([a for _, a, _ in ops] + [c for _, _, c in ops]).T  # (3, 2k): the axes, then the pivots
+    base = (np.ascontiguousarray(Rf).reshape(-1, 3) @ local).reshape(len(tf), 3, 2 * k)
+    pivots = base[:, :, k:] + tf[:, :, None]
+    for j, (i, _, _) in enumerate(ops):
+        w[i], o[i] = base[:, :, j], pivots[:, :, j]
 
 
 def transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
