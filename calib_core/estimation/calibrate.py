@@ -87,8 +87,8 @@ def calibrate(
     train = data.select(train_idx)
     choice = None
 
-    def fit_mode(part: Dataset, candidate: Mode) -> Fit:
-        return _fit_mode(profile, part, candidate, base, method, robust, should_stop)
+    def fit_mode(part: Dataset, candidate: Mode, near: Fit | None = None) -> Fit:
+        return _fit_mode(profile, part, candidate, base, method, robust, should_stop, near)
 
     if auto:
         m, choice = choose(profile, train, fit_mode, robust=robust, seed=seed, should_stop=should_stop)
@@ -153,12 +153,16 @@ def _fit_mode(
     method: str,
     robust: bool,
     should_stop: Callable[[], bool] | None,
+    near: Fit | None = None,
 ) -> Fit:
-    """`mode` fitted on `data` as `calibrate` fits it on its training part (InputError where it cannot be)."""
+    """`mode` fitted on `data` as `calibrate` fits it on its training part (InputError where it cannot be);
+    `near`: see `fit_parameters`."""
     mode = observed_mode(profile, data, mode)
     p_start = start_values(profile, data, mode, base)
     _check_rows(profile, data, mode, p_start)
-    return fit_parameters(profile, data, mode, p_start, method=method, robust=robust, should_stop=should_stop)
+    return fit_parameters(
+        profile, data, mode, p_start, method=method, robust=robust, should_stop=should_stop, near=near
+    )
 
 
 def _richer_predicts(
@@ -319,15 +323,24 @@ def fit_parameters(
     minimal: bool = False,
     progress: Callable[[int, float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
+    near: Fit | None = None,
 ) -> Fit:
     """Steps 1-3 of the module doc on `data`: the estimate, how the solver got there, the scales.
-    `minimal`: see `calibrate`."""
+    `minimal`: see `calibrate`. `near`: the fit of a nearby model on the same data (mode `auto` fits its
+    candidates one after another, the next prior width from the last one's estimate): Levenberg-Marquardt starts
+    from its estimate instead of p_base, and where it looked for dependencies among the same parameters with the
+    same Jacobian, what it found stands."""
     start = time.perf_counter()
     priors = {} if minimal else mode.priors
     problem = Problem(profile, data, list(mode.free), p_base, mode.ties, priors, readings=True)
     initial: tuple[np.ndarray, np.ndarray] | None = problem.residuals_jacobian(problem.x0)
     J = initial[1][: problem.n_data_rows]
-    deps = find_dependencies(profile, J, problem.free)
+    found = near.found if near is not None else None
+    if found is not None and found[0] == problem.free and np.array_equal(found[1], J):
+        deps = list(found[2])
+    else:
+        found = (problem.free, J, find_dependencies(profile, J, problem.free))
+        deps = list(found[2])
     if minimal:
         kept = [k for k, i in enumerate(problem.free) if i not in {d.fixed for d in deps}]
         first = frozenset(registration_params(profile, data.sensors))
@@ -344,7 +357,8 @@ def fit_parameters(
     else:
         # A tracker's registration starts from its closed-form fit (`register`), a bounded pose near its start.
         settled = frozenset(registration_params(profile, data.sensors)) | frozenset(mode.bounds)
-        passes.least_squares(initial, robust, unknown_poses(profile, problem.free, settled))
+        x0 = None if near is None else near.p[problem.free]
+        passes.least_squares(initial, robust, unknown_poses(profile, problem.free, settled), x0)
     res = passes.last
     x = res.x
     r = problem.residuals(x)
@@ -379,6 +393,7 @@ def fit_parameters(
         noise_tests(plain, r_plain, n_free),
         passes.starts,
         passes.start,
+        found,
     )
 
 
@@ -439,11 +454,18 @@ class _Passes:
         )
         return self.last.x
 
-    def least_squares(self, initial: tuple | None, robust: bool, poses: list[tuple[str, list[int]]]) -> None:
+    def least_squares(
+        self, initial: tuple | None, robust: bool, poses: list[tuple[str, list[int]]], x0: np.ndarray | None = None
+    ) -> None:
         """`poses`: the free poses nobody measured (`unknown_poses`), turned when the first solution stays
-        far above the noise, when the other closed-form starts of a camera's registration are tried too."""
+        far above the noise, when the other closed-form starts of a camera's registration are tried too. `x0`:
+        where the first solve starts, in the box (a nearby fit's estimate; `initial` is at the problem's x0)."""
         problem = self.problem
-        x = self.run(problem.x0, None, initial, rough=problem.readings is not None)
+        rough = problem.readings is not None
+        if x0 is None:
+            x = self.run(problem.x0, None, initial, rough=rough)
+        else:
+            x = self.run(np.clip(x0, self.lower, self.upper), None, rough=rough)
         if far_above_noise(problem, problem.residuals(x)):
             starts = turned_starts(problem, problem.x0, poses, self.should_stop) + closed_form_starts(problem)
             if starts:

@@ -29,3 +29,6 @@ class Fit:
     noise_tests: list[NoiseTest] = field(default_factory=list)  # per sensor, its residuals against its declared noise
     starts: int = 1  # start vectors tried (calib_core.estimation.starts)
     start: str = "the start values"  # the one whose solution was kept
+    # The dependencies found among the mode's free parameters at the start values (before a minimal set's), and
+    # what they were found on: those parameters and the data rows' Jacobian there (`fit_parameters`' `near`).
+    found: tuple[list[int], np.ndarray, list[Dependency]] | None = None

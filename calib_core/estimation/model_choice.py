@@ -71,15 +71,16 @@ def candidates(profile: Profile, data: Dataset) -> list[tuple[Candidate, Mode | 
 def choose(
     profile: Profile,
     train: Dataset,
-    fit: Callable[[Dataset, Mode], Fit],
+    fit: Callable[[Dataset, Mode, Fit | None], Fit],
     *,
     robust: bool = True,
     seed: int = 0,
     should_stop: Callable[[], bool] | None = None,
 ) -> tuple[Mode, ModelChoice]:
     """The candidate (`candidates`) that predicts the training configurations it did not see best (the least
-    `_score`), and the choice with every candidate's figures. `fit(data, mode)`: the calibration's fit of a mode on
-    data (it raises InputError for a mode it cannot fit on them: that candidate is refused)."""
+    `_score`), and the choice with every candidate's figures. `fit(data, mode, near)`: the calibration's fit of a
+    mode on data (it raises InputError for a mode it cannot fit on them: that candidate is refused), `near` the fit
+    of the candidate before it on the same data (`fit_parameters`: started from its estimate)."""
     start = time.perf_counter()
     listed = candidates(profile, train)
     groups = len(np.unique(configuration_groups(train)))
@@ -91,17 +92,18 @@ def choose(
     for repeat in range(shuffles):
         for train_idx, test_idx in kfold_splits(train, folds, seed + repeat):
             part, test = train.select(train_idx), train.select(test_idx)
+            near: Fit | None = None  # the part's last fit
             for k, (_, mode) in enumerate(listed):
                 if k in refused or mode is None:
                     continue
                 if should_stop is not None and should_stop():
                     raise Cancelled("mode 'auto' stopped while cross-validating")
                 try:
-                    f = fit(part, mode)
+                    near = fit(part, mode, near)
                 except InputError as exc:
                     refused[k] = exc.message
                     continue
-                parts[k].append((test, *_errors(profile, test, f, robust)))
+                parts[k].append((test, *_errors(profile, test, near, robust)))
     compared = [k for k in range(len(listed)) if k not in refused]
     if not compared:
         raise InputError(
