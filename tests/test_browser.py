@@ -291,8 +291,12 @@ def test_observe_and_replay_in_the_browser(chromium, desk_data: Path) -> None:
         page.wait_for_function("document.querySelector('#observe-state').textContent.startsWith('live:')")
         # The camera's latest look beside it: the boards' corners found (red) and predicted (blue).
         page.wait_for_function("document.querySelector('#live-caption').textContent.includes('points found')")
-        look = int(page.get_attribute("#live-image", "data-look"))
-        assert look >= 1 and page.text_content("#live-caption").startswith(f"look {look}, lower_camera on ")
+        # The image's look number and its caption agree (read together: a new look may land between two reads).
+        page.wait_for_function(
+            "() => { const n = Number(document.querySelector('#live-image').dataset.look);"
+            " return n >= 1 && document.querySelector('#live-caption').textContent"
+            ".startsWith(`look ${n}, lower_camera on `); }"
+        )
         shot(page, "1-observe")
         page.locator("#observe-on").uncheck()
         page.wait_for_function("document.querySelector('#live-caption').textContent === ''")  # no stale look

@@ -67,7 +67,7 @@ def test_until_and_the_prediction_in_the_browser(chromium_2d, desk_data: Path) -
         page.fill("#replay-count", "12")
         page.click("#dry-run")
         page.wait_for_function(
-            "document.querySelector('#replay-predicted').textContent.includes('Predicted after a full calibration')",
+            "document.querySelector('#replay-predicted').textContent.includes('Predicted after an auto calibration')",
             timeout=60_000,
         )
         text = page.text_content("#replay-predicted")
