@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import tempfile
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 from io import BytesIO
 from pathlib import Path, PurePosixPath
+from typing import TypeVar
 
 import numpy as np
 
@@ -27,6 +29,7 @@ from ..store.importers import import_session_folder
 from ..store.meshes import checked_entries
 from .roster import Robots
 
+T = TypeVar("T")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 MIN_FOUND = 3  # images with the board found and a pose: fewer leave the hand-eye equations undetermined
 
@@ -132,7 +135,7 @@ def _put(folder: Path, name: str, data: bytes) -> Path:
     return path
 
 
-def _named(read, name: str):
+def _named(read: Callable[[], T], name: str) -> T:
     """`read()`, its InputError naming the file as uploaded (not where the desk kept it meanwhile)."""
     try:
         return read()
