@@ -426,7 +426,8 @@ class _Passes:
         self, x0: np.ndarray, loss: Robust | None, start: tuple | None = None, near: bool = False, rough: bool = False
     ) -> np.ndarray:
         """One solve from x0; `near`: x0 is the solution of the problem weighed a little differently; `rough`: a
-        refit from the solution follows (the readings' scales), so it stops short of the last digits."""
+        refit from the solution follows (the readings' scales, the sensors' and the priors' weights), so it stops
+        short of the last digits."""
         done = self.iterations
 
         def tick(it: int, cost: float) -> None:
@@ -461,7 +462,9 @@ class _Passes:
         far above the noise, when the other closed-form starts of a camera's registration are tried too. `x0`:
         where the first solve starts, in the box (a nearby fit's estimate; `initial` is at the problem's x0)."""
         problem = self.problem
-        rough = problem.readings is not None
+        # The problem is weighed anew at the first solution (the readings' scales, each sensor's scatter, the priors
+        # against it) and solved again from there: the first need not reach the last digits.
+        rough = problem.readings is not None or len(problem.blocks) > 1 or bool(problem.priors)
         if x0 is None:
             x = self.run(problem.x0, None, initial, rough=rough)
         else:
