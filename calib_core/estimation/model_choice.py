@@ -35,7 +35,7 @@ from ..dataset import Dataset
 from ..errors import Cancelled, InputError
 from ..model.profile import Mode, Profile
 from .fit import Fit
-from .outliers import inliers
+from .outliers import explained
 from .problem import Problem
 from .reports import Candidate, ModelChoice
 from .validation import Figures, configuration_groups, kfold_splits, sensor_figures
@@ -148,9 +148,8 @@ def _errors(profile: Profile, test: Dataset, fit: Fit, robust: bool) -> tuple[np
     squared = np.zeros(test.n_observations)
     for b in problem.blocks:
         squared[b.obs] = np.mean(r[b.rows].reshape(-1, b.dim) ** 2, axis=1)
-    keep = inliers(profile, test, fit.p, fit.sigmas) if robust else np.ones(test.n_observations, bool)
-    predicted = Problem(profile, test, [], fit.p, noise_model=False).predict(fit.p)
-    return predicted, squared, keep
+    keep = explained(problem, r, fit.sigmas) if robust else np.ones(test.n_observations, bool)
+    return problem.predict(fit.p), squared, keep
 
 
 def _score(parts: list[tuple[Dataset, np.ndarray, np.ndarray, np.ndarray]], keep: np.ndarray) -> float:
