@@ -144,6 +144,8 @@ def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(chromium_2d
         ), states
         # (the checking phase is short: the page's coalesced events may skip straight from planning to done)
         assert states[-1] == "dry run done", states
+        # For the mode of step 3, `auto` as the page opens (the API lists it first).
+        assert page.input_value("#mode") == "auto"
         assert "Predicted after an auto calibration from the 150 configurations" in page.text_content(
             "#replay-predicted"
         )

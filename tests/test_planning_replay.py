@@ -72,6 +72,7 @@ def test_until_and_the_prediction_in_the_browser(chromium_2d, desk_data: Path) -
         )
         text = page.text_content("#replay-predicted")
         assert "from the 12 configurations" in text and "px" in text
+        assert page.input_value("#mode") == "auto"  # step 3's mode as the page opens: the prediction is for it
 
         page.check("input[name=replay-source][value=until]")
         page.fill("#replay-until-error", "0.3")

@@ -2,7 +2,7 @@
 folder that has the repository's sample_sessions/ (the examples' paths are relative to a clone's root), with
 `calib` the checkout's. Not run: the set-up commands (scripts/run.sh, scripts/test.sh, pip), the benchmarks (they
 print figures, in minutes), and `calib serve` itself: the block that starts it has its curl commands sent to
-a `calib serve` this test starts instead."""
+a `calib serve` this test starts instead, its simulated robots 20 times as fast (the examples wait on its jobs)."""
 
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def test_the_examples_run_as_written(doc: str, tmp_path: Path) -> None:
             if lang == "bash" and NOT_RUN.search(body):
                 continue
             if "localhost:8000" in body:
-                server = stack.enter_context(served(tmp_path / "data", env=env))
+                server = stack.enter_context(served(tmp_path / "data", sim_speed=20.0, env=env))
                 body = body.replace("localhost:8000", server.url.removeprefix("http://"))
             body = DROPPED.sub("", body)
             cmd = ["bash", "-euo", "pipefail", "-c", body] if lang == "bash" else [sys.executable, "-c", body]

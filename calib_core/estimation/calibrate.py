@@ -34,7 +34,7 @@ from .calibration import Calibration, Covariance, Outlier, parameter_estimate
 from .chi_square import upper_quantile
 from .diagnostics import diagnose, richer_mode
 from .fit import Fit
-from .identifiability import find_dependencies, identifiability_report, minimal_set, report
+from .identifiability import Dependency, find_dependencies, identifiability_report, minimal_set, report
 from .model_choice import choose
 from .noise_test import noise_tests, sensor_scatter
 from .outliers import OutlierVerdict, inliers, pooled_robust_sigma, problem_outliers, robust_sigma, sort_outliers
@@ -159,7 +159,7 @@ def _fit_mode(
     `near`: see `fit_parameters`."""
     mode = observed_mode(profile, data, mode)
     p_start = start_values(profile, data, mode, base)
-    _check_rows(profile, data, mode, p_start)
+    _check_rows(profile, data, mode, p_start, near)
     return fit_parameters(
         profile, data, mode, p_start, method=method, robust=robust, should_stop=should_stop, near=near
     )
@@ -249,19 +249,19 @@ def start_values(profile: Profile, data: Dataset, mode: Mode, base: Calibration 
     return register(profile, data, p) if reg & set(mode.free) else p
 
 
-def _check_rows(profile: Profile, data: Dataset, mode: Mode, p_start: np.ndarray) -> None:
+def _check_rows(profile: Profile, data: Dataset, mode: Mode, p_start: np.ndarray, near: Fit | None = None) -> None:
     """Refuse only observations that leave nothing to check a fit: no parameter of the mode stays free, or
     the rows are no more than the parameters they determine (each row then goes to fixing a parameter,
     and the fit passes through every observation, noise and all). Parameters the data cannot tell apart
     are held and named by the fit (`find_dependencies`), so a mode with more parameters than rows is
-    refused only when the rows do not exceed what they determine."""
+    refused only when the rows do not exceed what they determine. `near`: see `fit_parameters`."""
     rows = sum(profile.sensors[s].dim * int(np.sum(data.sensor == s)) for s in data.sensors)
     n = len(mode.free)
     if rows > n:  # more rows than parameters: some are left over, whatever the data determine
         return
     problem = Problem(profile, data, list(mode.free), p_start, mode.ties)
     J = problem.residuals_jacobian(problem.x0)[1][: problem.n_data_rows]
-    held = len(find_dependencies(profile, J, problem.free))
+    held = len(_dependencies(profile, problem.free, J, near)[2])
     free = n - held
     if free == 0:
         raise InputError(
@@ -335,12 +335,8 @@ def fit_parameters(
     problem = Problem(profile, data, list(mode.free), p_base, mode.ties, priors, readings=True)
     initial: tuple[np.ndarray, np.ndarray] | None = problem.residuals_jacobian(problem.x0)
     J = initial[1][: problem.n_data_rows]
-    found = near.found if near is not None else None
-    if found is not None and found[0] == problem.free and np.array_equal(found[1], J):
-        deps = list(found[2])
-    else:
-        found = (problem.free, J, find_dependencies(profile, J, problem.free))
-        deps = list(found[2])
+    found = _dependencies(profile, problem.free, J, near)
+    deps = list(found[2])
     if minimal:
         kept = [k for k, i in enumerate(problem.free) if i not in {d.fixed for d in deps}]
         first = frozenset(registration_params(profile, data.sensors))
@@ -397,6 +393,16 @@ def fit_parameters(
     )
 
 
+def _dependencies(
+    profile: Profile, free: list[int], J: np.ndarray, near: Fit | None
+) -> tuple[list[int], np.ndarray, list[Dependency]]:
+    """`find_dependencies` among `free` in the data rows' Jacobian J at the start values, with what they were found
+    on (Fit.found): `near`'s where it looked among the same parameters in the same Jacobian."""
+    if near is not None and near.found is not None and near.found[0] == free and np.array_equal(near.found[1], J):
+        return near.found
+    return free, J, find_dependencies(profile, J, free)
+
+
 class _Passes:
     """The solver passes of one fit, their counts and cost history."""
 
@@ -426,7 +432,8 @@ class _Passes:
         self, x0: np.ndarray, loss: Robust | None, start: tuple | None = None, near: bool = False, rough: bool = False
     ) -> np.ndarray:
         """One solve from x0; `near`: x0 is the solution of the problem weighed a little differently; `rough`: a
-        refit from the solution follows (the readings' scales), so it stops short of the last digits."""
+        refit from the solution follows (the readings' scales, the sensors' and the priors' weights), so it stops
+        short of the last digits."""
         done = self.iterations
 
         def tick(it: int, cost: float) -> None:
@@ -461,7 +468,9 @@ class _Passes:
         far above the noise, when the other closed-form starts of a camera's registration are tried too. `x0`:
         where the first solve starts, in the box (a nearby fit's estimate; `initial` is at the problem's x0)."""
         problem = self.problem
-        rough = problem.readings is not None
+        # The problem is weighed anew at the first solution (the readings' scales, each sensor's scatter, the priors
+        # against it) and solved again from there: the first need not reach the last digits.
+        rough = problem.readings is not None or len(problem.blocks) > 1 or bool(problem.priors)
         if x0 is None:
             x = self.run(problem.x0, None, initial, rough=rough)
         else:

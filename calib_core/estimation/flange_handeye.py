@@ -190,67 +190,70 @@ class _Model:
     def image_rows(self, v: View, F: np.ndarray, theta: np.ndarray, error: np.ndarray | None, jacobian: bool):
         """Image v's pixels (n, 2) with its flange at F (its error E = (Exp(w), t) applied when given), and with
         `jacobian` d(pixels)/d(X, Z, intrinsics) (n, 2, n_pose) and d/d(error) (n, 2, 6)."""
+        return self.corners([v.ids], F[None], None if error is None else error[None], theta, jacobian)[:3]
+
+    def corners(
+        self, ids: list[np.ndarray], F: np.ndarray, errors: np.ndarray | None, theta: np.ndarray, jacobian: bool
+    ):
+        """`image_rows` of m images at once, their corners one after the other: image i's corners `ids[i]` with
+        its flange at F[i] (m, 4, 4), its error errors[i] (m, 6) applied when given; and each corner's image."""
+        img = np.repeat(np.arange(len(ids)), [len(i) for i in ids])
         Rx, tx, Rz, tz = _rot(theta[0:3]), theta[3:6], _rot(theta[6:9]), theta[9:12]
-        P = self.points[v.ids]
+        P = self.points[np.concatenate(ids)]
         y = P @ Rz.T + tz  # in the frame Z is given in
-        w_e = np.zeros(3) if error is None else error[:3]
-        RE, tE = _rot(w_e), (np.zeros(3) if error is None else error[3:])
-        RF, tF = F[:3, :3], F[:3, 3]
+        w_e = np.zeros((len(ids), 3)) if errors is None else errors[:, :3]
+        RE, tE = _rot(w_e), (np.zeros((len(ids), 3)) if errors is None else errors[:, 3:])
+        RF, tF = F[:, :3, :3], F[:, :3, 3]
         if self.setup == "eye-in-hand":  # the corners in the flange: E^-1 F^-1 y
-            u = (y - tF) @ RF  # F^-1 y
-            w = (u - tE) @ RE
-            L = RE.T @ RF.T  # d(w)/d(y)
+            u = np.einsum("nij,ni->nj", RF[img], y - tF[img])  # F^-1 y
+            w = np.einsum("nij,ni->nj", RE[img], u - tE[img])
+            L = RE.transpose(0, 2, 1) @ RF.transpose(0, 2, 1)  # d(w)/d(y)
         else:  # in the base: F E y
-            u = y @ RE.T + tE
-            w = u @ RF.T + tF
+            u = np.einsum("nji,ni->nj", RE[img], y) + tE[img]
+            w = np.einsum("nji,ni->nj", RF[img], u) + tF[img]
             L = RF @ RE
         x = (w - tx) @ Rx  # R_x^T (w - t_x)
         h, dh_dx, dh_dint = self.sensor.predict(self.intrinsics(theta), x, derivatives=jacobian)
         if not jacobian:
-            return h, None, None
+            return h, None, None, img
         n = len(P)
         D = np.zeros((n, 3, 12))
         D[:, :, 0:3] = _skew(x) @ _right_jacobian(theta[0:3])
         D[:, :, 3:6] = -Rx.T
         RxL = Rx.T @ L
-        D[:, :, 6:9] = -(RxL @ Rz) @ _skew(P) @ _right_jacobian(theta[6:9])
-        D[:, :, 9:12] = RxL
+        D[:, :, 6:9] = -(RxL @ Rz)[img] @ _skew(P) @ _right_jacobian(theta[6:9])
+        D[:, :, 9:12] = RxL[img]
         Jp = dh_dx @ D
         if self.free:
             Jp = np.concatenate([Jp, dh_dint], axis=2)
         DE = np.zeros((n, 3, 6))
-        Jr = _right_jacobian(w_e)
+        Jr = _right_jacobian(w_e)[img]
         if self.setup == "eye-in-hand":
             DE[:, :, 0:3] = Rx.T @ _skew(w) @ Jr
-            DE[:, :, 3:6] = -Rx.T @ RE.T
+            DE[:, :, 3:6] = (-Rx.T @ RE.transpose(0, 2, 1))[img]
         else:
-            DE[:, :, 0:3] = -(Rx.T @ RF @ RE) @ _skew(y) @ Jr
-            DE[:, :, 3:6] = Rx.T @ RF
-        return h, Jp, dh_dx @ DE
+            DE[:, :, 0:3] = -(Rx.T @ RF @ RE)[img] @ _skew(y) @ Jr
+            DE[:, :, 3:6] = (Rx.T @ RF)[img]
+        return h, Jp, dh_dx @ DE, img
 
     def residuals_jacobian(self, theta: np.ndarray, jacobian: bool = True):
         n_img = len(self.views)
-        pix, J_rows = [], []
-        for k, v in enumerate(self.views):
-            error = theta[self.n_pose + 6 * k : self.n_pose + 6 * k + 6] if self.errors else None
-            h, Jp, JE = self.image_rows(v, self.F[k], theta, error, jacobian)
-            pix.append(h)
-            if jacobian:
-                rows = np.zeros((2 * len(h), len(theta)))
-                rows[:, : self.n_pose] = Jp.reshape(2 * len(h), -1)
-                if self.errors:
-                    rows[:, self.n_pose + 6 * k : self.n_pose + 6 * k + 6] = JE.reshape(2 * len(h), 6)
-                J_rows.append(rows / self.sigma_px)
-        r = (np.concatenate(pix).ravel() - self.measured) / self.sigma_px
+        errors = theta[self.n_pose :].reshape(n_img, 6) if self.errors else None
+        h, Jp, JE, img = self.corners([v.ids for v in self.views], self.F, errors, theta, jacobian)
+        r = (h.ravel() - self.measured) / self.sigma_px
         if self.errors:
-            e = theta[self.n_pose :].reshape(n_img, 6)
             scale = np.array([self.sigma_rad] * 3 + [self.sigma_m] * 3)
-            r = np.concatenate([r, (e / scale).ravel()])
-            if jacobian:
-                prior = np.zeros((6 * n_img, len(theta)))
-                prior[:, self.n_pose :] = np.diag(np.tile(1.0 / scale, n_img))
-                J_rows.append(prior)
-        return (r, np.vstack(J_rows)) if jacobian else (r, None)
+            r = np.concatenate([r, (errors / scale).ravel()])
+        if not jacobian:
+            return r, None
+        n_rows = len(self.measured)
+        J = np.zeros((len(r), len(theta)))
+        J[:n_rows, : self.n_pose] = Jp.reshape(n_rows, -1) / self.sigma_px
+        if self.errors:  # each corner's rows on its own image's error
+            columns = self.n_pose + 6 * np.repeat(img, 2)[:, None] + np.arange(6)
+            J[np.arange(n_rows)[:, None], columns] = JE.reshape(n_rows, 6) / self.sigma_px
+            J[n_rows:, self.n_pose :] = np.diag(np.tile(1.0 / scale, n_img))
+        return r, J
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         return self.residuals_jacobian(theta, jacobian=False)[0]
@@ -541,12 +544,13 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def _rot(r: np.ndarray) -> np.ndarray:
-    """The rotation of a rotation vector (Rodrigues)."""
-    angle = float(np.linalg.norm(r))
+    """The rotations (..., 3, 3) of rotation vectors (..., 3) (Rodrigues)."""
+    r = np.asarray(r, float)
+    angle = np.linalg.norm(r, axis=-1)[..., None, None]
     K = _skew(r)
-    if angle < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + math.sin(angle) / angle * K + (1 - math.cos(angle)) / angle**2 * K @ K
+    small = angle < 1e-12
+    a = np.where(small, 1.0, angle)
+    return np.eye(3) + np.where(small, 1.0, np.sin(a) / a) * K + np.where(small, 0.0, (1 - np.cos(a)) / a**2) * (K @ K)
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
@@ -556,9 +560,12 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
 
 
 def _right_jacobian(r: np.ndarray) -> np.ndarray:
-    """J_r(r): Exp(r + dr) = Exp(r) Exp(J_r(r) dr) to first order."""
-    angle = float(np.linalg.norm(r))
+    """J_r(r) (..., 3, 3) of rotation vectors (..., 3): Exp(r + dr) = Exp(r) Exp(J_r(r) dr) to first order."""
+    r = np.asarray(r, float)
+    angle = np.linalg.norm(r, axis=-1)[..., None, None]
     K = _skew(r)
-    if angle < 1e-6:
-        return np.eye(3) - 0.5 * K + K @ K / 6.0
-    return np.eye(3) - (1 - math.cos(angle)) / angle**2 * K + (angle - math.sin(angle)) / angle**3 * K @ K
+    small = angle < 1e-6
+    a = np.where(small, 1.0, angle)
+    first = np.where(small, 0.5, (1 - np.cos(a)) / a**2)
+    second = np.where(small, 1.0 / 6.0, (a - np.sin(a)) / a**3)
+    return np.eye(3) - first * K + second * (K @ K)

@@ -63,8 +63,12 @@ def inliers(profile: Profile, data: Dataset, p: np.ndarray, sigmas: dict[int, fl
     outlier limit of its residual scale at the fit (`sigmas`: sensor index -> scale; a sensor the
     fit did not see keeps every observation)."""
     problem = Problem(profile, data, [], p)
-    r = problem.residuals(np.zeros(0))
-    keep = np.ones(data.n_observations, bool)
+    return explained(problem, problem.residuals(np.zeros(0)), sigmas)
+
+
+def explained(problem: Problem, r: np.ndarray, sigmas: dict[int, float]) -> np.ndarray:
+    """`inliers` of a problem with no free parameter (its calibration p) and its residuals r."""
+    keep = np.ones(problem.data.n_observations, bool)
     for b in problem.blocks:
         if b.index in sigmas:
             norms = np.sqrt(block_norms_sq(r[b.rows], b.dim))

@@ -207,6 +207,10 @@ def _box_step(
 ) -> np.ndarray:
     """The damped step -A^-1 g inside the box: a variable whose step would leave the box stops at
     its bound and the others are solved again with it fixed (a held one does not move at all)."""
+    if not held.any():  # the usual case: the whole system, and no bound in the way
+        dx = _solve_positive(A, -g)
+        if np.all((x + dx >= lo) & (x + dx <= hi)):
+            return dx
     fixed = held.copy()
     dx = np.zeros_like(x)
     while True:

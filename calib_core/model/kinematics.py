@@ -111,13 +111,14 @@ def forward(
             if i in skip:
                 continue
             if op.joint < 0:
+                axis = op.vector if C_R is _EYE else C_R @ op.vector  # a URDF origin's x, y, z come before its turns
                 if i in record:
-                    pending.append((i, C_R @ op.vector, C_t))
+                    pending.append((i, axis, C_t))
                 value = float(p[op.param])
                 if op.kind == "t":
-                    C_t = C_t + value * (C_R @ op.vector)
+                    C_t = C_t + value * axis
                 else:
-                    C_R = C_R @ _rotation(op, value)
+                    C_R = _rotation(op, value) if C_R is _EYE else C_R @ _rotation(op, value)
                 continue
             if pending:
                 _record(Rf, tf, pending, w, o)
