@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -30,8 +30,8 @@ from calib_core.model import Profile
 from calib_core.units import length_factor
 from calib_core.vision import Sighting
 
-if TYPE_CHECKING:
-    from .core import Halt
+from .calls import Halt
+from .calls import RobotFault as RobotFault  # the drivers raise it; callers take it from here
 
 DEFAULT_MARGIN_DEG = 1.0  # a revolute joint's safety margin
 DEFAULT_MARGIN_M = 0.001  # a prismatic joint's
@@ -62,11 +62,6 @@ class LimitError(InputError):
 
 def _shown(value: float, unit: str) -> str:
     return f"{value:.1f}" if unit == "deg" else f"{value:.4g}"
-
-
-class RobotFault(RuntimeError):
-    """The robot failed, not the operator: its link was lost, it did not answer a call within its deadline, a reading
-    went wrong, or a move did not arrive in time. The robot is told to stop; what was captured before stays."""
 
 
 def check_limits(profile: Profile, q: np.ndarray, margin_rad: float, margin_m: float = DEFAULT_MARGIN_M) -> None:

@@ -25,7 +25,12 @@ from dataclasses import dataclass, field
 from typing import Generic, Literal, TypeVar
 
 from ..clock import Clock
-from . import RobotFault
+
+
+class RobotFault(RuntimeError):
+    """The robot failed, not the operator: its link was lost, it did not answer a call within its deadline, a reading
+    went wrong, or a move did not arrive in time. The robot is told to stop; what was captured before stays."""
+
 
 Lane = Literal["readings", "commands", "measurements", "apply", "life"]
 LANES: tuple[Lane, ...] = ("readings", "commands", "measurements", "apply", "life")
@@ -182,3 +187,34 @@ class Calls:
         """A stop: the callers of abortable calls go on at once (Interrupted), those not yet started are dropped."""
         for lane in self._lanes.values():
             lane.interrupt()
+
+
+@dataclass(frozen=True)
+class Halt:
+    """A stop as sent to one robot: `call` is the halt on the robot's command lane (None: nothing to tell, the
+    driver is closed), `before` the call it waits behind when it has not started."""
+
+    robot: str
+    call: Call[None] | None
+    before: Call[object] | None = None
+    queued_s: float = 0.0  # how long `before` had been under way when the stop came
+
+    @property
+    def confirmed(self) -> bool:
+        """The robot took the halt."""
+        return self.call is None or (self.call.finished.is_set() and self.call.error is None)
+
+    def sentence(self) -> str:
+        """What the operator is told of this robot's stop."""
+        if self.confirmed:
+            return f"{self.robot} stopped"
+        own = "If it moves, use its own emergency stop."
+        assert self.call is not None
+        if self.call.finished.is_set():
+            return f"{self.robot}: the stop failed ({self.call.error}). {own}"
+        if math.isnan(self.call.started) and self.before is not None:
+            return (
+                f"{self.robot} does not answer ({self.before.name} for {self.queued_s:.1f} s): the stop is queued "
+                f"behind it, not confirmed. {own}"
+            )
+        return f"{self.robot} does not answer: the stop was sent, not confirmed. {own}"

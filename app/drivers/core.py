@@ -39,7 +39,7 @@ from calib_core.vision import MAX_IMAGE_PX, Detail, Sighting, StereoHead, finder
 
 from ..clock import SYSTEM_CLOCK, Clock
 from . import DEFAULT_MARGIN_DEG, DEFAULT_MARGIN_M, Look, RobotFault, RobotStatus, check_limits
-from .calls import Call, Calls, Interrupted, Lane, NotResponding
+from .calls import Call, Calls, Halt, Interrupted, Lane, NotResponding
 
 POLL_S = 0.01  # how often a wait asks its caller whether to stop
 DEFAULT_SETTLE_S = 0.3  # the robot's time its readings stay still before a capture looks
@@ -227,37 +227,6 @@ class _Move:
     arrived: bool = False
     fault: str = ""  # a reading that ended it (not a number, beyond a limit)
     lost: str = ""  # the link lost, or the robot not answering, that ended it
-
-
-@dataclass(frozen=True)
-class Halt:
-    """A stop as sent to one robot: `call` is the halt on the robot's command lane (None: nothing to tell, the
-    driver is closed), `before` the call it waits behind when it has not started."""
-
-    robot: str
-    call: Call[None] | None
-    before: Call[object] | None = None
-    queued_s: float = 0.0  # how long `before` had been under way when the stop came
-
-    @property
-    def confirmed(self) -> bool:
-        """The robot took the halt."""
-        return self.call is None or (self.call.finished.is_set() and self.call.error is None)
-
-    def sentence(self) -> str:
-        """What the operator is told of this robot's stop."""
-        if self.confirmed:
-            return f"{self.robot} stopped"
-        own = "If it moves, use its own emergency stop."
-        assert self.call is not None
-        if self.call.finished.is_set():
-            return f"{self.robot}: the stop failed ({self.call.error}). {own}"
-        if math.isnan(self.call.started) and self.before is not None:
-            return (
-                f"{self.robot} does not answer ({self.before.name} for {self.queued_s:.1f} s): the stop is queued "
-                f"behind it, not confirmed. {own}"
-            )
-        return f"{self.robot} does not answer: the stop was sent, not confirmed. {own}"
 
 
 class Driver:

@@ -15,7 +15,7 @@ from calib_core import InputError
 
 from ..clock import SYSTEM_CLOCK, Clock
 from ..drivers import Wandering
-from ..drivers.core import Halt
+from ..drivers.calls import Halt
 from ..jobs.runner import JobRunner
 from ..robots.capture import capture_frame
 from ..robots.roster import Robots
