@@ -9,7 +9,7 @@ import sys
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from calib_core import InputError
 
@@ -17,7 +17,23 @@ from ..web.limits import DEFAULT_MAX_ROWS, DEFAULT_MAX_UPLOAD_BYTES, Limits
 from .common import Command
 
 if TYPE_CHECKING:
+    from ..drivers.naoqi.connection import Connection as NaoqiConnection
+    from ..drivers.registry import Options
+    from ..drivers.ros2.connection import Meeting
     from ..robots.desk_config import DeskConfig
+
+
+class _Connection(Protocol):
+    """What the desk reads of a robot's connection file (a ROS 2 or a NAOqi one) before it connects."""
+
+    @property
+    def robot(self) -> str: ...
+
+    @property
+    def path(self) -> Path: ...
+
+
+Conn = TypeVar("Conn", bound=_Connection)
 
 
 def _serve_arguments(p: argparse.ArgumentParser) -> None:
@@ -127,7 +143,7 @@ def _import_quietly(module: str) -> None:
         importlib.import_module(module, __package__)
 
 
-def _meet_ros2(files: list[str]) -> list[Any]:
+def _meet_ros2(files: list[str]) -> list[Meeting]:
     """Every ROS 2 connection file checked, then each robot listened to at once
     (app/drivers/ros2/connection.Meeting)."""
     from ..drivers.ros2 import require
@@ -136,7 +152,7 @@ def _meet_ros2(files: list[str]) -> list[Any]:
     from ..drivers.ros2.connection import Meeting, load_connection
 
     conns = [load_connection(Path(f)) for f in files]  # every file checked before any robot is met
-    meetings: list[Any] = []
+    meetings: list[Meeting] = []
     try:
         for conn in conns:
             meetings.append(Meeting(conn))
@@ -147,7 +163,7 @@ def _meet_ros2(files: list[str]) -> list[Any]:
     return meetings
 
 
-def _with_ros2(config: DeskConfig | None, meetings: list[Any], data_dir: Path) -> DeskConfig:
+def _with_ros2(config: DeskConfig | None, meetings: list[Meeting], data_dir: Path) -> DeskConfig:
     """The desk's robots and those on ROS 2 graphs, each checked on its graph before the desk starts; a robot's
     meeting is taken from `meetings` (in order) as it is connected."""
     from ..drivers.ros2.connection import connect
@@ -157,7 +173,7 @@ def _with_ros2(config: DeskConfig | None, meetings: list[Any], data_dir: Path) -
 
 
 def _with_robots(
-    config: DeskConfig | None, conns: list, connect: Callable[[Any], tuple[str, dict]], kind: str
+    config: DeskConfig | None, conns: list[Conn], connect: Callable[[Conn], tuple[str, Options]], kind: str
 ) -> DeskConfig:
     """The desk's robots (its configuration's, else the defaults) and one more of driver `kind` per connection,
     `connect(conn)` giving its profile reference and driver options; the first is the one the page shows."""
@@ -184,7 +200,7 @@ def _with_naoqi(config: DeskConfig | None, files: list[str]) -> DeskConfig:
     require()
     from ..drivers.naoqi.connection import load_connection
 
-    def connect(conn: Any) -> tuple[str, dict]:
+    def connect(conn: NaoqiConnection) -> tuple[str, Options]:
         url = conn.options["url"]
         try:
             open_session(url).close()

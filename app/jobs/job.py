@@ -16,18 +16,20 @@ from typing import Any, Protocol, TypeVar
 
 from ..clock import Clock, Timer
 from .snapshot import JobSnapshot, JobState
-from .worker import WorkerLink
+from .worker import WorkerFn
 
 T = TypeVar("T")
-Prepare = Callable[["JobContext"], Any]  # builds a process job's payload, in the server
-Finish = Callable[[Any, "JobContext"], str | None]  # turns a process job's value into its result, in the server
+Prepare = Callable[["JobContext"], object]  # builds a process job's payload, in the server
+# Turns a process job's value into its result, in the server. The value is what the job's worker function
+# returned, of the job kind's own type (JobRunner.submit_process ties the two); a job holds any kind's.
+Finish = Callable[[Any, "JobContext"], str | None]
 
 
 @dataclass
 class Job:
     snap: JobSnapshot
     process: bool
-    fn: Callable[[Any, WorkerLink], Any] | None = None  # a process job's worker function
+    fn: WorkerFn | None = None  # a process job's worker function
     prepare: Prepare | None = None  # set until the payload is built (the job is not yet queued for a worker)
     finish: Finish | None = None
     pausable: bool = True  # a thread job that may be held at its checkpoints
@@ -72,11 +74,11 @@ class JobContext:
         self._job = job
         self.job_id = job.snap.id
 
-    def progress(self, fraction: float, **detail: Any) -> None:
+    def progress(self, fraction: float, **detail: object) -> None:
         """Report progress (0..1); `detail` is merged into the job's detail."""
         self._states.update(self._job, fraction, detail, None)
 
-    def report(self, *, cost: list[float] | None = None, **detail: Any) -> None:
+    def report(self, *, cost: list[float] | None = None, **detail: object) -> None:
         """Merge `detail` into the job's detail, and replace its cost history when given; progress stays."""
         self._states.update(self._job, None, detail, cost)
 

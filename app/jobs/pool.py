@@ -28,24 +28,24 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from functools import partial
 from multiprocessing.managers import SyncManager
-from typing import Any
 
 from .parent_watch import light_main, watch_parent
 from .snapshot import JobState
-from .worker import WorkerLink, internal_error, run_in_worker, warm_up
+from .worker import WorkerFn, WorkerLink, internal_error, run_in_worker, warm_up
 
 log = logging.getLogger(__name__)
 
 Started = Callable[[str, int], None]  # (job, the worker's pid)
 Stepped = Callable[[str, int, float], None]  # (job, iteration, cost)
-Ended = Callable[[str, JobState | None, Any, str], None]  # (job, outcome, value, traceback); None: the worker died
+# (job, outcome, value, traceback): run_in_worker's; outcome None: the worker died
+Ended = Callable[[str, JobState | None, object, str], None]
 
 
 @dataclass(eq=False)
 class _Task:
     job_id: str
-    fn: Callable[[Any, WorkerLink], Any]
-    payload: Any
+    fn: WorkerFn
+    payload: object  # fn's, handed on as it is
     pid: int | None = None  # once the worker has said it took the job
     stopping: bool = False  # cancelled or killed: never handed to a new worker
     resent: bool = False  # handed to a new worker once, its first having died before it took the job
@@ -79,7 +79,7 @@ class WorkerPool:
         self._pump = threading.Thread(target=self._pump_messages, name="jobs-progress", daemon=True)
         self._pump.start()
 
-    def submit(self, job_id: str, fn: Callable[[Any, WorkerLink], Any], payload: Any) -> bool:
+    def submit(self, job_id: str, fn: WorkerFn, payload: object) -> bool:
         """Queue fn(payload, link) for the next free worker; False once the pool is closed."""
         with self._lock:
             if self._closed:

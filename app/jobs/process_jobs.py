@@ -13,9 +13,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-from collections.abc import Callable
 from functools import partial
-from typing import Any
 
 from calib_core import InputError
 from calib_core.errors import Cancelled
@@ -25,7 +23,7 @@ from ..store import StoreWriteError
 from .job import Finish, Job, JobContext, JobStates, Prepare, spoken
 from .pool import WorkerPool
 from .snapshot import JobState
-from .worker import WorkerLink, internal_error, one_line
+from .worker import WorkerFn, internal_error, one_line
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +48,7 @@ class ProcessJobs:
         self._loader = threading.Thread(target=self._load_payloads, name="jobs-load", daemon=True)
         self._loader.start()
 
-    def submit(self, job: Job, fn: Callable[[Any, WorkerLink], Any], prepare: Prepare, finish: Finish | None) -> None:
+    def submit(self, job: Job, fn: WorkerFn, prepare: Prepare, finish: Finish | None) -> None:
         """Queue the job for its payload, then for a worker."""
         job.fn, job.prepare, job.finish = fn, prepare, finish
         self._loads.put(job)
@@ -126,7 +124,7 @@ class ProcessJobs:
             job.snap.progress = min(PROGRESS_CAP, iteration / (iteration + 5))
             self._states.touch(job)
 
-    def _ended(self, job_id: str, outcome: JobState | None, value: Any, trace: str) -> None:
+    def _ended(self, job_id: str, outcome: JobState | None, value: object, trace: str) -> None:
         """A process job's end, from the pool: its worker's outcome, or None when the worker died under it."""
         job = self._states.job(job_id)
         if outcome is None:
@@ -136,16 +134,18 @@ class ProcessJobs:
                 outcome, value = JobState.FAILED, job.kill_reason or crashed(job.snap.kind)
         if trace:
             log.warning("job %s failed in its worker:\n%s", job_id, trace)
-        result = None
-        if outcome == JobState.DONE:
+        result = error = None
+        if outcome == JobState.FAILED:
+            error = str(value)  # the worker's one-line message (run_in_worker), or why the worker died
+        elif outcome == JobState.DONE:
             try:
                 result = job.finish(value, JobContext(self._states, job)) if job.finish else _text(value)
             except (InputError, StoreWriteError) as exc:  # StoreWriteError: the disk refused the result
-                outcome, value = JobState.FAILED, one_line(str(exc))
+                outcome, error = JobState.FAILED, one_line(str(exc))
             except Exception as exc:
                 log.exception("job %s: its result could not be stored", job_id)
-                outcome, value = JobState.FAILED, internal_error(exc)
-        self._states.finish(job, outcome, result=result, error=value if outcome == JobState.FAILED else None)
+                outcome, error = JobState.FAILED, internal_error(exc)
+        self._states.finish(job, outcome, result=result, error=error)
 
     # --- the deadlines --------------------------------------------------------------------------------
     def arm(self, job: Job) -> None:
@@ -179,5 +179,5 @@ class ProcessJobs:
         self._pool.kill(job.snap.id)
 
 
-def _text(value: Any) -> str | None:
+def _text(value: object) -> str | None:
     return None if value is None else str(value)

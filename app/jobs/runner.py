@@ -20,7 +20,7 @@ import secrets
 import threading
 from collections.abc import Callable
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, TypeVar
 
 from calib_core import InputError
 from calib_core.errors import Cancelled
@@ -28,11 +28,14 @@ from calib_core.errors import Cancelled
 from ..clock import Clock, SystemClock, wait_for
 from ..errors import NotFound
 from ..store.db import jsonable
-from .job import Finish, Job, JobContext, Prepare, spoken
+from .job import Job, JobContext, spoken
 from .process_jobs import ProcessJobs
 from .snapshot import JobSnapshot, JobState
 from .thread_jobs import start_thread
 from .worker import WorkerLink
+
+Payload = TypeVar("Payload")  # a process job's: what its prepare builds, its worker function takes
+Value = TypeVar("Value")  # what its worker function returns, its finish takes
 
 if TYPE_CHECKING:
     from ..store import Store
@@ -98,12 +101,12 @@ class JobRunner:
     def submit_process(
         self,
         kind: str,
-        fn: Callable[[Any, WorkerLink], Any],
-        prepare: Prepare,
+        fn: Callable[[Payload, WorkerLink], Value],
+        prepare: Callable[[JobContext], Payload],
         *,
         session_id: str | None,
         detail: dict | None = None,
-        finish: Finish | None = None,
+        finish: Callable[[Value, JobContext], str | None] | None = None,
     ) -> str:
         """Queue fn(payload, link) for a worker process (fn: a module-level function of a light module, see
         worker.py). `prepare(ctx)` builds the payload in the server, on one thread in the order the jobs came,

@@ -34,7 +34,7 @@ class JobSnapshot:
     session: str | None
     created: str
     updated: str
-    detail: dict[str, Any] = field(default_factory=dict)  # what the job reports as it runs (phase, iterations, ...)
+    detail: dict[str, object] = field(default_factory=dict)  # what the job reports as it runs (phase, iterations, ...)
     cost: list[float | None] = field(default_factory=list)  # an iterative solve's cost per iteration
     version: int = 0
     paused: bool = False  # a running job held at its next checkpoint

@@ -12,7 +12,7 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from calib_core.errors import Cancelled, InputError
 
@@ -21,17 +21,34 @@ from .snapshot import JobState
 CANCEL_POLL_S = 0.05  # how often a worker asks the Manager whether it was cancelled (a rate, not a time limit)
 
 
+class Messages(Protocol):
+    """Where a worker puts its messages (a Manager's queue): (kind, job id, *values)."""
+
+    def put(self, item: tuple[object, ...]) -> None: ...
+
+
+class CancelFlags(Protocol):
+    """A Manager's dict of the jobs asked to stop: job id -> True."""
+
+    def get(self, key: str, default: bool, /) -> bool: ...
+
+
+# A process job's function: fn(payload, link) in the worker. Its payload is what the job's prepare built, of the
+# job kind's own type (JobRunner.submit_process ties the two); the pool hands on any kind's, so here it is free.
+WorkerFn = Callable[[Any, "WorkerLink"], object]
+
+
 @dataclass
 class WorkerLink:
     """What a worker process holds of its job: the progress queue and the cancel flags (Manager proxies)."""
 
     job_id: str
-    messages: Any
-    cancelled: Any
+    messages: Messages
+    cancelled: CancelFlags
     _next_poll: float = 0.0
     _stop: bool = False
 
-    def send(self, kind: str, *values: Any) -> None:
+    def send(self, kind: str, *values: object) -> None:
         # Progress is best-effort: a lost message never fails the job.
         with contextlib.suppress(Exception):
             self.messages.put((kind, self.job_id, *values))
@@ -49,7 +66,7 @@ class WorkerLink:
         return self._stop
 
 
-def run_in_worker(fn: Callable[[Any, WorkerLink], Any], payload: Any, link: WorkerLink) -> tuple[JobState, Any, str]:
+def run_in_worker(fn: WorkerFn, payload: object, link: WorkerLink) -> tuple[JobState, object, str]:
     """(outcome, value, traceback): (DONE, result), (CANCELLED, None) or (FAILED, one-line message)."""
     link.send("start", os.getpid())
     try:

@@ -18,7 +18,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal, TypedDict
 
 import numpy as np
 
@@ -137,6 +137,17 @@ def _margins(driver: RobotDriver) -> str:
     return f"{deg} / {driver.margin_m * length_factor('m', unit):.4g} {unit}"
 
 
+class DryRunRow(TypedDict):
+    """One configuration as the dry run checked it (see `dry_run`)."""
+
+    index: int  # the frame index, or the 1-based position of a new configuration
+    target: int
+    ok: bool
+    problem: str  # "": none
+    action: Literal["capture", "skip", "refuse"]
+    note: str  # how it is moved out of the safety margin ("": it is not)
+
+
 def dry_run(
     driver: RobotDriver,
     configurations_rad: np.ndarray,
@@ -147,7 +158,7 @@ def dry_run(
     seen: np.ndarray | None = None,
     margin_px: float = VIEW_MARGIN_PX,
     progress: Callable[[int, int], None] | None = None,
-) -> list[dict]:
+) -> list[DryRunRow]:
     """Check every configuration, moving nothing. Per configuration: {"index", "target", "ok", "problem",
     "action", "note"}, action "capture", "skip" (not predicted in view) or "refuse" (beyond a joint limit);
     `note`: how it is moved out of the safety margin (out_of_margin). `index` is the frame index, or the
@@ -169,25 +180,32 @@ def dry_run(
     in_view = seen_.copy()
     for at in range(0, len(q), CHECK_CHUNK):
         part = np.arange(at, min(at + CHECK_CHUNK, len(q)))
-        for k in part:
+        for c in part:
             try:
-                moved[k], notes[k] = out_of_margin(driver, q[k])
+                moved[c], notes[c] = out_of_margin(driver, q[c])
             except LimitError as exc:
-                refusals[k] = str(exc)
+                refusals[c] = str(exc)
         unseen = part[~seen_[part]]
         if len(unseen):
             in_view[unseen] = view.sees(moved[unseen], t[unseen])
         if progress is not None:
             progress(int(part[-1]) + 1, len(q))
-    rows = []
+    rows: list[DryRunRow] = []
     for k in range(len(q)):
-        problem, action = refusals[k], "refuse" if refusals[k] else "capture"
+        problem = refusals[k]
+        action: Literal["capture", "skip", "refuse"] = "refuse" if problem else "capture"
         if not problem and not in_view[k]:
             problem, action = f"{profile.targets[t[k]].name} not predicted in view", "skip"
         index = indices[k] if indices is not None else k + 1
         rows.append(
-            {"index": index, "target": int(t[k]), "ok": not problem, "problem": problem, "action": action}
-            | {"note": notes[k]}
+            {
+                "index": index,
+                "target": int(t[k]),
+                "ok": not problem,
+                "problem": problem,
+                "action": action,
+                "note": notes[k],
+            }
         )
     return rows
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 import viser
@@ -102,6 +102,29 @@ def camera_reported(camera: viser.CameraHandle) -> bool:
 Target = viser.ViserServer | viser.ClientHandle  # every browser's scene, or one browser's
 
 
+class FramingState(TypedDict):
+    """The current framing (`ClientFraming.state`)."""
+
+    look_at: list[float]
+    radius_m: float
+    box_m: list[list[float]]
+
+
+class ClientCamera(TypedDict):
+    """A browser's camera: whether it has the current framing, where it is (None: it has not reported yet)."""
+
+    framed: bool
+    look_at: list[float] | None
+    position: list[float] | None
+
+
+class CameraState(TypedDict):
+    """`ClientFraming.state`: the framing (None: none yet) and each browser's camera by client id."""
+
+    framing: FramingState | None
+    clients: dict[int, ClientCamera]
+
+
 class ClientFraming:
     """Keeps the browsers' cameras on the latest framing: moved once per framing, free in between. The browsers
     of a target: one (a viser client) or every one connected (the server; those that connect later start at
@@ -137,11 +160,11 @@ class ClientFraming:
         target = self.target
         return {target.client_id: target} if isinstance(target, viser.ClientHandle) else target.get_clients()
 
-    def state(self) -> dict[str, Any]:
+    def state(self) -> CameraState:
         """{framing: {look_at, radius_m, box_m} or None, clients: {id: {framed, look_at, position}}}."""
         with self._lock:
             f, version, framed = self.current, self._version, dict(self._framed)
-        clients: dict[int, dict[str, Any]] = {}
+        clients: dict[int, ClientCamera] = {}
         for cid, client in self._clients().items():
             cam = client.camera
             seen = camera_reported(cam)
@@ -150,7 +173,7 @@ class ClientFraming:
                 "look_at": [float(v) for v in cam.look_at] if seen else None,
                 "position": [float(v) for v in cam.position] if seen else None,
             }
-        out = None
+        out: FramingState | None = None
         if f is not None:
             out = {"look_at": f.look_at.tolist(), "radius_m": f.radius_m, "box_m": f.box_m.tolist()}
         return {"framing": out, "clients": clients}

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Literal, Protocol, TypedDict
 
 import numpy as np
 
@@ -44,6 +44,75 @@ from ..errors import NotFound
 
 HISTOGRAM_BINS = 20
 CHANGE_BANDS = 2.0  # a frame's change is "better" or "worse" beyond this many bands
+
+
+Side = Literal["old", "new"]
+Verdict = Literal["better", "worse", "same"]
+
+
+class ReviewRow(TypedDict):
+    """A frame of the review's table (see `Review.table`)."""
+
+    index: int
+    status: FrameStatus
+    target: int
+    err_old: float | None  # None: not measured
+    err_new: float | None  # None: not measured, or no new calibration
+    heldout: bool
+    band: float | None  # None: no covariance, or not measured
+    verdict: Verdict | None  # None: no new calibration, or no band
+
+
+class Marks(TypedDict):
+    """The 2-D split view of one frame (see `Review.marks`): [u, v] px per point, None where there is none."""
+
+    index: int
+    role: str | None  # the image the marks belong to (None: the sensor takes no image)
+    width: int | None
+    height: int | None
+    measured: list[list[float] | None]
+    old: list[list[float] | None]
+    new: list[list[float] | None] | None  # None: no new calibration
+
+
+class Figures(TypedDict):
+    """The distances between prediction and measurement of the measured observations (None: none measured)."""
+
+    mean: float | None
+    rms: float | None
+    max: float | None
+    n: int
+
+
+class Histogram(TypedDict):
+    """The observations' errors in HISTOGRAM_BINS bins (no bins: nothing measured, or no error at all)."""
+
+    edges: list[float]
+    old: list[int]
+    new: list[int] | None  # None: no new calibration
+
+
+class ChangeBand(TypedDict):
+    """What a frame's change is read against: k bands, of the sides with a covariance, their median."""
+
+    k: float
+    of: list[str]  # the sides ("old", "new") with a covariance
+    median: float | None  # over the measured frames (None: no band)
+
+
+class ReviewSummary(TypedDict):
+    """The session's figures (see `Review.summary`)."""
+
+    unit: str
+    frames: int
+    measured: int
+    heldout_frames: int
+    old: Figures
+    new: Figures | None  # None: no new calibration
+    heldout_old: Figures | None  # None: no held-out frame measured
+    heldout_new: Figures | None  # None: that, or no new calibration
+    histogram: Histogram
+    band: ChangeBand
 
 
 class SightingLike(Protocol):
@@ -163,12 +232,12 @@ class Review:
         }
         heldout = np.isin(indices, np.fromiter(heldout_frames, dtype=int))
         bounds = frame_bounds_m(profile, old_p, joints, [s.predicted_m for s in sides.values()])
-        covariances = {k: v for k, v in (covariances or {}).items() if v is not None and k in params}
+        with_cov = {k: v for k, v in (covariances or {}).items() if v is not None and k in params}
         band = np.zeros(n)
-        if data is not None and covariances:
+        if data is not None and with_cov:
             row_of = np.array([np.searchsorted(indices, f) for f in data.frame_ids])
             known = np.isin(data.frame_ids, indices)
-            for side, cov in covariances.items():
+            for side, cov in with_cov.items():
                 band[row_of[known]] += frame_band(profile, data, params[side], cov)[known] ** 2
         return cls(
             profile,
@@ -183,8 +252,8 @@ class Review:
             heldout,
             bounds,
             sensor,
-            np.sqrt(band) if covariances else np.full(n, np.nan),
-            sorted(covariances, key=["old", "new"].index),
+            np.sqrt(band) if with_cov else np.full(n, np.nan),
+            sorted(with_cov, key=["old", "new"].index),
         )
 
     # --- per frame ------------------------------------------------------------------------------
@@ -196,7 +265,7 @@ class Review:
             known = f"frames {self.indices[0]}..{self.indices[-1]}" if len(self.indices) else "no frames"
             raise NotFound(f"frame {index} is not in this review ({known})") from None
 
-    def table(self) -> list[dict[str, Any]]:
+    def table(self) -> list[ReviewRow]:
         """Per frame: {index, status, target, err_old, err_new, heldout, band, verdict}; errors None when not
         measured, band None without a covariance, verdict "better", "worse", "same" or None (see the module)."""
         old = self.sides["old"].frame_error
@@ -215,7 +284,7 @@ class Review:
             for r, i in enumerate(self.indices)
         ]
 
-    def marks(self, index: int) -> dict[str, Any]:
+    def marks(self, index: int) -> Marks:
         """The 2-D split view: {index, role, width, height, measured, old, new}, [u, v] px per point,
         row-aligned (None where nothing was measured or a point is behind the camera); new is None
         without a new calibration. role: the image the marks belong to ("left" of a stereo head,
@@ -250,36 +319,36 @@ class Review:
         return self.sides[side].measured_m[got], self.sides[side].predicted_m[got]
 
     # --- the session ----------------------------------------------------------------------------
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> ReviewSummary:
         """{unit, frames, measured, heldout_frames, old, new, heldout_old, heldout_new, histogram, band}.
         Figures are {mean, rms, max, n} over observations (n = 0 and None figures when there are
         none); new and heldout_* are None when there is no new calibration or no held-out frame. band:
         {k, of (the sides whose covariance it is of), median (over measured frames; None: no band)}."""
         obs_heldout = np.repeat(self.heldout, np.diff(self.start))
         has_heldout = bool(np.any(self.heldout & self._measured_frames()))
-        out: dict[str, Any] = {
+        old, new = self.sides["old"], self.sides.get("new")
+        measured = self._measured_frames() & np.isfinite(self.band)
+        return {
             "unit": self.unit,
             "frames": len(self.indices),
             "measured": int(self._measured_frames().sum()),
             "heldout_frames": int(self.heldout.sum()),
+            "old": _figures(old.error),
+            "heldout_old": _figures(old.error[obs_heldout]) if has_heldout else None,
+            "new": None if new is None else _figures(new.error),
+            "heldout_new": _figures(new.error[obs_heldout]) if new is not None and has_heldout else None,
+            "histogram": self._histogram(),
+            "band": {
+                "k": CHANGE_BANDS,
+                "of": self.band_of,
+                "median": float(np.median(self.band[measured])) if measured.any() else None,
+            },
         }
-        for side in ("old", "new"):
-            s = self.sides.get(side)
-            out[side] = None if s is None else _figures(s.error)
-            out[f"heldout_{side}"] = _figures(s.error[obs_heldout]) if s is not None and has_heldout else None
-        out["histogram"] = self._histogram()
-        measured = self._measured_frames() & np.isfinite(self.band)
-        out["band"] = {
-            "k": CHANGE_BANDS,
-            "of": self.band_of,
-            "median": float(np.median(self.band[measured])) if measured.any() else None,
-        }
-        return out
 
     def _measured_frames(self) -> np.ndarray:
         return np.isfinite(self.sides["old"].frame_error)
 
-    def _histogram(self) -> dict[str, Any]:
+    def _histogram(self) -> Histogram:
         errors = {side: s.error[np.isfinite(s.error)] for side, s in self.sides.items()}
         top = max((float(e.max()) for e in errors.values() if len(e)), default=0.0)
         if top <= 0.0:
@@ -428,14 +497,16 @@ def frame_bounds_m(
     return np.stack([allp.min(axis=0), allp.max(axis=0)])
 
 
-def _figures(error: np.ndarray) -> dict[str, Any]:
+def _figures(error: np.ndarray) -> Figures:
     """{mean, rms, max, n} of the measured observations' distances (calib_core's figures; None when none)."""
     e = error[np.isfinite(error)][:, None]
     f = figures(e, np.zeros_like(e), "")
-    return {k: (None if f.n == 0 else getattr(f, k)) for k in ("mean", "rms", "max")} | {"n": f.n}
+    if f.n == 0:
+        return {"mean": None, "rms": None, "max": None, "n": 0}
+    return {"mean": f.mean, "rms": f.rms, "max": f.max, "n": f.n}
 
 
-def _verdict(delta: float, band: float) -> str | None:
+def _verdict(delta: float, band: float) -> Verdict | None:
     """A frame's new - old error read against its band: None when either is missing."""
     if not (math.isfinite(delta) and math.isfinite(band)):
         return None

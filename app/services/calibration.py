@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
-from calib_core import Calibration, InputError, Profile, calibrate
+from calib_core import Calibration, Dataset, InputError, Profile, calibrate
 from calib_core.estimation import METHODS, check_can_fit
 
 from ..errors import NotFound
@@ -28,7 +28,20 @@ MAX_HOLDOUT = 0.9
 FEW_FRAMES = 3  # a session of no more measured frames is read and checked whole before its job starts
 
 
-def solve(payload: dict, link: WorkerLink) -> dict:
+class SolvePayload(TypedDict):
+    """What a calibration job's worker is handed (`CalibrationService.payload`): plain data, pickled."""
+
+    profile: Profile
+    session: str
+    mode: str
+    base: dict | None  # the base calibration's calib-calibration/1 dictionary (None: the nominal model)
+    holdout: float
+    folds: int
+    method: str
+    data: Dataset  # the session's measured frames, arrays only
+
+
+def solve(payload: SolvePayload, link: WorkerLink) -> dict:
     """The worker's part: one calibration from plain data; the result as its calib-calibration/1 dictionary."""
     base = Calibration.from_dict(payload["base"]) if payload["base"] is not None else None
     cal = calibrate(
@@ -81,7 +94,7 @@ class CalibrationService:
                 "phase": "loading",
             }
 
-            def prepare(ctx: JobContext) -> dict:
+            def prepare(ctx: JobContext) -> SolvePayload:
                 payload = self.payload(session_id, mode, base, holdout, folds=folds, method=method)
                 ctx.checkpoint()  # cancelled while the data were read: no solve
                 ctx.report(phase="solving")
@@ -141,7 +154,7 @@ class CalibrationService:
 
     def payload(
         self, session_id: str, mode: str, base: dict | None, holdout: float, *, folds: int = 0, method: str = "lm"
-    ) -> dict:
+    ) -> SolvePayload:
         """The plain data `solve` needs (the session's measured frames read from the store); `base`: the base
         calibration as a dictionary. Whether the training share can determine the mode's parameters is the
         worker's check (calibrate), since the held-out split grows with the data."""

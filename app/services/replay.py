@@ -18,9 +18,10 @@ checked is the one the replay after it drives. `resume` goes on with a replay a 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from contextlib import suppress
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -44,7 +45,7 @@ from ..drivers import LimitError, RobotDriver
 from ..errors import NotFound
 from ..jobs.runner import JobContext, JobRunner
 from ..jobs.snapshot import JobState
-from ..robots.capture import Until, capture_until, dry_run, out_of_margin, replay
+from ..robots.capture import DryRunRow, Until, capture_until, dry_run, out_of_margin, replay
 from ..robots.roster import Robots
 from ..store import Store
 
@@ -58,6 +59,22 @@ SEEDS_KEPT = 8  # recent base models of robots without a pose for their camera o
 MIN_REGISTRATION_FRAMES = 3  # measured frames a camera's and its board's poses are fitted on (turns about 2 axes)
 # A dry run job's progress: planning up to this share, then checking every configuration, then predicting.
 PLANNING_SHARE, CHECKING_SHARE = 0.9, 0.07
+
+
+class DryRunResult(TypedDict):
+    """A dry run's answer (the API's DryRun): every configuration checked, and the accuracy predicted."""
+
+    ok: bool  # every configuration would be captured
+    configurations: list[DryRunRow]
+    mode: str  # the mode the accuracy is predicted for
+    predicted: dict | None  # calib_core's AccuracyPrediction.to_dict() (None: no configuration would be captured)
+
+
+class Pacing(TypedDict, total=False):
+    """plan()'s arguments that pace it as a job's (`_pacing`; none: it runs outside a job)."""
+
+    progress: Callable[[PlanProgress], None]
+    should_stop: Callable[[], bool]
 
 
 @dataclass(frozen=True)
@@ -92,7 +109,7 @@ class ReplayService:
         self.robots = robots
         self.jobs = jobs
         self._plans: dict[tuple, Plan] = {}
-        self._dry_runs: dict[str, dict[str, Any]] = {}  # dry run job: its result (the latest DRY_RUNS_KEPT)
+        self._dry_runs: dict[str, DryRunResult] = {}  # dry run job: its result (the latest DRY_RUNS_KEPT)
         self._seeds: dict[tuple, tuple[np.ndarray, Around | None]] = {}  # base_model's, the latest SEEDS_KEPT
         self._lock = threading.Lock()
         self._starting = threading.Lock()
@@ -173,7 +190,7 @@ class ReplayService:
             )
         return q[todo], targets[todo], None, seen[todo], made
 
-    def dry_run(self, session_id: str, plan: ReplayPlan, ctx: JobContext | None = None) -> dict[str, Any]:
+    def dry_run(self, session_id: str, plan: ReplayPlan, ctx: JobContext | None = None) -> DryRunResult:
         """Every configuration checked, and the accuracy a calibration from those captured is predicted to
         have (with `until`: the plan of its `max` configurations, and the predicted error after each). `ctx`:
         the dry run's job (start_dry_run), told its progress: planning, checking, predicting."""
@@ -232,7 +249,7 @@ class ReplayService:
             self._checking[robot] = (job_id, session_id, plan)
             return job_id
 
-    def dry_run_result(self, job_id: str) -> dict[str, Any]:
+    def dry_run_result(self, job_id: str) -> DryRunResult:
         """What a dry run job found (the dry run's answer), once it is done."""
         job = self.jobs.get(job_id)
         if job.kind != "dry_run":
@@ -420,7 +437,7 @@ def _counted(plan: ReplayPlan) -> ReplayPlan:
     return plan if plan.until is None else replace(plan, count=plan.until.max, until=None)
 
 
-def _pacing(ctx: JobContext | None, share: float) -> dict[str, Any]:
+def _pacing(ctx: JobContext | None, share: float) -> Pacing:
     """plan()'s `progress` and `should_stop` for a job: its progress up to `share` while planning (with the
     stage and its steps in the detail), and planning stops at the next step once the job is cancelled."""
     if ctx is None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from calib_core import Dataset, InputError, Profile
 from calib_core.estimation import Covariance, register, registration_params
 
 from ..robots.roster import Robots
-from ..scene.review import Review
+from ..scene.review import Marks, Review, ReviewRow, ReviewSummary
 from ..scene.robot_look import robot_look
 from ..scene.viewers import ReviewKey, Viewer
 from ..store import Store
@@ -27,8 +27,8 @@ class Reviewed(ReviewKey):
     """A review as the API answers it (its ReviewOut): what it is of, its table and summary (app/scene/review.py)
     and what the scene could not show as asked."""
 
-    table: list[dict[str, Any]]
-    summary: dict[str, Any]
+    table: list[ReviewRow]
+    summary: ReviewSummary
     warnings: list[str]
 
 
@@ -40,6 +40,13 @@ class Selection(TypedDict):
     all: bool
     overlay: bool
     server_ms: float
+
+
+class MarksShown(Marks):
+    """A frame's 2-D marks as the API answers them (its Marks): with the URL of the image they belong to (None: no
+    image)."""
+
+    image: str | None
 
 
 class ReviewService:
@@ -128,15 +135,15 @@ class ReviewService:
         viewer.frame_marks()
         return viewer.index
 
-    def marks(self, viewer: Viewer, index: int) -> dict[str, Any]:
+    def marks(self, viewer: Viewer, index: int) -> MarksShown:
         with viewer.lock:
             review, key = viewer.current(), viewer.key
         assert key is not None  # loaded with its review
         session = key["session"]
         marks = review.marks(index)
         frame = self.store.sessions.frame(session, index)
-        path = frame.images.get(marks["role"]) if marks.get("role") else None
-        return {**marks, "image": None if path is None else f"/api/files/{path}"}
+        path = frame.images.get(marks["role"]) if marks["role"] else None
+        return MarksShown(**marks, image=None if path is None else f"/api/files/{path}")
 
     @staticmethod
     def _sensor(profile: Profile, robot: str, name: str | None) -> int:

@@ -7,11 +7,13 @@ so the history is the whole story (a rollback is an apply of an earlier calibrat
 
 from __future__ import annotations
 
+import builtins
 import json
 import secrets
 import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypedDict
 
 from calib_core import Calibration, InputError
 
@@ -31,6 +33,29 @@ class CalibrationInfo:
     holdout: float
     path: str  # relative to the data directory
     figures: dict  # Calibration.figures as JSON
+
+
+class AppliedFigures(TypedDict):
+    """A calibration's figure as the apply history gives it (of Calibration.figures; None: NaN, not determined)."""
+
+    mean: float | None
+    rms: float | None
+    max: float | None
+    n: int
+    unit: str
+
+
+class Applied(TypedDict):
+    """One apply of the history (`CalibrationRepository.history`)."""
+
+    seq: int
+    time: str
+    calibration: str
+    previous: str | None  # the robot's active calibration before (None: it ran the nominal model)
+    mode: str
+    session: str | None  # the session the calibration was made from (None: gone, or none)
+    figures: dict[str, AppliedFigures]  # before, after and held-out after (holdout_after), those it has
+    note: str
 
 
 class CalibrationRepository:
@@ -107,14 +132,14 @@ class CalibrationRepository:
         row = self.db.one(_ACTIVE, (robot,))
         return None if row is None else row["calibration_id"]
 
-    def history(self, robot: str) -> list[dict]:
+    def history(self, robot: str) -> builtins.list[Applied]:  # `list` is a method's name here
         """Newest first: {seq, time, calibration, previous, mode, session, figures, note}."""
         rows = self.db.all(
             "SELECT a.*, c.mode, c.session_id, c.figures FROM applies a JOIN calibrations c "
             "ON c.id = a.calibration_id WHERE a.robot = ? ORDER BY a.seq DESC",
             (robot,),
         )
-        out = []
+        out: builtins.list[Applied] = []
         for r in rows:
             figs = json.loads(r["figures"])
             out.append(
@@ -126,14 +151,18 @@ class CalibrationRepository:
                     "mode": r["mode"],
                     "session": r["session_id"],
                     "figures": {
-                        k: {f: figs[k].get(f) for f in ("mean", "rms", "max", "n", "unit")}
-                        for k in ("before", "after", "holdout_after")
-                        if k in figs
+                        k: _applied_figures(figs[k]) for k in ("before", "after", "holdout_after") if k in figs
                     },
                     "note": r["note"],
                 }
             )
         return out
+
+
+def _applied_figures(fig: dict) -> AppliedFigures:
+    """A figure of a calibration's row (a calib_core Figures' to_dict, as `add` stores it: every key there, NaN as
+    None) as the history gives it."""
+    return {"mean": fig["mean"], "rms": fig["rms"], "max": fig["max"], "n": fig["n"], "unit": fig["unit"]}
 
 
 _ACTIVE = "SELECT calibration_id FROM applies WHERE robot = ? ORDER BY seq DESC LIMIT 1"

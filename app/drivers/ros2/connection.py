@@ -40,9 +40,10 @@ from __future__ import annotations
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Protocol, TypedDict
 
 import yaml
 
@@ -55,6 +56,10 @@ from ..connection_file import profile_ref, read_connection
 from ..core import DEFAULT_SETTLE_S
 from . import require
 from .frames import check_frames, read_frames
+
+if TYPE_CHECKING:
+    from ..registry import Options
+    from .link import Link
 
 FIELDS = ("robot", "profile", "description_topic", "joint_states", "command", "measurements", "apply")
 OPTIONS = {
@@ -248,11 +253,11 @@ def _check_sensors(conn: Connection, profile: Profile) -> None:
 
 # --- before the desk starts ---------------------------------------------------------------------------------
 
-_pending: dict[str, Any] = {}  # connection path -> (Link, Profile) made by connect(), taken by the driver
+_pending: dict[str, Link] = {}  # connection path -> the link connect() opened, taken by the driver
 _pending_lock = threading.Lock()
 
 
-def take_pending(path: str) -> Any:
+def take_pending(path: str) -> Link | None:
     """The link connect() opened for this connection file (None when there is none)."""
     with _pending_lock:
         return _pending.pop(path, None)
@@ -260,6 +265,25 @@ def take_pending(path: str) -> Any:
 
 def robot_dir(data_dir: Path, robot: str) -> Path:
     return Path(data_dir) / "ros2" / robot
+
+
+class _Text(Protocol):
+    """What a meeting reads of a std_msgs/String (the robot description)."""
+
+    data: str
+
+
+class _Names(Protocol):
+    """What a meeting reads of a sensor_msgs/JointState."""
+
+    name: Sequence[str]
+
+
+class Met(TypedDict, total=False):
+    """What a meeting received: the description's text, the joint states' names (each missing until it came)."""
+
+    urdf: str
+    joints: list[str]
 
 
 class Meeting:
@@ -275,7 +299,7 @@ class Meeting:
 
         self.conn = conn
         self.link = Link(f"calib_desk_{_node_name(conn.robot)}")
-        self.got: dict[str, Any] = {}
+        self.got: Met = {}
         self._ready = threading.Event()
         self._listening = [
             self.link.listen(String, conn.description_topic, LATCHED_QOS, self._on_description),
@@ -285,15 +309,15 @@ class Meeting:
             f"calib serve: waiting for {conn.robot} on the ROS 2 graph ({conn.description_topic}, {conn.joint_states})"
         )
 
-    def _on_description(self, msg: Any) -> None:
+    def _on_description(self, msg: _Text) -> None:
         self.got.setdefault("urdf", msg.data)  # the first received is the nominal one
         self._ready.set()
 
-    def _on_joints(self, msg: Any) -> None:
+    def _on_joints(self, msg: _Names) -> None:
         self.got["joints"] = list(msg.name)
         self._ready.set()
 
-    def wait(self) -> dict[str, Any]:
+    def wait(self) -> Met:
         """What came within the connection's wait_s ({urdf, joints}, either missing if it did not); the
         listeners stop then (the joint states go on to the driver's listener alone)."""
         deadline = time.monotonic() + self.conn.options["wait_s"]
@@ -302,13 +326,13 @@ class Meeting:
             self._ready.clear()
         for stop in self._listening:
             stop()
-        return dict(self.got)
+        return self.got.copy()
 
     def close(self) -> None:
         self.link.close()
 
 
-def connect(meeting: Meeting, data_dir: Path) -> tuple[str, dict[str, Any]]:
+def connect(meeting: Meeting, data_dir: Path) -> tuple[str, Options]:
     """Meet the robot on its graph (what `meeting` receives) and check it (InputError naming what is wrong;
     nothing is written then). Returns the profile reference the desk loads the robot with and the driver's
     options; the link stays open for the driver."""
@@ -377,7 +401,7 @@ def _nominal(folder: Path, received: str) -> str:
     return received
 
 
-def _check_types(conn: Connection, link: Any, settle_s: float = 2.0) -> None:
+def _check_types(conn: Connection, link: Link, settle_s: float = 2.0) -> None:
     """Each topic of the connection that the graph knows must carry the contract's type (the graph is given
     up to settle_s to show every measurement topic: discovery lags behind the first messages)."""
     topics = {topic for m in conn.measurements for topic, _ in m.topics().values()}

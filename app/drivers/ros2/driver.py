@@ -25,10 +25,10 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -44,6 +44,11 @@ from ..calls import calling
 from ..core import Command, Driver, Feed, Measurement, Motion, per_joint
 from ..registry import DriverContext
 from .frames import launch_file, published
+
+if TYPE_CHECKING:
+    from .connection import Connection
+    from .connection import Measurement as Topics
+    from .link import Link
 
 DURATION_FACTOR = 1.05  # time_from_start this much longer than the fastest the velocity limits allow
 MIN_DURATION_S = 0.1
@@ -83,8 +88,46 @@ def create(profile: Profile, options: Mapping[str, Any], context: DriverContext)
     return ros2_driver(profile, conn, link, files=files, clock=context.clock)
 
 
+class _Stamp(Protocol):
+    """A builtin_interfaces/Time (a header's stamp)."""
+
+    sec: int
+    nanosec: int
+
+
+class _Header(Protocol):
+    stamp: _Stamp
+
+
+class _JointState(Protocol):
+    """What the driver reads of a sensor_msgs/JointState."""
+
+    header: _Header
+    name: Sequence[str]
+    position: Sequence[float]
+
+
+class _Point(Protocol):
+    x: float
+    y: float
+    z: float
+
+
+class _PointStamped(Protocol):
+    """A geometry_msgs/PointStamped."""
+
+    header: _Header
+    point: _Point
+
+
+class _Matched(Protocol):
+    """rclpy's MatchedInfo of a publisher's matched event: how many readers it has now."""
+
+    current_count: int
+
+
 def ros2_driver(
-    profile: Profile, conn: Any, link: Any, *, files: Path | None = None, clock: Clock = SYSTEM_CLOCK
+    profile: Profile, conn: Connection, link: Link, *, files: Path | None = None, clock: Clock = SYSTEM_CLOCK
 ) -> Driver:
     """The driver of the robot a connection file describes, on `link` (its node on the graph)."""
     o = conn.options
@@ -122,7 +165,7 @@ class Ros2Transport:
     """The robot's topics: joint states in, one JointTrajectory a move out, the empty one to stop, the
     measurement topics read for a look; apply sets a node's parameter (Deploys)."""
 
-    def __init__(self, profile: Profile, conn: Any, link: Any, files: Path | None) -> None:
+    def __init__(self, profile: Profile, conn: Connection, link: Link, files: Path | None) -> None:
         self.profile = profile
         self.conn = conn
         self.link = link
@@ -159,9 +202,11 @@ class Ros2Transport:
             if m.kind == "point":
                 listen(PointStamped, m.topic, SENSOR_QOS, self._on_point(m.sensor))
             elif m.kind == "image":
+                assert m.info is not None  # what makes it an image (Topics.kind)
                 listen(Image, m.topic, SENSOR_QOS, self._on_image(m.sensor))
                 listen(CameraInfo, m.info, SENSOR_QOS, self._on_info(m.sensor))
             else:
+                assert m.info is not None and m.right is not None and m.right_info is not None  # a stereo head's
                 listen(Image, m.topic, SENSOR_QOS, self._on_side(m.sensor, "left"))
                 listen(Image, m.right, SENSOR_QOS, self._on_side(m.sensor, "right"))
                 listen(CameraInfo, m.info, SENSOR_QOS, self._on_info(m.sensor))
@@ -170,14 +215,14 @@ class Ros2Transport:
             self._set_parameters = node.create_client(SetParameters, f"{conn.apply_node.rstrip('/')}/set_parameters")
 
     # --- the graph's callbacks ------------------------------------------------------------------------
-    def _on_matched(self, info: Any) -> None:
+    def _on_matched(self, info: _Matched) -> None:
         """The controller subscribed to the commands (or left)."""
         if info.current_count > 0:
             self.controller.set()
         else:
             self.controller.clear()
 
-    def _on_joints(self, msg: Any) -> None:
+    def _on_joints(self, msg: _JointState) -> None:
         index = {name: k for k, name in enumerate(msg.name)}
         missing = [j.name for j in self.profile.joints if j.name not in index or index[j.name] >= len(msg.position)]
         if missing:
@@ -187,8 +232,8 @@ class Ros2Transport:
         self._joints_at = self.clock.now()
         self.feed.on_joints(q, _stamp_s(msg.header.stamp))
 
-    def _on_point(self, sensor: str) -> Callable[[Any], None]:
-        def on(msg: Any) -> None:
+    def _on_point(self, sensor: str) -> Callable[[_PointStamped], None]:
+        def on(msg: _PointStamped) -> None:
             with self._lock:
                 r = self._readings[sensor]
                 r.stamp_s, r.value = _stamp_s(msg.header.stamp), np.array([msg.point.x, msg.point.y, msg.point.z])
@@ -326,9 +371,10 @@ class Ros2Transport:
         k = info.k
         return Measurement(images={"image": image}, intrinsics_px=(k[0], k[4], k[2], k[5]))
 
-    def _stereo(self, pair: Any, left_info: Any, right_info: Any, m: Any) -> Measurement:
+    def _stereo(self, pair: Any, left_info: Any, right_info: Any, m: Topics) -> Measurement:
         """A rectified pair, with the head its CameraInfo messages describe: the intrinsics from the left one's
         K, the baseline from the right one's P (P[0,3] = -fx * baseline)."""
+        assert m.right_info is not None  # a stereo head's (Topics.kind)
         if left_info is None or right_info is None:
             return Measurement(missing=f"no CameraInfo for {m.topic} and {m.right} yet")
         try:
@@ -410,12 +456,13 @@ class Ros2Transport:
         self.link.close()
 
 
-def _stamp_s(stamp: Any) -> float:
+def _stamp_s(stamp: _Stamp) -> float:
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
 
 
-def _unpaired(m: Any, latest: dict[str, float], sync_s: float, wait_s: float) -> str:
+def _unpaired(m: Topics, latest: dict[str, float], sync_s: float, wait_s: float) -> str:
     """Why a stereo head has no pair at all: a side never came, or the two sides' stamps never agree."""
+    assert m.right is not None  # a stereo head's (Topics.kind)
     silent = [topic for side, topic in (("left", m.topic), ("right", m.right)) if math.isnan(latest[side])]
     if silent:
         return f"no measurement on {' and '.join(silent)} (none received within {wait_s:g} s)"

@@ -4,12 +4,27 @@ point: viser needs one), and reports it through `state()`."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Literal, NotRequired, TypedDict
 
 import numpy as np
 import viser
 
 from ..framing import Target
+
+
+class NodeState(TypedDict):
+    """A node as `Nodes.state` reports it: what every node has, and what its kind holds (color and points of
+    "points" and "rings", color and segments of "lines", text of "label")."""
+
+    visible: bool
+    shown: bool  # it and its ancestors visible
+    position: list[float]
+    wxyz: list[float]  # relative to its parent
+    kind: Literal["frame", "points", "rings", "lines", "label"]
+    color: NotRequired[list[int]]
+    points: NotRequired[list[list[float]]]  # (N, 3)
+    segments: NotRequired[list[list[list[float]]]]  # (N, 2, 3)
+    text: NotRequired[str]
 
 
 class Nodes:
@@ -47,27 +62,33 @@ class Nodes:
             self._handles[p].visible for k in range(2, len(parts) + 1) if (p := "/".join(parts[:k])) in self._handles
         )
 
-    def state(self) -> dict[str, dict[str, Any]]:
+    def state(self) -> dict[str, NodeState]:
         """{name: {kind ("frame", "points", "rings", "lines", "label"), visible, shown, position, wxyz, and color +
         points / segments of what it really holds, or text}}."""
         return {name: self._node_state(name, h) for name, h in self._handles.items()}
 
-    def _node_state(self, name: str, h: viser.SceneNodeHandle) -> dict[str, Any]:
-        out: dict[str, Any] = {
+    def _node_state(self, name: str, h: viser.SceneNodeHandle) -> NodeState:
+        out: NodeState = {
             "visible": bool(h.visible),
             "shown": self.shown(name),
             "position": [float(v) for v in h.position],
             "wxyz": [float(v) for v in h.wxyz],
+            "kind": "frame",
         }
         if name in self.centres:  # a group's measurement rings: their centres
-            held = self.centres[name][: self.counts[name]].tolist()
-            out |= {"kind": "rings", "color": [int(v) for v in np.asarray(h.colors).reshape(-1, 3)[0]], "points": held}
-        elif isinstance(h, viser.PointCloudHandle | viser.LineSegmentsHandle):
-            kind, key = ("points", "points") if isinstance(h, viser.PointCloudHandle) else ("lines", "segments")
-            held = h.points[: self.counts[name]].astype(float).tolist()
-            out |= {"kind": kind, "color": [int(v) for v in np.asarray(h.colors).reshape(-1, 3)[0]], key: held}
+            out["kind"], out["color"] = "rings", _color(h)
+            out["points"] = self.centres[name][: self.counts[name]].tolist()
+        elif isinstance(h, viser.PointCloudHandle):
+            out["kind"], out["color"] = "points", _color(h)
+            out["points"] = h.points[: self.counts[name]].astype(float).tolist()
+        elif isinstance(h, viser.LineSegmentsHandle):
+            out["kind"], out["color"] = "lines", _color(h)
+            out["segments"] = h.points[: self.counts[name]].astype(float).tolist()
         elif isinstance(h, viser.LabelHandle):
-            out |= {"kind": "label", "text": h.text}
-        else:
-            out |= {"kind": "frame"}
+            out["kind"], out["text"] = "label", h.text
         return out
+
+
+def _color(h: viser.SceneNodeHandle) -> list[int]:
+    """The colour of a points, rings or lines node, as its first point has it."""
+    return [int(v) for v in np.asarray(h.colors).reshape(-1, 3)[0]]

@@ -51,7 +51,7 @@ from __future__ import annotations
 import io
 import threading
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol, TypedDict
 
 import numpy as np
 
@@ -59,14 +59,28 @@ from calib_core import Profile, load_profile
 from calib_core.io import to_urdf
 from calib_core.vision import Sighting
 
-from ..framing import ClientFraming, Target
+from ..framing import CameraState, ClientFraming, Target
 from ..review import Review, frame_bounds_m, live_geometry
 from ..robot_copy import quaternion
 from .camera import marks_view, robot_view
-from .copies import GENERATED, Copies
+from .copies import GENERATED, Copies, CopyState
 from .layout import LABELS, OVERLAY_LABELS, SIDES, Layout, box_corners, display_rotation
 from .marks import ALL_SCALE, MAGNIFY_MAX, PARTS, SIDE_COLOR, Marks, MarkSize, mark_size
-from .nodes import Nodes
+from .nodes import Nodes, NodeState
+
+
+class SceneState(TypedDict):
+    """`ReviewScene.state`: what the scene shows (for the tests and the API)."""
+
+    camera: CameraState
+    robot: str | None
+    index: int | None
+    overlay: bool
+    all: bool
+    live: bool
+    magnify: float
+    nodes: dict[str, NodeState]
+    urdf: dict[str, CopyState]
 
 
 class LookLike(Protocol):
@@ -244,7 +258,7 @@ class ReviewScene:
             self._refresh()
 
     # --- tests and the API ----------------------------------------------------------------------
-    def state(self) -> dict[str, Any]:
+    def state(self) -> SceneState:
         """{robot, index, overlay, all, live, magnify, nodes, urdf, camera}. nodes: {name: {kind ("frame", "points",
         "lines", "label"), visible, shown (it and its ancestors visible), position, wxyz (relative to
         its parent), and color + points (N, 3) / segments (N, 2, 3) of what it really holds, or text}};
