@@ -95,7 +95,7 @@ class Problem:
         self.A = A
         affected = np.flatnonzero(np.any(A != 0, axis=1))
         # The kinematics' Jacobian (`_jacobian`) has a column per free parameter and, with the readings' corrections,
-        # one more per quantised joint's offset that no free column is alone (a full calibration's head joints): the
+        # one more per quantised joint's offset without a column of its own (a full calibration's head joints): the
         # corrections take the offsets' columns from the evaluations the fit makes anyway (`_offset_jacobian`).
         self._column = {i: k for k, i in enumerate(self.free) if np.count_nonzero(A[:, k]) == 1}
         quantised = list(quantised_offsets(profile)) if readings and noise_model is not False else []
@@ -256,7 +256,7 @@ class Problem:
         if self.readings is None:
             return self._with_priors(r, p)
         self._prepare_readings()
-        r, extra, _ = self.readings.project(r)
+        r, extra = self.readings.project(r)
         return np.concatenate([self._with_priors(r, p), extra])
 
     def residuals_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -264,17 +264,14 @@ class Problem:
         pred, J_raw = self._jacobian(p)
         J_raw = J_raw[:, : len(self.free)]
         r = self._with_priors(self._whitened(pred), p)
-        n_data, n_priors = self.n_data_rows, len(self.priors)
+        n_data = self.n_data_rows
+        # The data rows, the priors' and the readings' corrections' (`reading_rows`), filled in place.
+        J = np.empty((self.reading_rows.stop, len(self.free)))
+        self._weighed(J_raw, out=J[:n_data])
         if self.readings is not None:
             self._prepare_readings()
-            r_data, extra, J = self.readings.project(r[:n_data], self._weighed(J_raw), gap=n_priors)
-            assert J is not None
+            r_data, extra = self.readings.project(r[:n_data], J)
             r = np.concatenate([r_data, r[n_data:], extra])
-        elif self.priors:
-            J = np.empty((n_data + n_priors, len(self.free)))
-            self._weighed(J_raw, out=J[:n_data])
-        else:
-            J = self._weighed(J_raw)
         for k, (i, s) in enumerate(self.priors.items()):
             J[n_data + k] = self.prior_scale * self.A[i] / s
         return r, J
