@@ -370,6 +370,7 @@ def fit_parameters(
         Jq = problem.readings.Jq
         plain = Problem(profile, data, [], problem.params(x), probes=problem.probes, rounding_jacobian=Jq)
         plain.included = problem.included
+        plain.share_predictions(problem)
         r_plain = plain.residuals(np.zeros(0))
     sigmas = {
         s: float(np.sqrt(total / max(dof, 1))) for s, (total, _, dof) in sensor_scatter(plain, r_plain, n_free).items()

@@ -22,7 +22,7 @@ from ..dataset import Dataset
 from ..model.kinematics import Poses, forward, op_ids, op_signs, to_sensor
 from ..model.profile import Profile, Tie
 from ..sensors import Sensor
-from .readings import ReadingErrors
+from .readings import ReadingErrors, quantised_offsets
 
 
 @dataclass
@@ -57,6 +57,7 @@ class _Group:
     per_cfg: int  # > 0: the observations are runs of this length, one run per configuration
     cfgs: np.ndarray  # the configuration of each run
     sign: np.ndarray  # (K,) +1 target side, -1 sensor side
+    local: np.ndarray | None  # (n, 3) the points in the target's frame (`local_points`); None: calibrated, from p
 
 
 class Problem:
@@ -93,6 +94,14 @@ class Problem:
                 A[tie.follower, self.free.index(tie.leader)] = tie.sign
         self.A = A
         affected = np.flatnonzero(np.any(A != 0, axis=1))
+        # The kinematics' Jacobian (`_jacobian`) has a column per free parameter and, with the readings' corrections,
+        # one more per quantised joint's offset without a column of its own (a full calibration's head joints): the
+        # corrections take the offsets' columns from the evaluations the fit makes anyway (`_offset_jacobian`).
+        self._column = {i: k for k, i in enumerate(self.free) if np.count_nonzero(A[:, k]) == 1}
+        quantised = list(quantised_offsets(profile)) if readings and noise_model is not False else []
+        shadow = [i for i in quantised if i not in self._column]
+        self._column |= {i: len(self.free) + k for k, i in enumerate(shadow)}
+        self._B = np.hstack([A, np.eye(n)[:, shadow]])  # d(parameters)/d(the Jacobian's columns)
         self.p_fixed = p_base.copy()
         self.p_fixed[affected] = 0.0
         self.x0 = p_base[self.free].copy()
@@ -107,19 +116,19 @@ class Problem:
         self._constant = [
             (i, op.param) for i, op in enumerate(self._op) if op.joint < 0 and op.param not in affected_set
         ]
-        self.record = {i for i, op in enumerate(self._op) if op.param in affected_set}
+        self.record = {i for i, op in enumerate(self._op) if op.param in affected_set or op.param in shadow}
         self.blocks = self._blocks()
         self.n_data_rows = self.blocks[-1].rows.stop if self.blocks else 0
         self.frames = sorted(
             {profile.targets[t].frame for t in np.unique(data.target)} | {b.sensor.frame for b in self.blocks}
         )
-        self.groups = [g for b in self.blocks for g in self._groups(b)]
+        self.groups = [g for b in self.blocks for g in self._groups(b, p_base)]
         self.included = np.ones(data.n_observations, bool)  # False: an outlier, left out
         # Each observation's scatter relative to its sensor's (estimated where a configuration's observations
         # show it: `_Passes.reading_scales`); its whitened residual is divided by it and its block's scale.
         self.obs_scale = np.ones(data.n_observations)
         self._last_prediction: tuple[bytes, np.ndarray] | None = None  # (p's bytes, predictions): see `_predicted`
-        self._last_jacobian: tuple[bytes, np.ndarray] | None = None  # (p's bytes, the data rows' unweighted Jacobian)
+        self._last_jacobian: tuple[bytes, np.ndarray] | None = None  # (p's bytes, `_jacobian`'s)
         self.probes: dict[tuple[int, ...], Problem] = {} if probes is None else probes  # see `_offset_jacobian`
         self._q = np.nan_to_num(data.joints)  # joints a row does not need do not matter
         self.readings: ReadingErrors | None = None
@@ -145,13 +154,13 @@ class Problem:
             sensor = self.profile.sensors[s]
             obs = np.flatnonzero(self.data.sensor == s)
             direct = list(sensor.direct_params())
-            B_direct = self.A[direct] if direct else np.zeros((0, len(self.free)))
+            B_direct = self._B[direct] if direct else np.zeros((0, self._B.shape[1]))
             rows = slice(start, start + len(obs) * sensor.dim)
             out.append(SensorBlock(sensor, s, _run(obs), rows, 1.0, B_direct))
             start = rows.stop
         return out
 
-    def _groups(self, block: SensorBlock) -> list[_Group]:
+    def _groups(self, block: SensorBlock, p: np.ndarray) -> list[_Group]:
         data, profile = self.data, self.profile
         out = []
         in_block = np.arange(data.n_observations)[block.obs]
@@ -171,19 +180,24 @@ class Problem:
                     pos=_run(position[obs]),
                     target=int(t),
                     ops=ops,
-                    B_ops=self.A[[self._op[i].param for i in ops]] if ops else np.zeros((0, len(self.free))),
-                    B_point=self.A[list(target.point_params)] if target.point_params else None,
+                    B_ops=self._B[[self._op[i].param for i in ops]] if ops else np.zeros((0, self._B.shape[1])),
+                    B_point=self._B[list(target.point_params)] if target.point_params else None,
                     rotation=np.array([1.0 if self._op[i].kind == "r" else 0.0 for i in ops]),
                     sign=np.array([signs[i] for i in ops]),
                     per_cfg=int(counts[0]) if runs else 0,
                     cfgs=cfgs,
+                    local=None if target.point_params is not None else local_points(profile, data, obs, int(t), p),
                 )
             )
         return out
 
     def _offset_jacobian(self, params: list[int], p: np.ndarray) -> np.ndarray:
-        """The data rows' unweighted Jacobian with respect to the parameters `params` (joint offsets) at p (the
-        problem that computes it made once, then moved to each p)."""
+        """The data rows' unweighted Jacobian with respect to the parameters `params` (joint offsets) at p: the
+        columns of this problem's own (`_jacobian`: the readings' corrections take them from the evaluation the fit
+        makes there anyway), else from a problem that computes it (made once, then moved to each p)."""
+        columns = [self._column.get(i) for i in params]
+        if all(k is not None for k in columns):
+            return self._jacobian(p)[1][:, columns]
         probe = self.probes.get(tuple(params))
         if probe is None:
             probe = self.probes[tuple(params)] = Problem(self.profile, self.data, params, p, noise_model=False)
@@ -242,36 +256,43 @@ class Problem:
         if self.readings is None:
             return self._with_priors(r, p)
         self._prepare_readings()
-        r, extra, _ = self.readings.project(r)
+        r, extra = self.readings.project(r)
         return np.concatenate([self._with_priors(r, p), extra])
 
     def residuals_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = self.params(x)
-        key = p.tobytes()
-        if self._last_jacobian is not None and self._last_jacobian[0] == key:
-            J = self._last_jacobian[1]  # the same parameters weighed anew (the scales settling): no kinematics
-            pred = self._predicted(p)
-        else:
-            pred, J = self._evaluate(p, jacobian=True)
-            assert J is not None
-            self._last_prediction, self._last_jacobian = (key, pred), (key, J)
-        r = self._whitened(pred)
-        J = self._weighed(J)
-        extra = J_extra = None
+        pred, J_raw = self._jacobian(p)
+        J_raw = J_raw[:, : len(self.free)]
+        r = self._with_priors(self._whitened(pred), p)
+        n_data = self.n_data_rows
+        # The data rows, the priors' and the readings' corrections' (`reading_rows`), filled in place.
+        J = np.empty((self.reading_rows.stop, len(self.free)))
+        self._weighed(J_raw, out=J[:n_data])
         if self.readings is not None:
             self._prepare_readings()
-            r, extra, J_all = self.readings.project(r, J)
-            assert J_all is not None
-            J, J_extra = J_all[: self.n_data_rows], J_all[self.n_data_rows :]
-        r = self._with_priors(r, p)
-        if self.priors:
-            Jp = np.zeros((len(self.priors), len(self.free)))
-            for k, (i, s) in enumerate(self.priors.items()):
-                Jp[k] = self.prior_scale * self.A[i] / s
-            J = np.vstack([J, Jp])
-        if extra is not None and J_extra is not None:
-            r, J = np.concatenate([r, extra]), np.vstack([J, J_extra])
+            r_data, extra = self.readings.project(r[:n_data], J)
+            r = np.concatenate([r_data, r[n_data:], extra])
+        for k, (i, s) in enumerate(self.priors.items()):
+            J[n_data + k] = self.prior_scale * self.A[i] / s
         return r, J
+
+    def _jacobian(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The predictions and the data rows' unweighted Jacobian at p (a column per free parameter, then one per
+        quantised joint's offset that has none of its own: see `__init__`), those of the last evaluation if at the
+        same p: the same parameters weighed anew (the scales settling) and the readings' corrections taken where the
+        fit stands need no kinematics again."""
+        key = p.tobytes()
+        if self._last_jacobian is not None and self._last_jacobian[0] == key:
+            return self._predicted(p), self._last_jacobian[1]
+        pred, J = self._evaluate(p, jacobian=True)
+        assert J is not None
+        self._last_prediction, self._last_jacobian = (key, pred), (key, J)
+        return pred, J
+
+    def share_predictions(self, other: Problem) -> None:
+        """Take the last predictions of `other`, a problem on the same data: where this one is evaluated at the same
+        parameters (a fit's noise test at its estimate), they are not computed again."""
+        self._last_prediction = other._last_prediction
 
     def _predicted(self, p: np.ndarray) -> np.ndarray:
         """The predictions at p, those of the last evaluation if at the same p: the residuals at one fit under
@@ -281,10 +302,10 @@ class Problem:
             self._last_prediction = (key, self._evaluate(p, jacobian=False)[0])
         return self._last_prediction[1]
 
-    def _weighed(self, J: np.ndarray) -> np.ndarray:
+    def _weighed(self, J: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Data rows of an unweighted Jacobian (any number of columns) weighed as the residuals are: by each
-        block's whitening and scale, the observations left out zero."""
-        weighed = np.empty_like(J)
+        block's whitening and scale, the observations left out zero (into `out` when given)."""
+        weighed = np.empty(J.shape) if out is None else out
         for b in self.blocks:
             J3 = J[b.rows].reshape(-1, b.dim, J.shape[1])
             out = weighed[b.rows].reshape(J3.shape)  # views of contiguous rows: written in place
@@ -340,9 +361,24 @@ class Problem:
         return {i for i, k in self._constant if p[k] == 0.0}
 
     def _points(self, p: np.ndarray, poses: Poses, g: _Group) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Base-frame points P, sensor-frame points x, the sensor rotation and the target rotation."""
-        local = local_points(self.profile, self.data, g.obs, g.target, p)
-        return to_sensor(poses, self.profile.targets[g.target].frame, g.block.sensor.frame, self.data.cfg[g.obs], local)
+        """Base-frame points P, sensor-frame points x (n, 3), the sensor rotation and the target rotation: per
+        observation (n, 3, 3), or per configuration (N, 3, 3) for a group in runs per configuration (`_times`)."""
+        local = local_points(self.profile, self.data, g.obs, g.target, p) if g.local is None else g.local
+        target, sensor = self.profile.targets[g.target].frame, g.block.sensor.frame
+        if not g.per_cfg:
+            return to_sensor(poses, target, sensor, self.data.cfg[g.obs], local)
+        # A board's vertices seen in one configuration share its poses: one product per configuration.
+        Rt, Rs = poses.R[target][g.cfgs], poses.R[sensor][g.cfgs]
+        P = local.reshape(len(g.cfgs), g.per_cfg, 3) @ Rt.transpose(0, 2, 1) + poses.t[target][g.cfgs][:, None, :]
+        x = (P - poses.t[sensor][g.cfgs][:, None, :]) @ Rs
+        return P.reshape(-1, 3), x.reshape(-1, 3), Rs, Rt
+
+    @staticmethod
+    def _times(g: _Group, a: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """a (n, rows, 3) times rotations R as `_points` gives them: per observation, or per configuration."""
+        if g.per_cfg:
+            return (a.reshape(len(R), -1, a.shape[2]) @ R).reshape(a.shape[0], a.shape[1], R.shape[2])
+        return a @ R
 
     def _twists(self, poses: Poses, g: _Group) -> np.ndarray:
         """(N, 6, K): per configuration, the (w, v) twist of each of the group's ops, signed."""
@@ -356,44 +392,54 @@ class Problem:
             self.profile, p, self._q, frames=self.frames, record=self.record if jacobian else None, skip=self._skip(p)
         )
         pred = np.full(self.data.measured.shape, np.nan)
-        J = np.zeros((self.n_data_rows, len(self.free))) if jacobian else None
+        F = self._B.shape[1]
+        J = np.zeros((self.n_data_rows, F)) if jacobian else None
         for g in self.groups:
             dim, sensor = g.block.dim, g.block.sensor
             P, x, Rs, Rt = self._points(p, poses, g)
             Rs_T = Rs.transpose(0, 2, 1)
-            rotation = Rs_T @ Rt if sensor.rotation_axes else None  # the target's orientation, sensor frame
+            rotation = None
+            if sensor.rotation_axes:  # the target's orientation, sensor frame, per observation
+                rotation = Rs_T @ Rt if not g.per_cfg else np.repeat(Rs_T @ Rt, g.per_cfg, axis=0)
             h, dh_dx, dh_direct, dh_drot = sensor.predict_pose(p, x, rotation, derivatives=jacobian)
             pred[g.obs, :dim] = h
             if J is None:
                 continue
             assert dh_dx is not None and dh_direct is not None
-            G = dh_dx @ Rs_T  # d(pred)/d(P in the base frame)
-            Jg = np.zeros((len(g.obs), dim, len(self.free)))
+            G = self._times(g, dh_dx, Rs_T)  # d(pred)/d(P in the base frame)
+            n, k = len(g.obs), len(g.block.B_direct)
             if g.ops:
                 # Each op moves the point by a twist: dP = w x P + v with v = o x w (rotation) or
-                # dP = w (translation). Build the twists per configuration, then one batched product.
+                # dP = w (translation). Build the twists per configuration, then one batched product, the sensor's
+                # own parameters (their d/dx the same everywhere) in the same product.
                 xi = self._twists(poses, g)  # (N, 6, K)
                 skew = np.zeros((len(P), 3, 3))
                 skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = P[:, 2], -P[:, 1], P[:, 0]
                 skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = -P[:, 2], P[:, 1], -P[:, 0]
-                H = np.concatenate([G @ skew, G], axis=2)  # d(pred)/d(w, v): w x P = -[P]x w
+                turn = G @ skew  # d(pred)/d(w): w x P = -[P]x w
                 if dh_drot is not None:  # w turns the target frame by Rs^T w about the sensor's axes
-                    H[:, :, :3] += dh_drot @ Rs_T
+                    turn += self._times(g, dh_drot, Rs_T)
+                H = np.concatenate([turn, G] + ([dh_direct] if k else []), axis=2)  # d(pred)/d(w, v, direct)
                 # The twists taken to the free parameters first, per configuration (K ops -> F free, K >> F).
                 xi_free = xi @ g.B_ops  # (N, 6, F)
                 if g.per_cfg:  # observations come in equal runs per configuration: one product each
-                    c = g.per_cfg
-                    Jg += (H.reshape(-1, c * dim, 6) @ xi_free[g.cfgs]).reshape(len(P), dim, -1)
+                    D = xi_free[g.cfgs]
+                    H = H.reshape(-1, g.per_cfg * dim, 6 + k)
                 else:
-                    Jg += H @ xi_free[self.data.cfg[g.obs]]
+                    D = xi_free[self.data.cfg[g.obs]]
+                if k:
+                    D = np.concatenate([D, np.broadcast_to(g.block.B_direct, (len(D), k, F))], axis=1)
+                Jg = (H @ D).reshape(n, dim, F)
+            elif k:
+                Jg = (dh_direct.reshape(-1, k) @ g.block.B_direct).reshape(n, dim, F)
+            else:
+                Jg = np.zeros((n, dim, F))
             if g.B_point is not None:
-                Jg += (G @ Rt) @ g.B_point
-            if len(g.block.B_direct):
-                Jg += dh_direct @ g.block.B_direct
+                Jg += self._times(g, G, Rt) @ g.B_point
             E = sensor.error_jacobian(h, self.data.measured[g.obs, :dim])
             if E is not None:
                 Jg = E @ Jg
-            J[g.block.rows].reshape(-1, dim, len(self.free))[g.pos] = Jg
+            J[g.block.rows].reshape(-1, dim, F)[g.pos] = Jg
         return pred, J
 
 

@@ -63,38 +63,31 @@ class Pinhole(Optical):
         dad_db = 2 * a * b * drad + 2 * p1 * a + 2 * p2 * b
         dbd_da = 2 * a * b * drad + 2 * p1 * a + 2 * p2 * b
         dbd_db = radial + 2 * b * b * drad + 6 * p1 * b + 2 * p2 * a
-        inv_z = 1.0 / Z
-        # d(a, b)/dX (M, 2, 3) in the optical frame.
-        dab_dX = np.zeros((len(x), 2, 3))
-        dab_dX[:, 0, 0] = inv_z
-        dab_dX[:, 0, 2] = -a * inv_z
-        dab_dX[:, 1, 1] = inv_z
-        dab_dX[:, 1, 2] = -b * inv_z
+        # d(a, b)/dx (M, 2, 3): d(a)/dX = (e_x - a e_z) / Z, d(b)/dX = (e_y - b e_z) / Z in the optical frame, X = M x.
+        dab_dx = (M[:2] - np.stack([a, b], axis=1)[:, :, None] * M[2]) / Z[:, None, None]
         duv_dab = np.empty((len(x), 2, 2))
         duv_dab[:, 0, 0] = fx * dad_da
         duv_dab[:, 0, 1] = fx * dad_db
         duv_dab[:, 1, 0] = fy * dbd_da
         duv_dab[:, 1, 1] = fy * dbd_db
-        duv_dx = duv_dab @ dab_dX @ M
-        zero = np.zeros_like(ad)
-        cols = [
-            np.stack([ad, zero], 1),  # fx
-            np.stack([zero, bd], 1),  # fy
-            np.stack([np.ones_like(ad), zero], 1),  # cx
-            np.stack([zero, np.ones_like(bd)], 1),  # cy
-        ]
+        duv_dx = duv_dab @ dab_dx
+        # d(u, v)/d(the direct parameters), column by column: (du, dv).
+        cols: list[tuple[np.ndarray | float, np.ndarray | float]] = [(ad, 0.0), (0.0, bd), (1.0, 0.0), (0.0, 1.0)]
         if self.distortion is not None:
             cols += [
-                np.stack([fx * a * r2 / den, fy * b * r2 / den], 1),  # k1
-                np.stack([fx * a * r2**2 / den, fy * b * r2**2 / den], 1),  # k2
-                np.stack([fx * 2 * a * b, fy * (r2 + 2 * b * b)], 1),  # p1
-                np.stack([fx * (r2 + 2 * a * a), fy * 2 * a * b], 1),  # p2
-                np.stack([fx * a * r2**3 / den, fy * b * r2**3 / den], 1),  # k3
+                (fx * a * r2 / den, fy * b * r2 / den),  # k1
+                (fx * a * r2**2 / den, fy * b * r2**2 / den),  # k2
+                (fx * 2 * a * b, fy * (r2 + 2 * b * b)),  # p1
+                (fx * (r2 + 2 * a * a), fy * 2 * a * b),  # p2
+                (fx * a * r2**3 / den, fy * b * r2**3 / den),  # k3
             ]
             if len(self.distortion) == 8:
                 g = -radial / den  # d(radial)/d(den), times d(den)/d(k4..k6) = r2, r2^2, r2^3
-                cols += [np.stack([fx * a * g * r2**n, fy * b * g * r2**n], 1) for n in (1, 2, 3)]
-        return uv, duv_dx, np.stack(cols, axis=2)
+                cols += [(fx * a * g * r2**n, fy * b * g * r2**n) for n in (1, 2, 3)]
+        direct = np.empty((len(x), 2, len(cols)))
+        for j, (du, dv) in enumerate(cols):
+            direct[:, 0, j], direct[:, 1, j] = du, dv
+        return uv, duv_dx, direct
 
     def visible(self, p: np.ndarray, x: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
         """As any lens (`Optical.visible`), and within the field where the distortion still grows outward: beyond
