@@ -506,16 +506,20 @@ def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
 
 
-def sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> SphereViews:
+def sphere_views(
+    profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead, least_share: float = 0.0
+) -> SphereViews:
     """Where the sphere appears in the left image and how much of it each camera sees past the arm and
     the hand (the capsules `render_pair` draws), for joint readings q (N, n_joints) rad and parameters p.
+    `least_share`: the right camera's share is worked out only where the left camera's reaches it, and is 0
+    elsewhere (a check that needs both to: `SphereFinder.clear`, which refuses most of what it checks).
 
     A ray through the sphere's outline is hidden when the segment from the camera to where it meets the
     sphere passes within a link's radius of the link's axis. The background planes lie behind the
     sphere whenever the sphere is above the table and before the wall (the camera is); where it is not,
     the sphere counts as hidden. A sphere reaching behind a camera is hidden."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    out = [_sphere_views(profile, p, q[i : i + _CHUNK], head) for i in range(0, len(q), _CHUNK)]
+    out = [_sphere_views(profile, p, q[i : i + _CHUNK], head, least_share) for i in range(0, len(q), _CHUNK)]
     if not out:
         return SphereViews(np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 2)))
     return SphereViews(
@@ -525,7 +529,7 @@ def sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHea
     )
 
 
-def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> SphereViews:
+def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead, least_share: float) -> SphereViews:
     body = _body(profile, p, q, head)
     n, radius = len(q), body.radius
     centre_chest = np.einsum("nij,nj->ni", body.R_cam, body.centre) + body.t_cam
@@ -564,11 +568,13 @@ def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHe
         hit = rays * ((b - np.sqrt(disc_)) / rr)  # relative to the camera
         # Every point of a ray's segment lies within the sphere's radius of the segment camera -> centre: a link
         # farther than its own radius plus that from this segment hides no ray, and is not tested ray by ray.
-        # All links at once (a sees of a few candidates costs its numpy calls, not its arithmetic).
+        # All links at once (a sees of a few candidates costs its numpy calls, not its arithmetic). Nor are the
+        # rays of a sphere shown by neither camera, or (right camera) not enough by the left one.
+        shown = ahead & background_behind & (visible[:, 0] >= least_share if cam == 1 else True)
         near = (
             _from_camera(c.T[:, None], (starts - origin).transpose(2, 0, 1), spans.transpose(2, 0, 1))
             < r_links + radius
-        )
+        ) & shown
         near_cfg, near_link = np.nonzero(near.T)  # by configuration
         clear = np.ones(rr.shape, bool)
         if near_cfg.size:
@@ -577,7 +583,7 @@ def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHe
             gap = _from_camera(hit[:, near_cfg], start, span)  # (pairs, rays)
             first = np.flatnonzero(np.diff(near_cfg, prepend=-1))  # each configuration's first pair
             clear[near_cfg[first]] = np.logical_and.reduceat(gap >= r_links[near_link], first, axis=0)
-        visible[:, cam] = np.where(ahead & background_behind, clear.mean(axis=1), 0.0)
+        visible[:, cam] = np.where(shown, clear.mean(axis=1), 0.0)
     centre = body.centre
     with np.errstate(divide="ignore", invalid="ignore"):
         centre_px = np.stack(
