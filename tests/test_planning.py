@@ -29,7 +29,7 @@ from calib_core.estimation.planning import (
     within_margin,
     workspace,
 )
-from calib_core.estimation.selection import Selection, trace_solve
+from calib_core.estimation.selection import Selection, largest, trace_solve
 from calib_core.vision.visibility import MIN_SPHERE_SHARE, Visibility
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -311,3 +311,20 @@ def test_a_candidates_gain_solves_as_lapack_does(k: int) -> None:
     T = T + T.transpose(0, 2, 1)
     expected = np.trace(np.linalg.solve(S, T), axis1=1, axis2=2)
     np.testing.assert_allclose(trace_solve(S.transpose(1, 2, 0), T.transpose(1, 2, 0)), expected, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_largest_gains_are_those_a_full_sort_ranks_first(seed: int) -> None:
+    """`largest` (the window of best candidates, bounded by block maxima) against a full sort of the gains, with
+    candidates refused or chosen (-inf) and NaN among them, for pools and windows of the sizes a plan has."""
+    rng = np.random.default_rng(seed)
+    for n, size in [(16000, 64), (16916, 1024), (20759, 64), (300, 64), (50, 64), (16000, 16384)]:
+        g = rng.normal(size=n) ** 3
+        g[rng.integers(0, n, n // (2 + seed))] = -np.inf
+        if seed == 3:
+            g[rng.integers(0, n, 5)] = np.nan
+        got = largest(g, size)
+        got = got[np.isfinite(g[got])]
+        finite = np.flatnonzero(np.isfinite(g))
+        want = finite[np.argsort(-g[finite], kind="stable")][:size]
+        np.testing.assert_array_equal(got, want)

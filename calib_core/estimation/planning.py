@@ -360,21 +360,21 @@ def candidates(
         count = CANDIDATES if count is None else count
         lo, hi = _limits_less_margin(profile, margin_deg, around)
         target = profile.data.target if profile.data.target is not None else (profile.data.target_default or 0)
-        found: list[np.ndarray] = []
+        found = np.zeros((0, len(lo)))
         sparse = False
         for _ in range(50):
             check()
             draw = sampler.rng.uniform(lo, hi, (count, len(lo)))
-            if sparse and found:  # half of the draw near what the sensor saw, the other half still anywhere
-                near = np.array(found)[sampler.rng.integers(len(found), size=count // 2)]
+            if sparse and len(found):  # half of the draw near what the sensor saw, the other half still anywhere
+                near = found[sampler.rng.integers(len(found), size=count // 2)]
                 spread = sampler.rng.normal(0.0, math.radians(SPARSE_SPREAD_DEG), near.shape)
                 draw[: count // 2] = np.clip(near + spread, lo, hi)
             seen = view.sees(draw, np.full(count, target), occlusion=occlusion)
             sparse = sparse or seen.mean() < SPARSE_SHARE
-            found += list(draw[seen])
+            found = np.concatenate([found, draw[seen]])
             if len(found) >= count:
                 break
-        q = np.array(found[:count]).reshape(-1, len(lo))
+        q = found[:count]
         targets = np.full(len(q), target)
     keep = within_margin(profile, q, margin_deg, around)
     if keep.sum() == 0:
@@ -469,9 +469,7 @@ def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -
     }
     U = np.zeros((len(J), len(steps)))
     if steps:
-        probe = Problem(profile, problem.data, list(steps), p, noise_model=False)
-        _, Jq = probe.residuals_jacobian(probe.x0)
-        U = Jq[: probe.n_data_rows] * np.array(list(steps.values()))
+        U = _offsets_jacobian(problem, J, list(steps), p) * np.array(list(steps.values()))
     Jd, Ud = np.empty_like(J), np.empty_like(U)
     for b in problem.blocks:
         rows = np.arange(b.rows.start, b.rows.stop).reshape(-1, b.dim)  # (n_obs, dim)
@@ -492,6 +490,23 @@ def _whitened(problem: Problem, J: np.ndarray, p: np.ndarray, isotropic: bool) -
     # not below _compress's cut (1e-12 of the largest singular value, 1e-24 of the eigenvalue): made zero here.
     w = np.where(w > EIGEN_ROUND_OFF * w.max(axis=1, keepdims=True), w, 0.0)
     return np.sqrt(w)[:, :, None] * V.transpose(0, 2, 1)
+
+
+def _offsets_jacobian(problem: Problem, J: np.ndarray, params: list[int], p: np.ndarray) -> np.ndarray:
+    """The Jacobian of the data rows (J's, unweighted, at p) with respect to the joint offsets `params`: J's own
+    columns where the problem estimates each offset alone (no tie moves another parameter with it) at p itself,
+    else a problem's of its own (its kinematics again: a third of a plan's design)."""
+    cols = []
+    if np.array_equal(problem.params(problem.x0), p):
+        for i in params:
+            k = problem.free.index(i) if i in problem.free else -1
+            if k < 0 or np.count_nonzero(problem.A[:, k]) != 1:
+                break
+            cols.append(k)
+    if len(cols) == len(params):
+        return J[:, cols]
+    probe = Problem(problem.profile, problem.data, params, p, noise_model=False)
+    return probe.residuals_jacobian(probe.x0)[1][: probe.n_data_rows]
 
 
 def _lower_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:

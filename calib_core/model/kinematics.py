@@ -123,9 +123,9 @@ def forward(
             if pending:
                 _record(Rf, tf, pending, w, o)
             if C_t is not _ZERO:
-                tf = tf + Rf @ C_t
+                tf = tf + _times(Rf, C_t)
             if C_R is not _EYE:
-                Rf = Rf @ C_R
+                Rf = _times(Rf, C_R)
             C_R, C_t, pending = _EYE, _ZERO, []
             value = p[op.param] + q[:, op.joint]
             axis = Rf[:, :, op.axis] if op.axis is not None else Rf @ op.vector
@@ -139,9 +139,16 @@ def forward(
                 Rf = Rf @ axis_angle(op.vector, value)
         if pending:
             _record(Rf, tf, pending, w, o)
-        R[f] = Rf if C_R is _EYE else Rf @ C_R
-        t[f] = tf if C_t is _ZERO else tf + Rf @ C_t
+        R[f] = Rf if C_R is _EYE else _times(Rf, C_R)
+        t[f] = tf if C_t is _ZERO else tf + _times(Rf, C_t)
     return Poses(R, t, w, o)
+
+
+def _times(R: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """R @ M of a batch of rotations R (N, 3, 3) and one constant M (3, 3) or (3,), as one product of the stacked
+    rows: the same numbers as the batched product, which calls BLAS once per configuration and took ten times
+    as long (a tenth of drawing a plan's candidates)."""
+    return (R.reshape(-1, 3) @ M).reshape(R.shape[:2] + M.shape[1:])
 
 
 def _record(Rf: np.ndarray, tf: np.ndarray, ops: list[tuple[int, np.ndarray, np.ndarray]], w: dict, o: dict) -> None:

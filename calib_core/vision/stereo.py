@@ -482,32 +482,44 @@ def _unit_disc(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
 
 
-def _segment_distance(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray) -> np.ndarray:
-    """Shortest distance between the segments p0 + s d0 and p1 + t d1 (s, t in [0, 1]); broadcast (..., 3)."""
-    r = p0 - p1
-    a, e = np.einsum("...i,...i", d0, d0), np.einsum("...i,...i", d1, d1)
-    b, c, f = np.einsum("...i,...i", d0, d1), np.einsum("...i,...i", d0, r), np.einsum("...i,...i", d1, r)
-    e = np.maximum(e, 1e-18)  # a link of no length is its end ball
+def _from_camera(d0: np.ndarray, p1: np.ndarray, d1: np.ndarray) -> np.ndarray:
+    """Shortest distance between the segments s d0 (from the camera at the origin) and p1 + t d1 (s, t in [0, 1]);
+    broadcast (3, ...), the components first: a sphere's rays times the links near them are thousands of segment
+    pairs a check, and the products over (..., 3) arrays' last axes took most of its time."""
+    r = -p1
+    a, e = _dot(d0, d0), np.maximum(_dot(d1, d1), 1e-18)  # a link of no length is its end ball
+    b, c, f = _dot(d0, d1), _dot(d0, r), _dot(d1, r)
     denom = a * e - b * b
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.where(denom > 1e-12 * a * e, np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
         t = (b * s + f) / e
         s = np.where(t < 0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1, np.clip((b - c) / a, 0.0, 1.0), s))
     t = np.clip(t, 0.0, 1.0)
-    gap = r + s[..., None] * d0 - t[..., None] * d1
-    return np.sqrt(np.einsum("...i,...i", gap, gap))
+    # Component by component: s d0 - t d1 at once broadcasts both ways, and numpy then loops over the 3 components
+    # innermost (ten times as long as all the rest).
+    gap = [r[i] + s * d0[i] - t * d1[i] for i in range(3)]
+    return np.sqrt(gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2])
 
 
-def sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> SphereViews:
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """x . y of (3, ...) arrays, the components first."""
+    return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
+
+
+def sphere_views(
+    profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead, least_share: float = 0.0
+) -> SphereViews:
     """Where the sphere appears in the left image and how much of it each camera sees past the arm and
     the hand (the capsules `render_pair` draws), for joint readings q (N, n_joints) rad and parameters p.
+    `least_share`: the right camera's share is worked out only where the left camera's reaches it, and is 0
+    elsewhere (a check that needs both to: `SphereFinder.clear`, which refuses most of what it checks).
 
     A ray through the sphere's outline is hidden when the segment from the camera to where it meets the
     sphere passes within a link's radius of the link's axis. The background planes lie behind the
     sphere whenever the sphere is above the table and before the wall (the camera is); where it is not,
     the sphere counts as hidden. A sphere reaching behind a camera is hidden."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    out = [_sphere_views(profile, p, q[i : i + _CHUNK], head) for i in range(0, len(q), _CHUNK)]
+    out = [_sphere_views(profile, p, q[i : i + _CHUNK], head, least_share) for i in range(0, len(q), _CHUNK)]
     if not out:
         return SphereViews(np.zeros((0, 2)), np.zeros((0, 4)), np.zeros((0, 2)))
     return SphereViews(
@@ -517,7 +529,7 @@ def sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHea
     )
 
 
-def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead) -> SphereViews:
+def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHead, least_share: float) -> SphereViews:
     body = _body(profile, p, q, head)
     n, radius = len(q), body.radius
     centre_chest = np.einsum("nij,nj->ni", body.R_cam, body.centre) + body.t_cam
@@ -549,20 +561,29 @@ def _sphere_views(profile: Profile, p: np.ndarray, q: np.ndarray, head: StereoHe
                 v = head.fy_px * edge[..., 1] / edge[..., 2] + head.cy_px
             box = np.where(ahead[:, None], np.stack([u.min(1), u.max(1), v.min(1), v.max(1)], axis=1), np.nan)
         # Where each ray meets the sphere (rays from inside the cone do): the segment camera -> surface.
-        rr = np.einsum("nki,nki->nk", rays, rays)
-        b = np.einsum("nki,ni->nk", rays, c)
+        rays = np.ascontiguousarray(rays.transpose(2, 0, 1))  # (3, N, K): the components first (_from_camera)
+        rr = _dot(rays, rays)
+        b = _dot(rays, c.T[:, :, None])
         disc_ = np.maximum(b * b - rr * (dist * dist - radius * radius)[:, None], 0.0)
-        hit = rays * ((b - np.sqrt(disc_)) / rr)[..., None]  # relative to the camera
+        hit = rays * ((b - np.sqrt(disc_)) / rr)  # relative to the camera
         # Every point of a ray's segment lies within the sphere's radius of the segment camera -> centre: a link
         # farther than its own radius plus that from this segment hides no ray, and is not tested ray by ray.
-        # All links at once (a sees of a few candidates costs its numpy calls, not its arithmetic).
-        near_link, near_cfg = np.nonzero(_segment_distance(np.zeros(3), c, starts - origin, spans) < r_links + radius)
-        clear = np.ones(rays.shape[:2], bool)
-        if near_link.size:
-            start, span = starts[near_link, near_cfg] - origin, spans[near_link, near_cfg]
-            gap = _segment_distance(np.zeros(3), hit[near_cfg], start[:, None], span[:, None])
-            np.logical_and.at(clear, near_cfg, gap >= r_links[near_link])
-        visible[:, cam] = np.where(ahead & background_behind, clear.mean(axis=1), 0.0)
+        # All links at once (a sees of a few candidates costs its numpy calls, not its arithmetic). Nor are the
+        # rays of a sphere shown by neither camera, or (right camera) not enough by the left one.
+        shown = ahead & background_behind & (visible[:, 0] >= least_share if cam == 1 else True)
+        near = (
+            _from_camera(c.T[:, None], (starts - origin).transpose(2, 0, 1), spans.transpose(2, 0, 1))
+            < r_links + radius
+        ) & shown
+        near_cfg, near_link = np.nonzero(near.T)  # by configuration
+        clear = np.ones(rr.shape, bool)
+        if near_cfg.size:
+            start = (starts[near_link, near_cfg] - origin).T[:, :, None]  # (3, pairs, 1)
+            span = spans[near_link, near_cfg].T[:, :, None]
+            gap = _from_camera(hit[:, near_cfg], start, span)  # (pairs, rays)
+            first = np.flatnonzero(np.diff(near_cfg, prepend=-1))  # each configuration's first pair
+            clear[near_cfg[first]] = np.logical_and.reduceat(gap >= r_links[near_link], first, axis=0)
+        visible[:, cam] = np.where(shown, clear.mean(axis=1), 0.0)
     centre = body.centre
     with np.errstate(divide="ignore", invalid="ignore"):
         centre_px = np.stack(

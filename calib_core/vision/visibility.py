@@ -74,8 +74,10 @@ class Visibility:
         prof = self.profile
         s = prof.data.sensor if sensor is None else sensor
         targets = np.asarray(targets, int)
-        n_points = {t: len(target_points(prof, self.p, t)) for t in set(targets.tolist())}
-        counts = np.array([n_points[t] for t in targets.tolist()], int)
+        used = np.unique(targets)
+        n_points = np.zeros(used.max(initial=0) + 1, int)
+        n_points[used] = [len(target_points(prof, self.p, t)) for t in used.tolist()]
+        counts = n_points[targets]
         ok = self.points(q, targets, s)
         seen = np.all(ok | (np.arange(ok.shape[1])[None, :] >= counts[:, None]), axis=1)
         return self.clear(q, targets, s, among=seen) if occlusion else seen

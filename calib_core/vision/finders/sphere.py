@@ -65,7 +65,7 @@ class SphereFinder(BoundFinder):
         images, `margin_px` clear of their borders and of the band without depth, and at least `sphere_share` of
         its outline free of the arm in each camera."""
         head = self.head(p)
-        seen = sphere_views(self.profile, p, q, head)
+        seen = sphere_views(self.profile, p, q, head, least_share=sphere_share)
         u_min, u_max, v_min, v_max = seen.box_px.T
         m = margin_px
         with np.errstate(invalid="ignore"):  # NaN boxes: the sphere reaches behind the camera
