@@ -7,7 +7,8 @@ import's 5 mm / 1 deg, TALOS with them 16 times wider. Which one a robot's data 
 measures: every candidate, a mode with its priors' standard deviations times one of PRIOR_SCALES (a mode without
 priors as it is), is fitted as `calibrate` fits it (short of the last digits: `fit_parameters`' `precise`) on
 part of the training configurations and predicts the rest (FOLDS parts; SHUFFLES shuffles of them when the
-configurations are few), and the one that predicts them best is chosen. Only the training data take part: the configurations held out of the calibration never reach the choice.
+configurations are few), and the one that predicts them best is chosen. Only the training data take part: the
+configurations held out of the calibration never reach the choice.
 A part's candidates are fitted one after another, each from the estimate of the one before it (the modes in the
 profile's order, a mode's priors from the narrowest), and a candidate of the same parameters takes the dependencies
 the one before it found (`fit_parameters`' `near`): on FIGAROH's data the same choices and held-out figures in
