@@ -485,7 +485,7 @@ class _Passes:
         if x0 is None:
             x = self.run(problem.x0, None, initial, rough=rough)
         else:
-            x = self.run(np.clip(x0, self.lower, self.upper), None, rough=rough)
+            x = self.run(np.clip(x0, self.lower, self.upper), None, near=True, rough=rough)
         if far_above_noise(problem, problem.residuals(x)):
             starts = turned_starts(problem, problem.x0, poses, self.should_stop) + closed_form_starts(problem)
             if starts:
