@@ -66,10 +66,13 @@ def record(robot: str, sessions: bool) -> list[Split]:
     try:
         for train, heldout in splits(profile, FOLDER, robot, sessions):
 
-            def fit(part, mode, near=None):
-                return calibration._fit_mode(profile, part, mode, None, "lm", True, None, near)
+            def fit(part, mode, near=None, precise=True):
+                return calibration._fit_mode(profile, part, mode, None, "lm", True, None, near, precise)
 
-            _, choice = model_choice.choose(profile, train, fit)
+            def candidate(part, mode, near=None):  # as `calibrate` fits auto's candidates
+                return fit(part, mode, near, precise=False)
+
+            _, choice = model_choice.choose(profile, train, candidate)
             listed = model_choice.candidates(profile, train)
             squared, held = [], []
             for k, ((_, mode), c) in enumerate(zip(listed, choice.candidates, strict=True)):

@@ -331,13 +331,14 @@ def fit_parameters(
     precise: bool = True,
 ) -> Fit:
     """Steps 1-3 of the module doc on `data`: the estimate, how the solver got there, the scales.
-        `minimal`: see `calibrate`. `near`: the fit of a nearby model on the same data (mode `auto` fits its
-        candidates one after another, the next prior width from the last one's estimate): Levenberg-Marquardt starts
-        from its estimate instead of p_base, and where it looked for dependencies among the same parameters with the
-        same Jacobian, what it found stands. `precise=False`: the last solve too stops once the next step would gain
-    less than 1e-6 of the cost (its estimate within 0.06 sd of the optimum at most), as mode `auto`'s candidates are
-    fitted: what they predict of the configurations they did not see moves by far less than it differs between folds
-    (the same choices and held-out figures on FIGAROH's splits in 10-17% less CPU)."""
+    `minimal`: see `calibrate`. `near`: the fit of a nearby model on the same data (mode `auto` fits its
+    candidates one after another, the next prior width from the last one's estimate): Levenberg-Marquardt starts
+    from its estimate instead of p_base, nearly Gauss-Newton, and where it looked for dependencies among the same
+    parameters with the same Jacobian, what it found stands. `precise=False`: the last solve too stops once the next
+    step would gain less than 1e-6 of the cost (its estimate within 0.06 sd of the optimum at most), as mode
+    `auto`'s candidates are fitted: what they predict of the configurations they did not see moves by far less than
+    it differs between folds (the same choices and held-out figures on FIGAROH's splits in 10-20% less CPU,
+    benchmarks/fit_speed.py)."""
     start = time.perf_counter()
     priors = {} if minimal else mode.priors
     problem = Problem(profile, data, list(mode.free), p_base, mode.ties, priors, readings=True)

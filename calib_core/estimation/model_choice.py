@@ -19,7 +19,7 @@ sensors' outlier limits; competitive: within COMPETITIVE times the best mean squ
 explain). A misread marker, or a configuration a weakly determined candidate predicts wildly, would otherwise
 weigh on the comparison as heavily as on a plain least-squares fit; measured on FIGAROH's data this picks
 better models than comparing every observation (held out: TALOS 0.749 against 0.781 mm, the UR10e 3.716 against
-3.782 mm, TIAGo's random splits 4.173 against 4.181 mm), and a hopeless candidate (a mode of the registration
+3.742 mm, TIAGo's random splits 4.173 against 4.181 mm), and a hopeless candidate (a mode of the registration
 alone) does not get to say what counts. Comparing on what the leading candidate alone explains was no better
 (TALOS 0.760 mm): TALOS's held-out error is flat in the priors' width from x1 to x16 (0.747 to 0.757 mm), so
 which of those is chosen follows small changes of the rule. Errors are weighed by
