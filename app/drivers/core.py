@@ -185,14 +185,28 @@ class Poller:
     every period_s of the clock in a thread of its own, the first at once, through the feed's calls (a read that
     does not answer within its deadline: the robot is not responding; while it still hangs, the next polls say so
     at once). A read that raises RobotFault tells the feed the link is lost, with its message, until a read
-    succeeds again."""
+    succeeds again.
+
+    A transport that knows when its robot is at rest (`resting()`: the simulated robot, whose readings then do not
+    change) is read every `rest_period_s` instead meanwhile, and calls `wake()` when it starts to move: the first
+    read of the move comes at once, the next ones every period_s."""
 
     def __init__(
-        self, read: Callable[[], tuple[np.ndarray, float]], feed: Feed, clock: Clock, period_s: float, name: str
+        self,
+        read: Callable[[], tuple[np.ndarray, float]],
+        feed: Feed,
+        clock: Clock,
+        period_s: float,
+        name: str,
+        *,
+        resting: Callable[[], bool] | None = None,
+        rest_period_s: float | None = None,
     ) -> None:
         self._read, self._feed, self._clock, self._period_s = read, feed, clock, period_s
+        self._resting, self._rest_period_s = resting, rest_period_s or period_s
         self._lock = threading.Lock()  # one read and its delivery at a time: none overtakes another
-        self._stop = threading.Event()
+        self._stopped = False
+        self._wake = threading.Event()  # set by wake() and close(): the wait under way ends at once
         self.poll()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
@@ -209,12 +223,22 @@ class Poller:
             else:
                 self._feed.on_joints(q, stamp_s)
 
+    def wake(self) -> None:
+        """The robot starts to move: read now, and every period_s from then."""
+        self._wake.set()
+
     def _run(self) -> None:
-        while not self._clock.wait(self._stop, self._period_s):
+        while True:
+            resting = self._resting is not None and self._resting()
+            if self._clock.wait(self._wake, self._rest_period_s if resting else self._period_s):
+                self._wake.clear()
+            if self._stopped:
+                return
             self.poll()
 
     def close(self) -> None:
-        self._stop.set()
+        self._stopped = True
+        self._wake.set()
         self._thread.join()
 
 

@@ -30,6 +30,11 @@ from .registry import DriverContext
 MOVE_SLACK_S = 5.0  # seconds a move may overrun its planned duration before the robot counts as not responding
 _WANDER_POOL = 24  # visible configurations the wander picks from
 _WANDER_PAUSE_S = (0.5, 2.0)  # robot time between wander moves
+# At rest (no move under way, no wander, none for REST_AFTER_S of the clock: past any settle) the readings do not
+# change and are read REST_RATE_HZ times a second: four robots polled at 50 Hz had an idle desk spend 6.5% of a
+# core. A move wakes the poller at once.
+REST_AFTER_S = 1.0
+REST_RATE_HZ = 5.0
 OPTIONS = {"seed": 1, "day": 1}  # and their defaults
 LOST = "the link to the robot was lost"
 
@@ -167,7 +172,19 @@ class SimulatedTransport:
     # --- Transport ------------------------------------------------------------------------------------------
     def start(self, feed: Feed, clock: Clock) -> None:
         self.clock = clock
-        self._poller = Poller(self._read, feed, clock, 1.0 / self.rate_hz, f"motion-{self.profile.name}")
+        self._moved_at = clock.now()
+        self._poller = Poller(
+            self._read,
+            feed,
+            clock,
+            1.0 / self.rate_hz,
+            f"motion-{self.profile.name}",
+            resting=self._resting,
+            rest_period_s=1.0 / min(self.rate_hz, REST_RATE_HZ),
+        )
+
+    def _resting(self) -> bool:
+        return self._move is None and not self.wandering and self.clock.now() - self._moved_at >= REST_AFTER_S
 
     def _read(self) -> tuple[np.ndarray, float]:
         self.faults.answer(self.clock.wait)
@@ -267,6 +284,7 @@ class SimulatedTransport:
         move = self._move
         if move is None:
             return self._q
+        self._moved_at = now
         self._q, arrived = move.position(now)
         if move.drops_link and (arrived or now - move.t0 >= move.duration_s / 2):
             self._link_lost, self._move = True, None  # and it halts there
@@ -283,7 +301,8 @@ class SimulatedTransport:
         if duration_s is None:
             duration_s = travel_s(self.profile, start, goal) / self.time_scale
         move = _Move(start, np.asarray(goal, float).copy(), now, duration_s, owner)
-        self._move = move
+        self._move, self._moved_at = move, now
+        self._poller.wake()
         return move
 
     def _end_wander(self) -> None:
