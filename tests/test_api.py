@@ -6,6 +6,7 @@ numbers the server wrote.
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import dataclasses
 import io
@@ -25,6 +26,7 @@ from test_viewers import browser, wait_until
 
 from app.drivers.simulated import can_simulate
 from app.web.limits import Limits
+from app.web.routers.robot import ROBOT_EVENT_REPEAT
 from calib_core import load_profile, parse_dataset, to_csv
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_sessions"
@@ -245,6 +247,50 @@ def test_a_move_beyond_a_limit_names_the_joint(client: TestClient) -> None:
     r = client.post("/api/robot/move", json={"robot": "robonaut-a", "joints": {"elbow_pitch": 500.0}})
     assert r.status_code == 422
     assert "elbow_pitch" in r.json()["detail"]
+
+
+def test_the_robot_event_stream_sends_a_change_at_once_and_a_robot_at_rest_once_a_second(
+    client: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The stream looks at the robot every period: a state like the one it sent last goes again only every
+    ROBOT_EVENT_REPEAT periods, a changed one at once. Periods counted, not timed (the period made 0 s here)."""
+    from app.web.routers import robot as robot_router
+
+    monkeypatch.setattr(robot_router, "ROBOT_EVENT_PERIOD_S", 0.0)
+    looked = 0
+
+    class Request:  # what the stream asks of its request: whether the page left, whether the server stops
+        app = client.app
+
+        async def is_disconnected(self) -> bool:
+            nonlocal looked
+            looked += 1
+            return False
+
+    connection = client.app.state.desk.connection
+    name = "arm-handeye"
+
+    async def sent_at(events: int) -> list[tuple[int, dict]]:
+        stream = robot_router.robot_events(Request(), connection, name)
+        out = []
+        for _ in range(events):
+            state = await stream.__anext__()
+            out.append((looked, state.model_dump()))
+        await stream.aclose()
+        return out
+
+    wait_until(lambda: not client.get("/api/robot", params={"robot": name}).json()["moving"])
+    looked = 0
+    resting = asyncio.run(sent_at(3))
+    assert [k for k, _ in resting] == [1, 1 + ROBOT_EVENT_REPEAT, 1 + 2 * ROBOT_EVENT_REPEAT]
+    assert resting[0][1] == resting[1][1] == resting[2][1]
+    joints = resting[0][1]["joints"]
+    first = next(iter(joints))
+    r = client.post("/api/robot/move", json={"robot": name, "joints": {**joints, first: joints[first] + 1.0}})
+    assert r.status_code == 202, r.text
+    looked = 0
+    (k, moved), *_ = asyncio.run(sent_at(1))
+    assert k == 1 and moved != resting[-1][1]  # the move's state at the first look
 
 
 def test_full_calibration_recovers_the_hidden_robot(client: TestClient, day1_full: dict) -> None:

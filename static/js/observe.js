@@ -78,8 +78,9 @@ export function robotEvents() {
   es.onmessage = (ev) => {
     const r = JSON.parse(ev.data);
     if (r.robot !== state.robot) return;
-    // Ten times a second: the page is written only where something changed (a repaint of an unchanged page
-    // costs a software-rendered browser as much as a changed one, and slows the 3-D view of every tab).
+    // At each change (the server looks ten times a second; a robot at rest is sent once a second): the page is
+    // written only where something changed (a repaint of an unchanged page costs a software-rendered browser as
+    // much as a changed one, and slows the 3-D view of every tab).
     setText($("#robot-state"), `${r.robot}: ${r.connected ? (r.moving ? "moving" : "still") : notConnected(r.message)}`);
     if ($("#robot-state").title !== r.message) $("#robot-state").title = r.message;  // the whole sentence
     $("#robot-state").classList.toggle("moving", r.moving);

@@ -15,6 +15,10 @@ from .deps import CalibrationsDep, ConnectionDep, DriveDep, RobotsDep, ViewerDep
 from .models import Figures, RobotState, robot_state
 
 ROBOT_EVENT_PERIOD_S = 0.1
+# The state is looked at every period and sent when it changed; a state like the one before is sent again only
+# every ROBOT_EVENT_REPEAT periods (a second: the page still hears that the stream lives). A robot at rest sent ten
+# a second cost each open page and the server a few percent of a core, for nothing.
+ROBOT_EVENT_REPEAT = 10
 router = APIRouter()
 
 
@@ -35,8 +39,14 @@ async def robot_events(
     request: Request, connection: ConnectionDep, robot: Annotated[str | None, Depends(_known_robot)]
 ) -> AsyncIterator[RobotState]:
     closing = request.app.state.closing  # the server stops: the stream ends, so the stop need not wait for it
+    sent, unchanged = None, 0
     while not closing.is_set() and not await request.is_disconnected():
-        yield robot_state(connection, robot)
+        state = robot_state(connection, robot)
+        if state != sent or unchanged + 1 >= ROBOT_EVENT_REPEAT:
+            yield state
+            sent, unchanged = state, 0
+        else:
+            unchanged += 1
         await asyncio.sleep(ROBOT_EVENT_PERIOD_S)
 
 
