@@ -78,7 +78,7 @@ CLIENT = httpx.Client(
 @dataclass
 class Server:
     url: str
-    process: subprocess.Popen
+    process: subprocess.Popen | None  # None: the desk runs in this process (`desk_served`)
     data_dir: Path
     token: str | None = None  # the access token printed at the first start off loopback
 
@@ -145,6 +145,42 @@ def served(
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@contextmanager
+def desk_served(data_dir: Path, sim_speed: float = 1.0) -> Iterator[Server]:
+    """The desk `calib serve --host 127.0.0.1` makes (app.web.server.serve's application, on loopback, on a free
+    port), served by uvicorn in a thread of this process until the block ends, stopped as SIGINT stops
+    `calib serve`: for the browser tests, which test the page, not the command (tests/test_faults.py,
+    test_wheel.py, test_browser_viewers.py and the examples start `calib serve` itself). Starting a `calib serve`
+    took a test 1.7 s of CPU, most of it importing the web stack this process has imported already."""
+    import threading
+
+    import uvicorn
+
+    from app.web import security
+    from app.web.server import create_app, listen
+
+    sock = listen("127.0.0.1", 0)
+    port = sock.getsockname()[1]
+    app = create_app(
+        data_dir, host="127.0.0.1", viser_port=0, time_scale=sim_speed, trusted_hosts=security.LOOPBACK_NAMES
+    )
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_per_message_deflate=False))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="desk-served", daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not server.started:
+            if not thread.is_alive() or time.monotonic() > deadline:
+                raise RuntimeError("the in-process desk did not start")
+            time.sleep(0.02)
+        yield Server(f"http://127.0.0.1:{port}", None, data_dir)
+    finally:
+        app.state.closing.set()  # the pages' event streams end, as at a SIGINT
+        server.should_exit = True
+        thread.join(timeout=30)
+        sock.close()
 
 
 def launch(playwright, *, webgl: bool = True):

@@ -7,13 +7,13 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 import pytest
-from browser import served
+from browser import desk_served
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
 
 def test_the_openapi_page_renders_offline(chromium_2d, desk_data: Path) -> None:
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         paths = server.get("/openapi.json").json()["paths"]
         operations = sum(len(methods) for methods in paths.values())
         assert server.get("/redoc").status_code == 404  # ReDoc would load a CDN script: off

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
-from browser import PAPER_COLOURS, colour_pixels, new_nao_session, served, split_pixel, wait_for_scene
+from browser import PAPER_COLOURS, colour_pixels, desk_served, new_nao_session, split_pixel, wait_for_scene
 from test_scene import URDF_DIR, build
 
 from app.scene.review import frame_bounds_m
@@ -48,7 +48,7 @@ def test_calibrate_review_and_apply_in_the_browser(chromium, desk_data: Path) ->
     stepping in the list's order, a scene that keeps its size while the rest loads, a zoomable 2-D view, distinct
     words for the solver's start and the old calibration; after the apply the panel and the header agree and the
     history says what the apply was."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = chromium.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
@@ -194,7 +194,7 @@ def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(ch
     """The Motoman's three-sensor sample is reviewed one sensor at a time (the tracker in mm, a camera in px); a
     one-sensor session shows no sensor choice. A daily calibration from the nominal model stops at the solver's
     iteration limit: the page says so (job line, toast, warning) and applying it asks the operator first."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = chromium_2d.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)
@@ -250,7 +250,7 @@ def test_a_session_of_several_sensors_and_a_calibration_that_did_not_converge(ch
 def test_a_frame_whose_detection_failed_shows_as_not_found(chromium_2d, desk_data: Path) -> None:
     """Robonaut day 1's frames 3, 18 and 29 found no sphere (`measured: [null]`): selecting one raises no
     error in the page, both halves of the 2-D split view show that frame and say it was not found."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = chromium_2d.new_page(viewport={"width": 1500, "height": 1000})
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))
@@ -280,7 +280,7 @@ def test_a_frame_whose_detection_failed_shows_as_not_found(chromium_2d, desk_dat
 
 
 def test_observe_and_replay_in_the_browser(chromium, desk_data: Path) -> None:
-    with served(desk_data, sim_speed=10.0) as server:
+    with desk_served(desk_data, sim_speed=10.0) as server:
         # A new capture session; Observe: watch live, capture one frame on a click.
         page, sid = new_nao_session(chromium, server.url, "browser session")
         page.locator("#observe-on").check()
@@ -533,7 +533,7 @@ def test_joint_sliders_send_the_whole_configuration_within_the_margin_and_revert
     """A second slider moved while the first joint still moves: both joints arrive (each slider sends the whole
     configuration the sliders show, not the others' mid-motion readings); the sliders end at the limits less
     the driver's margin; a refused move puts the sliders back to the robot's readings with the server's reason."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = chromium_2d.new_page(viewport={"width": 1500, "height": 1000})
         page.goto(server.url)
         page.wait_for_selector("body[data-ready='1']", timeout=60_000)

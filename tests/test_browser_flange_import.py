@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from browser import PAPER_COLOURS, colour_pixels, ready_page, served, split_pixel, wait_for_scene
+from browser import PAPER_COLOURS, colour_pixels, desk_served, ready_page, split_pixel, wait_for_scene
 from test_browser import shot
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
@@ -47,7 +47,7 @@ def robot_names(server) -> list[str]:
 def test_images_and_poses_imported_calibrated_reviewed_and_applied_on_the_page(
     chromium, desk_data: Path, tmp_path: Path
 ) -> None:
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = ready_page(chromium, server.url)
         posted = []
         page.on("request", lambda r: posted.append(r) if r.url.endswith("/api/sessions/import-handeye") else None)

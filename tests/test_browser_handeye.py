@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import calibrated, new_session, served, split_pixel
+from browser import calibrated, desk_served, new_session, split_pixel
 from test_browser import shot
 
 from calib_core import load_profile
@@ -61,7 +61,7 @@ def test_observe_replay_calibrate_review_and_apply_the_hand_eye_sample(chromium_
     where the arm stands and every planned configuration is measured; handeye, then offsets with a held-out
     share reach the finder's floor and put the camera where the simulator's truth has it; Review's 2-D view
     shows the rings and dots; Apply makes it the robot's calibration."""
-    with served(desk_data, sim_speed=20.0) as server:
+    with desk_served(desk_data, sim_speed=20.0) as server:
         assert "arm-handeye" in {s["id"] for s in server.get("/api/sessions").json()}  # the sample, loaded at start
         page, sid = new_session(chromium_2d, server.url, "arm-handeye", "hand-eye in the browser")
 
@@ -158,7 +158,7 @@ def test_the_sample_in_its_first_mode_shows_its_warning_and_calibrates_again_in_
     mode 'offsets', which fits to the noise and has no such warning. The panel offers `auto` first, and chooses it."""
     from browser import ready_page
 
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = ready_page(chromium_2d, server.url)
         page.click("#sessions li[data-session='arm-handeye']")
         page.wait_for_selector("#sessions li.selected[data-session='arm-handeye']")

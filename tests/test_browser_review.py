@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 import pytest
-from browser import calibrated, new_nao_session, ready_page, served
+from browser import calibrated, desk_served, new_nao_session, ready_page
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 SHOTS = os.environ.get("CALIB_SCREENSHOTS")
@@ -26,7 +26,7 @@ def shot(page, name: str) -> None:
 def test_a_session_opens_on_its_newest_calibration_and_apply_applies_the_one_on_screen(
     chromium_2d, desk_data: Path
 ) -> None:
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         older = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.0)
         newer = calibrated(server, "robonaut-a-day1", mode="full", holdout=0.3)
         listed = [c["id"] for c in server.get("/api/sessions/robonaut-a-day1/calibrations").json()]
@@ -72,7 +72,7 @@ def _far_move(server, robot: str, share: float = 0.6) -> dict[str, float]:
 def test_each_tab_follows_its_own_robot(chromium_2d, desk_data: Path) -> None:
     """Tab A drives NAO, tab B then connects Robonaut (the desk's last connected robot): NAO moved meanwhile shows
     moving in tab A, with its capture disabled until it stands still again; tab B says Robonaut is still."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         a, _ = new_nao_session(chromium_2d, server.url, "tab A")
         b = ready_page(chromium_2d, server.url)
         b.select_option("#robot-select", "robonaut-a")
@@ -115,7 +115,7 @@ def test_each_tab_follows_its_own_robot(chromium_2d, desk_data: Path) -> None:
 def test_a_reload_mid_replay_gives_back_its_controls(chromium_2d, desk_data: Path) -> None:
     """A replay started on the page, then the page reloaded: it comes back on the replay's session and step, with
     Pause, Resume and Abort acting on the running job and Start disabled; aborted, Start is offered again."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page, sid = new_nao_session(chromium_2d, server.url, "reloaded")
         page.click("#tabs button[data-tab='replay']")
         page.check("input[name=replay-source][value=count]")
@@ -189,7 +189,7 @@ def test_random_clicks_in_two_tabs_end_without_page_errors_or_5xx(chromium_2d, d
 
     rng = random.Random(25)
     problems: list[str] = []
-    with served(desk_data, sim_speed=10.0) as server:
+    with desk_served(desk_data, sim_speed=10.0) as server:
         tabs = [ready_page(chromium_2d, server.url) for _ in range(2)]
         for k, page in enumerate(tabs):
             page.on("pageerror", lambda e, k=k: problems.append(f"tab {k}: page error {e}"))
@@ -234,7 +234,7 @@ def test_noise_is_not_coloured_as_change(chromium_2d, desk_data: Path) -> None:
     their own uncertainty explains, so the frame list says "same" on (nearly) every frame and colours the rest as
     the server judged them, and says what the band is; against the nominal model (no covariance: the new
     calibration's band only, as the page says) every frame is better."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         whole = calibrated(server, "nao", mode="full", holdout=0.0)
         part = calibrated(server, "nao", mode="full", holdout=0.3)
         page = ready_page(chromium_2d, server.url, 1600, 1000)
@@ -273,7 +273,7 @@ def test_a_wall_of_warnings_is_a_line_per_kind(chromium_2d, desk_data: Path) -> 
     """TALOS (FIGAROH's data) added to the desk and calibrated in `origins` mode: its 61 findings are two lines, the
     weak parameters before the held ones, each naming its parameters, every finding listed when opened."""
     figaroh = Path(__file__).resolve().parents[1] / "sample_sessions" / "figaroh"
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         added = server.post("/api/robots", data={"name": "talos", "profile": str(figaroh / "talos.yaml")})
         assert added.status_code == 201, added.text
         csv = (figaroh / "talos_left_arm_02_10_contact.csv").read_bytes()
@@ -315,7 +315,7 @@ def test_figures_follow_an_apply_and_the_session_shown(chromium_2d, desk_data: P
     review's old side is then the applied calibration (its figures the new side's); another session opened shows
     no job line or cost curve of this one's calibration. The page's mode is the first the API offers, `auto` (NAO
     has two), and the review says what it chose and each candidate's cross-validated error."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = ready_page(chromium_2d, server.url, 1600, 1000)
         page.on("dialog", lambda d: d.accept())
         page.click("li[data-session='nao']")
@@ -359,7 +359,7 @@ def test_figures_follow_an_apply_and_the_session_shown(chromium_2d, desk_data: P
 def test_captured_frames_show_their_errors_and_place_at_once(chromium_2d, desk_data: Path) -> None:
     """A frame captured by hand and selected, then frames auto-captured while the robot wanders: each joins the
     list with its error (no "—" until clicked), and the label counts them all."""
-    with served(desk_data, sim_speed=10.0) as server:
+    with desk_served(desk_data, sim_speed=10.0) as server:
         page, sid = new_nao_session(chromium_2d, server.url, "auto")
         page.wait_for_selector("#capture:enabled", timeout=30_000)
         page.click("#capture")

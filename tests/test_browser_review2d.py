@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from browser import Server, calibrated, ready_page, served, shot, split_pixel
+from browser import Server, calibrated, desk_served, ready_page, shot, split_pixel
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
@@ -37,7 +37,7 @@ SELECTED_IN_VIEW = (
 @pytest.fixture(scope="module")
 def desk(tmp_path_factory: pytest.TempPathFactory, first_start: Path) -> Iterator[tuple[Server, dict[str, str]]]:
     """A desk with the NAO and Motoman samples calibrated (everything, no frame held out): the calibrations' ids."""
-    with served(shutil.copytree(first_start, tmp_path_factory.mktemp("desk") / "data")) as server:
+    with desk_served(shutil.copytree(first_start, tmp_path_factory.mktemp("desk") / "data")) as server:
         cals = {sid: calibrated(server, sid, mode="full", holdout=0.0) for sid in ("nao", "motoman-left-cube")}
         yield server, cals
 

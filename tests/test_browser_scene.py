@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
-from browser import calibrated, colour_pixels, served
+from browser import calibrated, colour_pixels, desk_served
 from test_browser_viewers import open_page, open_session, scene_frame, step
 from test_scene import _marks_world, build
 
@@ -122,7 +122,7 @@ def test_the_page_keeps_the_camera_frames_it_and_magnifies(chromium, desk_data: 
     was; "3-D residuals x10" draws the residual lines ten times as long and says so over the view and on the
     copies' labels; "Frame it" moves the camera onto the marks with a narrowed field of view; the marks are
     drawn over the bodies (the scene page's own script)."""
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         calibrated(server, "robonaut-a-day1", mode="full", holdout=0.0)
         page = open_page(chromium.new_context(viewport={"width": 1500, "height": 1000}), server.url)
         open_session(page, "robonaut-a-day1")

@@ -15,7 +15,7 @@ import httpx
 import pytest
 import websockets.exceptions
 import websockets.sync.client
-from browser import free_port, listening, served, wait_for_scene
+from browser import desk_served, free_port, listening, served, wait_for_scene
 from test_viewers import PROTOCOL, camera_message
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
@@ -107,7 +107,7 @@ def test_tabs_and_contexts_review_their_own_sessions(chromium, desk_data: Path) 
     stepping through frames in one page moves its table, label, marks and scene, and nothing in the others. The
     scene is the page's own origin (viser listens on loopback only); a closed tab's viewer is disconnected."""
     links = {"robonaut-a-day1": "shoulder_roll", "nao": "HeadYaw", "robonaut-a-day2": "shoulder_roll"}
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         one, two = (chromium.new_context(viewport={"width": 1300, "height": 900}) for _ in range(2))
         sockets: list[str] = []
         pages = {}

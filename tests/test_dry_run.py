@@ -120,9 +120,9 @@ def test_a_dry_run_jobs_result_is_the_dry_run_and_the_replay_after_it_drives_tha
 @pytest.mark.browser
 @pytest.mark.subprocess
 def test_a_dry_run_in_the_browser_shows_its_progress_then_its_result(chromium_2d, desk_data: Path) -> None:
-    from browser import nao_replay_tab, served
+    from browser import desk_served, nao_replay_tab
 
-    with served(desk_data, sim_speed=20.0) as server:
+    with desk_served(desk_data, sim_speed=20.0) as server:
         page, _ = nao_replay_tab(chromium_2d, server.url, "dry run in the browser")
         page.check("input[name=replay-source][value=count]")
         asked: list[dict] = []

@@ -56,9 +56,9 @@ def test_capture_until_the_predicted_error_reaches_the_target(client: TestClient
 @pytest.mark.browser
 @pytest.mark.subprocess
 def test_until_and_the_prediction_in_the_browser(chromium_2d, desk_data: Path) -> None:
-    from browser import nao_replay_tab, served
+    from browser import desk_served, nao_replay_tab
 
-    with served(desk_data, sim_speed=20.0) as server:
+    with desk_served(desk_data, sim_speed=20.0) as server:
         page, _ = nao_replay_tab(chromium_2d, server.url, "until in the browser")
         page.wait_for_selector("#tab-replay:not([hidden])")
         assert page.text_content("#replay-until-unit") == "px"

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import trimesh
-from browser import ready_page, served
+from browser import desk_served, ready_page
 from fastapi.testclient import TestClient
 from PIL import Image
 from test_robot_look import meshed_arm
@@ -332,7 +332,7 @@ def test_a_robot_added_on_the_page_with_its_meshes_is_drawn_with_them(
     csv = tmp_path / "day1.csv"
     csv.write_bytes(to_csv(model, SimulatedRobot.from_profile(model, seed=2).simulate(4).data).encode())
     upper = trimesh.load(root / "meshes" / "upper.stl", force="mesh")
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         page = ready_page(chromium, server.url)
         page.click("#add-robot-toggle")
         page.fill("#add-robot input[name=name]", "meshed")

@@ -400,9 +400,9 @@ def test_a_framing_page_of_another_site_gets_nothing_in_the_browser(chromium, tm
     from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
     from threading import Thread
 
-    from browser import free_port, ready_page, served, wait_for_scene
+    from browser import desk_served, free_port, ready_page, wait_for_scene
 
-    with served(desk_data) as server:
+    with desk_served(desk_data) as server:
         site = tmp_path / "site"
         site.mkdir()
         (site / "own.html").write_text("<p id=own>the attacker's own page</p>")
