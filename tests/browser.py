@@ -148,23 +148,29 @@ def served(
 
 
 @contextmanager
-def desk_served(data_dir: Path, sim_speed: float = 1.0) -> Iterator[Server]:
-    """The desk `calib serve --host 127.0.0.1` makes (app.web.server.serve's application, on loopback, on a free
-    port), served by uvicorn in a thread of this process until the block ends, stopped as SIGINT stops
-    `calib serve`: for the browser tests, which test the page, not the command (tests/test_faults.py,
+def desk_served(data_dir: Path, sim_speed: float = 1.0, desk: Path | None = None) -> Iterator[Server]:
+    """The desk `calib serve --host 127.0.0.1 [--desk FILE]` makes (app.web.server.serve's application, on
+    loopback, on a free port), served by uvicorn in a thread of this process until the block ends, stopped as
+    SIGINT stops `calib serve`: for the browser tests, which test the page, not the command (tests/test_faults.py,
     test_wheel.py, test_browser_viewers.py and the examples start `calib serve` itself). Starting a `calib serve`
     took a test 1.7 s of CPU, most of it importing the web stack this process has imported already."""
     import threading
 
     import uvicorn
 
+    from app.robots.desk_config import load_desk_config
     from app.web import security
     from app.web.server import create_app, listen
 
     sock = listen("127.0.0.1", 0)
     port = sock.getsockname()[1]
     app = create_app(
-        data_dir, host="127.0.0.1", viser_port=0, time_scale=sim_speed, trusted_hosts=security.LOOPBACK_NAMES
+        data_dir,
+        config=None if desk is None else load_desk_config(desk),
+        host="127.0.0.1",
+        viser_port=0,
+        time_scale=sim_speed,
+        trusted_hosts=security.LOOPBACK_NAMES,
     )
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_per_message_deflate=False))
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="desk-served", daemon=True)

@@ -13,7 +13,7 @@ import re
 from pathlib import Path
 
 import pytest
-from browser import calibrated, ready_page, served, shot
+from browser import calibrated, desk_served, ready_page, shot
 
 from app.cli import main as calib
 
@@ -50,7 +50,7 @@ def test_the_history_names_the_drifting_knee_and_the_odd_nao(chromium_2d, tmp_pa
         assert calib(["simulate", "--robot", "nao", "--seed", str(30 + i), "--out", str(tmp_path / f"nao-{i}.csv"),
                       *shift]) == 0  # fmt: skip
     (tmp_path / "desk.yaml").write_text(DESK)
-    with served(tmp_path / "data", extra=("--desk", str(tmp_path / "desk.yaml"))) as server:
+    with desk_served(tmp_path / "data", desk=tmp_path / "desk.yaml") as server:
         for d in json.loads((days / "days.json").read_text())["days"]:
             _applied(server, "nao-1", days / d["data"], d["measured"])
         for i in (2, 3, 4):  # nao-5 runs its nominal model
