@@ -1,5 +1,6 @@
-"""Shared by the browser test and the dashboard benchmark: a `calib serve` subprocess on free ports
-and a headless Debian chromium driven by Playwright (never `playwright install`)."""
+"""Shared by the browser test and the dashboard benchmark: a `calib serve` subprocess on free ports (`served`), the
+same desk served in this process (`desk_served`: for tests of the page rather than of the command), and a headless
+Debian chromium driven by Playwright (never `playwright install`)."""
 
 from __future__ import annotations
 
