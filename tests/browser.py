@@ -161,7 +161,7 @@ def desk_served(data_dir: Path, sim_speed: float = 1.0, desk: Path | None = None
 
     from app.robots.desk_config import load_desk_config
     from app.web import security
-    from app.web.server import create_app, listen
+    from app.web.server import SHUTDOWN_WAIT_S, create_app, listen
 
     sock = listen("127.0.0.1", 0)
     port = sock.getsockname()[1]
@@ -173,7 +173,10 @@ def desk_served(data_dir: Path, sim_speed: float = 1.0, desk: Path | None = None
         time_scale=sim_speed,
         trusted_hosts=security.LOOPBACK_NAMES,
     )
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_per_message_deflate=False))
+    config = uvicorn.Config(
+        app, log_level="warning", ws_per_message_deflate=False, timeout_graceful_shutdown=SHUTDOWN_WAIT_S
+    )
+    server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="desk-served", daemon=True)
     thread.start()
     try:
