@@ -153,8 +153,9 @@ def desk_served(data_dir: Path, sim_speed: float = 1.0, desk: Path | None = None
     """The desk `calib serve --host 127.0.0.1 [--desk FILE]` makes (app.web.server.serve's application, on
     loopback, on a free port), served by uvicorn in a thread of this process until the block ends, stopped as
     SIGINT stops `calib serve`: for the browser tests, which test the page, not the command (tests/test_faults.py,
-    test_wheel.py, test_browser_viewers.py and the examples start `calib serve` itself). Starting a `calib serve`
-    took a test 1.7 s of CPU, most of it importing the web stack this process has imported already."""
+    test_wheel.py, test_browser_viewers.py and the examples start `calib serve` itself). A `calib serve` on a
+    data directory started in before costs 1.5 s of CPU to start and stop (benchmarks/desk_start.py), most of it
+    importing the web stack this process has imported already."""
     import threading
 
     import uvicorn
@@ -191,6 +192,8 @@ def desk_served(data_dir: Path, sim_speed: float = 1.0, desk: Path | None = None
         server.should_exit = True
         thread.join(timeout=30)
         sock.close()
+        if thread.is_alive():  # it would serve on into the next test
+            raise RuntimeError("the in-process desk did not stop within 30 s")
 
 
 def launch(playwright, *, webgl: bool = True):

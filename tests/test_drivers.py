@@ -151,7 +151,7 @@ def test_stop_halts_where_it_is_and_move_to_returns_false(rn, clock) -> None:
 
 def test_a_robot_at_rest_is_read_five_times_a_second_and_a_move_at_once(rn, clock) -> None:
     """At rest (no move for REST_AFTER_S) the simulated robot's readings do not change and are read every 0.2 s of
-    the clock, not 50 times a second (an idle desk of four such robots spent 6.5% of a core on them); a move wakes
+    the clock, not 50 times a second (an idle desk of four such robots spent 5.7% of a core: idle_desk.py); a move wakes
     the poller: its first reading comes with the clock standing still, the next ones every 0.02 s."""
     with SimulatedDriver(rn, seed=3, time_scale=10.0, start_rad=_q(rn), clock=clock) as d:
 
