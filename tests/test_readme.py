@@ -2,7 +2,9 @@
 folder that has the repository's sample_sessions/ (the examples' paths are relative to a clone's root), with
 `calib` the checkout's. Not run: the set-up commands (scripts/run.sh, scripts/test.sh, pip), the benchmarks (they
 print figures, in minutes), and `calib serve` itself: the block that starts it has its curl commands sent to
-a `calib serve` this test starts instead, its simulated robots 20 times as fast (the examples wait on its jobs)."""
+the desk `calib serve` serves, served by this test in its own process (tests/browser.py desk_served: a `calib
+serve` costs a second or two of CPU to start), its simulated robots 20 times as fast (the examples wait on its
+jobs). The command itself is under test in test_wheel.py, test_faults.py and test_cli.py."""
 
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
-from browser import served
+from browser import desk_served
 
 ROOT = Path(__file__).resolve().parent.parent
 BLOCK = re.compile(r"^```(bash|python)\n(.*?)^```", re.S | re.M)
@@ -56,7 +58,7 @@ def test_the_examples_run_as_written(doc: str, tmp_path: Path) -> None:
             if lang == "bash" and NOT_RUN.search(body):
                 continue
             if "localhost:8000" in body:
-                server = stack.enter_context(served(tmp_path / "data", sim_speed=20.0, env=env))
+                server = stack.enter_context(desk_served(tmp_path / "data", sim_speed=20.0))
                 body = body.replace("localhost:8000", server.url.removeprefix("http://"))
             body = DROPPED.sub("", body)
             cmd = ["bash", "-euo", "pipefail", "-c", body] if lang == "bash" else [sys.executable, "-c", body]
