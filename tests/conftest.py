@@ -6,10 +6,11 @@ them changed (a desk's sessions, say), another module starts from a fresh one. `
 `desk_options`. `desk_data` is a data directory for a `calib serve`, as a desk's first start leaves it.
 `sample_copy` copies sample sessions where a test may change or break them.
 
-`chromium` is a headless chromium the browser tests of a test process share; `chromium_2d` another for the tests
-that look at the rest of the page: its pages load the desk without the 3-D view's client (chromium draws WebGL in
-software, about a third of such a test's time) and it has no GPU process (compositing a page through Mesa's GL cost
-a second of CPU a test), but it is `chromium` when CALIB_SCREENSHOTS asks for screenshots.
+`chromium` is a headless chromium the browser tests of a test process share (its `new_page` a tab of one context the
+process keeps, `Tabs`); `chromium_2d` another for the tests that look at the rest of the page: its pages load the desk
+without the 3-D view's client (chromium draws WebGL in software, about a third of such a test's time) and it has no
+GPU process (compositing a page through Mesa's GL cost a second of CPU a test), but it is `chromium` when
+CALIB_SCREENSHOTS asks for screenshots.
 
 Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where Debian's chromium is missing),
 `subprocess` (starts `calib`, `calib serve` or another program, beyond a desk's own job workers) and `slow`;
@@ -23,6 +24,7 @@ import os
 import shutil
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,7 +39,7 @@ from app.web.server import create_app
 from calib_core import Profile, load_profile
 
 if TYPE_CHECKING:
-    from playwright.sync_api import Browser
+    from playwright.sync_api import Browser, BrowserContext, Page, ViewportSize
 
 # The fuzz tests report a failing example as found, unshrunk: shrinking one (a damaged image) took Hypothesis five
 # minutes in a CI run, a third of CI's limit; the example and its seed still reproduce it.
@@ -185,64 +187,97 @@ def _playwright() -> Iterator[_Playwright]:
         pw.use()
 
 
-def _launched(playwright: _Playwright, *, webgl: bool) -> Iterator[Browser]:
+# A page of a context of its own (the Browser's new_page) starts a renderer process: 0.8 s of chromium's CPU a page
+# more than a tab of a context where a page of the same site stays open (the site of http://127.0.0.1:<any port>/ is
+# 127.0.0.1, where every desk of the tests is served). So the tests' tabs open in one context the test process keeps,
+# beside a page kept at KEEPER_URL (answered by the page's own route: nothing listens there).
+KEEPER_URL = "http://127.0.0.1:9/"
+
+
+@dataclass
+class _Chromium:
+    browser: Browser
+    kept: BrowserContext  # the tests' tabs; its first page the keeper
+
+
+def _launched(playwright: _Playwright, *, webgl: bool) -> Iterator[_Chromium]:
     browser = launch(playwright.use(), webgl=webgl)
+    kept = browser.new_context()
+    keeper = kept.new_page()
+    keeper.route(
+        KEEPER_URL, lambda route: route.fulfill(body="<!doctype html><title>kept</title>", content_type="text/html")
+    )
+    keeper.goto(KEEPER_URL)
     playwright.leave()
-    yield browser
+    yield _Chromium(browser, kept)
     playwright.use()
     browser.close()
     playwright.leave()
 
 
 @pytest.fixture(scope="session")
-def _chromium_process(_playwright: _Playwright) -> Iterator[Browser]:
+def _chromium_process(_playwright: _Playwright) -> Iterator[_Chromium]:
     yield from _launched(_playwright, webgl=True)
 
 
 @pytest.fixture(scope="session")
-def _chromium_2d_process(_playwright: _Playwright) -> Iterator[Browser]:
+def _chromium_2d_process(_playwright: _Playwright) -> Iterator[_Chromium]:
     yield from _launched(_playwright, webgl=False)
 
 
+class Tabs:
+    """The browser of one test: `new_page` opens a tab of the kept context (KEEPER_URL), `new_context` a context of the
+    test's own (tabs that must not share cookies or a renderer with the others). `scene=False`: the pages get an empty
+    page in the 3-D view's iframe (the desk's /scene/ paths): the page's API calls, 2-D view and controls work as ever,
+    the scene's viewer simply has no browser."""
+
+    def __init__(self, chromium: _Chromium, *, scene: bool = True) -> None:
+        self.browser, self.kept, self.scene = chromium.browser, chromium.kept, scene
+
+    def new_page(self, *, viewport: ViewportSize | None = None) -> Page:
+        page = self.kept.new_page()
+        if viewport is not None:
+            page.set_viewport_size(viewport)
+        if not self.scene:
+            page.route(
+                "**/scene/**",
+                lambda route: route.fulfill(body="<!doctype html><title>no 3-D view</title>", content_type="text/html"),
+            )
+        return page
+
+    def new_context(self, **options: Any) -> BrowserContext:
+        assert self.scene, "the pages of a test without the 3-D view are opened by new_page"
+        return self.browser.new_context(**options)
+
+
 @contextmanager
-def _in_use(playwright: _Playwright, browser: Browser) -> Iterator[Browser]:
-    """The browser for one test: the contexts and pages it opened are closed after it."""
+def _in_use(playwright: _Playwright, chromium: _Chromium, *, scene: bool = True) -> Iterator[Tabs]:
+    """The browser for one test: the contexts and tabs it opened are closed after it and the kept context's cookies
+    cleared (off loopback a desk sets its read cookie, which a desk on another port of 127.0.0.1 would be sent)."""
     playwright.use()
     try:
-        yield browser
-        for context in browser.contexts:
-            context.close()
+        yield Tabs(chromium, scene=scene)
+        for context in chromium.browser.contexts:
+            if context is not chromium.kept:
+                context.close()
+        for page in chromium.kept.pages[1:]:
+            page.close()
+        chromium.kept.clear_cookies()
     finally:
         playwright.leave()
 
 
 @pytest.fixture
-def chromium(_playwright: _Playwright, _chromium_process: Browser) -> Iterator[Browser]:
+def chromium(_playwright: _Playwright, _chromium_process: _Chromium) -> Iterator[Tabs]:
     """Headless chromium, one per test process (a start costs a second or two)."""
-    with _in_use(_playwright, _chromium_process) as browser:
-        yield browser
-
-
-class WithoutScene:
-    """A browser whose pages get an empty page in the 3-D view's iframe (the desk's /scene/ paths): the page's
-    API calls, 2-D view and controls work as ever, the scene's viewer simply has no browser."""
-
-    def __init__(self, browser: Browser) -> None:
-        self.browser = browser
-
-    def new_page(self, **options: Any) -> Any:
-        page = self.browser.new_page(**options)
-        page.route(
-            "**/scene/**",
-            lambda route: route.fulfill(body="<!doctype html><title>no 3-D view</title>", content_type="text/html"),
-        )
-        return page
+    with _in_use(_playwright, _chromium_process) as tabs:
+        yield tabs
 
 
 @pytest.fixture
-def chromium_2d(request: pytest.FixtureRequest) -> Iterator[Browser | WithoutScene]:
+def chromium_2d(request: pytest.FixtureRequest) -> Iterator[Tabs]:
     screenshots = bool(os.environ.get("CALIB_SCREENSHOTS"))
     # Without screenshots, a chromium of its own without a GPU process: its pages draw no 3-D view.
-    browser = request.getfixturevalue("_chromium_process" if screenshots else "_chromium_2d_process")
-    with _in_use(request.getfixturevalue("_playwright"), browser):
-        yield browser if screenshots else WithoutScene(browser)
+    chromium = request.getfixturevalue("_chromium_process" if screenshots else "_chromium_2d_process")
+    with _in_use(request.getfixturevalue("_playwright"), chromium, scene=screenshots) as tabs:
+        yield tabs
