@@ -6,10 +6,10 @@ them changed (a desk's sessions, say), another module starts from a fresh one. `
 `desk_options`. `desk_data` is a data directory for a `calib serve`, as a desk's first start leaves it.
 `sample_copy` copies sample sessions where a test may change or break them.
 
-`chromium` is a headless chromium the browser tests of a test process share (its `new_page` a tab of one context the
-process keeps, `Tabs`); `chromium_2d` another for the tests that look at the rest of the page: its pages load the desk
-without the 3-D view's client (chromium draws WebGL in software, about a third of such a test's time) and it has no
-GPU process (compositing a page through Mesa's GL cost a second of CPU a test), but it is `chromium` when
+`chromium` is a headless chromium the browser tests of a test process share (its first `new_page` a tab of one
+context the process keeps, `Tabs`); `chromium_2d` another for the tests that look at the rest of the page: its pages
+load the desk without the 3-D view's client (chromium draws WebGL in software, about a third of such a test's time)
+and it has no GPU process (compositing a page through Mesa's GL cost a second of CPU a test), but it is `chromium` when
 CALIB_SCREENSHOTS asks for screenshots.
 
 Markers (pyproject.toml): `browser` (drives a headless chromium: skipped where Debian's chromium is missing),
@@ -189,8 +189,10 @@ def _playwright() -> Iterator[_Playwright]:
 
 # A page of a context of its own (the Browser's new_page) starts a renderer process: 0.8 s of chromium's CPU a page
 # more than a tab of a context where a page of the same site stays open (the site of http://127.0.0.1:<any port>/ is
-# 127.0.0.1, where every desk of the tests is served). So the tests' tabs open in one context the test process keeps,
-# beside a page kept at KEEPER_URL (answered by the page's own route: nothing listens there).
+# 127.0.0.1, where every desk of the tests is served). So a test's first page opens in one context the test process
+# keeps, beside a page kept at KEEPER_URL (answered by the page's own route: nothing listens there): the browser tests
+# of tests/test_browser.py, test_browser_review.py and test_browser_review2d.py took chromium 75 and 69 s of CPU, 57
+# and 56 s so (one after the other, alternating).
 KEEPER_URL = "http://127.0.0.1:9/"
 
 
@@ -226,18 +228,22 @@ def _chromium_2d_process(_playwright: _Playwright) -> Iterator[_Chromium]:
 
 
 class Tabs:
-    """The browser of one test: `new_page` opens a tab of the kept context (KEEPER_URL), `new_context` a context of the
-    test's own (tabs that must not share cookies or a renderer with the others). `scene=False`: the pages get an empty
-    page in the 3-D view's iframe (the desk's /scene/ paths): the page's API calls, 2-D view and controls work as ever,
-    the scene's viewer simply has no browser."""
+    """The browser of one test: `new_page` opens a page (the first a tab of the kept context, KEEPER_URL; the others
+    each a context of its own, a window of its own as the Browser's new_page gives it: a tab behind another gets no
+    animation frames, and its clicks waited for them), `new_context` a context of the test's own. `scene=False`: the
+    pages get an empty page in the 3-D view's iframe (the desk's /scene/ paths): the page's API calls, 2-D view and
+    controls work as ever, the scene's viewer simply has no browser."""
 
     def __init__(self, chromium: _Chromium, *, scene: bool = True) -> None:
         self.browser, self.kept, self.scene = chromium.browser, chromium.kept, scene
 
     def new_page(self, *, viewport: ViewportSize | None = None) -> Page:
-        page = self.kept.new_page()
-        if viewport is not None:
-            page.set_viewport_size(viewport)
+        if len(self.kept.pages) == 1:  # the keeper alone
+            page = self.kept.new_page()
+            if viewport is not None:
+                page.set_viewport_size(viewport)
+        else:
+            page = self.browser.new_page(**({} if viewport is None else {"viewport": viewport}))
         if not self.scene:
             page.route(
                 "**/scene/**",

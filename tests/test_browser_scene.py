@@ -124,7 +124,7 @@ def test_the_page_keeps_the_camera_frames_it_and_magnifies(chromium, desk_data: 
     drawn over the bodies (the scene page's own script)."""
     with desk_served(desk_data) as server:
         calibrated(server, "robonaut-a-day1", mode="full", holdout=0.0)
-        page = open_page(chromium.new_context(viewport={"width": 1500, "height": 1000}), server.url)
+        page = open_page(chromium, server.url, viewport={"width": 1500, "height": 1000})
         open_session(page, "robonaut-a-day1")
         scene = scene_frame(page)
         scene.wait_for_function("() => !!window.__viserSceneTree.getState()['/review/new/base/frame/lines']")

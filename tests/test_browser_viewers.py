@@ -9,6 +9,7 @@ import hashlib
 import socket
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 import httpx
@@ -17,6 +18,9 @@ import websockets.exceptions
 import websockets.sync.client
 from browser import desk_served, free_port, listening, served, wait_for_scene
 from test_viewers import PROTOCOL, camera_message
+
+if TYPE_CHECKING:
+    from playwright.sync_api import ViewportSize
 
 pytestmark = [pytest.mark.browser, pytest.mark.subprocess]
 
@@ -32,6 +36,7 @@ SCENE = """() => {
   return { links: [...names].sort(), frame: [points(frame + 'predicted'), points(frame + 'measured')] };
 }"""
 CANVAS = "sel => document.querySelector(sel).toDataURL()"
+SIZE: ViewportSize = {"width": 1300, "height": 900}  # a window of a test's page
 
 
 def scene_frame(page):
@@ -54,9 +59,10 @@ def snapshot(page) -> dict:
     }
 
 
-def open_page(context, url: str, sockets: list[str] | None = None):
-    """A page of the desk, ready and its scene drawn; `sockets` collects the URLs of the websockets it opens."""
-    page = context.new_page()
+def open_page(context, url: str, sockets: list[str] | None = None, viewport: ViewportSize | None = None):
+    """A page of the desk, ready and its scene drawn, in `context` (a context, or the test's tabs: conftest.py Tabs);
+    `sockets` collects the URLs of the websockets it opens."""
+    page = context.new_page(**({} if viewport is None else {"viewport": viewport}))
     if sockets is not None:
         page.on("websocket", lambda ws: sockets.append(ws.url))
     page.goto(url)
@@ -108,7 +114,7 @@ def test_tabs_and_contexts_review_their_own_sessions(chromium, desk_data: Path) 
     scene is the page's own origin (viser listens on loopback only); a closed tab's viewer is disconnected."""
     links = {"robonaut-a-day1": "shoulder_roll", "nao": "HeadYaw", "robonaut-a-day2": "shoulder_roll"}
     with desk_served(desk_data) as server:
-        one, two = (chromium.new_context(viewport={"width": 1300, "height": 900}) for _ in range(2))
+        one, two = (chromium.new_context(viewport=SIZE) for _ in range(2))
         sockets: list[str] = []
         pages = {}
         for context, session in ((one, "robonaut-a-day1"), (one, "nao"), (two, "robonaut-a-day2")):
@@ -229,7 +235,7 @@ def test_after_a_server_restart_the_page_shows_its_review_again(chromium, desk_d
     scene and loads its review (at its frame) into its new viewer."""
     number = free_port()
     with served(desk_data, port=number) as server:
-        page = open_page(chromium.new_context(viewport={"width": 1300, "height": 900}), server.url)
+        page = open_page(chromium, server.url, viewport=SIZE)
         open_session(page, "nao")
         step(page)
         frame = page.get_attribute("#frames tr.selected", "data-frame")

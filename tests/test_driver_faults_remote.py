@@ -101,7 +101,7 @@ def _replay_told(client: TestClient, robot: str, fault: str, sentence: str | Non
     error = job["error"]
     assert error.startswith("replay stopped at configuration 2 of 3: ") and error.endswith(KEPT), error
     assert re.fullmatch(sentence, error.removeprefix("replay stopped at configuration 2 of 3: ").removesuffix(KEPT))
-    assert [f["index"] for f in frames] == [1] and frames[0]["status"] == "measured"
+    assert [f["index"] for f in frames] == [1] and frames[0]["status"] == "measured", frames
 
 
 NAOQI = {
