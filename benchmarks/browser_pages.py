@@ -2,8 +2,8 @@
 
 The desk's page, opened `--pages` times in a chromium without a GPU process (the browser tests' `chromium_2d`), each
 time until it says it is ready, then closed: each page in a context of its own (the Browser's new_page), or as a tab
-of one context where a page of the same site (127.0.0.1, any port) stays open (tests/conftest.py `Tabs`, its
-KEEPER_URL): chromium's CPU seconds a page, both ways, alternating.
+of one context where a page of the same site (127.0.0.1, any port) stays open (tests/browser.py `kept_context`,
+as tests/conftest.py `Tabs` opens a test's first page): chromium's CPU seconds a page, both ways, alternating.
 
     .venv/bin/python benchmarks/browser_pages.py [--pages 5] [--rounds 2]
 """
@@ -11,7 +11,6 @@ KEEPER_URL): chromium's CPU seconds a page, both ways, alternating.
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -19,8 +18,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from idle_desk import _chromium_cpu_s  # benchmarks/ is this script's folder
-
-KEEPER_URL = "http://127.0.0.1:9/"
 
 
 def _ready(page, url: str):
@@ -36,16 +33,12 @@ def main() -> None:
     parser.add_argument("--pages", type=int, default=5)
     parser.add_argument("--rounds", type=int, default=2)
     args = parser.parse_args()
-    from browser import desk_served, launch
+    from browser import desk_served, kept_context, launch
     from playwright.sync_api import sync_playwright
 
-    folder = Path(tempfile.mkdtemp())
-    with desk_served(folder / "data") as server, sync_playwright() as pw:
+    with tempfile.TemporaryDirectory() as folder, desk_served(Path(folder) / "data") as server, sync_playwright() as pw:
         browser = launch(pw, webgl=False)
-        kept = browser.new_context()
-        keeper = kept.new_page()
-        keeper.route(KEEPER_URL, lambda route: route.fulfill(body="<!doctype html>", content_type="text/html"))
-        keeper.goto(KEEPER_URL)
+        kept = kept_context(browser)
         _ready(browser.new_page(), server.url).context.close()  # the server's and chromium's first, not counted
         for _ in range(args.rounds):
             for way, own in (("a context of its own", True), ("a tab of the kept context", False)):
@@ -56,7 +49,6 @@ def main() -> None:
                 cpu_s = (_chromium_cpu_s() - before) / args.pages
                 print(f"the desk's page in {way}: chromium {cpu_s:.2f} s of CPU a page")
         browser.close()
-    shutil.rmtree(folder, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -204,6 +204,24 @@ def launch(playwright, *, webgl: bool = True):
     )
 
 
+# A page of a context of its own starts a renderer process; a page of a context where a page of the same site stays
+# open does not (the site of http://127.0.0.1:<any port>/ is 127.0.0.1, where every desk of the tests is served): the
+# desk's page 0.47-0.64 s of chromium's CPU the one way, 0.20-0.29 s the other (benchmarks/browser_pages.py).
+KEEPER_URL = "http://127.0.0.1:9/"
+
+
+def kept_context(browser):
+    """A context of `browser` with a page kept open at KEEPER_URL (answered by the page's own route: nothing listens
+    there), so that chromium keeps 127.0.0.1's renderer process for the context's next pages."""
+    context = browser.new_context()
+    keeper = context.new_page()
+    keeper.route(
+        KEEPER_URL, lambda route: route.fulfill(body="<!doctype html><title>kept</title>", content_type="text/html")
+    )
+    keeper.goto(KEEPER_URL)
+    return context
+
+
 def ready_page(browser, url: str, width: int = 1500, height: int = 1000):
     """A page of the desk at `url` in a window of `width` x `height` px, once it says it is ready."""
     page = browser.new_page(viewport={"width": width, "height": height})

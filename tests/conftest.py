@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 import viser
-from browser import launch
+from browser import kept_context, launch
 from fastapi.testclient import TestClient
 from hypothesis import Phase, settings
 
@@ -187,29 +187,17 @@ def _playwright() -> Iterator[_Playwright]:
         pw.use()
 
 
-# A page of a context of its own (the Browser's new_page) starts a renderer process: 0.8 s of chromium's CPU a page
-# more than a tab of a context where a page of the same site stays open (the site of http://127.0.0.1:<any port>/ is
-# 127.0.0.1, where every desk of the tests is served). So a test's first page opens in one context the test process
-# keeps, beside a page kept at KEEPER_URL (answered by the page's own route: nothing listens there): the browser tests
-# of tests/test_browser.py, test_browser_review.py and test_browser_review2d.py took chromium 75 and 69 s of CPU, 57
-# and 56 s so (one after the other, alternating).
-KEEPER_URL = "http://127.0.0.1:9/"
-
-
+# A test's first page opens in one context the test process keeps (tests/browser.py kept_context): chromium keeps
+# 127.0.0.1's renderer process for it, where a page of a context of its own started one.
 @dataclass
 class _Chromium:
     browser: Browser
-    kept: BrowserContext  # the tests' tabs; its first page the keeper
+    kept: BrowserContext  # where a test opens its first page; its own first page the keeper
 
 
 def _launched(playwright: _Playwright, *, webgl: bool) -> Iterator[_Chromium]:
     browser = launch(playwright.use(), webgl=webgl)
-    kept = browser.new_context()
-    keeper = kept.new_page()
-    keeper.route(
-        KEEPER_URL, lambda route: route.fulfill(body="<!doctype html><title>kept</title>", content_type="text/html")
-    )
-    keeper.goto(KEEPER_URL)
+    kept = kept_context(browser)
     playwright.leave()
     yield _Chromium(browser, kept)
     playwright.use()
@@ -228,11 +216,11 @@ def _chromium_2d_process(_playwright: _Playwright) -> Iterator[_Chromium]:
 
 
 class Tabs:
-    """The browser of one test: `new_page` opens a page (the first a tab of the kept context, KEEPER_URL; the others
-    each a context of its own, a window of its own as the Browser's new_page gives it: a tab behind another gets no
-    animation frames, and its clicks waited for them), `new_context` a context of the test's own. `scene=False`: the
-    pages get an empty page in the 3-D view's iframe (the desk's /scene/ paths): the page's API calls, 2-D view and
-    controls work as ever, the scene's viewer simply has no browser."""
+    """The browser of one test: `new_page` opens a page (the first a tab of the kept context, tests/browser.py
+    kept_context; the others each a context of its own, a window of its own as the Browser's new_page gives it: a tab
+    behind another gets no animation frames, and its clicks waited for them), `new_context` a context of the test's
+    own. `scene=False`: the pages get an empty page in the 3-D view's iframe (the desk's /scene/ paths): the page's API
+    calls, 2-D view and controls work as ever, the scene's viewer simply has no browser."""
 
     def __init__(self, chromium: _Chromium, *, scene: bool = True) -> None:
         self.browser, self.kept, self.scene = chromium.browser, chromium.kept, scene
