@@ -184,7 +184,7 @@ class Watcher:
         self.link = Link(f"watcher_{os.getpid()}")
         node = self.link.node
         self._commands = node.create_subscription(JointTrajectory, self.command, self._on_command, COMMAND_QOS)
-        node.create_subscription(JointState, "/joint_states", self._on_joints, SENSOR_QOS)
+        self.link.listen(JointState, "/joint_states", SENSOR_QOS, self._on_joints)
         node.create_subscription(String, "/robot_description", self._on_description, LATCHED_QOS)
         return self
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -208,9 +209,9 @@ class SimNode:
         self._description = node.create_publisher(String, topics.description, LATCHED_QOS)
         self._joints = node.create_publisher(JointState, topics.joint_states, 10)
         self._string, self._joint_state = String, JointState
-        # The commands in a group of their own (the joint states come from a thread of their own: `_ticks`): a
-        # parameter call that stalls (the default group's services) or a render (the sensor's group) does not hold
-        # them up.
+        # The commands in a group of their own (the joint states and a point sensor's measurements come from threads
+        # of their own: `_every`): a parameter call that stalls (the default group's services) or a render (the
+        # sensor's group) does not hold them up.
         motion = MutuallyExclusiveCallbackGroup()
         node.create_subscription(
             JointTrajectory, topics.command, self._on_trajectory, COMMAND_QOS, callback_group=motion
@@ -264,11 +265,14 @@ class SimNode:
         else:
             self._point = node.create_publisher(PointStamped, measurement["topic"], 10)
             self._point_type = PointStamped
-            node.create_timer(1.0 / POINT_HZ, self._publish_point, callback_group=sensing)
+        self._threads = [threading.Thread(target=self._every, args=(1.0 / rate_hz, self._tick), name="joint-states")]
+        if self.kind == "point":
+            self._threads.append(threading.Thread(target=self._every, args=(1.0 / POINT_HZ, self._publish_point)))
         self._frame = sensor.name
         self._rendered: tuple[np.ndarray, list[np.ndarray]] | None = None  # (the pose, its images)
-        self._ticking = threading.Thread(target=self._ticks, args=(1.0 / rate_hz,), name="joint-states", daemon=True)
-        self._ticking.start()
+        for thread in self._threads:
+            thread.daemon = True
+            thread.start()
 
     # --- commands ---------------------------------------------------------------------------------------
     def _on_trajectory(self, msg: Any) -> None:
@@ -330,13 +334,14 @@ class SimNode:
             self._q, self._plan = self._position(min(now, self._silent_at)), None
         return True
 
-    def _ticks(self, period_s: float) -> None:
-        """The joint states every `period_s`, from a thread of their own until close(): a timer of rclpy's executor
-        took 1.2 ms of CPU to call a tick of 0.04 ms (NAO at 100 Hz: 13% of a core, 2% at 10 Hz). A tick late (a
-        hang, a loaded machine) is followed by the next one's period, not by a burst."""
+    def _every(self, period_s: float, tick: Callable[[], None]) -> None:
+        """tick() every `period_s` (the joint states, a point sensor's measurement), from a thread of its own until
+        close(): a timer of rclpy's executor took 1.2 ms of CPU to call a tick of 0.04 ms (NAO's joint states at
+        100 Hz: 13% of a core, 2% at 10 Hz). A tick late (a hang, a loaded machine) is followed by the next one's
+        period, not by a burst."""
         due = time.monotonic()
         while not self._closing.is_set():
-            self._tick()
+            tick()
             due, now = due + period_s, time.monotonic()
             if due < now:
                 due = now + period_s
@@ -414,5 +419,6 @@ class SimNode:
     def close(self) -> None:
         self._closing.set()
         self.faults.arm(None)  # a hung callback ends
-        self._ticking.join(timeout=5.0)  # its last joint states published before the node goes
+        for thread in self._threads:
+            thread.join(timeout=5.0)  # its last joint states and points published before the node goes
         self.link.close()
