@@ -43,21 +43,33 @@ class Sampler:
         return self.uniform(n or 100, stop)
 
     def uniform(self, n: int, stop: Callable[[], bool] = lambda: False) -> tuple[np.ndarray, np.ndarray]:
-        """`n` configurations drawn uniformly inside the joint limits whose data-format target is in view."""
+        """`n` configurations drawn uniformly inside the joint limits whose data-format target is in view: batches of
+        max(4 n, 64) until one brings those found to n. Where few are in view (a wrist camera sees its board in 2 of
+        1000 draws of the hand-eye arm) the batches are drawn and checked 1, 2, 4 ... at a time, each call of `sees`
+        costing far more than its rows; the random stream is then put back after the batch that found enough, so
+        that the draws and what the stream gives next are those of one batch at a time."""
         prof = self.view.profile
         lo, hi = prof.joint_limits()
         target = prof.data.target if prof.data.target is not None else 0
+        size = max(4 * n, 64)  # a batch: drawn until one brings the configurations found to n, at most 200
         found: list[np.ndarray] = []
         drawn: list[np.ndarray] = []
-        for _ in range(200):
+        done, ahead = 0, 1
+        while done < 200 and len(found) < n:
             if stop():
                 raise Cancelled("the draw was cancelled")
-            q = self.rng.uniform(lo, hi, (max(4 * n, 64), len(lo)))
-            drawn.append(q)
+            k = min(ahead, 200 - done)
+            state = self.rng.bit_generator.state
+            q = self.rng.uniform(lo, hi, (k * size, len(lo)))
             ok = self.view.sees(q, np.full(len(q), target))
-            found += list(q[ok])
-            if len(found) >= n:
-                break
+            reached = np.flatnonzero(len(found) + np.cumsum(ok.reshape(k, size).sum(axis=1)) >= n)
+            used = k if not len(reached) else int(reached[0]) + 1
+            if used < k:  # the stream goes on after the batch that found enough, as if drawn one at a time
+                self.rng.bit_generator.state = state
+                self.rng.uniform(lo, hi, (used * size, len(lo)))
+            drawn.append(q[: used * size])
+            found += list(q[: used * size][ok[: used * size]])
+            done, ahead = done + used, 2 * ahead
         if len(found) < n:
             raise InputError(
                 f"found only {len(found)} visible configurations of the {n} asked: ask for fewer"
