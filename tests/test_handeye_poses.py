@@ -5,6 +5,7 @@ rendered the images; each kind of bad input a sentence naming the file, the line
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 from pathlib import Path
@@ -46,6 +47,14 @@ def _charuco(cols: int, rows: int, square_m: float, marker_m: float) -> tuple[np
     return tex, np.array([[s, 0, -margin * s], [0, s, -margin * s], [0, 0, 1]])
 
 
+@functools.cache
+def _lens_map() -> np.ndarray:
+    """Where each pixel of the image through the lens comes from in the undistorted one (SIZE[1], SIZE[0], 2): the
+    same for every image (undistorting every pixel took most of a render)."""
+    u, v = np.meshgrid(np.arange(SIZE[0], dtype=np.float32), np.arange(SIZE[1], dtype=np.float32))
+    return cv2.undistortPoints(np.stack([u.ravel(), v.ravel()], 1)[:, None], K, DIST, P=K).reshape(SIZE[1], SIZE[0], 2)
+
+
 def _render(C: np.ndarray, rng: np.random.Generator, board: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The board (`board`: its texture and the map of its px to its frame; default the chessboard) seen at pose C
     in the camera, through the lens."""
@@ -53,8 +62,7 @@ def _render(C: np.ndarray, rng: np.random.Generator, board: tuple[np.ndarray, np
     # Undistorted rendering, then distortion applied by remapping every image pixel through the lens model.
     H = K @ np.column_stack([C[:3, 0], C[:3, 1], C[:3, 3]]) @ A
     ideal = cv2.warpPerspective(tex, H, SIZE, flags=cv2.INTER_AREA, borderValue=200)
-    u, v = np.meshgrid(np.arange(SIZE[0], dtype=np.float32), np.arange(SIZE[1], dtype=np.float32))
-    pts = cv2.undistortPoints(np.stack([u.ravel(), v.ravel()], 1)[:, None], K, DIST, P=K).reshape(SIZE[1], SIZE[0], 2)
+    pts = _lens_map()
     image = cv2.remap(ideal, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR, borderValue=200)
     image = cv2.GaussianBlur(image, (0, 0), 0.8).astype(float) + rng.normal(0, 2.0, image.shape)
     return np.clip(image, 0, 255).astype(np.uint8)
