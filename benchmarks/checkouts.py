@@ -4,9 +4,13 @@ its own with one BLAS thread."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -24,6 +28,13 @@ def checkouts(against: str | None, tmp: Path) -> dict[str, Path]:
     return trees
 
 
+@contextmanager
+def compared(against: str | None) -> Iterator[dict[str, Path]]:
+    """`checkouts` in a temporary folder of their own, removed after the block."""
+    with tempfile.TemporaryDirectory() as tmp:
+        yield checkouts(against, Path(tmp))
+
+
 def run_in(tree: Path, code: str, *args: str) -> dict:
     """The JSON that `code` prints, run with `args` by Python in `tree` (its calib_core and app)."""
     done = subprocess.run(
@@ -35,3 +46,20 @@ def run_in(tree: Path, code: str, *args: str) -> dict:
         check=True,
     )
     return json.loads(done.stdout)
+
+
+def against_parser(doc: str) -> argparse.ArgumentParser:
+    """A benchmark's options (its description the doc's first line), with --against."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--against", help="an earlier commit to measure beside this checkout")
+    return ap
+
+
+def alternating(trees: dict[str, Path], runs: int, code: str, *args: str) -> dict[str, list[dict]]:
+    """Each checkout's `run_in` results, `runs` times, one checkout after the other, alternating, so that both see
+    the same load; an argument "{tree}" is the checkout's folder."""
+    got: dict[str, list[dict]] = {name: [] for name in trees}
+    for _ in range(runs):
+        for name, tree in trees.items():
+            got[name].append(run_in(tree, code, *(str(tree) if a == "{tree}" else a for a in args)))
+    return got

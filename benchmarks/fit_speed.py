@@ -14,12 +14,9 @@ position in the flange.
 
 from __future__ import annotations
 
-import argparse
 import statistics
-import tempfile
-from pathlib import Path
 
-from checkouts import checkouts, run_in
+from checkouts import against_parser, alternating, compared
 
 ROBOTS = ("talos", "tiago", "ur10e-pose")
 
@@ -62,18 +59,13 @@ print(json.dumps({"cpu": cpu, "t": [round(X[k][3], 3) for k in range(3)]}))
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = against_parser(__doc__)
     ap.add_argument("--splits", type=int, default=3)
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--against", help="an earlier commit to measure beside this checkout")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        trees = checkouts(args.against, Path(tmp))
+    with compared(args.against) as trees:
         for robot in ROBOTS:
-            got: dict[str, list[dict]] = {name: [] for name in trees}
-            for _ in range(args.runs):
-                for name, tree in trees.items():
-                    got[name].append(run_in(tree, AUTO, str(tree), robot, str(args.splits)))
+            got = alternating(trees, args.runs, AUTO, "{tree}", robot, str(args.splits))
             for name, runs in got.items():
                 print(
                     f"auto {robot:10s} {name:14s} {statistics.median(r['cpu'] for r in runs):6.2f} s CPU for "
@@ -84,10 +76,7 @@ def main() -> None:
                 a, b = (runs[0] for runs in got.values())
                 print(f"auto {robot:10s} same choices: {a['chosen'] == b['chosen']}, held out differs by "
                       f"{abs(a['mm'] - b['mm']) * 1000:.2f} um")  # fmt: skip
-        got = {name: [] for name in trees}
-        for _ in range(args.runs):
-            for name, tree in trees.items():
-                got[name].append(run_in(tree, HANDEYE, str(tree)))
+        got = alternating(trees, args.runs, HANDEYE, "{tree}")
         for name, runs in got.items():
             print(
                 f"calib handeye (ViSP) {name:14s} {statistics.median(r['cpu'] for r in runs):6.2f} s CPU, camera "

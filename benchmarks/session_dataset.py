@@ -9,11 +9,7 @@ each one `--reads` times; printed per session: its observations and the mean CPU
 
 from __future__ import annotations
 
-import argparse
-import tempfile
-from pathlib import Path
-
-from checkouts import checkouts, run_in
+from checkouts import against_parser, alternating, compared
 
 READ = """
 import json, sys, tempfile, time
@@ -34,13 +30,11 @@ print(json.dumps(out))
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = against_parser(__doc__)
     ap.add_argument("--reads", type=int, default=5)
-    ap.add_argument("--against", help="an earlier commit to measure beside this checkout")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        trees = checkouts(args.against, Path(tmp))
-        got = {name: run_in(tree, READ, str(tree), str(args.reads)) for name, tree in trees.items()}
+    with compared(args.against) as trees:
+        got = {name: runs[0] for name, runs in alternating(trees, 1, READ, "{tree}", str(args.reads)).items()}
     for session in next(iter(got.values())):
         print(f"{session:20s} " + "  ".join(f"{name}: {g[session][1]:6.1f} ms" for name, g in got.items()),
               f"({got['this checkout'][session][0]} observations)")  # fmt: skip

@@ -12,14 +12,13 @@ difference between the checkouts in standard deviations.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from checkouts import checkouts, run_in
+from checkouts import against_parser, checkouts, run_in
 
 ROBOTS = (("nao", "full"), ("robonaut-a", "full"))
 
@@ -40,9 +39,8 @@ print(json.dumps({"times": times, "values": {p.name: [p.value, p.std] for p in c
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = against_parser(__doc__)
     ap.add_argument("--runs", type=int, default=15)
-    ap.add_argument("--against", help="an earlier commit to measure beside this checkout")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         trees = checkouts(args.against, Path(tmp))

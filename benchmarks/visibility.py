@@ -12,12 +12,9 @@ messages and of the stream's next numbers).
 
 from __future__ import annotations
 
-import argparse
 import statistics
-import tempfile
-from pathlib import Path
 
-from checkouts import checkouts, run_in
+from checkouts import against_parser, alternating, compared
 
 DRAW = """
 import hashlib, json, sys, time
@@ -48,18 +45,13 @@ print(json.dumps({"cpu": cpu, "digest": digest.hexdigest()[:16]}))
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = against_parser(__doc__)
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--against", help="an earlier commit to measure beside this checkout")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        trees = checkouts(args.against, Path(tmp))
+    with compared(args.against) as trees:
         for robot in ("robonaut-a", "nao", "motoman", "arm-handeye"):
-            got: dict[str, list[dict]] = {name: [] for name in trees}
-            for _ in range(args.runs):
-                for name, tree in trees.items():
-                    got[name].append(run_in(tree, DRAW, robot, str(args.seeds)))
+            got = alternating(trees, args.runs, DRAW, robot, str(args.seeds))
             for name, runs in got.items():
                 cpu = statistics.median(r["cpu"] for r in runs)
                 print(f"{robot:12s} {name:14s} {cpu:6.2f} s CPU, draws {runs[0]['digest']}", flush=True)
