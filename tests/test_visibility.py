@@ -50,3 +50,47 @@ def test_points_beyond_a_target_s_own_are_not_seen() -> None:
     ok = view.points(q, targets, mm.sensors.index(next(s for s in mm.sensors if s.name == "tracker")))
     assert ok.shape == (2, 20)
     assert ok[0, 0] and not ok[0, 1:].any() and ok[1].all()
+
+
+def test_a_board_is_seen_whole_exactly_where_its_every_point_is_checked(monkeypatch) -> None:
+    """`sees` checks a board at its outline first (`Visibility.outline`): on 4000 uniform draws of the hand-eye arm
+    (its wrist camera sees its board in a few of them) and of NAO, the same answers as checking every point of
+    every draw, and a draw whose outline is out of view is one `points` does not see whole."""
+    import calib_core.vision.visibility as visibility
+
+    for name in ("arm-handeye", "nao"):
+        profile = load_profile(name)
+        view = Visibility(profile, profile.true_params())
+        lo, hi = profile.joint_limits()
+        q = np.random.default_rng(7).uniform(lo, hi, (4000, len(lo)))
+        targets = np.arange(4000) % len(profile.targets)
+        seen = view.sees(q, targets)
+        outline = view.outline(q, targets)
+        assert not (seen & ~outline).any() and outline.sum() < 4000  # the outline does rule draws out
+        with monkeypatch.context() as m:
+            m.setattr(visibility, "OUTLINE_POINTS", 10**9)  # every point of every draw
+            assert view.outline(q, targets).all()
+            assert np.array_equal(view.sees(q, targets), seen), name
+        assert not view.points(q[~outline], targets[~outline]).all(axis=1).any()
+
+
+def test_draws_checked_ahead_are_those_of_one_batch_at_a_time(monkeypatch) -> None:
+    """`Sampler.uniform` checks several batches of draws at once where few are in view, and puts the random stream
+    back after the batch that found enough: the same configurations, and the same numbers from the stream after
+    them, as drawing one batch at a time."""
+    import calib_core.vision.sampling as sampling
+
+    profile = load_profile("arm-handeye")
+    view = Visibility(profile, profile.true_params())
+
+    def draw(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        rng = np.random.default_rng(seed)
+        q, _ = Sampler(view, rng).uniform(n)
+        return q, rng.random(4)
+
+    for seed, n in ((0, 1), (1, 8), (2, 20)):
+        ahead = draw(seed, n)
+        with monkeypatch.context() as m:
+            m.setattr(sampling, "AHEAD_ROWS", 1)  # one batch at a time
+            alone = draw(seed, n)
+        assert np.array_equal(ahead[0], alone[0]) and np.array_equal(ahead[1], alone[1]), (seed, n)

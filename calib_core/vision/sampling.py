@@ -19,6 +19,7 @@ from ..model.kinematics import forward, sensor_points, target_points, to_sensor
 from .visibility import Visibility
 
 STANCE_BATCH = 32  # stances drawn and checked at once
+AHEAD_ROWS = 4096  # `Sampler.uniform` checks at most so many draws at once (its batches of up to 64 draws 64 at a time)
 AIM_STEPS = 121  # the head angles a stance is aimed from (`Sampler._aim`)
 AIM_COARSE = 10  # every so many of them tried first
 
@@ -45,9 +46,10 @@ class Sampler:
     def uniform(self, n: int, stop: Callable[[], bool] = lambda: False) -> tuple[np.ndarray, np.ndarray]:
         """`n` configurations drawn uniformly inside the joint limits whose data-format target is in view: batches of
         max(4 n, 64) until one brings those found to n. Where few are in view (a wrist camera sees its board in 2 of
-        1000 draws of the hand-eye arm) the batches are drawn and checked 1, 2, 4 ... at a time, each call of `sees`
-        costing far more than its rows; the random stream is then put back after the batch that found enough, so
-        that the draws and what the stream gives next are those of one batch at a time."""
+        1000 draws of the hand-eye arm) the batches are drawn and checked 1, 2, 4 ... at a time (at most AHEAD_ROWS
+        draws), each call of `sees` costing far more than its rows; the random stream is then put back after the
+        batch that found enough, so that the draws and what the stream gives next are those of one batch at a
+        time."""
         prof = self.view.profile
         lo, hi = prof.joint_limits()
         target = prof.data.target if prof.data.target is not None else 0
@@ -58,7 +60,7 @@ class Sampler:
         while done < 200 and len(found) < n:
             if stop():
                 raise Cancelled("the draw was cancelled")
-            k = min(ahead, 200 - done)
+            k = min(ahead, 200 - done, max(1, AHEAD_ROWS // size))
             state = self.rng.bit_generator.state
             q = self.rng.uniform(lo, hi, (k * size, len(lo)))
             ok = self.view.sees(q, np.full(len(q), target))

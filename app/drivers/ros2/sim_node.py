@@ -267,7 +267,9 @@ class SimNode:
             self._point_type = PointStamped
         self._threads = [threading.Thread(target=self._every, args=(1.0 / rate_hz, self._tick), name="joint-states")]
         if self.kind == "point":
-            self._threads.append(threading.Thread(target=self._every, args=(1.0 / POINT_HZ, self._publish_point)))
+            self._threads.append(
+                threading.Thread(target=self._every, args=(1.0 / POINT_HZ, self._publish_point), name="points")
+            )
         self._frame = sensor.name
         self._rendered: tuple[np.ndarray, list[np.ndarray]] | None = None  # (the pose, its images)
         for thread in self._threads:
