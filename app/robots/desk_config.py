@@ -69,7 +69,8 @@ def default_config() -> DeskConfig:
 @functools.cache
 def _simulable(name: str) -> bool:
     """Whether the built-in profile `name` can be simulated: the same answer for as long as the process runs (the
-    profile is the package's), asked once rather than at every desk's start (loading the four took 27 ms)."""
+    profile is the package's), asked once rather than at every desk's start (asking loads
+    the profile)."""
     return can_simulate(instance_profile(name, name, Path()))
 
 
