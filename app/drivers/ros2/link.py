@@ -111,7 +111,8 @@ class Link:
                 raise
 
     def _listen(self) -> None:
-        """The listening thread: waits on the listened subscriptions and takes every message that came."""
+        """The listening thread: waits on the listened subscriptions and takes every message that came. The wait set
+        is rclpy's own (rclpy.impl), as its executors use it: rclpy 9 wraps it in nothing public."""
         count, wait_set = -1, None
         while not self._closed:
             with self._lock:
