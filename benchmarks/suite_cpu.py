@@ -71,7 +71,8 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         _lines = open(Path(os.environ[OUT]) / f"{os.getpid()}.jsonl", "a", encoding="utf-8")  # noqa: SIM115
     cpu, wall, busy = _tree_cpu(), time.perf_counter(), _busy()
     yield
-    _lines.write(json.dumps([item.nodeid, _tree_cpu() - cpu, time.perf_counter() - wall, _busy() - busy]) + "\n")
+    row = [item.nodeid, _tree_cpu() - cpu, time.perf_counter() - wall, _busy() - busy]
+    _lines.write(json.dumps([*row, os.environ.get("PYTEST_XDIST_WORKER", "gw0"), time.time() - row[2]]) + "\n")
     _lines.flush()
 
 
@@ -79,6 +80,12 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--top", type=int, default=20, help="modules and tests listed")
+    ap.add_argument(
+        "--rows",
+        type=Path,
+        help="also write each test's figures here (JSON: node id, CPU s, wall s, "
+        "the machine's busy core-s, worker, start in s since the run's start)",
+    )
     ap.add_argument("pytest_args", nargs="*", help="after --: pytest's arguments (default: the whole suite)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as out:
@@ -91,7 +98,7 @@ def main() -> None:
         }
         plugins = ["-p", "suite_cpu", "-p", "xdist.plugin", "-p", "_hypothesis_pytestplugin"]
         plugins += ["-p", "schemathesis.pytest.plugin", "-n", "2", "--dist", "loadfile", "--no-loadscope-reorder"]
-        start, busy = time.perf_counter(), _busy()
+        start, busy, epoch = time.perf_counter(), _busy(), time.time()
         done = subprocess.run(
             [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *plugins, *args.pytest_args],
             cwd=ROOT,
@@ -101,18 +108,20 @@ def main() -> None:
         )
         wall, busy = time.perf_counter() - start, _busy() - busy
         rows = [json.loads(line) for f in Path(out).glob("*.jsonl") for line in f.read_text().splitlines()]
+    if args.rows:
+        args.rows.write_text(json.dumps([[*r[:5], round(r[5] - epoch, 3)] for r in rows], indent=0), encoding="utf-8")
     summary = done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr[-500:]
     print(f"{summary}\nthe run {wall:.1f} s; the tests' CPU {sum(r[1] for r in rows):.1f} s; the machine busy "
           f"{busy:.0f} core-s, idle {2 * wall - busy:.0f} core-s of its two cores")  # fmt: skip
     modules: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0.0])
-    for nodeid, cpu, test_wall, test_busy in rows:
+    for nodeid, cpu, test_wall, test_busy, *_ in rows:
         m = modules[nodeid.split("::")[0]]
         m[0], m[1], m[2] = m[0] + cpu, m[1] + test_wall, m[2] + max(0.0, 2 * test_wall - test_busy)
     print(f"\n{'CPU s':>7} {'wall s':>7} {'idle':>6}  module")
     for name, (cpu, test_wall, idle) in sorted(modules.items(), key=lambda kv: -kv[1][0])[: args.top]:
         print(f"{cpu:7.1f} {test_wall:7.1f} {idle:6.1f}  {name}")
     print(f"\n{'idle':>6} {'CPU s':>7} {'wall s':>7}  test")
-    for nodeid, cpu, test_wall, test_busy in sorted(rows, key=lambda r: r[3] - 2 * r[2])[: args.top]:
+    for nodeid, cpu, test_wall, test_busy, *_ in sorted(rows, key=lambda r: r[3] - 2 * r[2])[: args.top]:
         print(f"{2 * test_wall - test_busy:6.1f} {cpu:7.1f} {test_wall:7.1f}  {nodeid}")
     sys.exit(0 if done.returncode == 0 else done.returncode)
 

@@ -30,10 +30,13 @@ CHROMIUM_ARGS = [
 ]
 # WebGL without a GPU: Mesa's llvmpipe through EGL where Debian's Mesa is installed (scripts/test.sh installs it),
 # else chromium's own SwiftShader. Opening a review's scene cost SwiftShader 5-6 s of CPU (compiling the
-# scene's shaders), llvmpipe 2 s; the browser tests' time fell by a sixth.
+# scene's shaders), llvmpipe 2 s; the browser tests' time fell by a sixth. With llvmpipe the page is composited
+# in software (the 3-D view's canvas still drawn by the GPU process): llvmpipe compositing each page cost more than it
+# saves (benchmarks/scene_open.py --gpu-compositing; the WebGL browser tests' chromium 62-66 -> 51 s of CPU).
 MESA_EGL = Path("/usr/share/glvnd/egl_vendor.d/50_mesa.json")
+SOFTWARE_COMPOSITING = "--disable-gpu-compositing"
 WEBGL_ARGS = (
-    ["--use-gl=angle", "--use-angle=gl-egl", "--ignore-gpu-blocklist"]
+    ["--use-gl=angle", "--use-angle=gl-egl", "--ignore-gpu-blocklist", SOFTWARE_COMPOSITING]
     if MESA_EGL.exists()
     else ["--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
 )
