@@ -31,7 +31,7 @@ LEGS = [
     for j in ("HipYawPitch", "HipRoll", "HipPitch", "KneePitch", "AnklePitch", "AnkleRoll")
 ]
 PITCH = ("HipPitch", "KneePitch", "AnklePitch")
-SPEED = "8"  # the simulated NAO moves 8 times as fast as asked: the velocity limits are checked on what was asked
+SPEED = "16"  # the simulated NAO moves 16 times as fast as asked: the velocity limits are checked on what was asked
 
 
 def truth_deg() -> dict[str, float]:
@@ -244,6 +244,8 @@ def desk(tmp_path_factory):
         ["--url", url, "--speed", SPEED, "--name", "nao-3", "--connection-out", str(conn)], {}, command="sim-naoqi"
     )
     sim.start()
+    with conn.open("a", encoding="utf-8") as options:  # a look waits for the camera's next image: 30 a second
+        options.write("fps: 30\n")
     try:
         with served(folder / "data", timeout_s=90.0, command=calib(), extra=("--naoqi", str(conn))) as server:
             yield server, sim, url
