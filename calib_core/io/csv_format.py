@@ -345,30 +345,38 @@ def to_csv(profile: Profile, data: Dataset, extra: dict[str, np.ndarray] | None 
     extra = extra or {}
     header = [c for c in (fmt.frame_column, fmt.target_column, fmt.sensor_column, fmt.vertex_column) if c]
     header += [*(c for g in groups for c in g.columns), *(fmt.point_columns or ()), *fmt.joint_columns.values(), *extra]
-    values = measurement_values(profile, data.measured[:, : profile.sensors[fmt.sensor].dim])
+    values = _texts(measurement_values(profile, data.measured[:, : profile.sensors[fmt.sensor].dim]))
     tnames = {v: k for k, v in fmt.target_values.items()}
+    # A configuration's joint columns are the same in each of its rows (NAO's 24 corners a stance): written once.
+    joints = [profile.joint(name) for name in fmt.joint_columns]
+    readings = data.joints[:, joints] / np.array([joint_factor[j] for j in joints])
+    joint_texts = _texts(np.where(np.isfinite(readings), readings, 0.0))
+    points = _texts(data.point * point_factor) if fmt.point_columns else None
+    extras = [_texts(v) for v in extra.values()]
+    blanks = [[""] * len(g.columns) for g in groups]
+    group_of: dict[tuple[int, int, int], int] = {}
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(header)
     for m in range(data.n_observations):
         c = data.cfg[m]
-        g = _group_of(profile, groups, int(data.target[m]), int(data.sensor[m]), int(data.vertex[m]))
+        key = (int(data.target[m]), int(data.sensor[m]), int(data.vertex[m]))
+        g = group_of.get(key)
+        if g is None:
+            g = group_of[key] = _group_of(profile, groups, *key)
         row: list[object] = [int(data.frame_ids[c])] if fmt.frame_column else []
         if fmt.target_column:  # read with every row: a marker with a target of its own takes any valid one
-            row.append(tnames.get(int(data.target[m]), next(iter(tnames), "")))
+            row.append(tnames.get(key[0], next(iter(tnames), "")))
         if fmt.sensor_column:
-            row.append(names.get(int(data.sensor[m]), next(iter(names.values()))))
+            row.append(names.get(key[1], next(iter(names.values()))))
         if fmt.vertex_column:
-            row.append(int(data.vertex[m]))
+            row.append(key[2])
         for k in range(len(groups)):
-            row += [_fmt(v) for v in values[m]] if k == g else [""] * len(groups[k].columns)
-        if fmt.point_columns:
-            row += [_fmt(v * point_factor) for v in data.point[m]]
-        for jname in fmt.joint_columns:
-            j = profile.joint(jname)
-            v = data.joints[c, j]
-            row.append(_fmt(v / joint_factor[j]) if np.isfinite(v) else "0")
-        row += [_fmt(v[m]) for v in extra.values()]
+            row += values[m] if k == g else blanks[k]
+        if points is not None:
+            row += points[m]
+        row += joint_texts[c]
+        row += [texts[m] for texts in extras]
         w.writerow(row)
     return out.getvalue()
 
@@ -403,6 +411,15 @@ def _group_of(profile: Profile, groups: list[Marker], target: int, sensor: int, 
 
 def _fmt(v: float) -> str:
     return f"{v:.6f}".rstrip("0").rstrip(".") if v != 0 else "0"
+
+
+def _texts(values: np.ndarray) -> list:
+    """`_fmt` of every value of an array, nested as the array is (a list of lists for rows): one Python loop over
+    plain floats, not a call a value."""
+    values = np.asarray(values, float)
+    if values.ndim > 1:
+        return [_texts(row) for row in values]
+    return [f"{v:.6f}".rstrip("0").rstrip(".") if v != 0 else "0" for v in values.tolist()]
 
 
 def plan_csv(profile: Profile, q: np.ndarray, targets: np.ndarray) -> str:
