@@ -1,7 +1,7 @@
 """Where the test suite's time goes: each test's CPU (its process and every process under it: the desks, `calib`
 commands, chromium, the job workers) and wall time, and how busy the machine was meanwhile, by module.
 
-    .venv/bin/python benchmarks/suite_cpu.py [--top 20] [-- PYTEST ARGS]
+    .venv/bin/python benchmarks/suite_cpu.py [--top 20] [--rows FILE] [-- PYTEST ARGS]
 
 Runs the suite as scripts/test.sh does (two xdist workers, modules whole, one BLAS thread; PYTEST ARGS, e.g. a
 few test files, instead of all of it), with a plugin (this file, loaded by pytest in each worker) that reads
