@@ -414,12 +414,12 @@ def _fmt(v: float) -> str:
 
 
 def _texts(values: np.ndarray) -> list:
-    """`_fmt` of every value of an array, nested as the array is (a list of lists for rows): one Python loop over
-    plain floats, not a call a value."""
+    """`_fmt` of every value of an array, nested as the array is (a list of lists for rows), of plain floats (a
+    NumPy scalar formats several times slower)."""
     values = np.asarray(values, float)
     if values.ndim > 1:
         return [_texts(row) for row in values]
-    return [f"{v:.6f}".rstrip("0").rstrip(".") if v != 0 else "0" for v in values.tolist()]
+    return [_fmt(v) for v in values.tolist()]
 
 
 def plan_csv(profile: Profile, q: np.ndarray, targets: np.ndarray) -> str:
