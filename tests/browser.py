@@ -32,7 +32,8 @@ CHROMIUM_ARGS = [
 # else chromium's own SwiftShader. Opening a review's scene cost SwiftShader 5-6 s of CPU (compiling the
 # scene's shaders), llvmpipe 2 s; the browser tests' time fell by a sixth. With llvmpipe the page is composited
 # in software (the 3-D view's canvas still drawn by the GPU process): llvmpipe compositing each page cost more than it
-# saves (benchmarks/scene_open.py --gpu-compositing; the WebGL browser tests' chromium 93-95 -> 75-77 s of CPU).
+# saves (benchmarks/scene_open.py --gpu-compositing; over the WebGL browser tests, a throwaway sampler's
+# figures: chromium 93-95 -> 75-77 s of CPU).
 MESA_EGL = Path("/usr/share/glvnd/egl_vendor.d/50_mesa.json")
 SOFTWARE_COMPOSITING = "--disable-gpu-compositing"
 WEBGL_ARGS = (
